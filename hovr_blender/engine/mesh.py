@@ -1,0 +1,125 @@
+"""The element container every importer produces and every renderer path consumes.
+
+Struct-of-arrays so it uploads to Warp unchanged. One row per element:
+- ``shape``: element shape id (HEX for now; prisms, tets, pyramids share the container);
+- geometry: the 8 vertices (local numbering of spec/formats.md §2.8) and, for affine
+  elements, the exact world->reference map xi = A x + b (the traversal's fast path);
+- field: per-direction mode counts, basis id, offset into one flat coefficient array.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .basis import MAX_MODES, MODIFIED_A, eval_tensor
+
+HEX = 0
+SHAPE_NAMES = {HEX: "hexahedron"}
+
+# Hex reference vertices (§2.8): 0(-1,-1,-1) 1(1,-1,-1) 2(1,1,-1) 3(-1,1,-1) 4..7 at xi3 = +1.
+HEX_REF_VERTICES = np.array(
+    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64
+)
+
+
+class MeshError(ValueError):
+    """An element the renderer cannot represent (degenerate, non-affine, bad order, NaN)."""
+
+
+def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9):
+    """(A, b, J, x0) with xi = A x + b for a parallelepiped hex; MeshError if not affine."""
+    v = np.asarray(v, dtype=np.float64)
+    if not np.all(np.isfinite(v)):
+        raise MeshError(f"element {element}: vertex coordinates are not finite")
+    x0 = v.mean(axis=0)
+    J = 0.5 * np.stack([v[1] - v[0], v[3] - v[0], v[4] - v[0]], axis=1)  # columns dx/dxi_k
+    mapped = x0 + HEX_REF_VERTICES @ J.T
+    scale = max(np.abs(v - x0).max(), 1e-300)
+    if np.abs(mapped - v).max() > rtol * scale * 1e3:
+        raise MeshError(
+            f"element {element}: hexahedron is not a parallelepiped (trilinear and curved "
+            "geometry arrive with the element issue)"
+        )
+    det = np.linalg.det(J)
+    if not np.isfinite(det) or abs(det) <= 1e-12 * scale**3:
+        raise MeshError(f"element {element}: degenerate hexahedron (Jacobian determinant {det:.3g})")
+    if det < 0:
+        raise MeshError(f"element {element}: inverted hexahedron (negative Jacobian)")
+    A = np.linalg.inv(J)
+    return A, -A @ x0, J, x0
+
+
+@dataclass
+class VolumeMesh:
+    shape: np.ndarray  # (N,) int32
+    vertices: np.ndarray  # (N, 8, 3) float64
+    ref_from_world: np.ndarray  # (N, 3, 4) float64: xi = M[:, :3] x + M[:, 3]
+    modes: np.ndarray  # (N, 3) int32
+    basis: np.ndarray  # (N,) int32
+    coeff_offset: np.ndarray  # (N,) int64
+    coeffs: np.ndarray  # (M,) float64
+    field_name: str = "f"
+    source: str = ""
+
+    def __post_init__(self):
+        n = self.shape.shape[0]
+        if n == 0:
+            raise MeshError("the mesh has no elements")
+        if np.any(self.modes < 1) or np.any(self.modes > MAX_MODES):
+            bad = int(np.argwhere((self.modes < 1) | (self.modes > MAX_MODES))[0][0])
+            raise MeshError(f"element {bad}: {self.modes[bad].tolist()} modes; 1..{MAX_MODES} per direction are supported")
+        if not np.all(np.isfinite(self.coeffs)):
+            bad = int(np.searchsorted(self.coeff_offset, np.argwhere(~np.isfinite(self.coeffs))[0][0], side="right") - 1)
+            raise MeshError(f"element {bad}: field coefficients contain NaN or Inf")
+
+    @property
+    def num_elements(self) -> int:
+        return int(self.shape.shape[0])
+
+    @classmethod
+    def from_affine_hexes(cls, vertices, modes, coeffs_per_element, basis=MODIFIED_A, field_name="f", source=""):
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 8, 3)
+        n = vertices.shape[0]
+        modes = np.broadcast_to(np.asarray(modes, dtype=np.int32), (n, 3)).copy()
+        M = np.zeros((n, 3, 4))
+        for e in range(n):
+            A, b, _, _ = affine_from_hex_vertices(vertices[e], e)
+            M[e, :, :3], M[e, :, 3] = A, b
+        sizes = np.prod(modes, axis=1).astype(np.int64)
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        flat = []
+        for e, c in enumerate(coeffs_per_element):
+            c = np.asarray(c, dtype=np.float64).ravel()
+            if c.size != sizes[e]:
+                raise MeshError(f"element {e}: {c.size} coefficients for modes {modes[e].tolist()} (needs {sizes[e]})")
+            flat.append(c)
+        if len(flat) != n:
+            raise MeshError(f"{len(flat)} coefficient blocks for {n} elements")
+        return cls(
+            shape=np.full(n, HEX, np.int32),
+            vertices=vertices,
+            ref_from_world=M,
+            modes=modes,
+            basis=np.full(n, basis, np.int32),
+            coeff_offset=offsets,
+            coeffs=np.concatenate(flat),
+            field_name=field_name,
+            source=source,
+        )
+
+    def bounds(self):
+        """Axis-aligned (lowers, uppers) per element; exact for straight-sided elements."""
+        return self.vertices.min(axis=1), self.vertices.max(axis=1)
+
+    def reference_coords(self, e: int, x) -> np.ndarray:
+        M = self.ref_from_world[e]
+        return np.asarray(x, dtype=np.float64) @ M[:, :3].T + M[:, 3]
+
+    def element_coeffs(self, e: int) -> np.ndarray:
+        o = int(self.coeff_offset[e])
+        return self.coeffs[o : o + int(np.prod(self.modes[e]))]
+
+    def evaluate(self, e: int, x) -> np.ndarray:
+        """float64 field of element e at world points x (..., 3) (no inside test)."""
+        return eval_tensor(self.element_coeffs(e), self.modes[e], self.reference_coords(e, x), int(self.basis[e]))
