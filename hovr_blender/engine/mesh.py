@@ -123,3 +123,19 @@ class VolumeMesh:
     def evaluate(self, e: int, x) -> np.ndarray:
         """float64 field of element e at world points x (..., 3) (no inside test)."""
         return eval_tensor(self.element_coeffs(e), self.modes[e], self.reference_coords(e, x), int(self.basis[e]))
+
+    def transformed(self, matrix) -> "VolumeMesh":
+        """The same field on geometry moved by a 4x4 affine world matrix (object transform).
+
+        Field values are attached to reference coordinates, so they travel with the element;
+        densities stay per world unit of the transformed geometry."""
+        M = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
+        if not np.all(np.isfinite(M)) or np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-12:
+            raise MeshError("object transform must be a finite affine matrix")
+        verts = self.vertices @ M[:3, :3].T + M[:3, 3]
+        out = VolumeMesh.from_affine_hexes(
+            verts, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],
+            basis=int(self.basis[0]), field_name=self.field_name, source=self.source,
+        )
+        out.basis = self.basis.copy()
+        return out
