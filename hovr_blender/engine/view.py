@@ -118,6 +118,9 @@ def load_data(data: dict, base_dir: str = ".") -> VolumeMesh:
     sol = data.get("solution")
     if sol is not None and not os.path.isabs(sol):
         sol = os.path.join(base_dir, sol)
+    for p in (path, sol):
+        if p is not None and not os.path.exists(p):
+            raise ViewError(f"data file not found: {p}")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".xml":
         from ..io import nektar
