@@ -24,7 +24,7 @@ def chord_lengths(o, d, lo, hi):
 def test_constant_density_chords_over_many_elements(device, method):
     # 5 x 4 x 12 elements: rays cross up to ~20 of them, more than one traversal window
     lo, hi = np.array([-1.0, -0.8, -3.0]), np.array([1.5, 1.2, 3.0])
-    mesh = brick(lo, hi, (5, 4, 12), 1, lambda x, y, z: 0.0 * x + 1.0)
+    mesh = brick(lo, hi, (5, 4, 12), 2, lambda x, y, z: 0.0 * x + 1.0)  # exactly constant (modes 2)
     tf = TransferFunction.from_contract({"color": [[0, 0.3, 0.6, 0.9], [2, 0.3, 0.6, 0.9]],
                                          "density": [[0, TAU], [2, TAU]]})
     cam = RayCamera.from_contract({"eye": [7.0, 2.5, 9.0], "target": [0.1, 0.2, 0.0], "up": [0, 0, 1],
