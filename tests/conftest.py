@@ -16,9 +16,12 @@ def shared_file(*parts) -> Path:
 
 
 def warp_devices():
-    """cpu always; cuda:0 too where a CUDA device exists (the GPU machine)."""
+    """cpu always; cuda:0 too where a CUDA device exists. HOVR_TEST_DEVICES=cuda:0 narrows the
+    list (the GPU machine's packed Warp carries no CPU compiler)."""
     import warp as wp
 
+    if os.environ.get("HOVR_TEST_DEVICES"):
+        return os.environ["HOVR_TEST_DEVICES"].split(",")
     wp.config.quiet = True
     wp.init()
     devs = ["cpu"]
