@@ -1,0 +1,36 @@
+"""HOVR: volume rendering of high-order finite-element fields (Blender add-on and core).
+
+Importing this package, or ``hovr_blender.engine``/``hovr_blender.io``, never imports bpy:
+the numerical core runs on machines without Blender. The Blender side is imported only
+inside register()/unregister(). Installed as an extension the package is
+``bl_ext.<repo>.hovr_blender``, so everything below uses relative imports.
+"""
+
+# Read by Blender when loaded as a legacy add-on (3.4+); extensions use blender_manifest.toml.
+bl_info = {
+    "name": "HOVR",
+    "author": "HOVR developers",
+    "version": (0, 1, 0),
+    "blender": (3, 4, 0),
+    "location": "Properties > Render > Render Engine: HOVR; Add > HOVR Sphere Volume",
+    "description": "Volume rendering of high-order finite element fields with NVIDIA Warp",
+    "category": "Render",
+}
+
+
+def _modules():
+    """bpy-side submodules in registration order (properties before their users)."""
+    from .ui import properties, operators, panels
+    from .engine import render_engine
+
+    return (properties, render_engine, operators, panels)
+
+
+def register():
+    for module in _modules():
+        module.register()
+
+
+def unregister():
+    for module in reversed(_modules()):
+        module.unregister()

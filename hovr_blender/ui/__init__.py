@@ -1,0 +1,1 @@
+"""Blender-side user interface: properties, operators, panels. Imported only by register()."""

@@ -1,0 +1,135 @@
+"""Properties-editor panels for the HOVR engine, and the stock panels it reuses."""
+import bpy
+
+
+class HovrButtonsPanel:
+    bl_space_type = 'PROPERTIES'
+    bl_region_type = 'WINDOW'
+    COMPAT_ENGINES = {'HOVR'}
+
+    @classmethod
+    def poll(cls, context):
+        return context.engine in cls.COMPAT_ENGINES
+
+
+class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
+    bl_label = "Quadrature"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        settings = context.scene.hovr
+        layout.prop(settings, "method")
+        layout.prop(settings, "h")
+        layout.prop(settings, "tolerance")
+        layout.prop(settings, "min_transmittance")
+        layout.prop(settings, "device")
+
+
+class HOVR_RENDER_PT_transfer_function(HovrButtonsPanel, bpy.types.Panel):
+    bl_label = "Transfer Function"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.scene.hovr
+        row = layout.row(align=True)
+        row.prop(settings, "transfer_function", text="")
+        row.operator("hovr.new_transfer_function", text="", icon='ADD')
+        texture = settings.transfer_function
+        if texture is None:
+            layout.label(text="Colour = ramp RGB, density = ramp alpha x scale", icon='INFO')
+        elif not texture.use_color_ramp:
+            layout.prop(texture, "use_color_ramp", text="Use Colour Ramp")
+        else:
+            layout.template_color_ramp(texture, "color_ramp", expand=True)
+            if texture.color_ramp.interpolation != 'LINEAR' or texture.color_ramp.color_mode != 'RGB':
+                layout.label(text="HOVR needs RGB mode with Linear interpolation", icon='ERROR')
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        col.prop(settings, "density_scale")
+        sub = col.column(align=True)
+        sub.prop(settings, "value_min", text="Value Min")
+        sub.prop(settings, "value_max", text="Max")
+        if settings.value_max <= settings.value_min:
+            col.label(text="Value Max must exceed Value Min", icon='ERROR')
+
+
+class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
+    bl_label = "Film"
+    bl_context = "render"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        scene = context.scene
+        layout.prop(scene.render, "film_transparent")
+        if scene.world is not None:
+            row = layout.row()
+            row.active = not scene.render.film_transparent
+            row.prop(scene.world, "color", text="Background")  # HOVR's background is the world colour
+
+
+class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
+    bl_label = "HOVR Volume"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.object is not None
+
+    def draw_header(self, context):
+        self.layout.prop(context.object.hovr, "is_volume", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.active = context.object.hovr.is_volume
+        layout.prop(context.object.hovr, "source")
+
+
+# Stock panels that mean the same under HOVR: image size and output, colour management,
+# camera lens, world selection. Everything else (lights, materials, sampling) does not apply.
+STOCK_PANELS = {
+    "RENDER_PT_format", "RENDER_PT_frame_range", "RENDER_PT_output", "RENDER_PT_output_color_management",
+    "RENDER_PT_encoding", "RENDER_PT_encoding_video", "RENDER_PT_encoding_audio", "RENDER_PT_post_processing",
+    "RENDER_PT_color_management", "RENDER_PT_color_management_working_space",
+    "RENDER_PT_color_management_display_settings", "RENDER_PT_color_management_curves",
+    "RENDER_PT_color_management_white_balance", "RENDER_PT_color_management_advanced",
+    "DATA_PT_context_camera", "DATA_PT_lens", "DATA_PT_camera", "DATA_PT_camera_display",
+    "DATA_PT_camera_safe_areas", "DATA_PT_custom_props_camera",
+    "WORLD_PT_context_world", "WORLD_PT_custom_props",
+}
+
+
+def get_panels():
+    """Stock panel classes to show under HOVR (those that declare COMPAT_ENGINES)."""
+    return [p for p in bpy.types.Panel.__subclasses__()
+            if p.__name__ in STOCK_PANELS and isinstance(getattr(p, "COMPAT_ENGINES", None), set)]
+
+
+# Panels that got 'HOVR' from us, so unregister removes only what register added
+# (several stock panels share one COMPAT_ENGINES set).
+_added_to = []
+
+classes = (HOVR_RENDER_PT_quadrature, HOVR_RENDER_PT_transfer_function, HOVR_RENDER_PT_film, HOVR_OBJECT_PT_volume)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    for panel in get_panels():
+        if 'HOVR' not in panel.COMPAT_ENGINES:
+            panel.COMPAT_ENGINES.add('HOVR')
+            _added_to.append(panel)
+
+
+def unregister():
+    while _added_to:
+        _added_to.pop().COMPAT_ENGINES.discard('HOVR')
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

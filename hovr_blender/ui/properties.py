@@ -1,0 +1,77 @@
+"""Per-datablock settings: Scene.hovr (render) and Object.hovr (which objects are volumes)."""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
+
+# Explicit indices so items can be renamed or reordered without breaking saved .blend files.
+METHOD_ITEMS = (
+    ("riemann", "Riemann", "Left Riemann sum with fixed step h", 0),
+    ("trapezoid", "Trapezoid", "Trapezoidal rule with fixed step h", 1),
+    ("classified", "Classified", "Segment each ray at transfer-function breakpoints, adaptive quadrature per segment", 2),
+    ("split", "Split", "Split each ray into smooth segments before integrating", 3),
+)
+DEVICE_ITEMS = (
+    ("cpu", "CPU", "Run the Warp kernels on the CPU", 0),
+    ("cuda:0", "CUDA GPU 0", "Run the Warp kernels on the first CUDA device", 1),
+)
+
+
+def _is_blend_texture(_self, texture):
+    return texture.type == 'BLEND'
+
+
+class HovrRenderSettings(bpy.types.PropertyGroup):
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="classified",
+                         description="Quadrature along each ray")
+    h: FloatProperty(name="Step", default=0.01, min=1e-6, soft_max=1.0, precision=4, step=0.1,
+                     description="Step length in world units (Riemann, trapezoid, smooth segments)")
+    tolerance: FloatProperty(name="Tolerance", default=1e-5, min=1e-12, soft_max=1e-1, precision=7,
+                             description="Absolute error target of each adaptive panel")
+    min_transmittance: FloatProperty(name="Min Transmittance", default=1e-5, min=0.0, max=0.999, precision=6,
+                                     description="Stop a ray once its transmittance falls below this")
+    device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="cpu",
+                         description="Warp device the kernels run on")
+    density_scale: FloatProperty(name="Density Scale", default=1.0, min=0.0, soft_max=100.0,
+                                 description="Extinction per world unit at ramp alpha 1")
+    value_min: FloatProperty(name="Value Min", default=0.0,
+                             description="Field value at ramp position 0")
+    value_max: FloatProperty(name="Value Max", default=1.0,
+                             description="Field value at ramp position 1")
+    # Python cannot define a ColorRamp property, so a Blend texture owns the ramp.
+    transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture, poll=_is_blend_texture,
+                                       description="Blend texture whose colour ramp (RGB, alpha) is the transfer function")
+
+    @classmethod
+    def register(cls):
+        bpy.types.Scene.hovr = PointerProperty(type=cls, name="HOVR Render Settings")
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.Scene.hovr
+
+
+class HovrObjectSettings(bpy.types.PropertyGroup):
+    is_volume: BoolProperty(name="HOVR Volume", default=False,
+                            description="Render this object's finite-element data with HOVR")
+    source: StringProperty(name="Source", default="",
+                           description='Where the data comes from, e.g. "builtin:sphere"')
+
+    @classmethod
+    def register(cls):
+        bpy.types.Object.hovr = PointerProperty(type=cls, name="HOVR Object Settings")
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.Object.hovr
+
+
+classes = (HovrRenderSettings, HovrObjectSettings)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

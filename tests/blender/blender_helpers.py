@@ -1,0 +1,101 @@
+"""Scene set-up shared by the in-Blender tests and the extension-install child script.
+
+Imports bpy but not hovr_blender, so the child script exercises the installed extension only.
+"""
+import math
+
+import bpy
+import numpy as np
+from mathutils import Matrix
+
+
+def look_at(eye, target, up) -> np.ndarray:
+    """Camera-to-world matrix of a Blender camera (looks down -Z, +Y up) at eye facing target."""
+    eye = np.asarray(eye, float)
+    fwd = np.asarray(target, float) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    up2 = np.cross(right, fwd)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, up2, -fwd, eye
+    return m
+
+
+def add_camera(scene, name="Camera"):
+    cam = bpy.data.objects.new(name, bpy.data.cameras.new(name))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    return cam
+
+
+def set_contract_camera(scene, contract: dict, width: int, height: int):
+    """Make scene.camera the contract's camera (§4) for a width x height render, sensor fit AUTO."""
+    cam = scene.camera
+    cam.matrix_world = Matrix(look_at(contract["eye"], contract["target"], contract["up"]).tolist())
+    cam.data.sensor_fit = 'AUTO'  # AUTO: the lens/ortho scale spans the larger image side
+    aspect = max(width, height) / height
+    if contract.get("projection", "perspective") == "perspective":
+        cam.data.type = 'PERSP'
+        cam.data.angle = 2 * math.atan(math.tan(math.radians(contract["fov_y_deg"]) / 2) * aspect)
+    else:
+        cam.data.type = 'ORTHO'
+        cam.data.ortho_scale = contract["height"] * aspect
+    scene.render.resolution_x, scene.render.resolution_y = width, height
+    scene.render.resolution_percentage = 100
+    scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
+
+
+def set_ramp(texture, stops):
+    """Replace a colour ramp's stops with [(position, (r, g, b, a)), ...] (linear RGB)."""
+    ramp = texture.color_ramp
+    ramp.interpolation, ramp.color_mode = 'LINEAR', 'RGB'
+    while len(ramp.elements) > 1:
+        ramp.elements.remove(ramp.elements[-1])
+    ramp.elements[0].position, ramp.elements[0].color = stops[0]
+    for pos, rgba in stops[1:]:
+        ramp.elements.new(pos).color = rgba
+
+
+def render_to_exr(scene, path) -> np.ndarray:
+    """F12 through bpy.ops.render.render into a 32-bit float EXR; (H, W, 4) with row 0 at the top."""
+    r = scene.render
+    r.filepath = str(path)
+    r.use_file_extension = False
+    r.image_settings.media_type = 'IMAGE'
+    r.image_settings.file_format = 'OPEN_EXR'
+    r.image_settings.color_depth = '32'
+    r.image_settings.exr_codec = 'ZIP'  # lossless
+    scene.view_settings.view_transform = 'Standard'  # keep values linear and untouched
+    scene.view_settings.look = 'None'
+    scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
+    bpy.ops.render.render(write_still=True)
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        w, h = img.size
+        px = np.empty(w * h * 4, dtype=np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)[::-1].copy()
+
+
+def build_sphere_scene(scene, contract, width, height, stops, value_range, density_scale, background,
+                       location, angle_z, method="classified", film_transparent=False, percentage=100):
+    """Camera, world colour and one HOVR sphere volume (added with the add-on's operator)."""
+    add_camera(scene)
+    set_contract_camera(scene, contract, width, height)
+    scene.render.resolution_x, scene.render.resolution_y = width * 100 // percentage, height * 100 // percentage
+    scene.render.resolution_percentage = percentage
+    scene.render.film_transparent = film_transparent
+    scene.world = bpy.data.worlds.new("World")
+    scene.world.color = background
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    obj.location, obj.rotation_euler = location, (0.0, 0.0, angle_z)
+    s = scene.hovr
+    set_ramp(s.transfer_function, stops)
+    s.value_min, s.value_max = value_range
+    s.density_scale = density_scale
+    s.method, s.h, s.tolerance, s.device = method, 0.01, 1e-6, "cpu"
+    return obj

@@ -1,0 +1,47 @@
+"""Child process of test_extension.py: install the built zip as an extension, render with it.
+
+Run as ``python install_and_render.py SPEC_JSON`` with BLENDER_USER_* pointing at a
+throw-away directory (set before bpy is imported). Only the installed copy
+(bl_ext.user_default.hovr_blender) may be used, never the repository's hovr_blender.
+"""
+import json
+import sys
+
+import bpy
+import numpy as np
+
+from blender_helpers import build_sphere_scene, render_to_exr
+
+REPO_MODULE = "bl_ext.user_default.hovr_blender"
+
+
+def main():
+    spec = json.loads(sys.argv[1])
+    result = bpy.ops.extensions.package_install_files(filepath=spec["zip"], repo="user_default", enable_on_install=True)
+    assert result == {"FINISHED"}, result
+    assert REPO_MODULE in bpy.context.preferences.addons, list(bpy.context.preferences.addons.keys())
+
+    for obj in list(bpy.data.objects):  # the default startup scene's cube, light and camera
+        bpy.data.objects.remove(obj)
+    scene = bpy.context.scene
+    scene.render.engine = "HOVR"
+    build_sphere_scene(scene, spec["contract"], spec["width"], spec["height"], [tuple(s) for s in spec["stops"]],
+                       spec["value_range"], spec["density_scale"], spec["background"], spec["location"],
+                       spec["angle_z"], spec["method"])
+    rgba = render_to_exr(scene, spec["exr"])
+    np.save(spec["out"], rgba)
+
+    engine = next(c for c in bpy.types.RenderEngine.__subclasses__() if getattr(c, "bl_idname", "") == "HOVR")
+    loaded = sorted(m for m in sys.modules if "hovr_blender" in m)
+    report = {
+        "engine_module": engine.__module__,
+        "renderer_loaded": f"{REPO_MODULE}.engine.renderer" in sys.modules,
+        "foreign_modules": [m for m in loaded if m == "hovr_blender" or m.startswith("hovr_blender.")],
+        "user_extensions": bpy.utils.user_resource("EXTENSIONS"),
+    }
+    with open(spec["report"], "w", encoding="utf-8") as fh:
+        json.dump(report, fh)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,171 @@
+"""Registration, properties, operators and panels of the add-on inside Blender."""
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
+pytestmark = pytest.mark.blender
+
+import hovr_blender  # noqa: E402
+from hovr_blender.io import builtin  # noqa: E402
+from hovr_blender.ui import operators, panels  # noqa: E402
+
+
+def _operator_registered(name):
+    try:
+        getattr(bpy.ops.hovr, name).get_rna_type()
+        return True
+    except KeyError:
+        return False
+
+
+def _engine_registered():
+    render = bpy.context.scene.render
+    try:
+        render.engine = 'HOVR'  # the engine enum is dynamic: only registered engines are accepted
+    except TypeError:
+        return False
+    render.engine = 'BLENDER_EEVEE'
+    return True
+
+
+def _menu_funcs():
+    return getattr(bpy.types.VIEW3D_MT_add.draw, "_draw_funcs", [])
+
+
+def test_register_unregister_twice_cleanly():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    stock = bpy.types.RENDER_PT_format
+    assert 'HOVR' not in stock.COMPAT_ENGINES
+    for _ in range(2):
+        hovr_blender.register()
+        try:
+            _check_registered(stock)
+        finally:
+            hovr_blender.unregister()
+        assert not hasattr(bpy.types.Scene, "hovr") and not hasattr(bpy.types.Object, "hovr")
+        assert not _engine_registered()
+        assert not _operator_registered("add_sphere_volume")
+        assert 'HOVR' not in stock.COMPAT_ENGINES and 'BLENDER_RENDER' in stock.COMPAT_ENGINES
+        assert operators.menu_add not in _menu_funcs()
+        assert not hasattr(bpy.types, "HOVR_RENDER_PT_quadrature")
+
+
+def _check_registered(stock):
+    assert hasattr(bpy.types.Scene, "hovr") and hasattr(bpy.types.Object, "hovr")
+    assert _engine_registered()
+    assert _operator_registered("add_sphere_volume") and _operator_registered("new_transfer_function")
+    assert 'HOVR' in stock.COMPAT_ENGINES and 'HOVR' in bpy.types.DATA_PT_lens.COMPAT_ENGINES
+    assert operators.menu_add in _menu_funcs()
+    assert hasattr(bpy.types, "HOVR_RENDER_PT_quadrature")
+
+
+def test_properties_defaults_and_enum_indices(scene):
+    settings = scene.hovr
+    props = type(settings).bl_rna.properties
+    methods = {i.identifier: i.value for i in props["method"].enum_items}
+    assert methods == {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
+    assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1}
+    assert props["transfer_function"].fixed_type.identifier == "Texture"
+    for name in ("h", "tolerance", "min_transmittance", "density_scale", "value_min", "value_max"):
+        assert props[name].type == 'FLOAT'
+    # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI.
+    from hovr_blender.engine.view import RenderOptions
+
+    core = RenderOptions()
+    assert (settings.method, settings.device) == (core.method, core.device)
+    assert settings.h == pytest.approx(core.h) and settings.tolerance == pytest.approx(core.tolerance)
+    assert settings.min_transmittance == pytest.approx(core.min_transmittance)
+    settings.method = "split"
+    assert settings.method == "split"
+    with pytest.raises(TypeError):
+        settings.method = "simpson"
+    obj = bpy.data.objects.new("o", None)
+    assert obj.hovr.is_volume is False and obj.hovr.source == ""
+
+
+def test_add_sphere_volume_operator(scene):
+    assert bpy.ops.hovr.add_sphere_volume() == {'FINISHED'}
+    obj = bpy.context.active_object
+    assert obj.hovr.is_volume and obj.hovr.source == "builtin:sphere"
+    assert obj.display_type == 'WIRE' and obj.name in scene.objects
+    me = obj.data
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    np.testing.assert_allclose(co.reshape(-1, 3), builtin.sphere().vertices[0], atol=1e-6)
+    edges = {tuple(sorted(e.vertices)) for e in me.edges}
+    assert len(edges) == 12 and len(me.polygons) == 0
+    # every hex edge joins vertices that differ in exactly one coordinate
+    v = co.reshape(-1, 3)
+    assert all(np.count_nonzero(np.abs(v[a] - v[b]) > 1e-6) == 1 for a, b in edges)
+
+    tex = scene.hovr.transfer_function
+    assert tex is not None and tex.type == 'BLEND' and tex.use_color_ramp
+    assert tex.color_ramp.interpolation == 'LINEAR' and len(tex.color_ramp.elements) == 2 + 3 * len(operators.DEFAULT_TENTS)
+    # The default value range covers the field: max at the far corners, min near the origin.
+    corners = builtin.sphere().vertices[0]
+    assert scene.hovr.value_max == pytest.approx(builtin.sphere_field(*corners.T).max())
+    assert 0.0 <= scene.hovr.value_min < 0.5
+
+    # A second volume reuses the scene's transfer function instead of replacing it.
+    tex.color_ramp.elements[0].color = (0.5, 0.5, 0.5, 0.0)
+    bpy.ops.hovr.add_sphere_volume()
+    assert scene.hovr.transfer_function == tex and len(bpy.data.textures) == 1
+    assert tuple(tex.color_ramp.elements[0].color) == (0.5, 0.5, 0.5, 0.0)
+    assert sum(o.hovr.is_volume for o in scene.objects) == 2
+
+
+def test_new_transfer_function_operator(scene):
+    assert scene.hovr.transfer_function is None
+    bpy.ops.hovr.new_transfer_function()
+    first = scene.hovr.transfer_function
+    bpy.ops.hovr.new_transfer_function()
+    assert scene.hovr.transfer_function != first and len(bpy.data.textures) == 2
+
+
+def test_panels_follow_the_engine(scene):
+    assert panels.HOVR_RENDER_PT_quadrature.COMPAT_ENGINES == {'HOVR'}
+    stock = {p.__name__ for p in panels.get_panels()}
+    assert {"RENDER_PT_format", "RENDER_PT_output", "DATA_PT_lens", "WORLD_PT_context_world"} <= stock
+    # Panels for features HOVR does not have stay hidden.
+    assert 'HOVR' not in bpy.types.DATA_PT_light.COMPAT_ENGINES
+    assert 'HOVR' not in bpy.types.RENDER_PT_simplify.COMPAT_ENGINES
+
+
+class _Layout:
+    """Stands in for UILayout (no UI in background mode); checks every property drawn exists."""
+
+    def __init__(self, log):
+        self.log = log
+
+    def __getattr__(self, name):
+        def call(*args, **kwargs):
+            if name in ("prop", "template_color_ramp"):
+                data, prop = args[0], args[1]
+                assert prop in data.bl_rna.properties, f"{type(data).__name__} has no property {prop!r}"
+            if name == "operator":
+                assert _operator_registered(args[0].split(".")[1]), args[0]
+            self.log.append((name, args[1] if name in ("prop", "template_color_ramp") else args[:1]))
+            return _Layout(self.log)
+        return call
+
+
+@pytest.mark.parametrize("with_tf", [False, True])
+def test_panels_draw_existing_properties(scene, with_tf):
+    from types import SimpleNamespace
+
+    if with_tf:
+        bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.data.objects.new("o", None)
+    context = SimpleNamespace(scene=scene, object=obj, engine=scene.render.engine)
+    drawn = []
+    for cls in panels.classes:
+        assert cls.poll(context)
+        panel = SimpleNamespace(layout=_Layout(drawn))
+        if hasattr(cls, "draw_header"):
+            cls.draw_header(panel, context)
+        cls.draw(panel, context)
+    names = {n for _, n in drawn}
+    assert {"method", "h", "tolerance", "min_transmittance", "device", "density_scale", "value_min", "value_max"} <= names
+    assert ("color_ramp" in names) == with_tf
+    context.engine = 'CYCLES'
+    assert not any(cls.poll(context) for cls in panels.classes)
