@@ -164,31 +164,35 @@ def eval_field(mesh: MeshArgs, e: int, xi: wp.vec3) -> float:
 
 
 @wp.func
-def tf_density(tf: TransferArgs, s: float) -> float:
-    n = tf.density_s.shape[0]
-    if s <= tf.density_s[0]:
-        return tf.density_tau[0]
-    if s >= tf.density_s[n - 1]:
-        return tf.density_tau[n - 1]
+def ramp_segment(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
+    """(k, w): s lies between breakpoints k and k + 1 at fraction w, clamped at both ends."""
+    n = s_arr.shape[0]
+    if n == 1 or s <= s_arr[0]:
+        return wp.vec2(0.0, 0.0)
+    if s >= s_arr[n - 1]:
+        return wp.vec2(float(n - 2), 1.0)
     k = int(0)
-    while tf.density_s[k + 1] < s:
+    while s_arr[k + 1] < s:
         k += 1
-    w = (s - tf.density_s[k]) / (tf.density_s[k + 1] - tf.density_s[k])
-    return tf.density_tau[k] + w * (tf.density_tau[k + 1] - tf.density_tau[k])
+    return wp.vec2(float(k), (s - s_arr[k]) / (s_arr[k + 1] - s_arr[k]))
+
+
+@wp.func
+def tf_density(tf: TransferArgs, s: float) -> float:
+    kw = ramp_segment(tf.density_s, s)
+    k = int(kw[0])
+    if tf.density_s.shape[0] == 1:
+        return tf.density_tau[0]
+    return tf.density_tau[k] + kw[1] * (tf.density_tau[k + 1] - tf.density_tau[k])
 
 
 @wp.func
 def tf_color(tf: TransferArgs, s: float) -> wp.vec3:
-    n = tf.color_s.shape[0]
-    if s <= tf.color_s[0]:
+    kw = ramp_segment(tf.color_s, s)
+    k = int(kw[0])
+    if tf.color_s.shape[0] == 1:
         return tf.color_rgb[0]
-    if s >= tf.color_s[n - 1]:
-        return tf.color_rgb[n - 1]
-    k = int(0)
-    while tf.color_s[k + 1] < s:
-        k += 1
-    w = (s - tf.color_s[k]) / (tf.color_s[k + 1] - tf.color_s[k])
-    return tf.color_rgb[k] + w * (tf.color_rgb[k + 1] - tf.color_rgb[k])
+    return tf.color_rgb[k] + kw[1] * (tf.color_rgb[k + 1] - tf.color_rgb[k])
 
 
 @wp.func
