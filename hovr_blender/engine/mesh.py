@@ -61,6 +61,12 @@ class VolumeMesh:
     coeffs: np.ndarray  # (M,) float64
     field_name: str = "f"
     source: str = ""
+    # geometry map x(xi) as a modal expansion of the element's shape (engine/expansions.py);
+    # None for meshes built by from_affine_hexes before the general path existed
+    geom_modes: np.ndarray | None = None  # (N, 3) int32
+    geom_offset: np.ndarray | None = None  # (N,) int64
+    geom_coeffs: np.ndarray | None = None  # (G, 3) float64
+    affine: np.ndarray | None = None  # (N,) bool: ref_from_world is exact for these
 
     def __post_init__(self):
         n = self.shape.shape[0]
@@ -72,6 +78,71 @@ class VolumeMesh:
         if not np.all(np.isfinite(self.coeffs)):
             bad = int(np.searchsorted(self.coeff_offset, np.argwhere(~np.isfinite(self.coeffs))[0][0], side="right") - 1)
             raise MeshError(f"element {bad}: field coefficients contain NaN or Inf")
+
+    @classmethod
+    def from_elements(cls, shapes, modes, coeffs_per_element, geom_modes, geom_coeffs_per_element,
+                      field_name="f", source="") -> "VolumeMesh":
+        """General constructor: any shape, field and geometry as modal expansions
+        (engine/expansions.py). Elements whose geometry is affine get the exact
+        world->reference map (the traversal's fast path); MeshError names a bad element."""
+        from . import expansions as ex
+
+        shapes = np.asarray(shapes, dtype=np.int32).ravel()
+        n = shapes.size
+        modes = np.broadcast_to(np.asarray(modes, dtype=np.int32), (n, 3)).copy()
+        geom_modes = np.broadcast_to(np.asarray(geom_modes, dtype=np.int32), (n, 3)).copy()
+        if len(coeffs_per_element) != n or len(geom_coeffs_per_element) != n:
+            raise MeshError(f"{n} elements but {len(coeffs_per_element)} field and "
+                            f"{len(geom_coeffs_per_element)} geometry blocks")
+        flat, gflat = [], []
+        vertices = np.zeros((n, 8, 3))
+        M = np.zeros((n, 3, 4))
+        affine = np.zeros(n, dtype=bool)
+        for e in range(n):
+            sh = int(shapes[e])
+            if sh not in ex.SHAPE_NAMES:
+                raise MeshError(f"element {e}: unknown shape id {sh}")
+            c = np.asarray(coeffs_per_element[e], dtype=np.float64).ravel()
+            k = ex.num_coeffs(sh, modes[e])
+            if c.size != k:
+                raise MeshError(f"element {e}: {c.size} field coefficients for {ex.SHAPE_NAMES[sh]} "
+                                f"modes {modes[e].tolist()} (needs {k})")
+            g = np.asarray(geom_coeffs_per_element[e], dtype=np.float64).reshape(-1, 3)
+            kg = ex.num_coeffs(sh, geom_modes[e])
+            if g.shape[0] != kg:
+                raise MeshError(f"element {e}: {g.shape[0]} geometry coefficients for modes "
+                                f"{geom_modes[e].tolist()} (needs {kg})")
+            if not np.all(np.isfinite(g)):
+                raise MeshError(f"element {e}: geometry is not finite")
+            ref_v = ex.SHAPE_VERTICES[sh]
+            v = ex.eval_modal(sh, geom_modes[e], g, ref_v)
+            vertices[e, : len(ref_v)] = v
+            vertices[e, len(ref_v):] = v[-1]
+            # affine test: the map equals the affine map through vertices 0, 1, 3 (or 2), 4 (or 3)
+            A, b, ok = ex.affine_fit(sh, geom_modes[e], g)
+            if ok:
+                affine[e] = True
+                M[e, :, :3], M[e, :, 3] = A, b
+            flat.append(c)
+            gflat.append(g)
+        sizes = np.array([f.size for f in flat], dtype=np.int64)
+        gsizes = np.array([g.shape[0] for g in gflat], dtype=np.int64)
+        out = cls(
+            shape=shapes,
+            vertices=vertices,
+            ref_from_world=M,
+            modes=modes,
+            basis=np.full(n, MODIFIED_A, np.int32),
+            coeff_offset=np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64),
+            coeffs=np.concatenate(flat),
+            field_name=field_name,
+            source=source,
+            geom_modes=geom_modes,
+            geom_offset=np.concatenate([[0], np.cumsum(gsizes)[:-1]]).astype(np.int64),
+            geom_coeffs=np.concatenate(gflat, axis=0),
+            affine=affine,
+        )
+        return out
 
     @property
     def num_elements(self) -> int:
