@@ -60,8 +60,13 @@ class Renderer:
             self._lowers = wp.array((lowers - pad).astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array((uppers + pad).astype(np.float32), dtype=wp.vec3)
             self._bvh = wp.Bvh(self._lowers, self._uppers)
+            if mesh.affine is not None and not np.all(mesh.affine):
+                bad = int(np.argmin(mesh.affine))
+                raise RenderError(f"element {bad} of {mesh.source or 'the mesh'} has a curved or non-affine map: "
+                                  "the kernels traverse affine elements only so far")
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
+            m.shape = wp.array(mesh.shape.astype(np.int32), dtype=wp.int32)
             m.ref_a = wp.array(mesh.ref_from_world[:, :, :3].astype(np.float32), dtype=wp.mat33)
             m.ref_b = wp.array(mesh.ref_from_world[:, :, 3].astype(np.float32), dtype=wp.vec3)
             m.modes = wp.array(mesh.modes.astype(np.int32), dtype=wp.vec3i)

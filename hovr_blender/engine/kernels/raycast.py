@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from . import element as el_k
+
 wp.set_module_options({"enable_backward": False})
 
 MAX_MODES = 15  # modes per direction (degree 14)
@@ -61,6 +63,7 @@ vecst = wp.types.vector(length=5, dtype=wp.float32)
 @wp.struct
 class MeshArgs:
     bvh: wp.uint64
+    shape: wp.array(dtype=wp.int32)  # element.HEX / PRISM / TET / PYR
     ref_a: wp.array(dtype=wp.mat33)  # xi = ref_a x + ref_b (affine elements)
     ref_b: wp.array(dtype=wp.vec3)
     modes: wp.array(dtype=wp.vec3i)
@@ -109,55 +112,9 @@ class QuadArgs:
 
 
 @wp.func
-def modified_a_values(n: int, x: float) -> vecm:
-    """Nektar++ Modified_A modes 0..n-1 at x; bubbles via the Jacobi P^(1,1) recurrence."""
-    v = vecm()
-    v[0] = 0.5 * (1.0 - x)
-    if n > 1:
-        v[1] = 0.5 * (1.0 + x)
-    bubble = 0.25 * (1.0 - x) * (1.0 + x)
-    pm2 = float(0.0)
-    pm1 = float(1.0)  # P_0
-    for p in range(2, n):
-        k = p - 2  # Jacobi degree
-        pk = float(1.0)
-        if k == 1:
-            pk = 2.0 * x
-        elif k >= 2:
-            fk = float(k)
-            pk = ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
-        v[p] = bubble * pk
-        pm2 = pm1
-        pm1 = pk
-    return v
-
-
-@wp.func
-def basis_values(basis: int, n: int, x: float) -> vecm:
-    # one basis today (Modified_A); GLL_Lagrange and the collapsed bases plug in here
-    return modified_a_values(n, x)
-
-
-@wp.func
 def eval_field(mesh: MeshArgs, e: int, xi: wp.vec3) -> float:
-    """Tensor-product field of element e at reference point xi (direction 0 fastest)."""
-    m = mesh.modes[e]
-    bt = mesh.basis[e]
-    a = basis_values(bt, m[0], xi[0])
-    b = basis_values(bt, m[1], xi[1])
-    g = basis_values(bt, m[2], xi[2])
-    off = mesh.coeff_offset[e]
-    total = float(0.0)
-    for k in range(m[2]):
-        plane = float(0.0)
-        for j in range(m[1]):
-            row = float(0.0)
-            base = off + m[0] * (j + m[1] * k)
-            for i in range(m[0]):
-                row += a[i] * mesh.coeffs[base + i]
-            plane += b[j] * row
-        total += g[k] * plane
-    return total
+    """Field of element e at reference point xi (any shape; element.py)."""
+    return el_k.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
 
 
 # ------------------------------------------------------------------ transfer function
@@ -233,25 +190,9 @@ def breakpoint_inside(s_arr: wp.array(dtype=wp.float32), lo: float, hi: float) -
 
 @wp.func
 def element_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec3:
-    """(hit, t_enter, t_exit) of the ray in affine element e: slab test in reference space."""
+    """(hit, t_enter, t_exit) of the ray in affine element e: clipping in reference space."""
     A = mesh.ref_a[e]
-    xo = A * o + mesh.ref_b[e]
-    xd = A * d
-    t0 = float(-1.0e30)
-    t1 = float(1.0e30)
-    hit = float(1.0)
-    for k in range(3):
-        if wp.abs(xd[k]) < 1.0e-30:
-            if wp.abs(xo[k]) > 1.0:
-                hit = 0.0
-        else:
-            ta = (-1.0 - xo[k]) / xd[k]
-            tb = (1.0 - xo[k]) / xd[k]
-            t0 = wp.max(t0, wp.min(ta, tb))
-            t1 = wp.min(t1, wp.max(ta, tb))
-    if t1 <= t0:
-        hit = 0.0
-    return wp.vec3(hit, t0, t1)
+    return el_k.reference_interval(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
 # ----------------------------------------------------------------- 1-D restriction
@@ -259,36 +200,38 @@ def element_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec3:
 
 @wp.func
 def restriction_degree(mesh: MeshArgs, e: int) -> int:
-    m = mesh.modes[e]
-    # Modified_A with one mode is (1 - x)/2: still degree 1 in that direction
-    return wp.max(m[0] - 1, 1) + wp.max(m[1] - 1, 1) + wp.max(m[2] - 1, 1)
+    return el_k.polynomial_degree(mesh.shape[e], mesh.modes[e])
 
 
 @wp.func
 def chebyshev_restriction(mesh: MeshArgs, e: int, xo: wp.vec3, xd: wp.vec3, a: float, b: float, deg: int) -> vecr:
-    """Chebyshev coefficients c_0..c_deg of f(t) on [a, b] from deg + 1 Lobatto samples (exact)."""
+    """Chebyshev coefficients c_0..c_deg on [a, b] of g(t) = f(t) w(t)^2, exact from deg + 1
+    Lobatto samples (w = 1 except for pyramids, whose expansion is rational with w linear).
+    The last two slots keep w(a), w(b) so restriction_at can divide it out again."""
     c = vecr()
     f = vecr()
     mid = 0.5 * (a + b)
     half = 0.5 * (b - a)
-    if deg == 0:
-        c[0] = eval_field(mesh, e, xo + mid * xd)
-        return c
+    sh = mesh.shape[e]
     fd = float(deg)
     for j in range(deg + 1):
         s = wp.cos(wp.pi * float(j) / fd)
-        f[j] = eval_field(mesh, e, xo + (mid + half * s) * xd)
+        xi = xo + (mid + half * s) * xd
+        w = el_k.restriction_weight(sh, xi)
+        f[j] = eval_field(mesh, e, xi) * w * w
     for k in range(deg + 1):
         acc = float(0.0)
         for j in range(deg + 1):
-            w = float(1.0)
+            wj = float(1.0)
             if j == 0 or j == deg:
-                w = 0.5
-            acc += w * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
+                wj = 0.5
+            acc += wj * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
         acc = acc * 2.0 / fd
         if k == 0 or k == deg:
             acc = acc * 0.5
         c[k] = acc
+    c[MAX_RESTRICTION - 2] = el_k.restriction_weight(sh, xo + a * xd)
+    c[MAX_RESTRICTION - 1] = el_k.restriction_weight(sh, xo + b * xd)
     return c
 
 
@@ -308,7 +251,10 @@ def clenshaw(c: vecr, deg: int, s: float) -> float:
 @wp.func
 def restriction_at(c: vecr, deg: int, a: float, b: float, t: float) -> float:
     s = wp.clamp((2.0 * t - a - b) / (b - a), -1.0, 1.0)
-    return clenshaw(c, deg, s)
+    wa = c[MAX_RESTRICTION - 2]
+    wb = c[MAX_RESTRICTION - 1]
+    w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
+    return clenshaw(c, deg, s) / (w * w)
 
 
 # ------------------------------------------------------------------------ sampling
@@ -502,6 +448,15 @@ def chebyshev_derivative(c: vecr, deg: int) -> vecr:
 
 
 @wp.func
+def slope_sign_term(c: vecr, dc: vecr, deg: int, s: float) -> float:
+    """A quantity with the sign of df/ds for f = g / w^2 (w linear): g' w - 2 g w'."""
+    wa = c[MAX_RESTRICTION - 2]
+    wb = c[MAX_RESTRICTION - 1]
+    w = wa + 0.5 * (s + 1.0) * (wb - wa)
+    return clenshaw(dc, deg - 1, s) * w - 2.0 * clenshaw(c, deg, s) * 0.5 * (wb - wa)
+
+
+@wp.func
 def critical_points(c: vecr, deg: int, a: float, b: float) -> vecr:
     """Interior t in (a, b) where df/dt changes sign, ascending; the last slot holds their
     count and the one before it the number of derivative evaluations spent.
@@ -515,18 +470,18 @@ def critical_points(c: vecr, deg: int, a: float, b: float) -> vecr:
         dc = chebyshev_derivative(c, deg)
         nscan = 4 * deg + 4
         s0 = float(-1.0)
-        g0 = clenshaw(dc, deg - 1, s0)
+        g0 = slope_sign_term(c, dc, deg, s0)
         nev += nscan + 1
         for i in range(nscan):
             s1 = -1.0 + 2.0 * float(i + 1) / float(nscan)
-            g1 = clenshaw(dc, deg - 1, s1)
+            g1 = slope_sign_term(c, dc, deg, s1)
             if g0 * g1 < 0.0 and n < MAX_RESTRICTION - 2:
                 lo = s0
                 hi = s1
                 glo = g0
                 for it in range(40):
                     m = 0.5 * (lo + hi)
-                    gm = clenshaw(dc, deg - 1, m)
+                    gm = slope_sign_term(c, dc, deg, m)
                     nev += 1
                     if (gm < 0.0) == (glo < 0.0):
                         lo = m
@@ -628,8 +583,15 @@ def render_kernel(
                 for k in range(1, deg + 1):
                     rad += wp.abs(c[k])
                 rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])  # float32 rounding margin
-                lo = c[0] - rad
-                hi = c[0] + rad
+                glo = c[0] - rad
+                ghi = c[0] + rad
+                # f = g / w^2 with w linear and positive on the segment: interval division
+                w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)
+                w2hi = wp.max(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1])
+                w2lo = w2lo * w2lo
+                w2hi = w2hi * w2hi
+                lo = wp.min(glo / w2lo, glo / w2hi)
+                hi = wp.max(ghi / w2lo, ghi / w2hi)
                 dens_max = density_max_on(tf, lo, hi)
                 emitting = int(0)
                 if color_max_on(tf, lo, hi) > 0.0:
@@ -658,7 +620,7 @@ def render_kernel(
                     n_restr += int(bnd[MAX_RESTRICTION - 2])
                     piece_start = a
                     ts = a
-                    fs = clenshaw(c, deg, -1.0)
+                    fs = restriction_at(c, deg, a, b, a)
                     for i in range(nb + 1):
                         te = b
                         if i < nb:

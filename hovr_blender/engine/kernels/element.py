@@ -1,0 +1,292 @@
+"""Element expansions on the device: Nektar++'s MODIFIED family for all four shapes.
+
+Independent of the numpy oracle (engine/expansions.py); tests compare the two. Conventions:
+spec/formats.md §2.8-2.10 (collapsed coordinates, mode storage order, and the collapsed-
+vertex corrections without which tets are off by 0.17 and prisms jump across faces).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+HEX = 0
+PRISM = 1
+TET = 2
+PYR = 3
+
+vecm = wp.types.vector(length=16, dtype=wp.float32)
+
+
+@wp.func
+def jacobi_p(n: int, alpha: float, x: float) -> float:
+    """Jacobi P^(alpha, 1)_n(x), three-term recurrence."""
+    if n == 0:
+        return 1.0
+    beta = 1.0
+    p0 = float(1.0)
+    p1 = (alpha + 1.0) + (alpha + beta + 2.0) * (x - 1.0) * 0.5
+    for k in range(2, n + 1):
+        fk = float(k)
+        s = 2.0 * fk + alpha + beta
+        a1 = 2.0 * fk * (fk + alpha + beta) * (s - 2.0)
+        a2 = (s - 1.0) * (s * (s - 2.0) * x + alpha * alpha - beta * beta)
+        a3 = 2.0 * (fk + alpha - 1.0) * (fk + beta - 1.0) * s
+        p2 = (a2 * p1 - a3 * p0) / a1
+        p0 = p1
+        p1 = p2
+    return p1
+
+
+@wp.func
+def modified_a_values(n: int, x: float) -> vecm:
+    """Modified_A modes 0..n-1 at x: (1-x)/2, (1+x)/2, then bubbles (1-x)(1+x)/4 P^(1,1)_{p-2}."""
+    v = vecm()
+    v[0] = 0.5 * (1.0 - x)
+    if n > 1:
+        v[1] = 0.5 * (1.0 + x)
+    bubble = 0.25 * (1.0 - x) * (1.0 + x)
+    pm2 = float(0.0)
+    pm1 = float(1.0)
+    for p in range(2, n):
+        k = p - 2
+        pk = float(1.0)
+        if k == 1:
+            pk = 2.0 * x
+        elif k >= 2:
+            fk = float(k)
+            pk = ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
+        v[p] = bubble * pk
+        pm2 = pm1
+        pm1 = pk
+    return v
+
+
+@wp.func
+def modified_b_row(p: int, n: int, x: float) -> vecm:
+    """phi^B_{p,r}(x) for r = 0..n-1 (p = 0: Modified_A; p >= 1: ((1-x)/2)^p [(1+x)/2 P^(2p-1,1)_{r-1}])."""
+    if p == 0:
+        return modified_a_values(n, x)
+    v = vecm()
+    lo = wp.pow(0.5 * (1.0 - x), float(p))
+    v[0] = lo
+    alpha = 2.0 * float(p) - 1.0
+    for r in range(1, n):
+        v[r] = lo * 0.5 * (1.0 + x) * jacobi_p(r - 1, alpha, x)
+    return v
+
+
+@wp.func
+def modified_pyr_c_row(p: int, q: int, n: int, x: float) -> vecm:
+    """ModifiedPyr_C phi_{p,q,r}(x) for r = 0..n-1."""
+    if p <= 1 or q <= 1:
+        return modified_b_row(wp.max(p, q), n, x)
+    v = vecm()
+    lo = wp.pow(0.5 * (1.0 - x), float(p + q - 2))
+    v[0] = lo
+    alpha = 2.0 * float(p + q) - 3.0
+    for r in range(1, n):
+        v[r] = lo * 0.5 * (1.0 + x) * jacobi_p(r - 1, alpha, x)
+    return v
+
+
+@wp.func
+def collapse_ratio(num: float, den: float) -> float:
+    """2 num / den - 1 with the denominator clamped away from 0 (Nektar++ kNekZeroTol)."""
+    d = den
+    if wp.abs(d) < 1.0e-12:
+        d = 1.0e-12
+    return 2.0 * num / d - 1.0
+
+
+@wp.func
+def eval_hex(coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+    a = modified_a_values(m[0], xi[0])
+    b = modified_a_values(m[1], xi[1])
+    g = modified_a_values(m[2], xi[2])
+    total = float(0.0)
+    for k in range(m[2]):
+        plane = float(0.0)
+        for j in range(m[1]):
+            row = float(0.0)
+            base = off + m[0] * (j + m[1] * k)
+            for i in range(m[0]):
+                row += a[i] * coeffs[base + i]
+            plane += b[j] * row
+        total += g[k] * plane
+    return total
+
+
+@wp.func
+def eval_prism(coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+    eta1 = collapse_ratio(1.0 + xi[0], 1.0 - xi[2])
+    a = modified_a_values(m[0], eta1)
+    b = modified_a_values(m[1], xi[1])
+    total = float(0.0)
+    idx = off
+    for p in range(m[0]):
+        nr = m[2] - p
+        c3 = modified_b_row(p, nr, xi[2])
+        for q in range(m[1]):
+            s = float(0.0)
+            for r in range(nr):
+                s += c3[r] * coeffs[idx + r]
+            total += a[p] * b[q] * s
+            if p == 0 and nr > 1:
+                # singular edge: mode (0, q, 1) also carries phi_1(eta1) phi_q(xi2) (1+xi3)/2
+                total += coeffs[idx + 1] * a[1] * b[q] * 0.5 * (1.0 + xi[2])
+            idx += nr
+    return total
+
+
+@wp.func
+def eval_tet(coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+    eta1 = collapse_ratio(1.0 + xi[0], -xi[1] - xi[2])
+    eta2 = collapse_ratio(1.0 + xi[1], 1.0 - xi[2])
+    eta3 = xi[2]
+    a = modified_a_values(m[0], eta1)
+    total = float(0.0)
+    idx = off
+    t01 = float(0.0)  # sum_r c_(0,1,r) phi^C_{0,1,r}(eta3), for the vertex-3 correction
+    for p in range(m[0]):
+        nq = m[1] - p
+        b = modified_b_row(p, nq, eta2)
+        for q in range(nq):
+            nr = m[2] - p - q
+            c3 = modified_b_row(p + q, nr, eta3)
+            s = float(0.0)
+            for r in range(nr):
+                s += c3[r] * coeffs[idx + r]
+            total += a[p] * b[q] * s
+            if p == 0 and q == 1:
+                t01 = s
+            idx += nr
+    if m[0] > 1 and m[1] > 1 and m[2] > 1:
+        c1 = coeffs[off + 1]  # mode (0, 0, 1): vertex 3
+        top = 0.5 * (1.0 + eta3)
+        b0 = modified_b_row(0, 2, eta2)
+        b1 = modified_b_row(1, 1, eta2)
+        total += c1 * top * (a[0] * b0[1] + a[1] * b1[0])
+        total += a[1] * b0[1] * (t01 + c1 * top)
+    return total
+
+
+@wp.func
+def eval_pyr(coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+    eta1 = collapse_ratio(1.0 + xi[0], 1.0 - xi[2])
+    eta2 = collapse_ratio(1.0 + xi[1], 1.0 - xi[2])
+    eta3 = xi[2]
+    a = modified_a_values(m[0], eta1)
+    b = modified_a_values(m[1], eta2)
+    total = float(0.0)
+    idx = off
+    for p in range(m[0]):
+        for q in range(m[1]):
+            nr = m[2] - wp.max(p, q)
+            if nr > 0:
+                c3 = modified_pyr_c_row(p, q, nr, eta3)
+                s = float(0.0)
+                for r in range(nr):
+                    s += c3[r] * coeffs[idx + r]
+                total += a[p] * b[q] * s
+                idx += nr
+    if m[0] > 1 and m[1] > 1 and m[2] > 1:
+        c1 = coeffs[off + 1]  # mode (0, 0, 1): the apex
+        total += c1 * 0.5 * (1.0 + eta3) * (a[0] * b[1] + a[1] * b[0] + a[1] * b[1])
+    return total
+
+
+@wp.func
+def eval_element(shape: int, coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+    if shape == PRISM:
+        return eval_prism(coeffs, off, m, xi)
+    if shape == TET:
+        return eval_tet(coeffs, off, m, xi)
+    if shape == PYR:
+        return eval_pyr(coeffs, off, m, xi)
+    return eval_hex(coeffs, off, m, xi)
+
+
+@wp.func
+def restriction_weight(shape: int, xi: wp.vec3) -> float:
+    """w with f * w^2 polynomial along a straight line: pyramids are rational, 1/(1-xi3)^2."""
+    if shape == PYR:
+        return 0.5 * (1.0 - xi[2])
+    return 1.0
+
+
+@wp.func
+def polynomial_degree(shape: int, m: wp.vec3i) -> int:
+    """Degree along a straight line in reference space of the (weighted) expansion."""
+    d0 = wp.max(m[0] - 1, 1)
+    d1 = wp.max(m[1] - 1, 1)
+    d2 = wp.max(m[2] - 1, 1)
+    if shape == TET:
+        return wp.max(wp.max(d0, d1), d2)
+    if shape == PRISM:
+        return wp.max(d0, d2) + d1
+    if shape == PYR:
+        return d0 + d1 + d2 + 2
+    return d0 + d1 + d2
+
+
+@wp.func
+def reference_interval(shape: int, xo: wp.vec3, xd: wp.vec3) -> wp.vec3:
+    """(hit, t0, t1) of the line xo + t xd inside the reference element (a convex polytope):
+    Cyrus-Beck clipping against xi_k >= -1 and the shape's other faces."""
+    t0 = float(-1.0e30)
+    t1 = float(1.0e30)
+    hit = float(1.0)
+    for f in range(7):
+        # face f: n . xi <= c
+        n = wp.vec3(0.0, 0.0, 0.0)
+        c = float(0.0)
+        use = int(1)
+        if f < 3:
+            n[f] = -1.0
+            c = 1.0
+        elif shape == HEX:
+            if f < 6:
+                n[f - 3] = 1.0
+                c = 1.0
+            else:
+                use = 0
+        elif shape == PRISM:
+            if f == 3:
+                n = wp.vec3(0.0, 1.0, 0.0)
+                c = 1.0
+            elif f == 4:
+                n = wp.vec3(1.0, 0.0, 1.0)
+                c = 0.0
+            else:
+                use = 0
+        elif shape == TET:
+            if f == 3:
+                n = wp.vec3(1.0, 1.0, 1.0)
+                c = -1.0
+            else:
+                use = 0
+        else:  # pyramid
+            if f == 3:
+                n = wp.vec3(1.0, 0.0, 1.0)
+                c = 0.0
+            elif f == 4:
+                n = wp.vec3(0.0, 1.0, 1.0)
+                c = 0.0
+            else:
+                use = 0
+        if use == 1:
+            num = c - wp.dot(n, xo)
+            den = wp.dot(n, xd)
+            if wp.abs(den) < 1.0e-30:
+                if num < 0.0:
+                    hit = 0.0
+            else:
+                t = num / den
+                if den > 0.0:
+                    t1 = wp.min(t1, t)
+                else:
+                    t0 = wp.max(t0, t)
+    if t1 <= t0:
+        hit = 0.0
+    return wp.vec3(hit, t0, t1)
