@@ -413,23 +413,39 @@ def gauss_kronrod_smooth(
 
 @wp.func
 def bisect_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float, f0: float, level: float) -> wp.vec2:
-    """(t, evaluations): t in [t0, t1] where the restriction crosses `level` (sign change at the ends)."""
+    """(t, evaluations): t in [t0, t1] where the restriction crosses `level` (sign change at the
+    ends). Illinois regula falsi: bracketing like bisection, superlinear on a monotone piece."""
     lo = t0
     hi = t1
     flo = f0 - level
-    nev = float(0.0)
-    for it in range(40):
-        nev += 1.0
+    fhi = restriction_at(c, deg, a, b, t1) - level
+    nev = float(1.0)
+    side = int(0)
+    m = 0.5 * (lo + hi)
+    for it in range(48):
         m = 0.5 * (lo + hi)
+        if fhi != flo:
+            m = wp.clamp((lo * fhi - hi * flo) / (fhi - flo), lo, hi)
         fm = restriction_at(c, deg, a, b, m) - level
+        nev += 1.0
+        if fm == 0.0:
+            break
         if (fm < 0.0) == (flo < 0.0):
             lo = m
             flo = fm
+            if side == -1:
+                fhi = 0.5 * fhi
+            side = -1
         else:
             hi = m
+            fhi = fm
+            if side == 1:
+                flo = 0.5 * flo
+            side = 1
         if hi - lo <= 1.0e-7 * (wp.abs(hi) + wp.abs(lo)) + 1.0e-30:
+            m = 0.5 * (lo + hi)
             break
-    return wp.vec2(0.5 * (lo + hi), nev)
+    return wp.vec2(m, nev)
 
 
 @wp.func
