@@ -23,6 +23,9 @@ class RenderError(RuntimeError):
 class RenderResult:
     rgba: np.ndarray  # (H, W, 4) float32, RGB = C + T*background, A = 1 - T; row 0 at the top
     stats: dict
+    depth: np.ndarray | None = None  # (H, W) t where 1 - T first reaches 0.5, else the far value
+    error: np.ndarray | None = None  # (H, W) sum of the Gauss-Kronrod panel error estimates
+    cancelled: bool = False
 
 
 def _warp():
@@ -82,7 +85,11 @@ class Renderer:
             self._gk_s = wp.array(S.astype(np.float32), dtype=wp.float32)
         self.upload_seconds = time.perf_counter() - t0
 
-    def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions) -> RenderResult:
+    def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
+               progress=None, tile_pixels: int | None = None) -> RenderResult:
+        """Render one image. With `progress`, the image is launched in tiles of `tile_pixels`
+        pixels and progress(fraction_done) is called after each; returning False cancels
+        (the result then has cancelled=True and only the finished tiles filled in)."""
         wp = _warp()
         k = self._k
         W, H = int(camera.width), int(camera.height)
@@ -109,22 +116,37 @@ class Renderer:
             q.gk_x, q.gk_wk, q.gk_wg = self._gk
             q.gk_s = self._gk_s
             try:
-                rgba = wp.empty(W * H, dtype=wp.vec4)
+                rgba = wp.zeros(W * H, dtype=wp.vec4)
+                aux = wp.zeros(W * H, dtype=wp.vec2)
                 stats = wp.zeros((W * H, k.NUM_STATS), dtype=wp.int32)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             wp.load_module(k, device=self.device)  # compile outside the timed region
             wp.synchronize_device(self.device)
             t0 = time.perf_counter()
-            wp.launch(k.render_kernel, dim=W * H, inputs=[self._mesh_args, cam, t, q, rgba, stats])
+            total = W * H
+            step = total if progress is None else max(1, int(tile_pixels or 65536))
+            cancelled = False
+            for start in range(0, total, step):
+                n = min(step, total - start)
+                wp.launch(k.render_kernel, dim=n, inputs=[self._mesh_args, cam, t, q, start, rgba, aux, stats])
+                if progress is not None:
+                    wp.synchronize_device(self.device)
+                    if progress((start + n) / total) is False:
+                        cancelled = True
+                        break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
             img = rgba.numpy().reshape(H, W, 4)
+            depth_err = aux.numpy().reshape(H, W, 2)
             st = stats.numpy().astype(np.int64)
         if not np.all(np.isfinite(img)):
             raise RenderError("the render produced non-finite pixels (NaN/Inf in the data or transfer function?)")
         tot = st.sum(axis=0)
         return RenderResult(
+            depth=depth_err[..., 0],
+            error=depth_err[..., 1],
+            cancelled=cancelled,
             rgba=img,
             stats={
                 "device": self.device,

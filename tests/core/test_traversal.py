@@ -52,3 +52,41 @@ def test_split_brick_equals_single_element(device):
     assert one.rgba[..., 3].max() > 0.3
     np.testing.assert_allclose(many.rgba, one.rgba, atol=2e-5)
     assert many.stats["segments"] > 3 * one.stats["segments"]
+
+
+@pytest.mark.parametrize("method", ["trapezoid", "split"])
+def test_depth_pass_constant_density(device, method):
+    """Depth = where 1 - T first reaches 0.5: t_in + ln 2 / tau for a constant field, else far."""
+    lo, hi = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    mesh = brick(lo, hi, (2, 2, 2), 2, lambda x, y, z: 0.0 * x + 1.0)
+    tau = 1.5
+    tf = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2, 1, 1, 1]], "density": [[0, tau], [2, tau]]})
+    cam = RayCamera.from_contract({"eye": [4.0, 1.0, 3.0], "target": [0, 0, 0], "up": [0, 0, 1], "fov_y_deg": 40}, 40, 30)
+    res = Renderer(mesh, device).render(cam, tf, [0, 0, 0], RenderOptions(method=method, h=0.01, min_transmittance=0))
+    o, d = cam.rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - o) / d, (hi - o) / d
+    t_in = np.nanmax(np.minimum(ta, tb), axis=-1)
+    L = chord_lengths(o, d, lo, hi)
+    reaches = L > np.log(2) / tau + 1e-3
+    assert reaches.sum() > 100 and (~reaches).sum() > 100
+    np.testing.assert_allclose(res.depth[reaches], (t_in + np.log(2) / tau)[reaches], atol=2e-4)
+    assert np.all(res.depth[~reaches & (L == 0)] >= 1e29)
+    assert np.all(res.error >= 0) and res.error.max() < 1e-3
+
+
+def test_tiled_render_progress_and_cancel(device):
+    mesh = sphere()
+    tf = TransferFunction.from_contract({"color": [[2, 1, 0.5, 0], [9, 0, 0.5, 1]], "density": [[2, 0], [3, 2], [4, 0]]})
+    cam = RayCamera.from_contract({"eye": [6, 5, 8], "target": [0, 0, 1], "up": [0, 0, 1], "fov_y_deg": 35}, 40, 30)
+    r = Renderer(mesh, device)
+    whole = r.render(cam, tf, [0, 0, 0], RenderOptions(method="split"))
+    seen = []
+    tiled = r.render(cam, tf, [0, 0, 0], RenderOptions(method="split"), progress=seen.append, tile_pixels=256)
+    assert len(seen) == -(-40 * 30 // 256) and seen[-1] == 1.0 and not tiled.cancelled
+    np.testing.assert_array_equal(tiled.rgba, whole.rgba)
+    calls = []
+    cancelled = r.render(cam, tf, [0, 0, 0], RenderOptions(method="split"),
+                         progress=lambda f: calls.append(f) or False, tile_pixels=256)
+    assert cancelled.cancelled and len(calls) == 1
+    assert np.all(cancelled.rgba.reshape(-1, 4)[256:] == 0)

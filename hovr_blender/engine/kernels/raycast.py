@@ -56,8 +56,10 @@ vecwi = wp.types.vector(length=WINDOW, dtype=wp.int32)
 vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
 vecsi = wp.types.vector(length=GK_STACK, dtype=wp.int32)
 vec15 = wp.types.vector(length=15, dtype=wp.float32)
-# ray state: (C.r, C.g, C.b, T, restriction evaluations so far)
-vecst = wp.types.vector(length=5, dtype=wp.float32)
+# ray state: (C.r, C.g, C.b, T, restriction evaluations so far, depth, error estimate)
+# depth: t where 1 - T first reaches 0.5 (-1 until then); error: sum of accepted
+# Gauss-Kronrod panel estimates (the methods' own a-posteriori error, 0 without one)
+vecst = wp.types.vector(length=7, dtype=wp.float32)
 
 
 @wp.struct
@@ -270,6 +272,14 @@ def sample_field(
 
 
 @wp.func
+def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> float:
+    """First t with T = 0.5, interpolated as if extinction were constant on [t0, t1]."""
+    if depth < 0.0 and T0 > 0.5 and T1 <= 0.5:
+        return t0 + (t1 - t0) * wp.log(T0 / 0.5) / wp.max(wp.log(T0 / wp.max(T1, 1.0e-30)), 1.0e-30)
+    return depth
+
+
+@wp.func
 def march_riemann(
     mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, xo: wp.vec3, xd: wp.vec3, a: float, b: float, state: vecst
 ) -> vecst:
@@ -279,14 +289,18 @@ def march_riemann(
     col = wp.vec3(state[0], state[1], state[2])
     T = state[3]
     nev = state[4]
+    depth = state[5]
     for i in range(n):
-        s = eval_field(mesh, e, xo + (a + float(i) * w) * xd)
+        t0 = a + float(i) * w
+        s = eval_field(mesh, e, xo + t0 * xd)
         tau = tf_density(tf, s)
         col += T * tau * w * tf_color(tf, s)
-        T = T * wp.exp(-tau * w)
+        T1 = T * wp.exp(-tau * w)
+        depth = depth_update(depth, t0, t0 + w, T, T1)
+        T = T1
         if T < q.min_transmittance:
             break
-    return vecst(col[0], col[1], col[2], T, nev)
+    return vecst(col[0], col[1], col[2], T, nev, depth, state[6])
 
 
 @wp.func
@@ -310,6 +324,7 @@ def march_trapezoid(
     col = wp.vec3(state[0], state[1], state[2])
     T = state[3]
     nev = state[4]
+    depth = state[5]
     s0 = sample_field(mesh, e, xo, xd, use_restriction, c, deg, a, b, a)
     nev += float(use_restriction)
     tau0 = tf_density(tf, s0)
@@ -322,12 +337,13 @@ def march_trapezoid(
         g1 = tau1 * tf_color(tf, s1)
         T1 = T * wp.exp(-0.5 * w * (tau0 + tau1))
         col += 0.5 * w * (T * g0 + T1 * g1)
+        depth = depth_update(depth, t1 - w, t1, T, T1)
         T = T1
         tau0 = tau1
         g0 = g1
         if T < q.min_transmittance:
             break
-    return vecst(col[0], col[1], col[2], T, nev)
+    return vecst(col[0], col[1], col[2], T, nev, depth, state[6])
 
 
 @wp.func
@@ -344,6 +360,8 @@ def gauss_kronrod_smooth(
     col = wp.vec3(state[0], state[1], state[2])
     T = state[3]
     nev = state[4]
+    depth_t = state[5]
+    err_sum = state[6]
     stack_l = vecs()
     stack_r = vecs()
     stack_d = vecsi()
@@ -359,9 +377,11 @@ def gauss_kronrod_smooth(
         half = 0.5 * (r - l)
         mid = 0.5 * (r + l)
         taus = vec15()
+        svals = vec15()
         nev += 15.0
         for j in range(15):
-            taus[j] = tf_density(tf, restriction_at(c, deg, a, b, mid + half * q.gk_x[j]))
+            svals[j] = restriction_at(c, deg, a, b, mid + half * q.gk_x[j])
+            taus[j] = tf_density(tf, svals[j])
         dk = float(0.0)
         dg = float(0.0)
         for j in range(15):
@@ -386,9 +406,7 @@ def gauss_kronrod_smooth(
                     else:
                         run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
                     inner = run
-                s = restriction_at(c, deg, a, b, mid + half * q.gk_x[j])
-                nev += 1.0
-                g = taus[j] * wp.exp(-inner) * tf_color(tf, s)
+                g = taus[j] * wp.exp(-inner) * tf_color(tf, svals[j])
                 ek += q.gk_wk[j] * g
                 eg += q.gk_wg[j] * g
             ek = ek * (T * half)
@@ -397,7 +415,10 @@ def gauss_kronrod_smooth(
         err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
         if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK:
             col += ek
-            T = T * wp.exp(-dk)
+            T1 = T * wp.exp(-dk)
+            depth_t = depth_update(depth_t, l, r, T, T1)
+            err_sum += err
+            T = T1
             if T < q.min_transmittance:
                 break
         else:
@@ -408,7 +429,7 @@ def gauss_kronrod_smooth(
             stack_r[top + 1] = mid
             stack_d[top + 1] = depth + 1
             top += 2
-    return vecst(col[0], col[1], col[2], T, nev)
+    return vecst(col[0], col[1], col[2], T, nev, depth_t, err_sum)
 
 
 @wp.func
@@ -522,10 +543,13 @@ def render_kernel(
     cam: CameraArgs,
     tf: TransferArgs,
     q: QuadArgs,
+    pixel_offset: wp.int32,
     rgba: wp.array(dtype=wp.vec4),
+    aux: wp.array(dtype=wp.vec2),
     stats: wp.array2d(dtype=wp.int32),
 ):
-    tid = wp.tid()
+    # one thread per pixel of a tile starting at pixel_offset (tiles let the host cancel)
+    tid = wp.tid() + pixel_offset
     px = tid % cam.width
     py = tid // cam.width
     fw = float(cam.width)
@@ -535,7 +559,7 @@ def render_kernel(
     o = cam.o0 + u * cam.ou + v * cam.ov
     d = wp.normalize(cam.d0 + u * cam.du + v * cam.dv)
 
-    state = vecst(0.0, 0.0, 0.0, 1.0, 0.0)
+    state = vecst(0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
     n_field = int(0)
     n_restr = int(0)
     n_seg = int(0)
@@ -684,6 +708,10 @@ def render_kernel(
 
     T = state[3]
     rgba[tid] = wp.vec4(state[0] + T * q.background[0], state[1] + T * q.background[1], state[2] + T * q.background[2], 1.0 - T)
+    depth_out = state[5]
+    if depth_out < 0.0:
+        depth_out = cam.t_max
+    aux[tid] = wp.vec2(depth_out, state[6])
     stats[tid, 0] = n_field
     stats[tid, 1] = n_restr + int(state[4])
     stats[tid, 2] = n_seg
