@@ -29,6 +29,13 @@ Functions (all vectorised over leading point dimensions; xi (..., 3)):
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
+import numpy as np
+from numpy.polynomial import legendre
+
+from .basis import fit_tensor_coefficients, gll_points, modified_a
+
 HEX, PRISM, TET, PYR = 0, 1, 2, 3
 SHAPE_NAMES = {HEX: "hexahedron", PRISM: "prism", TET: "tetrahedron", PYR: "pyramid"}
 
@@ -36,3 +43,583 @@ SHAPE_NAMES = {HEX: "hexahedron", PRISM: "prism", TET: "tetrahedron", PYR: "pyra
 #   SHAPE_VERTICES[shape] -> (nv, 3) reference vertex coordinates (§2.8)
 #   affine_fit(shape, gmodes, gcoeffs) -> (A (3,3), b (3,), ok): xi = A x + b when the map
 #       x(xi) is affine (checked at fit points to 1e-12 relative), else ok = False
+# Extras (not needed by the contract's users, handy for importers and tests):
+#   basis_matrix(shape, modes, xi, corrected=True) -> (..., K) every mode at xi
+#   vertex_mode_indices(shape, modes) -> (nv,) storage index of each vertex's mode
+#   CENTROIDS[shape] -> (3,) reference centroid
+
+SHAPE_VERTICES = {
+    HEX: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
+                   [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64),
+    PRISM: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [-1, 1, 1]], dtype=np.float64),
+    TET: np.array([[-1, -1, -1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64),
+    PYR: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64),
+}
+for _v in SHAPE_VERTICES.values():
+    _v.setflags(write=False)
+
+# volume centroids of the reference shapes (pyramid: a quarter of the height above the base)
+CENTROIDS = {HEX: np.zeros(3), PRISM: np.array([-1 / 3, 0.0, -1 / 3]), TET: np.full(3, -0.5),
+             PYR: np.array([-0.25, -0.25, -0.5])}
+
+ZERO_TOL = 1e-12  # Nektar++ kNekZeroTol: collapsed-coordinate denominators are clamped to it
+_CHUNK = 1 << 22  # basis-matrix entries per evaluation chunk (bounds memory, keeps numpy vectorised)
+
+
+def _check_shape(shape) -> int:
+    shape = int(shape)
+    if shape not in SHAPE_NAMES:
+        raise ValueError(f"unknown shape id {shape}")
+    return shape
+
+
+def _check_modes(shape, modes) -> tuple[int, int, int]:
+    m = tuple(int(v) for v in np.asarray(modes).ravel())
+    if len(m) != 3 or min(m) < 1:
+        raise ValueError(f"modes must be three positive counts, got {modes!r}")
+    # Nektar++ asserts these (Std{Prism,Tet,Pyr}Exp): the collapsed direction carries the top order
+    if shape == PRISM and m[0] > m[2]:
+        raise ValueError(f"prism modes {m}: direction 0 exceeds direction 2")
+    if shape in (TET, PYR) and (m[0] > m[2] or m[1] > m[2]):
+        raise ValueError(f"{SHAPE_NAMES[shape]} modes {m}: directions 0/1 exceed direction 2")
+    return m
+
+
+def num_coeffs(shape, modes) -> int:
+    shape = _check_shape(shape)
+    a, b, c = _check_modes(shape, modes)
+    if shape == HEX:
+        return a * b * c
+    if shape == PRISM:
+        return b * (a * (a + 1) // 2 + a * (c - a))
+    if shape == TET:
+        return sum(max(c - p - q, 0) for p in range(a) for q in range(max(b - p, 0)))
+    return sum(c - max(p, q) for p in range(a) for q in range(b))
+
+
+@lru_cache(maxsize=None)
+def _triples(shape: int, modes: tuple[int, int, int]) -> np.ndarray:
+    a, b, c = modes
+    if shape == HEX:
+        t = [(i, j, k) for k in range(c) for j in range(b) for i in range(a)]
+    elif shape == PRISM:
+        t = [(p, q, r) for p in range(a) for q in range(b) for r in range(c - p)]
+    elif shape == TET:
+        t = [(p, q, r) for p in range(a) for q in range(b - p) for r in range(c - p - q)]
+    else:
+        t = [(p, q, r) for p in range(a) for q in range(b) for r in range(c - max(p, q))]
+    out = np.array(t, dtype=np.int64).reshape(-1, 3)
+    out.setflags(write=False)
+    return out
+
+
+def mode_triples(shape, modes) -> np.ndarray:
+    shape = _check_shape(shape)
+    return _triples(shape, _check_modes(shape, modes)).copy()
+
+
+# ---------------------------------------------------------------------------------------------
+# collapsed coordinates
+
+
+def _clamped(d):
+    return np.where(np.abs(d) < ZERO_TOL, np.where(d < 0, -ZERO_TOL, ZERO_TOL), d)
+
+
+def collapse(shape, xi) -> np.ndarray:
+    shape = _check_shape(shape)
+    xi = np.asarray(xi, dtype=np.float64)
+    eta = xi.copy()
+    x0, x1, x2 = xi[..., 0], xi[..., 1], xi[..., 2]
+    if shape == PRISM:
+        eta[..., 0] = 2.0 * (1.0 + x0) / _clamped(1.0 - x2) - 1.0
+    elif shape == TET:
+        eta[..., 0] = 2.0 * (1.0 + x0) / _clamped(-x1 - x2) - 1.0
+        eta[..., 1] = 2.0 * (1.0 + x1) / _clamped(1.0 - x2) - 1.0
+    elif shape == PYR:
+        eta[..., 0] = 2.0 * (1.0 + x0) / _clamped(1.0 - x2) - 1.0
+        eta[..., 1] = 2.0 * (1.0 + x1) / _clamped(1.0 - x2) - 1.0
+    return eta
+
+
+def _uncollapse(shape, eta) -> np.ndarray:
+    eta = np.asarray(eta, dtype=np.float64)
+    xi = eta.copy()
+    s = 0.5 * (1.0 - eta[..., 2])
+    if shape in (PRISM, PYR):
+        xi[..., 0] = (1.0 + eta[..., 0]) * s - 1.0
+    if shape == PYR:
+        xi[..., 1] = (1.0 + eta[..., 1]) * s - 1.0
+    if shape == TET:
+        xi[..., 1] = (1.0 + eta[..., 1]) * s - 1.0
+        xi[..., 0] = (1.0 + eta[..., 0]) * 0.5 * (-xi[..., 1] - xi[..., 2]) - 1.0
+    return xi
+
+
+# ---------------------------------------------------------------------------------------------
+# one-dimensional factors
+
+
+def _jacobi(n: int, a: float, b: float, x) -> list:
+    """[P^(a,b)_0 .. P^(a,b)_n](x), standard normalisation (three-term recurrence, as Polylib)."""
+    out = [np.ones_like(x)]
+    if n >= 1:
+        out.append(0.5 * (a - b + (a + b + 2.0) * x))
+    for k in range(2, n + 1):
+        c = 2.0 * k + a + b
+        a1 = 2.0 * k * (k + a + b) * (c - 2.0)
+        a2 = (c - 1.0) * (a * a - b * b)
+        a3 = (c - 2.0) * (c - 1.0) * c
+        a4 = 2.0 * (k + a - 1.0) * (k + b - 1.0) * c
+        out.append(((a2 + a3 * x) * out[-1] - a4 * out[-2]) / a1)
+    return out
+
+
+class _Jac:
+    """Cached Jacobi families at one set of points: value and derivative of P^(a,b)_n."""
+
+    def __init__(self, x, nmax):
+        self.x, self.nmax, self.cache = x, nmax, {}
+
+    def _fam(self, a, b):
+        if (a, b) not in self.cache:
+            self.cache[(a, b)] = _jacobi(self.nmax, float(a), float(b), self.x)
+        return self.cache[(a, b)]
+
+    def __call__(self, n, a, b):
+        val = self._fam(a, b)[n]
+        # d/dx P^(a,b)_n = (n + a + b + 1)/2 P^(a+1,b+1)_{n-1}
+        der = 0.5 * (n + a + b + 1) * self._fam(a + 1, b + 1)[n - 1] if n > 0 else np.zeros_like(self.x)
+        return val, der
+
+
+def _mod_a(n: int, x):
+    """Modified_A values (N, n) and derivatives (N, n)."""
+    val = modified_a(n, x)
+    der = np.empty_like(val)
+    der[:, 0] = -0.5
+    if n > 1:
+        der[:, 1] = 0.5
+    if n > 2:
+        # phi_p = (1-x^2)/4 (2/p) L'_{p-1}; with Legendre's equation phi_p' = -(p-1)/2 L_{p-1}
+        leg = legendre.legvander(x, n - 2)
+        for p in range(2, n):
+            der[:, p] = -0.5 * (p - 1) * leg[:, p - 1]
+    return val, der
+
+
+def _w_power(k, m, dm, w):
+    """value, derivative and value / w of w^k m(x), w = (1-x)/2, k >= 1."""
+    wk1 = w ** (k - 1)
+    return wk1 * w * m, -0.5 * k * wk1 * m + wk1 * w * dm, wk1 * m
+
+
+def _mod_b(p: int, r: int, x, jac: _Jac):
+    """Modified_B mode (p, r) at x: value, derivative, value / ((1-x)/2) (the last one is what the
+    chain rule through the collapse needs; it is a polynomial except for (0, 1), which every shape
+    replaces by its corrected mode, so zeros stand in for it)."""
+    w, v = 0.5 * (1.0 - x), 0.5 * (1.0 + x)
+    if p == 0 and r == 0:
+        return w, np.full_like(x, -0.5), np.ones_like(x)
+    if p == 0 and r == 1:
+        return v, np.full_like(x, 0.5), np.zeros_like(x)
+    if p == 0:
+        J, dJ = jac(r - 2, 1, 1)
+        return _w_power(1, v * J, 0.5 * J + v * dJ, w)
+    if r == 0:
+        return _w_power(p, np.ones_like(x), np.zeros_like(x), w)
+    J, dJ = jac(r - 1, 2 * p - 1, 1)
+    return _w_power(p, v * J, 0.5 * J + v * dJ, w)
+
+
+def _mod_pyr_c(p: int, q: int, r: int, x, jac: _Jac):
+    if p <= 1 or q <= 1:
+        return _mod_b(max(p, q), r, x, jac)
+    w, v = 0.5 * (1.0 - x), 0.5 * (1.0 + x)
+    if r == 0:
+        return _w_power(p + q - 2, np.ones_like(x), np.zeros_like(x), w)
+    J, dJ = jac(r - 1, 2 * p + 2 * q - 3, 1)
+    return _w_power(p + q - 2, v * J, 0.5 * J + v * dJ, w)
+
+
+def _columns(keys, func):
+    """Evaluate func(key) -> (val, der, red) once per distinct key; (N, nk) arrays and key index."""
+    uniq = sorted(set(keys))
+    pos = {k: i for i, k in enumerate(uniq)}
+    cols = [func(k) for k in uniq]
+    stack = [np.stack([c[i] for c in cols], axis=1) for i in range(3)]
+    return stack[0], stack[1], stack[2], np.array([pos[k] for k in keys], dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------------------------
+# the basis matrix and its gradient
+
+
+def _basis(shape: int, modes, X, grad: bool, corrected: bool = True):
+    """B (N, K) of every stored mode at points X (N, 3) and, with grad, dB/dxi (N, K, 3).
+    Derivatives through the collapse use the reduced factors (value / collapse factor), so no
+    division by (1 - xi3) or (-xi2 - xi3) occurs and the gradient is finite at the singularity."""
+    t = _triples(shape, modes)
+    p, q, r = t[:, 0], t[:, 1], t[:, 2]
+    P0, P1, P2 = modes
+    x0, x1, x2 = X[:, 0], X[:, 1], X[:, 2]
+    G = None
+    if shape == HEX:
+        a, da = _mod_a(P0, x0)
+        b, db = _mod_a(P1, x1)
+        c, dc = _mod_a(P2, x2)
+        B = a[:, p] * b[:, q] * c[:, r]
+        if grad:
+            G = np.stack([da[:, p] * b[:, q] * c[:, r], a[:, p] * db[:, q] * c[:, r], a[:, p] * b[:, q] * dc[:, r]], -1)
+        return B, G
+
+    eta = collapse(shape, X)
+    e0, e1 = eta[:, 0], eta[:, 1]
+    jac = _Jac(x2, P2)
+    if shape == PRISM:
+        F1, dF1 = _mod_a(P0, e0)
+        F2, dF2 = _mod_a(P1, x1)
+        H, dH, rH, h = _columns(list(zip(p.tolist(), r.tolist())), lambda k: _mod_b(k[0], k[1], x2, jac))
+        B = F1[:, p] * F2[:, q] * H[:, h]
+        if grad:
+            g0 = dF1[:, p] * F2[:, q] * rH[:, h]
+            g1 = F1[:, p] * dF2[:, q] * H[:, h]
+            g2 = F2[:, q] * (dF1[:, p] * (0.5 * (1.0 + e0))[:, None] * rH[:, h] + F1[:, p] * dH[:, h])
+            G = np.stack([g0, g1, g2], -1)
+        if corrected:
+            # singular edge 4-5: mode (0, q, 1) = phiA_q(xi2) (1 + xi3)/2, independent of eta1
+            cols = np.nonzero((p == 0) & (r == 1))[0]
+            up = 0.5 * (1.0 + x2)[:, None]
+            B[:, cols] = F2[:, q[cols]] * up
+            if grad:
+                G[:, cols, 0] = 0.0
+                G[:, cols, 1] = dF2[:, q[cols]] * up
+                G[:, cols, 2] = 0.5 * F2[:, q[cols]]
+        return B, G
+
+    if shape == TET:
+        F1, dF1 = _mod_a(P0, e0)
+        jac2 = _Jac(e1, P1)
+        Gv, dG, rG, g = _columns(list(zip(p.tolist(), q.tolist())), lambda k: _mod_b(k[0], k[1], e1, jac2))
+        H, dH, rH, h = _columns(list(zip((p + q).tolist(), r.tolist())), lambda k: _mod_b(k[0], k[1], x2, jac))
+        B = F1[:, p] * Gv[:, g] * H[:, h]
+        if grad:
+            a1 = (0.5 * (1.0 + e0))[:, None]
+            a2 = (0.5 * (1.0 + e1))[:, None]
+            t01 = dF1[:, p] * rG[:, g] * rH[:, h]  # d/deta1 term divided by both collapse factors
+            g0 = t01
+            g1 = a1 * t01 + F1[:, p] * dG[:, g] * rH[:, h]
+            g2 = a1 * t01 + a2 * F1[:, p] * dG[:, g] * rH[:, h] + F1[:, p] * Gv[:, g] * dH[:, h]
+            G = np.stack([g0, g1, g2], -1)
+        if corrected:
+            # vertex 3: mode (0,0,1) = (1 + xi3)/2
+            top = np.nonzero((p == 0) & (q == 0) & (r == 1))[0]
+            B[:, top] = 0.5 * (1.0 + x2)[:, None]
+            if grad:
+                G[:, top] = [0.0, 0.0, 0.5]
+            # edge 2-3: modes (0,1,r) = phiB_{0,1}(eta2) phiC_{0,1,r}(eta3), independent of eta1
+            cols = np.nonzero((p == 0) & (q == 1))[0]
+            gc, hc = g[cols], h[cols]
+            B[:, cols] = Gv[:, gc] * H[:, hc]
+            if grad:
+                a2 = (0.5 * (1.0 + e1))[:, None]
+                G[:, cols, 0] = 0.0
+                G[:, cols, 1] = dG[:, gc] * rH[:, hc]
+                G[:, cols, 2] = a2 * dG[:, gc] * rH[:, hc] + Gv[:, gc] * dH[:, hc]
+        return B, G
+
+    # pyramid
+    F1, dF1 = _mod_a(P0, e0)
+    F2, dF2 = _mod_a(P1, e1)
+    # ModifiedPyr_C depends on max(p, q) when p or q <= 1, else on p + q only
+    keys = [("B", max(pp, qq), rr) if min(pp, qq) <= 1 else ("P", pp + qq, rr) for pp, qq, rr in t.tolist()]
+
+    def pyr_col(k):
+        return _mod_b(k[1], k[2], x2, jac) if k[0] == "B" else _mod_pyr_c(2, k[1] - 2, k[2], x2, jac)
+
+    H, dH, rH, h = _columns(keys, pyr_col)
+    B = F1[:, p] * F2[:, q] * H[:, h]
+    if grad:
+        g0 = dF1[:, p] * F2[:, q] * rH[:, h]
+        g1 = F1[:, p] * dF2[:, q] * rH[:, h]
+        g2 = ((0.5 * (1.0 + e0))[:, None] * g0 + (0.5 * (1.0 + e1))[:, None] * g1
+              + F1[:, p] * F2[:, q] * dH[:, h])
+        G = np.stack([g0, g1, g2], -1)
+    if corrected:
+        # apex: mode (0,0,1) = (1 + xi3)/2
+        top = np.nonzero((p == 0) & (q == 0) & (r == 1))[0]
+        B[:, top] = 0.5 * (1.0 + x2)[:, None]
+        if grad:
+            G[:, top] = [0.0, 0.0, 0.5]
+    return B, G
+
+
+def _points(xi):
+    xi = np.asarray(xi, dtype=np.float64)
+    if xi.shape[-1:] != (3,):
+        raise ValueError(f"reference points need a trailing dimension of 3, got shape {xi.shape}")
+    return xi.shape[:-1], xi.reshape(-1, 3)
+
+
+def basis_matrix(shape, modes, xi, corrected: bool = True) -> np.ndarray:
+    """(..., K): every stored mode at xi. corrected=False drops the collapsed-vertex corrections
+    (wrong: only for showing what they fix)."""
+    shape = _check_shape(shape)
+    modes = _check_modes(shape, modes)
+    lead, X = _points(xi)
+    return _basis(shape, modes, X, False, corrected)[0].reshape(lead + (-1,))
+
+
+def _evaluate(shape, modes, coeffs, xi, grad: bool):
+    shape = _check_shape(shape)
+    modes = _check_modes(shape, modes)
+    k = num_coeffs(shape, modes)
+    c = np.asarray(coeffs, dtype=np.float64)
+    if c.ndim == 0 or c.shape[0] != k:
+        raise ValueError(f"{SHAPE_NAMES[shape]} modes {modes} need {k} coefficients, got array of shape {c.shape}")
+    vector = c.ndim > 1
+    c2 = c.reshape(k, -1)
+    lead, X = _points(xi)
+    n, nc = X.shape[0], c2.shape[1]
+    out = np.empty((n, nc, 3) if grad else (n, nc))
+    step = max(1, _CHUNK // (k * (4 if grad else 1)))
+    for i0 in range(0, n, step):
+        B, G = _basis(shape, modes, X[i0:i0 + step], grad)
+        if grad:
+            out[i0:i0 + step] = np.matmul(G.transpose(0, 2, 1), c2).transpose(0, 2, 1)
+        else:
+            out[i0:i0 + step] = B @ c2
+    tail = (c.shape[1:] if vector else ()) + ((3,) if grad else ())
+    return out.reshape(lead + tail)
+
+
+def eval_modal(shape, modes, coeffs, xi) -> np.ndarray:
+    return _evaluate(shape, modes, coeffs, xi, grad=False)
+
+
+def eval_modal_grad(shape, modes, coeffs, xi) -> np.ndarray:
+    return _evaluate(shape, modes, coeffs, xi, grad=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# fitting
+
+
+def _radau_like(n):
+    """n points on [-1, 1): GLL points of n + 1 without +1, so no two collapse onto one xi."""
+    return gll_points(n + 1)[:-1]
+
+
+@lru_cache(maxsize=None)
+def _fit(shape: int, modes: tuple[int, int, int]):
+    """Fit points and the least-squares solve matrix. The modes are tensor polynomials in the
+    collapsed coordinates eta (degree < P per direction; pyramid's ModifiedPyr_C reaches
+    min(P0, P1) + P2 - 4 in eta3), so a tensor grid in eta one point richer than that is
+    unisolvent and well conditioned; the collapsed end (eta = +1) is left out."""
+    P0, P1, P2 = modes
+    if shape == HEX:
+        axes = [gll_points(P0 + 1), gll_points(P1 + 1), gll_points(P2 + 1)]
+    elif shape == PRISM:
+        axes = [gll_points(P0 + 1), gll_points(P1 + 1), _radau_like(P2 + 1)]
+    elif shape == TET:
+        axes = [gll_points(P0 + 1), _radau_like(P1 + 1), _radau_like(P2 + 1)]
+    else:
+        axes = [gll_points(P0 + 1), gll_points(P1 + 1), _radau_like(max(P2, min(P0, P1) + P2 - 3) + 1)]
+    eta = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    pts = _uncollapse(shape, eta)
+    B = _basis(shape, modes, pts, False)[0]
+    solve = np.linalg.pinv(B)
+    for a in (pts, B, solve):
+        a.setflags(write=False)
+    return pts, B, solve
+
+
+def fit_points(shape, modes) -> np.ndarray:
+    shape = _check_shape(shape)
+    return _fit(shape, _check_modes(shape, modes))[0].copy()
+
+
+def fit_modal(shape, modes, values) -> np.ndarray:
+    shape = _check_shape(shape)
+    pts, _, solve = _fit(shape, _check_modes(shape, modes))
+    v = np.asarray(values, dtype=np.float64)
+    if v.shape[0] != pts.shape[0]:
+        raise ValueError(f"{v.shape[0]} values for {pts.shape[0]} fit points")
+    return np.tensordot(solve, v, axes=(1, 0))
+
+
+def gll_lagrange_hex_to_modal(modes, nodal) -> np.ndarray:
+    """Nodal values at the tensor GLL points (node (i, j, k), i fastest, §2.10) -> Modified_A
+    coefficients of the same polynomial (direction 0 fastest)."""
+    n0, n1, n2 = _check_modes(HEX, modes)
+    v = np.asarray(nodal, dtype=np.float64)
+    if v.shape[0] != n0 * n1 * n2:
+        raise ValueError(f"{v.shape[0]} nodal values for GLL_Lagrange modes {(n0, n1, n2)}")
+    cols = v.reshape(n0 * n1 * n2, -1)
+    out = np.empty_like(cols)
+    for j in range(cols.shape[1]):
+        grid = cols[:, j].reshape(n2, n1, n0).transpose(2, 1, 0)  # -> [i, j, k]
+        out[:, j] = fit_tensor_coefficients(lambda a, b, c, g=grid: g, (n0, n1, n2))
+    return out.reshape(v.shape)
+
+
+# ---------------------------------------------------------------------------------------------
+# reference-domain geometry
+
+
+def inside(shape, xi, tol=1e-10) -> np.ndarray:
+    shape = _check_shape(shape)
+    xi = np.asarray(xi, dtype=np.float64)
+    x0, x1, x2 = xi[..., 0], xi[..., 1], xi[..., 2]
+    lo = (x0 >= -1 - tol) & (x1 >= -1 - tol) & (x2 >= -1 - tol)
+    if shape == HEX:
+        return lo & (x0 <= 1 + tol) & (x1 <= 1 + tol) & (x2 <= 1 + tol)
+    if shape == PRISM:
+        return lo & (x1 <= 1 + tol) & (x0 + x2 <= tol)
+    if shape == TET:
+        return lo & (x0 + x1 + x2 <= -1 + tol)
+    return lo & (x0 + x2 <= tol) & (x1 + x2 <= tol)
+
+
+def vertex_mode_indices(shape, modes) -> np.ndarray:
+    """Storage index of the mode belonging to each vertex (§2.8 order); modes >= 2 per direction."""
+    shape = _check_shape(shape)
+    modes = _check_modes(shape, modes)
+    if min(modes) < 2:
+        raise ValueError("vertex modes need at least 2 modes per direction")
+    t = _triples(shape, modes)
+    look = {tuple(v): i for i, v in enumerate(t.tolist())}
+    per_shape = {
+        HEX: [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)],
+        PRISM: [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (0, 1, 1)],
+        TET: [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1)],
+        PYR: [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1)],
+    }[shape]
+    return np.array([look[v] for v in per_shape], dtype=np.int64)
+
+
+def _axis_vertices(shape):
+    """Indices of the vertices at xi = -1 + 2 e_d from vertex 0 (one per reference axis)."""
+    V = SHAPE_VERTICES[shape]
+    return [int(np.nonzero((V == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
+
+
+def _vertex_affine(shape, modes, g):
+    """x = v0 + J (xi + 1) through vertex 0 and the three axis vertices."""
+    V = eval_modal(shape, modes, g, SHAPE_VERTICES[shape])
+    J = 0.5 * (V[_axis_vertices(shape)] - V[0]).T  # columns dx/dxi_d
+    return V, J
+
+
+def affine_fit(shape, gmodes, gcoeffs):
+    """(A, b, ok). Without ok, A and b are the map through vertex 0 and the axis vertices (a seed
+    for Newton), or zeros for a degenerate element."""
+    shape = _check_shape(shape)
+    gmodes = _check_modes(shape, gmodes)
+    g = np.asarray(gcoeffs, dtype=np.float64).reshape(-1, 3)
+    V, J = _vertex_affine(shape, gmodes, g)
+    extent = float(np.abs(V - V.mean(axis=0)).max())
+    det = np.linalg.det(J)
+    if not np.all(np.isfinite(J)) or extent == 0.0 or abs(det) <= 1e-12 * extent**3:
+        return np.zeros((3, 3)), np.zeros(3), False
+    A = np.linalg.inv(J)
+    b = -A @ V[0] - 1.0
+    pts, B, _ = _fit(shape, gmodes)  # the difference of two maps in the space vanishes iff it does here
+    dev = np.abs(B @ g - (V[0] + (pts + 1.0) @ J.T)).max()
+    ok = bool(dev <= 1e-12 * (extent + np.abs(V).max()))
+    return A, b, ok
+
+
+_BOX = 0.5  # Newton may leave the element by this much (in eta) before it is held back
+
+
+def _hold(shape, xi):
+    """Clamp Newton iterates to a slightly enlarged element: a box in the collapsed coordinates,
+    xi3 <= 1 (beyond the collapse the collapsed shapes fold over)."""
+    if shape == HEX:
+        return np.clip(xi, -1 - _BOX, 1 + _BOX)
+    eta = collapse(shape, xi)
+    eta[:, 2] = np.clip(eta[:, 2], -1 - _BOX, 1.0)
+    eta[:, 0] = np.clip(eta[:, 0], -1 - _BOX, 1 + _BOX)
+    eta[:, 1] = np.clip(eta[:, 1], -1 - _BOX, 1.0 if shape == TET else 1 + _BOX)
+    return _uncollapse(shape, eta)
+
+
+def _solve3(J, r):
+    det = np.linalg.det(J)
+    good = np.isfinite(det) & (np.abs(det) > 1e-300)
+    out = np.zeros_like(r)
+    if good.any():
+        out[good] = np.linalg.solve(J[good], r[good][..., None])[..., 0]
+    if (~good).any():  # singular Jacobian: least-norm step instead of failing the batch
+        Jb = np.nan_to_num(J[~good])
+        out[~good] = (np.linalg.pinv(Jb) @ np.nan_to_num(r[~good])[..., None])[..., 0]
+    return out
+
+
+def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
+    shape = _check_shape(shape)
+    gmodes = _check_modes(shape, gmodes)
+    g = np.asarray(gcoeffs, dtype=np.float64).reshape(-1, 3)
+    lead, X = _points(x)
+    n = X.shape[0]
+
+    def xmap(xi):
+        return _evaluate(shape, gmodes, g, xi, False)
+
+    if xi0 is None:
+        # best of: the vertex-affine guess and a fixed grid of interior seeds
+        A, b, _ = affine_fit(shape, gmodes, g)
+        cand = _hold(shape, X @ A.T + b)
+        best = np.linalg.norm(xmap(cand) - X, axis=1)
+        grid = np.array([-0.6, 0.0, 0.6])
+        seeds = _uncollapse(shape, np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3))
+        seeds = np.vstack([CENTROIDS[shape], seeds])
+        xs = xmap(seeds)
+        d = np.linalg.norm(X[:, None, :] - xs[None, :, :], axis=2)
+        j = d.argmin(axis=1)
+        use = d[np.arange(n), j] < best
+        xi = cand
+        xi[use] = seeds[j[use]]
+    else:
+        xi = _hold(shape, np.broadcast_to(np.asarray(xi0, dtype=np.float64), lead + (3,)).reshape(-1, 3).copy())
+
+    # Newton steps below round-off are as good as it gets: eps * |coefficients| * |J^-1|
+    cmag = np.abs(g).sum(axis=0).max()
+    conv = np.zeros(n, dtype=bool)
+    active = np.arange(n)
+    for _ in range(max_iter):
+        if active.size == 0:
+            break
+        xa = xi[active]
+        B, G = _basis(shape, gmodes, xa, True)
+        val = B @ g
+        J = np.matmul(G.transpose(0, 2, 1), g).transpose(0, 2, 1)  # (m, 3 coords, 3 xi)
+        r = X[active] - val
+        step = _solve3(J, r)
+        with np.errstate(all="ignore"):
+            noise = 64 * np.finfo(float).eps * cmag * np.abs(np.linalg.pinv(np.nan_to_num(J))).sum(axis=2).max(axis=1)
+        small = np.abs(step).max(axis=1) <= np.maximum(tol, noise)
+        if small.any():
+            idx = active[small]
+            xi[idx] = _hold(shape, xa[small] + step[small])
+            conv[idx] = True
+        rest = ~small
+        xa, step, rn, idx = xa[rest], step[rest], np.linalg.norm(r[rest], axis=1), active[rest]
+        accepted = np.zeros(idx.size, dtype=bool)
+        alpha = 1.0
+        for _ls in range(12):  # damping: halve until the residual drops
+            todo = ~accepted
+            if not todo.any():
+                break
+            cand = _hold(shape, xa[todo] + alpha * step[todo])
+            rc = np.linalg.norm(X[idx[todo]] - xmap(cand), axis=1)
+            ok = rc < rn[todo]
+            sel = np.nonzero(todo)[0][ok]
+            xi[idx[sel]] = cand[ok]
+            accepted[sel] = True
+            alpha *= 0.5
+        active = idx[accepted]  # no descent possible: stuck at the clamp or at a fold, give up
+    xi_out = xi.reshape(lead + (3,))
+    ins = conv & inside(shape, xi, max(1e-10, 10 * tol))
+    return xi_out, conv.reshape(lead), ins.reshape(lead)
