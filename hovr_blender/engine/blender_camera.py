@@ -8,6 +8,8 @@ three unprojected points give the RayCamera's o0, ou, ov, d0, du, dv exactly.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .camera import CameraError, RayCamera
@@ -116,4 +118,117 @@ def ray_camera_from_blender(camera_object, depsgraph, render) -> RayCamera:
     width, height = render_size(render)
     projection = cam.calc_matrix_camera(depsgraph, x=width, y=height,
                                         scale_x=render.pixel_aspect_x, scale_y=render.pixel_aspect_y)
-    return ray_camera_from_matrices(projection, cam.matrix_world, width, height)
+    # The camera's own clip values: recovering far from the float32 matrix loses ~1e-3.
+    near, far = (cam.data.clip_start, cam.data.clip_end) if cam.type == "CAMERA" else clip_range(projection)
+    return clipped(ray_camera_from_matrices(projection, cam.matrix_world, width, height), float(near), float(far))
+
+
+def clip_range(projection) -> tuple[float, float]:
+    """(near, far) view-axis distances encoded in a Blender projection matrix.
+
+    calc_matrix_camera and the viewport's window_matrix both build the clip planes into
+    row 2, so one formula serves F12 and the viewport (camera view included)."""
+    P = _as_matrix(projection, "projection")
+    a, b = P[2, 2], P[2, 3]
+    if is_orthographic(P):
+        near, far = (b + 1.0) / a, (b - 1.0) / a
+    else:
+        near, far = b / (a - 1.0), b / (a + 1.0)
+    if not (np.isfinite(near) and np.isfinite(far) and far > near):
+        raise CameraError(f"camera clip range is empty or invalid (start {near:g}, end {far:g})")
+    return float(near), float(far)
+
+
+def _forward(cam: RayCamera) -> np.ndarray:
+    # Blender cameras record their view axis; a contract camera's d0 is its forward vector.
+    f = np.asarray(cam.extra.get("forward", cam.d0), dtype=np.float64)
+    return f / np.linalg.norm(f)
+
+
+def clipped(cam: RayCamera, near: float, far: float) -> RayCamera:
+    """The camera with Blender's clip planes (distances along the view axis) as a t range.
+
+    Orthographic: d is the view axis, so t = z - z0 exactly; origins move onto the near
+    plane when it lies behind the camera (viewport ortho views clip at negative starts).
+    Perspective: t = z / cos(angle to the axis) differs per ray while RayCamera holds one
+    [t_min, t_max]. Until the kernel clips per ray, take t_min = near (exact on the axis,
+    earlier elsewhere) and t_max = far / (smallest cos over the image corners): a superset
+    of what Blender shows, so nothing inside the clip range is lost.
+    """
+    fwd = _forward(cam)
+    extra = dict(cam.extra, clip=(float(near), float(far)))
+    if cam.projection == "orthographic":
+        z0 = float(min(near, 0.0))
+        extra["z_offset"] = z0
+        return replace(cam, o0=cam.o0 + z0 * fwd, t_min=float(near - z0), t_max=float(far - z0), extra=extra)
+    U = cam.width / cam.height
+    cos_min = min(float(np.dot(fwd, d / np.linalg.norm(d)))
+                  for d in (cam.d0 + u * cam.du + v * cam.dv for u in (-U, U) for v in (-1.0, 1.0)))
+    if cos_min <= 1e-6:
+        raise CameraError("camera field of view reaches 90 degrees off its axis")
+    extra["z_offset"] = 0.0
+    return replace(cam, t_min=float(max(near, 0.0)), t_max=float(far / cos_min), extra=extra)
+
+
+def view_depth(cam: RayCamera, t) -> np.ndarray:
+    """Distance along the view axis (Blender's Depth/Z convention, as Cycles' camera_z_depth)
+    of the points at ray parameter t (H, W), for this camera's pixels."""
+    t = np.asarray(t, dtype=np.float64)
+    z0 = float(cam.extra.get("z_offset", 0.0))
+    if cam.projection == "orthographic":
+        return z0 + t
+    _, d = cam.rays()
+    return z0 + t * (d @ _forward(cam))
+
+
+def sub_camera(cam: RayCamera, x0: int, y0_top: int, width: int, height: int) -> RayCamera:
+    """The pixels [x0, x0+width) x [y0_top, y0_top+height) (rows from the top) of `cam` as a
+    camera of their own: pixel (i, j) of the result is pixel (x0+i, y0_top+j) of `cam`.
+
+    With s = height/H, the sub-image's (u', v') relate to the full image's by
+    u = s u' + (width + 2 x0 - W)/H and v = s v' + 1 - s - 2 y0_top/H, so the affine ray
+    model is re-expressed exactly (up to rounding) for border renders and viewport bands."""
+    W, H = int(cam.width), int(cam.height)
+    x0, y0_top, width, height = int(x0), int(y0_top), int(width), int(height)
+    if not (0 <= x0 and 0 <= y0_top and width >= 1 and height >= 1 and x0 + width <= W and y0_top + height <= H):
+        raise CameraError(f"sub-image {width}x{height}+{x0}+{y0_top} outside the {W}x{H} image")
+    s = height / H
+    cu = (width + 2 * x0 - W) / H
+    cv = 1.0 - s - 2 * y0_top / H
+    return replace(
+        cam, width=width, height=height,
+        o0=cam.o0 + cu * cam.ou + cv * cam.ov, ou=s * cam.ou, ov=s * cam.ov,
+        d0=cam.d0 + cu * cam.du + cv * cam.dv, du=s * cam.du, dv=s * cam.dv,
+    )
+
+
+def ray_camera_from_view(window_matrix, view_matrix, width: int, height: int) -> RayCamera:
+    """Viewport rays (notes §3.5): rv3d.window_matrix already holds the lens, zoom, camera-view
+    offset and clip range, rv3d.view_matrix is world -> view; clip planes applied (taken from
+    the float32 matrix: the far plane is good to ~1e-3 relative, the near one to ~1e-7)."""
+    view = _as_matrix(view_matrix, "view matrix")
+    try:
+        view_to_world = np.linalg.inv(view)
+    except np.linalg.LinAlgError as exc:
+        raise CameraError("view matrix is singular") from exc
+    cam = ray_camera_from_matrices(window_matrix, view_to_world, width, height)
+    return clipped(cam, *clip_range(window_matrix))
+
+
+def border_region(width: int, height: int, use_border: bool, xmin: float, xmax: float,
+                  ymin: float, ymax: float) -> tuple[int, int, int, int]:
+    """(x0, y0 from the bottom, w, h) of the pixels Blender renders for a border.
+
+    Blender truncates float32 products (render_init: disprect = border * winx); the same
+    arithmetic is repeated so the rays cover exactly the result Blender allocates."""
+    width, height = int(width), int(height)
+    if not use_border:
+        return 0, 0, width, height
+    f = np.float32
+    x0, x1 = int(f(xmin) * f(width)), int(f(xmax) * f(width))
+    y0, y1 = int(f(ymin) * f(height)), int(f(ymax) * f(height))
+    x0, x1 = max(0, min(x0, width)), max(0, min(x1, width))
+    y0, y1 = max(0, min(y0, height)), max(0, min(y1, height))
+    if x1 - x0 < 1 or y1 - y0 < 1:
+        return 0, 0, width, height  # Blender renders the full frame for an empty border
+    return x0, y0, x1 - x0, y1 - y0

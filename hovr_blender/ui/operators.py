@@ -1,8 +1,9 @@
-"""Operators: add the built-in sphere volume, create a default transfer function."""
+"""Operators: add the built-in sphere volume, create a transfer function, apply a preset,
+fit the value range to the data (which also gives the panel its histogram)."""
 import bpy
 import numpy as np
 
-from ..engine.blender_scene import load_volume_source
+from ..engine.blender_scene import TF_PRESETS, field_samples, load_volume_source, value_histogram, volume_source
 
 # The 12 edges of a hexahedron in the reference numbering (bottom face, top face, verticals).
 HEX_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7))
@@ -13,15 +14,55 @@ DEFAULT_TENTS = ((0.2, 0.04, (1.0, 0.2, 0.1)), (0.5, 0.04, (0.1, 1.0, 0.2)), (0.
 
 def field_range(mesh, samples: int = 9):
     """(min, max) of the field over a lattice of reference points in every element."""
-    g = np.linspace(-1.0, 1.0, samples)
-    xi = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    lo, hi = np.inf, -np.inf
-    for e in range(mesh.num_elements):
-        M = mesh.ref_from_world[e]
-        x = np.linalg.solve(M[:, :3], (xi - M[:, 3]).T).T  # world points of the lattice
-        f = mesh.evaluate(e, x)
-        lo, hi = min(lo, float(f.min())), max(hi, float(f.max()))
-    return lo, hi
+    values = field_samples(mesh, samples)
+    return float(values.min()), float(values.max())
+
+
+# Field samples per volume source key (never stored in the .blend): the histogram is drawn
+# from here, so panels never load data while drawing.
+_SAMPLES: dict = {}
+_MAX_SAMPLES = 4
+HISTOGRAM_BINS = 16
+
+
+def _volume_object(context):
+    obj = context.object
+    if obj is not None and obj.hovr.is_volume:
+        return obj
+    return next((o for o in context.scene.objects if o.hovr.is_volume), None)
+
+
+def _source_of(obj, scene):
+    return volume_source(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
+                         abspath=lambda p: bpy.path.abspath(p, library=obj.library))
+
+
+def histogram_for(context):
+    """Fractions per bin of [value_min, value_max] for the scene's volume, if sampled."""
+    obj = _volume_object(context)
+    if obj is None:
+        return None
+    try:
+        key = _source_of(obj, context.scene).key
+    except ValueError:
+        return None
+    values = _SAMPLES.get(key)
+    if values is None:
+        return None
+    s = context.scene.hovr
+    return value_histogram(values, s.value_min, s.value_max, HISTOGRAM_BINS)
+
+
+def set_ramp_stops(ramp, stops):
+    """Replace a colour ramp's stops with [(position, (r, g, b, a)), ...], linear RGB."""
+    ramp.interpolation = 'LINEAR'
+    ramp.color_mode = 'RGB'
+    while len(ramp.elements) > 1:
+        ramp.elements.remove(ramp.elements[-1])
+    ramp.elements[0].position = stops[0][0]
+    ramp.elements[0].color = stops[0][1]
+    for pos, rgba in stops[1:]:
+        ramp.elements.new(pos).color = rgba
 
 
 def new_transfer_function_texture(name: str = "HOVR Transfer Function"):
@@ -49,6 +90,65 @@ class HOVR_OT_new_transfer_function(bpy.types.Operator):
 
     def execute(self, context):
         context.scene.hovr.transfer_function = new_transfer_function_texture()
+        return {'FINISHED'}
+
+
+class HOVR_OT_fit_value_range(bpy.types.Operator):
+    """Set Value Min/Max to the range of the volume's field (sampled in every element)"""
+
+    bl_idname = "hovr.fit_value_range"
+    bl_label = "Fit to Data Range"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _volume_object(context) is not None
+
+    def execute(self, context):
+        obj = _volume_object(context)
+        try:
+            source = _source_of(obj, context.scene)
+            values = _SAMPLES.get(source.key)
+            if values is None:
+                values = field_samples(load_volume_source(source))
+        except (ValueError, OSError, MemoryError) as exc:
+            self.report({'ERROR'}, f"HOVR: cannot read {obj.name!r}: {exc}")
+            return {'CANCELLED'}
+        if values.size == 0:
+            self.report({'ERROR'}, f"HOVR: {obj.name!r} has no finite field values")
+            return {'CANCELLED'}
+        _SAMPLES[source.key] = values
+        while len(_SAMPLES) > _MAX_SAMPLES:
+            _SAMPLES.pop(next(iter(_SAMPLES)))
+        lo, hi = float(values.min()), float(values.max())
+        if hi <= lo:  # a constant field: a range around it keeps Value Max > Value Min
+            lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
+        s = context.scene.hovr
+        s.value_min, s.value_max = lo, hi
+        self.report({'INFO'}, f"HOVR: value range [{lo:.4g}, {hi:.4g}] from {values.size} samples")
+        return {'FINISHED'}
+
+
+# Explicit indices: saved operator presets and keymaps keep working if items are reordered.
+PRESET_ITEMS = tuple((key, label, desc, i) for i, (key, (label, desc, _)) in enumerate(TF_PRESETS.items()))
+
+
+class HOVR_OT_transfer_function_preset(bpy.types.Operator):
+    """Replace the transfer function's colour ramp with a preset"""
+
+    bl_idname = "hovr.transfer_function_preset"
+    bl_label = "Transfer Function Preset"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    preset: bpy.props.EnumProperty(name="Preset", items=PRESET_ITEMS)
+
+    def execute(self, context):
+        settings = context.scene.hovr
+        if settings.transfer_function is None:
+            settings.transfer_function = new_transfer_function_texture()
+        texture = settings.transfer_function
+        texture.use_color_ramp = True
+        set_ramp_stops(texture.color_ramp, TF_PRESETS[self.preset][2])
         return {'FINISHED'}
 
 
@@ -96,7 +196,8 @@ def menu_add(self, _context):
     self.layout.operator(HOVR_OT_add_sphere_volume.bl_idname, icon='VOLUME_DATA')
 
 
-classes = (HOVR_OT_new_transfer_function, HOVR_OT_add_sphere_volume)
+classes = (HOVR_OT_new_transfer_function, HOVR_OT_fit_value_range, HOVR_OT_transfer_function_preset,
+           HOVR_OT_add_sphere_volume)
 
 
 def register():

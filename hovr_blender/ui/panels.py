@@ -2,6 +2,31 @@
 import bpy
 
 
+def draw_histogram(layout, context):
+    """The field's distribution over Value Min..Max (bottom row = Value Min), one bar per
+    bin, after Fit to Data Range has sampled the data."""
+    from .operators import histogram_for
+
+    hist = histogram_for(context)
+    if hist is None:
+        return
+    box = layout.box()
+    box.label(text="Field histogram (share of samples per bin)")
+    col = box.column(align=True)
+    peak = float(hist.max()) if hist.size and hist.max() > 0 else 1.0
+    s = context.scene.hovr
+    width = (s.value_max - s.value_min) / hist.size
+    for k in reversed(range(hist.size)):  # largest values on top, like the ramp's right end
+        frac, lo = float(hist[k]), s.value_min + k * width
+        row = col.row(align=True)
+        row.scale_y = 0.5
+        text = f"{lo:.3g}"
+        if hasattr(row, "progress"):  # Blender 4.0+
+            row.progress(factor=float(frac / peak), type='BAR', text=f"{text}: {100 * frac:.1f}%")
+        else:
+            row.label(text=f"{text:>8} " + "|" * int(round(30 * frac / peak)))
+
+
 class HovrButtonsPanel:
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
@@ -47,6 +72,7 @@ class HOVR_RENDER_PT_transfer_function(HovrButtonsPanel, bpy.types.Panel):
             layout.template_color_ramp(texture, "color_ramp", expand=True)
             if texture.color_ramp.interpolation != 'LINEAR' or texture.color_ramp.color_mode != 'RGB':
                 layout.label(text="HOVR needs RGB mode with Linear interpolation", icon='ERROR')
+        layout.operator_menu_enum("hovr.transfer_function_preset", "preset", text="Presets", icon='PRESET')
         col = layout.column()
         col.use_property_split = True
         col.use_property_decorate = False
@@ -54,8 +80,10 @@ class HOVR_RENDER_PT_transfer_function(HovrButtonsPanel, bpy.types.Panel):
         sub = col.column(align=True)
         sub.prop(settings, "value_min", text="Value Min")
         sub.prop(settings, "value_max", text="Max")
+        col.operator("hovr.fit_value_range", icon='FULLSCREEN_ENTER')
         if settings.value_max <= settings.value_min:
             col.label(text="Value Max must exceed Value Min", icon='ERROR')
+        draw_histogram(layout, context)
 
 
 class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
@@ -89,7 +117,28 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.active = context.object.hovr.is_volume
-        layout.prop(context.object.hovr, "source")
+        hovr = context.object.hovr
+        layout.prop(hovr, "source")
+        if not hovr.source.startswith("builtin:"):
+            layout.prop(hovr, "solution")
+            layout.prop(hovr, "field")
+        if "#" in hovr.source or "#" in hovr.solution:
+            layout.label(text="# runs are replaced by the frame number", icon='INFO')
+
+
+class HOVR_VIEWLAYER_PT_passes(HovrButtonsPanel, bpy.types.Panel):
+    bl_label = "Passes"
+    bl_context = "view_layer"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        view_layer = context.view_layer
+        col = layout.column(heading="Include")
+        col.label(text="Combined (RGBA, scene-linear, premultiplied)")
+        col.prop(view_layer, "use_pass_z", text="Depth (view-axis distance at 50% opacity)")
+        col.prop(view_layer.hovr, "use_pass_error")
 
 
 # Stock panels that mean the same under HOVR: image size and output, colour management,
@@ -116,7 +165,8 @@ def get_panels():
 # (several stock panels share one COMPAT_ENGINES set).
 _added_to = []
 
-classes = (HOVR_RENDER_PT_quadrature, HOVR_RENDER_PT_transfer_function, HOVR_RENDER_PT_film, HOVR_OBJECT_PT_volume)
+classes = (HOVR_RENDER_PT_quadrature, HOVR_RENDER_PT_transfer_function, HOVR_RENDER_PT_film, HOVR_OBJECT_PT_volume,
+           HOVR_VIEWLAYER_PT_passes)
 
 
 def register():

@@ -1,4 +1,5 @@
-"""Per-datablock settings: Scene.hovr (render) and Object.hovr (which objects are volumes)."""
+"""Per-datablock settings: Scene.hovr (render), Object.hovr (which objects are volumes, their data)
+and ViewLayer.hovr (extra passes)."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
@@ -52,8 +53,13 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
 class HovrObjectSettings(bpy.types.PropertyGroup):
     is_volume: BoolProperty(name="HOVR Volume", default=False,
                             description="Render this object's finite-element data with HOVR")
-    source: StringProperty(name="Source", default="",
-                           description='Where the data comes from, e.g. "builtin:sphere"')
+    source: StringProperty(name="Source", default="", subtype='FILE_PATH',
+                           description='"builtin:sphere", or a Nektar++ .xml / .vtu file; a run of # is replaced by '
+                                       'the frame number ("flow_####.vtu")')
+    solution: StringProperty(name="Solution", default="", subtype='FILE_PATH',
+                             description="Nektar++ field file (.fld/.chk) for the mesh; # runs become the frame number")
+    field: StringProperty(name="Field", default="",
+                          description="Name of the scalar field to render (empty: the file's only or first field)")
 
     @classmethod
     def register(cls):
@@ -64,7 +70,22 @@ class HovrObjectSettings(bpy.types.PropertyGroup):
         del bpy.types.Object.hovr
 
 
-classes = (HovrRenderSettings, HovrObjectSettings)
+class HovrViewLayerSettings(bpy.types.PropertyGroup):
+    use_pass_error: BoolProperty(name="Error Estimate", default=False,
+                                 description='"HOVR Error" pass: the summed Gauss-Kronrod error estimates per pixel '
+                                             "(zero for methods without an estimate)",
+                                 update=lambda self, context: context.view_layer.update_render_passes())
+
+    @classmethod
+    def register(cls):
+        bpy.types.ViewLayer.hovr = PointerProperty(type=cls, name="HOVR View Layer Settings")
+
+    @classmethod
+    def unregister(cls):
+        del bpy.types.ViewLayer.hovr
+
+
+classes = (HovrRenderSettings, HovrObjectSettings, HovrViewLayerSettings)
 
 
 def register():

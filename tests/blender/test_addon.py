@@ -156,7 +156,7 @@ def test_panels_draw_existing_properties(scene, with_tf):
     if with_tf:
         bpy.ops.hovr.add_sphere_volume()
     obj = bpy.data.objects.new("o", None)
-    context = SimpleNamespace(scene=scene, object=obj, engine=scene.render.engine)
+    context = SimpleNamespace(scene=scene, object=obj, engine=scene.render.engine, view_layer=bpy.context.view_layer)
     drawn = []
     for cls in panels.classes:
         assert cls.poll(context)

@@ -151,3 +151,74 @@ def test_points_on_pixel_rays_project_to_pixel_centres(q, pos, window, size, per
         np.testing.assert_allclose(o, np.broadcast_to(pos, o.shape), atol=1e-9)
     else:  # origins on the plane through the camera, perpendicular to its view axis
         np.testing.assert_allclose((o - np.asarray(pos)) @ -C[:3, 2], 0.0, atol=1e-9)
+
+
+# --- clipping, sub-images (render border, viewport bands), depth, viewport cameras ---------
+
+from hovr_blender.engine.blender_camera import (  # noqa: E402
+    border_region, clip_range, clipped, ray_camera_from_view, sub_camera, view_depth,
+)
+
+
+@pytest.mark.parametrize("make", [frustum, ortho])
+def test_clip_range_reads_near_and_far_from_the_projection(make):
+    assert clip_range(make(-0.3, 0.5, -0.2, 0.4, 0.25, 40.0)) == pytest.approx((0.25, 40.0), rel=1e-12)
+
+
+def test_clipped_orthographic_is_exact_and_moves_origins_behind_the_camera():
+    C = look_at(EYE, TARGET, UP)
+    cam = ray_camera_from_matrices(ortho(-2, 2, -1.5, 1.5, 0.5, 9.0), C, 8, 6)
+    c = clipped(cam, 0.5, 9.0)
+    assert (c.t_min, c.t_max) == (0.5, 9.0)  # t is the distance from the camera plane
+    np.testing.assert_array_equal(c.o0, cam.o0)
+    neg = clipped(cam, -3.0, 3.0)  # a viewport ortho view clips from behind the view origin
+    fwd = -C[:3, 2]
+    np.testing.assert_allclose(neg.o0, cam.o0 - 3.0 * fwd, atol=1e-12)
+    assert (neg.t_min, neg.t_max) == (0.0, 6.0)
+    np.testing.assert_allclose(view_depth(neg, np.full((6, 8), 4.0)), 1.0)  # z = -3 + t
+
+
+def test_clipped_perspective_is_a_superset_of_the_clip_slab():
+    """Every point Blender keeps (near <= z <= far) has t in [t_min, t_max]; on the axis the
+    range is exact."""
+    C = look_at(EYE, TARGET, UP)
+    w, h, near, far = 16, 12, 0.3, 7.0
+    cam = clipped(ray_camera_from_matrices(frustum(-0.2, 0.25, -0.1, 0.15, 0.1, 50.0), C, w, h), near, far)
+    _, d = cam.rays()
+    cos = d @ -C[:3, 2]
+    assert np.all(cam.t_min <= near / cos + 1e-12) and np.all(cam.t_max >= far / cos - 1e-9)
+    assert cam.t_min == near and far / cos.min() <= cam.t_max < 1.1 * far / cos.min()  # tight: image corners
+    t = np.random.default_rng(0).uniform(1, 5, (h, w))
+    o, _ = cam.rays()
+    z = ((o + t[..., None] * d) - C[:3, 3]) @ -C[:3, 2]  # distance along the view axis
+    np.testing.assert_allclose(view_depth(cam, t), z, atol=1e-12)
+
+
+@pytest.mark.parametrize("make", [frustum, ortho])
+def test_sub_camera_pixels_are_the_full_images_pixels(make):
+    cam = ray_camera_from_matrices(make(-0.3, 0.5, -0.2, 0.4, 0.2, 40.0), look_at(EYE, TARGET, UP), 37, 23)
+    o, d = cam.rays()
+    for x0, y0, w, h in [(0, 0, 37, 23), (5, 3, 10, 7), (36, 22, 1, 1), (0, 9, 37, 2)]:
+        so, sd = sub_camera(cam, x0, y0, w, h).rays()
+        np.testing.assert_allclose(so, o[y0:y0 + h, x0:x0 + w], atol=1e-12)
+        np.testing.assert_allclose(sd, d[y0:y0 + h, x0:x0 + w], atol=1e-12)
+    with pytest.raises(CameraError, match="outside"):
+        sub_camera(cam, 30, 0, 8, 1)
+
+
+def test_border_region_repeats_blenders_float32_truncation():
+    # measured in bpy 5.0: 40x30, border x 0.26..0.71, y 0.1..0.55 -> an 18x13 result at (10, 3)
+    assert border_region(40, 30, True, 0.26, 0.71, 0.1, 0.55) == (10, 3, 18, 13)
+    assert border_region(40, 30, False, 0.26, 0.71, 0.1, 0.55) == (0, 0, 40, 30)
+    assert border_region(40, 30, True, 0.5, 0.51, 0.2, 0.8) == (0, 0, 40, 30)  # empty -> full frame
+    assert border_region(100, 50, True, 0.0, 1.0, 0.0, 1.0) == (0, 0, 100, 50)
+
+
+def test_view_camera_equals_camera_from_inverse_view_matrix():
+    C = look_at(EYE, TARGET, UP)
+    P = frustum(-0.2, 0.25, -0.1, 0.15, 0.1, 50.0)
+    v = ray_camera_from_view(P, np.linalg.inv(C), 20, 10)
+    ref = ray_camera_from_matrices(P, C, 20, 10)
+    for a, b in zip(v.rays(), ref.rays()):
+        np.testing.assert_allclose(a, b, atol=1e-12)
+    assert v.t_min == pytest.approx(0.1) and v.t_max > 50.0
