@@ -108,23 +108,32 @@ def _matrix_tuple(m) -> tuple:
     return tuple(float(x) for row in m for x in row)
 
 
-def scene_inputs(depsgraph) -> SceneInputs:
-    """The data, transfer function and settings of the evaluated scene, as plain records."""
+def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
+    """The data, transfer function and settings of the scene, as plain records.
+
+    F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
+    depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
+    it reads those from the original datablocks (`original=True`); object matrices always
+    come from the evaluated objects."""
     from .view import RenderOptions
 
-    scene = depsgraph.scene_eval
+    scene = depsgraph.scene if original else depsgraph.scene_eval
     render = scene.render
     settings = scene.hovr
     warnings = []
 
-    volumes = sorted((o for o in depsgraph.objects if o.hovr.is_volume), key=lambda o: o.name)
+    def hovr_of(o):
+        return o.original.hovr if original else o.hovr
+
+    volumes = sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
     if not volumes:
         raise SceneError("no HOVR volume in the scene: add one with Add > HOVR Sphere Volume")
     if len(volumes) > 1:
         warnings.append(f"{len(volumes)} HOVR volumes; rendering only {volumes[0].name!r}")
     volume = volumes[0]
     library = volume.original.library if volume.original is not None else None
-    source = volume_source(volume.hovr.source, volume.hovr.solution, volume.hovr.field, scene.frame_current,
+    vh = hovr_of(volume)
+    source = volume_source(vh.source, vh.solution, vh.field, scene.frame_current,
                            abspath=lambda p: bpy.path.abspath(p, library=library))
 
     texture = settings.transfer_function
@@ -196,7 +205,7 @@ def viewport_request(context, depsgraph):
 
     region, rv3d = context.region, context.region_data
     camera = ray_camera_from_view(rv3d.window_matrix, rv3d.view_matrix, region.width, region.height)
-    inputs = scene_inputs(depsgraph)
+    inputs = scene_inputs(depsgraph, original=True)
     renderer, _n = _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
     request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
                               background=inputs.background, options=inputs.options,
@@ -327,7 +336,7 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         # Data changes: view_draw re-reads everything and restarts on any difference; here
         # only make sure the mesh upload (and Warp start-up) happens outside view_draw.
         try:
-            inputs = scene_inputs(depsgraph)
+            inputs = scene_inputs(depsgraph, original=True)
             _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
         except (ValueError, RuntimeError, MemoryError, ImportError, OSError):
             pass  # view_draw shows the message

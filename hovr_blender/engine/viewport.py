@@ -1,0 +1,224 @@
+"""Progressive viewport rendering, without bpy (notes §3.4, §1.8).
+
+The viewport must answer any change (view, transfer function, object, settings) with a
+picture quickly and never block Blender's UI, yet end at the quality of F12. The
+scheduler does bounded work per call (one call per view_draw):
+
+1. a *preview*: the whole region at 1/scale resolution with looser quadrature, the scale
+   chosen from the measured cost so it takes about `first_frame_seconds`; shown
+   magnified (nearest neighbour) at once;
+2. *refinement*: the region at full resolution and final settings, in bands of rows
+   (sub-cameras of the region's camera, so each band's pixels are those of a full
+   render), each band sized from the measured cost to fit the call's time budget and
+   cancelled through the renderer's progress callback if it overruns.
+
+A change of the request's signature restarts at 1; the learned costs are kept. The
+display buffer is the region's (H, W, 4) scene-linear premultiplied RGBA with row 0 at
+the bottom, ready for a GPU texture.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .blender_camera import sub_camera
+from .camera import RayCamera
+from .transfer_function import TransferFunction
+from .view import RenderOptions
+
+# Seconds per pixel assumed before anything was measured (a CPU on a small scene).
+_DEFAULT_COST = 2e-5
+MAX_PREVIEW_SCALE = 16
+
+
+@dataclass(frozen=True)
+class ViewportRequest:
+    """Everything that determines the viewport image."""
+
+    camera: RayCamera  # full region resolution
+    transfer_function: TransferFunction
+    background: np.ndarray
+    options: RenderOptions
+    film_transparent: bool
+    data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device)
+
+    def signature(self) -> tuple:
+        c, tf = self.camera, self.transfer_function
+        cam = tuple(np.concatenate([c.o0, c.ou, c.ov, c.d0, c.du, c.dv]).tolist())
+        tfs = tuple(np.concatenate([tf.color_s, tf.color_rgb.ravel(), tf.density_s, tf.density_tau]).tolist())
+        return (cam, c.width, c.height, c.t_min, c.t_max, c.projection, tfs,
+                tuple(np.asarray(self.background, dtype=np.float64).tolist()),
+                tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key)
+
+
+def preview_options(options: RenderOptions) -> RenderOptions:
+    """Looser quadrature for the preview: 100x the tolerance (at most 1e-3), twice the step."""
+    return options.with_(tolerance=max(options.tolerance, min(100.0 * options.tolerance, 1e-3)), h=2.0 * options.h)
+
+
+def preview_camera(camera: RayCamera, scale: int) -> RayCamera:
+    """The same view at 1/scale resolution (ceil), covering the same image rectangle.
+
+    The region is padded to a multiple of `scale` so every low-resolution pixel maps onto
+    a scale x scale block; the extra columns (right) and rows (bottom) are cropped on display."""
+    W, H = camera.width, camera.height
+    w, h = math.ceil(W / scale), math.ceil(H / scale)
+    # Full image: u = (2x + 1)/H - W/H at column x. Preview pixel i stands for the block
+    # x in [i s, (i+1) s), centre x = i s + (s-1)/2, so u = a u' + (s w - W)/H with
+    # a = s h / H and u' = (2i + 1)/h - w/h; rows from the top likewise give v = a v' + 1 - a.
+    a = scale * h / H
+    cu = (scale * w - W) / H
+    cv = 1.0 - a
+    return replace(
+        camera, width=w, height=h,
+        o0=camera.o0 + cu * camera.ou + cv * camera.ov, ou=a * camera.ou, ov=a * camera.ov,
+        d0=camera.d0 + cu * camera.du + cv * camera.dv, du=a * camera.du, dv=a * camera.dv,
+    )
+
+
+@dataclass
+class StepRecord:
+    kind: str  # "preview" | "band" | "preview-overrun" | "band-overrun"
+    scale: int
+    rows: tuple  # (first row from the top, number of rows) of the region, or the preview size
+    seconds: float
+
+
+@dataclass
+class ProgressiveViewport:
+    """Bounded-work progressive renderer for one viewport (one per engine instance)."""
+
+    first_frame_seconds: float = 0.1
+    clock: object = time.perf_counter
+    signature: tuple | None = None
+    display: np.ndarray | None = None  # (H, W, 4) float32, row 0 at the bottom
+    version: int = 0  # bumps whenever display changes
+    converged: bool = False
+    restarts: int = 0
+    log: list = field(default_factory=list)
+    _cost: dict = field(default_factory=dict)  # "preview"/"final" -> seconds per pixel
+    _scale: int = 0
+    _next_row: int = 0  # refinement progress, rows from the top
+    _request: ViewportRequest | None = None
+    _renderer: object = None
+
+    def sync(self, renderer, request: ViewportRequest) -> bool:
+        """Adopt the current request; restart (True) when it differs from the last one."""
+        sig = request.signature()
+        self._renderer, self._request = renderer, request
+        if sig == self.signature:
+            return False
+        self.signature = sig
+        self.display = None
+        self.converged = False
+        self._scale = 0
+        self._next_row = 0
+        self.restarts += 1
+        return True
+
+    @property
+    def stage(self) -> str:
+        if self.display is None:
+            return "preview"
+        return "converged" if self.converged else "refining"
+
+    def progress(self) -> float:
+        req = self._request
+        return 1.0 if self.converged else (0.0 if req is None else self._next_row / req.camera.height)
+
+    def _render(self, camera, options, deadline):
+        """(RenderResult, wall seconds); the result is cancelled when the deadline passed."""
+        req = self._request
+        t0 = self.clock()
+
+        def progress(_fraction):
+            return deadline is None or self.clock() < deadline
+
+        tile = max(camera.width, 256)
+        res = self._renderer.render(camera, req.transfer_function, req.background, options,
+                                    progress=progress, tile_pixels=tile)
+        return res, self.clock() - t0
+
+    def _learn(self, kind, seconds, pixels):
+        c = seconds / max(pixels, 1)
+        old = self._cost.get(kind)
+        self._cost[kind] = c if old is None else 0.5 * (old + c)
+
+    def step(self, budget_seconds: float = 0.05) -> bool:
+        """Do about `budget_seconds` of work (at least one unit when nothing is shown yet);
+        True when the display changed."""
+        req = self._request
+        if req is None or self.converged:
+            return False
+        start = self.clock()
+        changed = False
+        W, H = req.camera.width, req.camera.height
+        while not self.converged:
+            now = self.clock()
+            left = budget_seconds - (now - start)
+            if self.display is None:
+                changed |= self._preview(W, H, now)
+                if self.display is None:
+                    return changed  # overran: a coarser preview comes with the next call
+            else:
+                if left <= 0.0:
+                    break
+                changed |= self._band(W, H, left)
+            if self.clock() - start >= budget_seconds:
+                break
+        return changed
+
+    def _preview(self, W, H, now) -> bool:
+        req = self._request
+        if self._scale == 0:
+            cost = self._cost.get("preview", _DEFAULT_COST)
+            s = math.ceil(math.sqrt(W * H * cost / self.first_frame_seconds))
+            self._scale = int(np.clip(s, 1, MAX_PREVIEW_SCALE))
+        cam = preview_camera(req.camera, self._scale)
+        last = self._scale >= MAX_PREVIEW_SCALE
+        deadline = None if last else now + 2.0 * self.first_frame_seconds
+        res, sec = self._render(cam, preview_options(req.options), deadline)
+        if res.cancelled:
+            self.log.append(StepRecord("preview-overrun", self._scale, (cam.width, cam.height), sec))
+            self._learn("preview", 4.0 * sec, cam.width * cam.height)  # at least this expensive
+            self._scale = min(2 * self._scale, MAX_PREVIEW_SCALE)
+            return False
+        self._learn("preview", sec, cam.width * cam.height)
+        self.log.append(StepRecord("preview", self._scale, (cam.width, cam.height), sec))
+        img = self._finish(res.rgba)
+        s = self._scale
+        big = np.repeat(np.repeat(img, s, axis=0), s, axis=1)[:H, :W]  # rows from the top
+        self.display = np.ascontiguousarray(big[::-1], dtype=np.float32)
+        self.version += 1
+        return True
+
+    def _band(self, W, H, left) -> bool:
+        req = self._request
+        cost = self._cost.get("final", self._cost.get("preview", _DEFAULT_COST) * 2.0)
+        rows = int(np.clip((0.5 * left) / (cost * W), 1, H - self._next_row))
+        y0 = self._next_row
+        cam = sub_camera(req.camera, 0, y0, W, rows)
+        deadline = self.clock() + max(left, 0.01)
+        res, sec = self._render(cam, req.options, None if rows == 1 else deadline)
+        if res.cancelled:
+            self.log.append(StepRecord("band-overrun", 1, (y0, rows), sec))
+            self._learn("final", 2.0 * sec, W * rows)  # at least this expensive: smaller bands
+            return False
+        self._learn("final", sec, W * rows)
+        self.log.append(StepRecord("band", 1, (y0, rows), sec))
+        img = self._finish(res.rgba)
+        # display rows are bottom-up: region rows [y0, y0+rows) from the top
+        self.display[H - y0 - rows: H - y0] = img[::-1]
+        self._next_row += rows
+        self.converged = self._next_row >= H
+        self.version += 1
+        return True
+
+    def _finish(self, rgba) -> np.ndarray:
+        img = np.array(rgba, dtype=np.float32)
+        if not self._request.film_transparent:
+            img[..., 3] = 1.0  # as F12: an opaque film has the background composited in
+        return img
