@@ -7,6 +7,7 @@ add-on does not import Warp. The viewport's scheduling lives in viewport.py (no 
 from __future__ import annotations
 
 import time
+import weakref
 from dataclasses import dataclass, field
 
 import bpy
@@ -25,6 +26,11 @@ TILE_PIXELS = {"cpu": 256}
 TILE_PIXELS_GPU = 1 << 16
 # Viewport work per view_draw call (seconds): the UI stays responsive between calls.
 VIEW_BUDGET_SECONDS = 0.05
+
+
+# Viewport states of the live engines, for diagnostics and the windowed test (weak: they go
+# with their engine when the user leaves Rendered shading).
+VIEWPORTS = weakref.WeakSet()
 
 
 class SceneError(ValueError):
@@ -222,6 +228,15 @@ def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> View
     return ViewportFrame(state.display, state.version, state.converged, state.stage)
 
 
+def _write_pass(render_pass, flat):
+    """RenderPass.rect.foreach_set: Blender 4.x/5.x take the flat float32 buffer, 3.4 wants
+    it shaped (pixels, channels)."""
+    try:
+        render_pass.rect.foreach_set(flat)
+    except TypeError:
+        render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
+
+
 def _engine_api(engine):
     """The object render() reports progress to and polls for cancellation: the engine."""
     return engine
@@ -238,6 +253,7 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         from .viewport import ProgressiveViewport
 
         self._viewport = ProgressiveViewport()
+        VIEWPORTS.add(self._viewport)
         self._texture = None  # (version, GPUTexture)
         self._viewport_error = None
 
@@ -320,11 +336,11 @@ class HovrRenderEngine(bpy.types.RenderEngine):
                        f"HOVR rendered {job.width}x{job.height}")
             return
         passes = {p.name: p for p in res.layers[0].passes}
-        passes["Combined"].rect.foreach_set(pixels)
+        _write_pass(passes["Combined"], pixels)
         if "Depth" in passes:
-            passes["Depth"].rect.foreach_set(depth_pass(job.camera, result.depth, result.rgba[..., 3]))
+            _write_pass(passes["Depth"], depth_pass(job.camera, result.depth, result.rgba[..., 3]))
         if "HOVR Error" in passes:
-            passes["HOVR Error"].rect.foreach_set(flip_rows(result.error))
+            _write_pass(passes["HOVR Error"], flip_rows(result.error))
         self.end_result(res)
         api.update_progress(1.0)
         api.update_stats("", render_stats(result.stats, n_elements,

@@ -87,7 +87,7 @@ class StepRecord:
     seconds: float
 
 
-@dataclass
+@dataclass(eq=False)  # identity semantics: the engine keeps it in a WeakSet
 class ProgressiveViewport:
     """Bounded-work progressive renderer for one viewport (one per engine instance)."""
 
