@@ -1,14 +1,27 @@
 #!/usr/bin/env python3
-"""Build the Blender extension zip: dist/hovr_blender-<version>.zip.
+"""Build and validate the Blender extension.
+
+  python scripts/build_extension.py [--output-dir dist]
+      dist/hovr_blender-<version>.zip: no bundled wheels (warp-lang must already be
+      importable in Blender's Python); fast, used by the tests.
+  python scripts/build_extension.py --wheels [--platforms linux-x64,windows-x64,macos-arm64]
+      one zip per platform, dist/hovr_blender-<version>-<platform>.zip, each carrying that
+      platform's warp-lang wheel (downloaded with pip into build/wheels/, not committed) and
+      a manifest with `platforms` and `wheels` filled in (as Blender's --split-platforms does).
+  python scripts/build_extension.py validate PATH
+      checks the manifest fields (notes §2.1) and the archive layout, then runs Blender's own
+      validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
 The repository keeps blender_manifest.toml at the top and the add-on in hovr_blender/;
 Blender wants the manifest and the package's __init__.py side by side, so the zip holds
 the manifest plus the *contents* of hovr_blender/ at its root (no tests, no caches).
-Usage: python scripts/build_extension.py [--output-dir dist]
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import re
+import subprocess
 import sys
 import tomllib
 import zipfile
@@ -17,8 +30,26 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "hovr_blender"
 MANIFEST = REPO / "blender_manifest.toml"
+WHEEL_CACHE = REPO / "build" / "wheels"
 SKIP_DIRS = {"__pycache__", "tests"}
 SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
+
+WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
+# Blender platform -> the pip platform tag of warp-lang's wheel (one py3-none wheel per platform
+# serves Blender's Python 3.11 and 3.13). numpy is not bundled: Blender ships its own.
+WHEEL_PLATFORMS = {
+    "linux-x64": "manylinux_2_28_x86_64",
+    "windows-x64": "win_amd64",
+    "macos-arm64": "macosx_11_0_arm64",
+}
+DEFAULT_PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
+
+BLENDER_PLATFORMS = {"windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64"}
+PERMISSIONS = {"files", "network", "clipboard", "camera", "microphone"}
+REQUIRED = ("schema_version", "id", "version", "name", "tagline", "maintainer", "type",
+            "blender_version_min", "license")
+SEMVER = re.compile(r"^(0|[1-9]\d*)\.(0|[1-9]\d*)\.(0|[1-9]\d*)(?:-[0-9A-Za-z.-]+)?(?:\+[0-9A-Za-z.-]+)?$")
+WHEEL_NAME = re.compile(r"^[A-Za-z0-9_.]+-[A-Za-z0-9_.!+]+(-\d[^-]*)?-[^-]+-[^-]+-[^-]+\.whl$")
 
 
 def package_files(root: Path):
@@ -32,27 +63,198 @@ def package_files(root: Path):
         yield path, rel.as_posix()
 
 
-def build(output_dir: Path) -> Path:
-    with open(MANIFEST, "rb") as fh:
-        manifest = tomllib.load(fh)
+def _load_manifest() -> tuple[str, dict]:
+    text = MANIFEST.read_text(encoding="utf-8")
+    manifest = tomllib.loads(text)
     for key in ("id", "version"):
         if not manifest.get(key):
             raise SystemExit(f"{MANIFEST.name}: '{key}' is missing or empty")
-    output_dir.mkdir(parents=True, exist_ok=True)
-    out = output_dir / f"{manifest['id']}-{manifest['version']}.zip"
+    for key in ("platforms", "wheels"):
+        if key in manifest:  # generated per platform below; the repository's copy stays generic
+            raise SystemExit(f"{MANIFEST.name}: leave '{key}' out, build_extension.py --wheels fills it in")
+    return text, manifest
+
+
+def _with_keys(text: str, lines: list[str]) -> str:
+    """Insert top-level TOML keys before the first [table] (keys after a header would join it)."""
+    m = re.search(r"^\[", text, flags=re.M)
+    at = m.start() if m else len(text)
+    return text[:at] + "\n".join(lines) + "\n\n" + text[at:]
+
+
+def _write_zip(out: Path, manifest_text: str, wheels=()):
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        zf.write(MANIFEST, "blender_manifest.toml")
+        zf.writestr("blender_manifest.toml", manifest_text)
         for path, name in package_files(PACKAGE):
             zf.write(path, name)
+        for wheel in wheels:
+            zf.write(wheel, f"wheels/{wheel.name}", compress_type=zipfile.ZIP_STORED)  # already compressed
+
+
+def download_wheel(platform: str, cache: Path = WHEEL_CACHE) -> Path:
+    """warp-lang's wheel for a Blender platform, from PyPI through pip (cached in build/wheels)."""
+    tag = WHEEL_PLATFORMS[platform]
+    cache.mkdir(parents=True, exist_ok=True)
+    found = sorted(cache.glob(f"warp_lang-{WARP_VERSION}-*{tag}*.whl"))
+    if not found:
+        subprocess.run([sys.executable, "-m", "pip", "download", f"warp-lang=={WARP_VERSION}", "--only-binary=:all:",
+                        "--no-deps", "--platform", tag, "--python-version", "3.11", "-d", str(cache)], check=True)
+        found = sorted(cache.glob(f"warp_lang-{WARP_VERSION}-*{tag}*.whl"))
+    if not found:
+        raise SystemExit(f"pip downloaded no warp-lang {WARP_VERSION} wheel for {tag}")
+    return found[-1]
+
+
+def build(output_dir: Path) -> Path:
+    text, manifest = _load_manifest()
+    output_dir.mkdir(parents=True, exist_ok=True)
+    out = output_dir / f"{manifest['id']}-{manifest['version']}.zip"
+    _write_zip(out, text)
     return out
 
 
+def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path = WHEEL_CACHE) -> list[Path]:
+    text, manifest = _load_manifest()
+    output_dir.mkdir(parents=True, exist_ok=True)
+    outs = []
+    for platform in platforms:
+        if platform not in WHEEL_PLATFORMS:
+            raise SystemExit(f"no warp-lang wheel known for platform {platform!r} (one of {', '.join(WHEEL_PLATFORMS)})")
+        wheel = download_wheel(platform, cache)
+        lines = [f'platforms = ["{platform}"]', f'wheels = ["./wheels/{wheel.name}"]']
+        out = output_dir / f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"
+        _write_zip(out, _with_keys(text, lines), [wheel])
+        outs.append(out)
+    return outs
+
+
+def _no_trailing_punctuation(s: str) -> bool:
+    return not s or s[-1].isalnum() or s[-1] in ")]}\"'"
+
+
+def manifest_errors(manifest: dict, names: set[str] | None = None) -> list[str]:
+    """Problems with a manifest (and, given the archive's file names, its layout)."""
+    errors = []
+    for key in REQUIRED:
+        if key not in manifest:
+            errors.append(f"'{key}' is required")
+    for key, value in manifest.items():
+        if value in ("", [], {}):
+            errors.append(f"'{key}' is empty: leave optional keys out instead")
+    get = manifest.get
+    if "schema_version" in manifest and get("schema_version") != "1.0.0":
+        errors.append(f"schema_version must be \"1.0.0\", got {get('schema_version')!r}")
+    if get("id") and not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", str(get("id"))):
+        errors.append(f"id {get('id')!r} must be an identifier (letters, digits, underscores)")
+    for key in ("version", "blender_version_min", "blender_version_max"):
+        if get(key) and not SEMVER.match(str(get(key))):
+            errors.append(f"{key} {get(key)!r} is not a semantic version")
+    bmin = get("blender_version_min")
+    if bmin and SEMVER.match(str(bmin)) and tuple(map(int, str(bmin).split("-")[0].split(".")[:3])) < (4, 2, 0):
+        errors.append(f"blender_version_min must be at least 4.2.0, got {bmin}")
+    tagline = get("tagline")
+    if isinstance(tagline, str):
+        if len(tagline) > 64:
+            errors.append(f"tagline is {len(tagline)} characters (at most 64)")
+        if not _no_trailing_punctuation(tagline):
+            errors.append("tagline must not end with punctuation")
+    if get("type") is not None and get("type") not in ("add-on", "theme"):
+        errors.append(f"type must be \"add-on\" or \"theme\", got {get('type')!r}")
+    lic = get("license")
+    if lic is not None and (not isinstance(lic, list) or not all(isinstance(x, str) and x.startswith("SPDX:") for x in lic)):
+        errors.append("license must be a list of \"SPDX:<identifier>\" strings")
+    plat = get("platforms")
+    if plat is not None and (not isinstance(plat, list) or not set(plat) <= BLENDER_PLATFORMS):
+        errors.append(f"platforms must be a subset of {sorted(BLENDER_PLATFORMS)}, got {plat!r}")
+    perms = get("permissions")
+    if perms is not None:
+        if not isinstance(perms, dict):
+            errors.append("[permissions] must be a table")
+        else:
+            for k, reason in perms.items():
+                if k not in PERMISSIONS:
+                    errors.append(f"unknown permission {k!r} (one of {', '.join(sorted(PERMISSIONS))})")
+                elif not isinstance(reason, str) or not reason or len(reason) > 64 or reason.endswith("."):
+                    errors.append(f"permission {k!r}: the reason must be 1-64 characters without a final period")
+    wheels = get("wheels")
+    if wheels is not None:
+        if not isinstance(wheels, list):
+            errors.append("wheels must be a list of paths")
+        else:
+            for w in wheels:
+                name = str(w).rsplit("/", 1)[-1]
+                if "\\" in str(w) or not str(w).startswith("./wheels/"):
+                    errors.append(f"wheel path {w!r} must be relative, with forward slashes, under ./wheels/")
+                if not WHEEL_NAME.match(name):
+                    errors.append(f"wheel {name!r} does not follow the wheel file-name convention")
+                if names is not None and str(w)[2:] not in names:
+                    errors.append(f"wheel {w!r} is listed but not in the archive")
+    build_tbl = get("build")
+    if isinstance(build_tbl, dict) and "paths" in build_tbl and "paths_exclude_pattern" in build_tbl:
+        errors.append("[build] takes paths or paths_exclude_pattern, not both")
+    if names is not None and manifest.get("type") == "add-on" and "__init__.py" not in names:
+        errors.append("an add-on needs __init__.py beside blender_manifest.toml")
+    return errors
+
+
+def _blender_ext() -> Path | None:
+    """Blender's own extension CLI, shipped inside the bpy module."""
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    for root in spec.submodule_search_locations:
+        for cand in Path(root).glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"):
+            return cand
+    return None
+
+
+def validate(path: Path) -> list[str]:
+    """Errors for a zip or a directory holding blender_manifest.toml (empty when valid)."""
+    if path.is_dir():
+        names = {p.relative_to(path).as_posix() for p in path.rglob("*") if p.is_file()}
+        raw = (path / "blender_manifest.toml").read_bytes() if "blender_manifest.toml" in names else None
+    else:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            raw = zf.read("blender_manifest.toml") if "blender_manifest.toml" in names else None
+    if raw is None:
+        return [f"{path}: no blender_manifest.toml at the top"]
+    try:
+        manifest = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        return [f"blender_manifest.toml: {exc}"]
+    errors = manifest_errors(manifest, names)
+    tool = _blender_ext()
+    if tool is not None:
+        proc = subprocess.run([sys.executable, str(tool), "validate", str(path)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            errors.append("Blender's validator: " + (proc.stdout + proc.stderr).strip())
+    return errors
+
+
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["validate"]:
+        p = argparse.ArgumentParser(prog="build_extension.py validate")
+        p.add_argument("path", type=Path, help="the extension zip or source directory")
+        args = p.parse_args(argv[1:])
+        errors = validate(args.path)
+        for e in errors:
+            print(f"{args.path}: {e}", file=sys.stderr)
+        if not errors:
+            checked = "fields, layout" + (" and Blender's validator" if _blender_ext() else " (Blender's validator not found)")
+            print(f"valid: {args.path} ({checked})")
+        return 1 if errors else 0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--output-dir", type=Path, default=REPO / "dist", help="where to write the zip (default: dist/)")
+    p.add_argument("--wheels", action="store_true", help="one zip per platform with warp-lang's wheel bundled")
+    p.add_argument("--platforms", default=",".join(DEFAULT_PLATFORMS),
+                   help=f"with --wheels: comma-separated Blender platforms (default {','.join(DEFAULT_PLATFORMS)})")
     args = p.parse_args(argv)
-    out = build(args.output_dir)
-    print(f"built {out}")
+    outs = (build_with_wheels(args.output_dir, [s.strip() for s in args.platforms.split(",") if s.strip()])
+            if args.wheels else [build(args.output_dir)])
+    for out in outs:
+        print(f"built {out}")
     return 0
 
 

@@ -43,5 +43,38 @@ def main():
         json.dump(report, fh)
 
 
+def engine_registered():
+    """The engine enum only accepts registered engines."""
+    try:
+        bpy.context.scene.render.engine = "HOVR"
+    except TypeError:
+        return False
+    bpy.context.scene.render.engine = "BLENDER_EEVEE"
+    return True
+
+
+def disable_and_uninstall(spec):
+    """Second process on the same user directories: the extension is still installed; enable,
+    disable, then uninstall it."""
+    bpy.ops.preferences.addon_enable(module=REPO_MODULE)
+    report = {"enabled": REPO_MODULE in bpy.context.preferences.addons and engine_registered()}
+    # Disable: engine, operators and the Scene/Object properties go away.
+    bpy.ops.preferences.addon_disable(module=REPO_MODULE)
+    report["disabled"] = {
+        "in_addons": REPO_MODULE in bpy.context.preferences.addons,
+        "engine": engine_registered(),
+        "scene_prop": hasattr(bpy.types.Scene, "hovr"),
+    }
+    # Uninstall: the extension's directory is removed.
+    repo_index = next(i for i, r in enumerate(bpy.context.preferences.extensions.repos) if r.module == "user_default")
+    result = bpy.ops.extensions.package_uninstall(repo_index=repo_index, pkg_id="hovr_blender")
+    report["uninstalled"] = sorted(result)
+    with open(spec["report"], "w", encoding="utf-8") as fh:
+        json.dump(report, fh)
+
+
 if __name__ == "__main__":
-    main()
+    if json.loads(sys.argv[1]).get("mode") == "uninstall":
+        disable_and_uninstall(json.loads(sys.argv[1]))
+    else:
+        main()

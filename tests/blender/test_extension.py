@@ -64,3 +64,64 @@ def test_install_enable_and_render(tmp_path):
     got = np.load(spec["out"])
     want = tr.core_render(tr.PERSPECTIVE, "classified", False)
     np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
+
+    spec.update(mode="uninstall", report=str(tmp_path / "uninstall.json"))
+    proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads(Path(spec["report"]).read_text())
+    assert report["enabled"]
+    assert report["disabled"] == {"in_addons": False, "engine": False, "scene_prop": False}
+    assert report["uninstalled"] == ["FINISHED"]
+    assert not (user / "extensions" / "user_default" / "hovr_blender").exists()
+
+
+sys.path.insert(0, str(REPO / "scripts"))
+import build_extension as be  # noqa: E402
+
+
+def test_built_zip_is_valid_for_our_checks_and_blenders(tmp_path):
+    zip_path = build_zip(tmp_path)
+    assert be._blender_ext() is not None  # bpy ships Blender's own extension validator
+    assert be.validate(zip_path) == []
+    out = subprocess.run([sys.executable, str(REPO / "scripts" / "build_extension.py"), "validate", str(zip_path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0 and "Blender's validator" in out.stdout
+
+
+GOOD = {"schema_version": "1.0.0", "id": "hovr_blender", "version": "0.1.0", "name": "HOVR",
+        "tagline": "Volume rendering", "maintainer": "m", "type": "add-on", "blender_version_min": "4.2.0",
+        "license": ["SPDX:GPL-3.0-or-later"]}
+
+
+@pytest.mark.parametrize("change,message", [
+    ({"tagline": "Ends with a period."}, "punctuation"), ({"tagline": "x" * 65}, "at most 64"),
+    ({"license": ["GPL-3.0"]}, "SPDX"), ({"blender_version_min": "4.1.0"}, "at least 4.2.0"),
+    ({"schema_version": "2.0.0"}, "schema_version"), ({"id": "hovr-blender"}, "identifier"),
+    ({"version": "1.0"}, "semantic"), ({"platforms": ["linux-arm64"]}, "subset"), ({"website": ""}, "empty"),
+    ({"permissions": {"files": "Reads files."}}, "final period"), ({"permissions": {"gpu": "x"}}, "unknown permission"),
+    ({"wheels": ["wheels\\a-1.0-py3-none-any.whl"]}, "forward slashes"), ({"type": "plugin"}, "type"),
+])
+def test_validator_names_each_bad_field(change, message):
+    assert be.manifest_errors(GOOD, {"__init__.py"}) == []
+    errors = be.manifest_errors({**GOOD, **change}, {"__init__.py"})
+    assert any(message in e for e in errors), errors
+    missing = dict(GOOD)
+    del missing["license"]
+    assert be.manifest_errors(missing) == ["'license' is required"]
+    assert "beside" in " ".join(be.manifest_errors(GOOD, set()))
+
+
+def test_wheel_build_lists_the_platform_wheel(tmp_path):
+    cached = sorted(be.WHEEL_CACHE.glob(f"warp_lang-{be.WARP_VERSION}-*manylinux_2_28_x86_64.whl"))
+    if not cached:
+        pytest.skip("no cached warp-lang wheel in build/wheels (python scripts/build_extension.py --wheels downloads it)")
+    (out,) = be.build_with_wheels(tmp_path, ["linux-x64"])
+    with zipfile.ZipFile(out) as zf:
+        import tomllib
+
+        manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
+        assert f"wheels/{cached[-1].name}" in zf.namelist()
+    assert manifest["platforms"] == ["linux-x64"] and manifest["wheels"] == [f"./wheels/{cached[-1].name}"]
+    assert manifest["permissions"]["files"]  # keys went in before the [permissions] table
+    assert be.validate(out) == []
