@@ -188,8 +188,10 @@ class VolumeMesh:
         return np.asarray(x, dtype=np.float64) @ M[:, :3].T + M[:, 3]
 
     def element_coeffs(self, e: int) -> np.ndarray:
+        from .expansions import num_coeffs
+
         o = int(self.coeff_offset[e])
-        return self.coeffs[o : o + int(np.prod(self.modes[e]))]
+        return self.coeffs[o : o + num_coeffs(int(self.shape[e]), self.modes[e])]
 
     def evaluate(self, e: int, x) -> np.ndarray:
         """float64 field of element e at world points x (..., 3) (no inside test)."""
@@ -210,3 +212,63 @@ class VolumeMesh:
         )
         out.basis = self.basis.copy()
         return out
+
+
+_BOUND_CACHE: dict = {}
+
+
+def mode_bounds(shape: int, modes) -> tuple[np.ndarray, np.ndarray]:
+    """(B, vertex_idx): B[m] >= max |phi_m| over the element (dense sampling with a 5 %
+    margin: the modes are smooth, low-degree polynomials), and the vertex modes' indices
+    (a non-negative partition of unity, so their part of a sum lies between its coefficients)."""
+    from . import expansions as ex
+
+    key = (int(shape), tuple(int(m) for m in modes))
+    if key not in _BOUND_CACHE:
+        rng = np.random.default_rng(0)
+        pts = rng.uniform(-1, 1, (3000, 3))
+        pts = np.concatenate([pts[ex.inside(shape, pts, tol=0.0)], ex.fit_points(shape, modes),
+                              ex.SHAPE_VERTICES[shape]])
+        B = np.abs(ex.basis_matrix(shape, modes, pts)).max(axis=0) * 1.05
+        vidx = ex.vertex_mode_indices(shape, modes) if min(key[1]) >= 2 else np.zeros(0, np.int64)
+        _BOUND_CACHE[key] = (B, vidx)
+    return _BOUND_CACHE[key]
+
+
+def _modal_range(shape, modes, c):
+    """Certified (lo, hi) of a modal expansion with coefficients c (K,) or (K, 3)."""
+    B, vidx = mode_bounds(shape, modes)
+    c = np.asarray(c, dtype=np.float64)
+    rest = np.ones(c.shape[0], dtype=bool)
+    rest[vidx] = False
+    spread = (np.abs(c[rest]) * (B[rest] if c.ndim == 1 else B[rest][:, None])).sum(axis=0)
+    if vidx.size:
+        return c[vidx].min(axis=0) - spread, c[vidx].max(axis=0) + spread
+    return -spread, spread
+
+
+def element_field_ranges(mesh: "VolumeMesh"):
+    lo = np.empty(mesh.num_elements)
+    hi = np.empty(mesh.num_elements)
+    for e in range(mesh.num_elements):
+        lo[e], hi[e] = _modal_range(int(mesh.shape[e]), mesh.modes[e], mesh.element_coeffs(e))
+    return lo, hi
+
+
+def element_boxes(mesh: "VolumeMesh"):
+    """Axis-aligned boxes that enclose each element, curved ones included (modal bound)."""
+    if mesh.geom_coeffs is None:
+        return mesh.bounds()
+    lo = np.empty((mesh.num_elements, 3))
+    hi = np.empty((mesh.num_elements, 3))
+    for e in range(mesh.num_elements):
+        if mesh.affine is not None and mesh.affine[e]:
+            nv = {0: 8, 1: 6, 2: 4, 3: 5}[int(mesh.shape[e])]
+            lo[e], hi[e] = mesh.vertices[e, :nv].min(axis=0), mesh.vertices[e, :nv].max(axis=0)
+            continue
+        o = int(mesh.geom_offset[e])
+        from . import expansions as ex
+
+        k = ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])
+        lo[e], hi[e] = _modal_range(int(mesh.shape[e]), mesh.geom_modes[e], mesh.geom_coeffs[o : o + k])
+    return lo, hi

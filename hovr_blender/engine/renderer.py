@@ -58,15 +58,13 @@ class Renderer:
         self._k = raycast
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
-            lowers, uppers = mesh.bounds()
+            from .mesh import element_boxes, element_field_ranges
+
+            lowers, uppers = element_boxes(mesh)
             pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
             self._lowers = wp.array((lowers - pad).astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array((uppers + pad).astype(np.float32), dtype=wp.vec3)
             self._bvh = wp.Bvh(self._lowers, self._uppers)
-            if mesh.affine is not None and not np.all(mesh.affine):
-                bad = int(np.argmin(mesh.affine))
-                raise RenderError(f"element {bad} of {mesh.source or 'the mesh'} has a curved or non-affine map: "
-                                  "the kernels traverse affine elements only so far")
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
             m.shape = wp.array(mesh.shape.astype(np.int32), dtype=wp.int32)
@@ -78,6 +76,23 @@ class Renderer:
                 raise RenderError("field too large for 32-bit coefficient offsets")
             m.coeff_offset = wp.array(mesh.coeff_offset.astype(np.int32), dtype=wp.int32)
             m.coeffs = wp.array(mesh.coeffs.astype(np.float32), dtype=wp.float32)
+            flo, fhi = element_field_ranges(mesh)
+            m.field_lo = wp.array(flo.astype(np.float32), dtype=wp.float32)
+            m.field_hi = wp.array(fhi.astype(np.float32), dtype=wp.float32)
+            n = mesh.num_elements
+            affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
+            m.affine = wp.array(affine, dtype=wp.int32)
+            if mesh.geom_coeffs is None:  # affine hexes from from_affine_hexes: no geometry needed
+                gm, go, g = np.full((n, 3), 2, np.int32), np.zeros(n, np.int32), np.zeros((1, 3))
+            else:
+                gm, go, g = mesh.geom_modes, mesh.geom_offset, mesh.geom_coeffs
+            m.geom_modes = wp.array(gm.astype(np.int32), dtype=wp.vec3i)
+            m.geom_offset = wp.array(go.astype(np.int32), dtype=wp.int32)
+            m.geom_x = wp.array(g[:, 0].astype(np.float32), dtype=wp.float32)
+            m.geom_y = wp.array(g[:, 1].astype(np.float32), dtype=wp.float32)
+            m.geom_z = wp.array(g[:, 2].astype(np.float32), dtype=wp.float32)
+            m.box_lo = self._lowers
+            m.box_hi = self._uppers
             self._mesh_args = m
             x, wk, wg = quadrature_tables.gauss_kronrod_15()
             S = quadrature_tables.integration_matrix(x)

@@ -72,6 +72,17 @@ class MeshArgs:
     basis: wp.array(dtype=wp.int32)
     coeff_offset: wp.array(dtype=wp.int32)
     coeffs: wp.array(dtype=wp.float32)
+    field_lo: wp.array(dtype=wp.float32)  # certified range of each element's field
+    field_hi: wp.array(dtype=wp.float32)
+    # curved / non-affine elements: geometry x(xi) as three modal expansions, and boxes
+    affine: wp.array(dtype=wp.int32)
+    geom_modes: wp.array(dtype=wp.vec3i)
+    geom_offset: wp.array(dtype=wp.int32)
+    geom_x: wp.array(dtype=wp.float32)
+    geom_y: wp.array(dtype=wp.float32)
+    geom_z: wp.array(dtype=wp.float32)
+    box_lo: wp.array(dtype=wp.vec3)
+    box_hi: wp.array(dtype=wp.vec3)
 
 
 @wp.struct
@@ -197,6 +208,286 @@ def element_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec3:
     return el_k.reference_interval(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
+# ------------------------------------------------------------ curved elements
+# A non-affine element is located along the ray by Newton inversion of x(xi) at samples,
+# with the entry and exit bisected on the inside/outside answer; the field along the ray is
+# then interpolated at Chebyshev points (no longer exact: its tail is the error estimate).
+
+CURVED_SAMPLES = 16  # samples of the box interval when looking for the element
+INSIDE_TOL = 1.0e-5
+
+
+@wp.func
+def geometry_at(mesh: MeshArgs, e: int, xi: wp.vec3) -> wp.vec3:
+    sh = mesh.shape[e]
+    gm = mesh.geom_modes[e]
+    off = mesh.geom_offset[e]
+    return wp.vec3(el_k.eval_element(sh, mesh.geom_x, off, gm, xi),
+                   el_k.eval_element(sh, mesh.geom_y, off, gm, xi),
+                   el_k.eval_element(sh, mesh.geom_z, off, gm, xi))
+
+
+@wp.func
+def centroid(shape: int) -> wp.vec3:
+    if shape == el_k.PRISM:
+        return wp.vec3(-1.0 / 3.0, 0.0, -1.0 / 3.0)
+    if shape == el_k.TET:
+        return wp.vec3(-0.5, -0.5, -0.5)
+    if shape == el_k.PYR:
+        return wp.vec3(-0.2, -0.2, -0.6)
+    return wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.func
+def below_collapse(shape: int, xi: wp.vec3) -> wp.vec3:
+    """Collapsed shapes are evaluated below their collapse (xi3 < 1; tets also xi2 + xi3 < 0)."""
+    y = xi
+    if shape != el_k.HEX:
+        y[2] = wp.min(y[2], 0.9999)
+        if shape == el_k.TET and y[1] + y[2] > -1.0e-4:
+            y[1] = -1.0e-4 - y[2]
+    return y
+
+
+@wp.func
+def fd_column(mesh: MeshArgs, e: int, xi: wp.vec3, step: wp.vec3) -> wp.vec3:
+    """dx/dxi along `step` by central differences, one-sided where the collapse is near."""
+    sh = mesh.shape[e]
+    xp = below_collapse(sh, xi + step)
+    xm = below_collapse(sh, xi - step)
+    dist = wp.length(xp - xm)
+    return (geometry_at(mesh, e, xp) - geometry_at(mesh, e, xm)) / wp.max(dist, 1.0e-12)
+
+
+@wp.func
+def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3) -> wp.vec4:
+    """(xi, converged) with x(xi) = p: Newton with a central-difference Jacobian, steps
+    clamped so xi stays in a slightly enlarged reference box."""
+    xi = xi0
+    ok = float(0.0)
+    hstep = 1.0e-3
+    for it in range(12):
+        r = geometry_at(mesh, e, xi) - p
+        c0 = fd_column(mesh, e, xi, wp.vec3(hstep, 0.0, 0.0))
+        c1 = fd_column(mesh, e, xi, wp.vec3(0.0, hstep, 0.0))
+        c2 = fd_column(mesh, e, xi, wp.vec3(0.0, 0.0, hstep))
+        J = wp.mat33(c0[0], c1[0], c2[0], c0[1], c1[1], c2[1], c0[2], c1[2], c2[2])
+        det = wp.determinant(J)
+        if wp.abs(det) < 1.0e-30:
+            break
+        dxi = wp.inverse(J) * r
+        xi = xi - dxi
+        for k in range(3):
+            xi[k] = wp.clamp(xi[k], -1.5, 1.5)
+        # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence)
+        if wp.length(dxi) < 1.0e-5:
+            ok = 1.0
+            break
+    return wp.vec4(xi[0], xi[1], xi[2], ok)
+
+
+@wp.func
+def reference_margin(shape: int, xi: wp.vec3) -> float:
+    """Signed distance-like margin to the reference element's faces (> 0 inside)."""
+    m = wp.min(wp.min(xi[0] + 1.0, xi[1] + 1.0), xi[2] + 1.0)
+    if shape == el_k.HEX:
+        m = wp.min(m, wp.min(wp.min(1.0 - xi[0], 1.0 - xi[1]), 1.0 - xi[2]))
+    elif shape == el_k.PRISM:
+        m = wp.min(m, wp.min(1.0 - xi[1], -(xi[0] + xi[2])))
+    elif shape == el_k.TET:
+        m = wp.min(m, -1.0 - (xi[0] + xi[1] + xi[2]))
+    else:
+        m = wp.min(m, wp.min(-(xi[0] + xi[2]), -(xi[1] + xi[2])))
+    return m
+
+
+@wp.func
+def inside_reference(shape: int, xi: wp.vec3, tol: float) -> int:
+    if reference_margin(shape, xi) >= -tol:
+        return 1
+    return 0
+
+
+@wp.func
+def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3) -> wp.vec4:
+    """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; -1 where Newton fails."""
+    r = invert_point(mesh, e, o + t * d, xi0)
+    if r[3] <= 0.0:  # a warm start from a bad neighbour: retry from the element's centre
+        r = invert_point(mesh, e, o + t * d, centroid(mesh.shape[e]))
+    xi = wp.vec3(r[0], r[1], r[2])
+    m = float(-1.0)
+    if r[3] > 0.0:
+        m = reference_margin(mesh.shape[e], xi) + INSIDE_TOL
+    return wp.vec4(xi[0], xi[1], xi[2], m)
+
+
+@wp.func
+def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
+    lo = mesh.box_lo[e]
+    hi = mesh.box_hi[e]
+    t0 = float(-1.0e30)
+    t1 = float(1.0e30)
+    for k in range(3):
+        if wp.abs(d[k]) < 1.0e-30:
+            if o[k] < lo[k] or o[k] > hi[k]:
+                t1 = -1.0e30
+        else:
+            ta = (lo[k] - o[k]) / d[k]
+            tb = (hi[k] - o[k]) / d[k]
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return wp.vec2(t0, t1)
+
+
+@wp.func
+def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float) -> wp.vec3:
+    """(hit, t0, t1): the first stretch of the ray beyond t_from inside curved element e.
+    Found on CURVED_SAMPLES samples of the box interval, ends bisected to 1e-7 relative;
+    a stretch thinner than the sample spacing can be missed (re-entries are found on the
+    traversal's next pass, which asks again beyond the current t)."""
+    bi = box_interval(mesh, e, o, d)
+    ta = wp.max(bi[0], t_from)
+    tb = bi[1]
+    if tb <= ta:
+        return wp.vec3(0.0, 0.0, 0.0)
+    sh = mesh.shape[e]
+    xi = centroid(sh)
+    dt = (tb - ta) / float(CURVED_SAMPLES)
+    prev_t = ta
+    prev_xi = xi
+    t_enter = float(0.0)
+    entered = int(0)
+    best_m = float(-1.0e30)
+    best_t = ta
+    best_xi = xi
+    for i in range(CURVED_SAMPLES + 1):
+        t = ta + float(i) * dt
+        r = curved_inside(mesh, e, o, d, t, prev_xi)
+        xi_t = wp.vec3(r[0], r[1], r[2])
+        if r[3] > best_m:
+            best_m = r[3]
+            best_t = t
+            best_xi = xi_t
+        if entered == 0:
+            if r[3] > 0.0:
+                if i == 0:
+                    t_enter = t
+                else:
+                    lo = prev_t
+                    hi = t
+                    g = xi_t
+                    for it in range(24):
+                        m = 0.5 * (lo + hi)
+                        rm = curved_inside(mesh, e, o, d, m, g)
+                        if rm[3] > 0.0:
+                            hi = m
+                            g = wp.vec3(rm[0], rm[1], rm[2])
+                        else:
+                            lo = m
+                    t_enter = hi
+                entered = 1
+        else:
+            if r[3] <= 0.0:
+                lo = prev_t
+                hi = t
+                g = prev_xi
+                for it in range(24):
+                    m = 0.5 * (lo + hi)
+                    rm = curved_inside(mesh, e, o, d, m, g)
+                    if rm[3] > 0.0:
+                        lo = m
+                        g = wp.vec3(rm[0], rm[1], rm[2])
+                    else:
+                        hi = m
+                return wp.vec3(1.0, t_enter, lo)
+        prev_t = t
+        prev_xi = xi_t
+    if entered == 1:
+        return wp.vec3(1.0, t_enter, tb)
+    if best_m > -0.25:
+        # no sample inside, but the margin came close: a clip shorter than the spacing may
+        # hide next to the best sample; ternary-search the margin's peak there
+        lo = wp.max(ta, best_t - dt)
+        hi = wp.min(tb, best_t + dt)
+        g = best_xi
+        for it in range(30):
+            m1 = lo + (hi - lo) / 3.0
+            m2 = hi - (hi - lo) / 3.0
+            r1 = curved_inside(mesh, e, o, d, m1, g)
+            r2 = curved_inside(mesh, e, o, d, m2, g)
+            if r1[3] < r2[3]:
+                lo = m1
+                g = wp.vec3(r2[0], r2[1], r2[2])
+            else:
+                hi = m2
+                g = wp.vec3(r1[0], r1[1], r1[2])
+        tp = 0.5 * (lo + hi)
+        rp = curved_inside(mesh, e, o, d, tp, g)
+        if rp[3] > 0.0:
+            gp = wp.vec3(rp[0], rp[1], rp[2])
+            lo = wp.max(ta, best_t - dt)
+            hi = tp
+            for it in range(24):
+                m = 0.5 * (lo + hi)
+                rm = curved_inside(mesh, e, o, d, m, gp)
+                if rm[3] > 0.0:
+                    hi = m
+                else:
+                    lo = m
+            t_in = hi
+            lo = tp
+            hi = wp.min(tb, best_t + dt)
+            for it in range(24):
+                m = 0.5 * (lo + hi)
+                rm = curved_inside(mesh, e, o, d, m, gp)
+                if rm[3] > 0.0:
+                    lo = m
+                else:
+                    hi = m
+            return wp.vec3(1.0, t_in, lo)
+    return wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.func
+def curved_restriction(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, deg: int) -> vecr:
+    """Chebyshev interpolant of f(t) on [a, b] from deg + 1 Newton-located Lobatto samples;
+    slot MAX-3 keeps |c_deg| + |c_deg-1| (the interpolant's error estimate), MAX-2/-1 w = 1."""
+    c = vecr()
+    f = vecr()
+    mid = 0.5 * (a + b)
+    half = 0.5 * (b - a)
+    fd = float(deg)
+    xi = centroid(mesh.shape[e])
+    for jj in range(deg + 1):
+        j = deg - jj  # from a to b, so each Newton solve starts from its neighbour
+        s = wp.cos(wp.pi * float(j) / fd)
+        r = invert_point(mesh, e, o + (mid + half * s) * d, xi)
+        xi = wp.vec3(r[0], r[1], r[2])
+        f[j] = eval_field(mesh, e, xi)
+    for k in range(deg + 1):
+        acc = float(0.0)
+        for j in range(deg + 1):
+            wj = float(1.0)
+            if j == 0 or j == deg:
+                wj = 0.5
+            acc += wj * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
+        acc = acc * 2.0 / fd
+        if k == 0 or k == deg:
+            acc = acc * 0.5
+        c[k] = acc
+    c[MAX_RESTRICTION - 3] = wp.abs(c[deg]) + wp.abs(c[deg - 1])
+    c[MAX_RESTRICTION - 2] = 1.0
+    c[MAX_RESTRICTION - 1] = 1.0
+    return c
+
+
+@wp.func
+def curved_degree(mesh: MeshArgs, e: int) -> int:
+    """Chebyshev degree for a curved segment: the field's own degree plus room for the map."""
+    g = el_k.polynomial_degree(mesh.shape[e], mesh.geom_modes[e])
+    return wp.min(el_k.polynomial_degree(mesh.shape[e], mesh.modes[e]) + 2 * g + 4, MAX_RESTRICTION - 4)
+
+
 # ----------------------------------------------------------------- 1-D restriction
 
 
@@ -281,7 +572,18 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march_riemann(
-    mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, xo: wp.vec3, xd: wp.vec3, a: float, b: float, state: vecst
+    mesh: MeshArgs,
+    tf: TransferArgs,
+    q: QuadArgs,
+    e: int,
+    xo: wp.vec3,
+    xd: wp.vec3,
+    use_restriction: int,
+    c: vecr,
+    deg: int,
+    a: float,
+    b: float,
+    state: vecst,
 ) -> vecst:
     """Left Riemann sum with n = ceil((b - a) / h) equal steps; state = (C.rgb, T)."""
     n = wp.max(1, int(wp.ceil((b - a) / q.h)))
@@ -292,7 +594,8 @@ def march_riemann(
     depth = state[5]
     for i in range(n):
         t0 = a + float(i) * w
-        s = eval_field(mesh, e, xo + t0 * xd)
+        s = sample_field(mesh, e, xo, xd, use_restriction, c, deg, a, b, t0)
+        nev += float(use_restriction)
         tau = tf_density(tf, s)
         col += T * tau * w * tf_color(tf, s)
         T1 = T * wp.exp(-tau * w)
@@ -567,6 +870,7 @@ def render_kernel(
     n_smooth = int(0)
     n_pw = int(0)
     t_cur = cam.t_min
+    regathered_at = float(-1.0e30)
     done = int(0)
     guard = int(0)
     while done == 0 and guard < 1000000:
@@ -579,7 +883,11 @@ def render_kernel(
         query = wp.bvh_query_ray(mesh.bvh, o, d)
         e = int(0)
         while wp.bvh_query_next(query, e):
-            iv = element_interval(mesh, e, o, d)
+            iv = wp.vec3(0.0, 0.0, 0.0)
+            if mesh.affine[e] == 1:
+                iv = element_interval(mesh, e, o, d)
+            else:
+                iv = curved_interval(mesh, e, o, d, t_cur)
             t0 = wp.max(iv[1], t_cur)
             t1 = wp.min(iv[2], cam.t_max)
             if iv[0] > 0.0 and t1 > t0:
@@ -596,42 +904,67 @@ def render_kernel(
                     nwin = wp.min(nwin + 1, WINDOW)
         if nwin == 0:
             break
+        regather = int(0)
         for w in range(nwin):
             el = win_e[w]
             a = wp.max(win_t0[w], t_cur)
             b = win_t1[w]
             if b <= a:
                 continue
+            # a gap after a processed segment may hide a curved element entered there whose
+            # stretch was too short for the gathering samples: gather again from here once
+            if w > 0 and a > t_cur + 1.0e-6 * (wp.abs(t_cur) + 1.0) and regathered_at != t_cur:
+                regathered_at = t_cur
+                regather = 1
+                break
             t_cur = b
             n_seg += 1
             A = mesh.ref_a[el]
             xo = A * o + mesh.ref_b[el]
             xd = A * d
+            curved = int(1) - mesh.affine[el]
+            c = vecr()
+            deg = int(0)
+            if curved == 1:
+                # curved: every method samples the Chebyshev interpolant along the ray
+                deg = curved_degree(mesh, el)
+                c = curved_restriction(mesh, el, o, d, a, b, deg)
+                n_field += deg + 1
+                state[6] = state[6] + c[MAX_RESTRICTION - 3]
             if q.method == METHOD_RIEMANN:
                 nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
-                n_field += nsteps
-                state = march_riemann(mesh, tf, q, el, xo, xd, a, b, state)
+                if curved == 0:
+                    n_field += nsteps
+                state = march_riemann(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
             elif q.method == METHOD_TRAPEZOID:
                 nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
-                n_field += nsteps + 1
-                state = march_trapezoid(mesh, tf, q, el, xo, xd, 0, vecr(), 0, a, b, state)
+                if curved == 0:
+                    n_field += nsteps + 1
+                state = march_trapezoid(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
             else:
-                deg = restriction_degree(mesh, el)
-                c = chebyshev_restriction(mesh, el, xo, xd, a, b, deg)
-                n_field += deg + 1
-                rad = float(0.0)
-                for k in range(1, deg + 1):
-                    rad += wp.abs(c[k])
-                rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])  # float32 rounding margin
-                glo = c[0] - rad
-                ghi = c[0] + rad
-                # f = g / w^2 with w linear and positive on the segment: interval division
-                w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)
-                w2hi = wp.max(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1])
-                w2lo = w2lo * w2lo
-                w2hi = w2hi * w2hi
-                lo = wp.min(glo / w2lo, glo / w2hi)
-                hi = wp.max(ghi / w2lo, ghi / w2hi)
+                lo = float(0.0)
+                hi = float(0.0)
+                if curved == 1:
+                    # the interpolant is not exact: classify with the element's certified range
+                    lo = mesh.field_lo[el]
+                    hi = mesh.field_hi[el]
+                else:
+                    deg = restriction_degree(mesh, el)
+                    c = chebyshev_restriction(mesh, el, xo, xd, a, b, deg)
+                    n_field += deg + 1
+                    rad = float(0.0)
+                    for k in range(1, deg + 1):
+                        rad += wp.abs(c[k])
+                    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])  # float32 rounding margin
+                    glo = c[0] - rad
+                    ghi = c[0] + rad
+                    # f = g / w^2 with w linear and positive on the segment: interval division
+                    w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)
+                    w2hi = wp.max(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1])
+                    w2lo = w2lo * w2lo
+                    w2hi = w2hi * w2hi
+                    lo = wp.min(glo / w2lo, glo / w2hi)
+                    hi = wp.max(ghi / w2lo, ghi / w2hi)
                 dens_max = density_max_on(tf, lo, hi)
                 emitting = int(0)
                 if color_max_on(tf, lo, hi) > 0.0:
@@ -703,7 +1036,7 @@ def render_kernel(
             if state[3] < q.min_transmittance:
                 done = 1
                 break
-        if nwin < WINDOW:
+        if nwin < WINDOW and regather == 0:
             done = 1
 
     T = state[3]
