@@ -50,6 +50,31 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
     return A, -A @ x0, J, x0
 
 
+def _affine_maps(shape: int, gmodes, G: np.ndarray):
+    """For m elements of one shape and geometry order, G (m, K, 3): padded vertices (m, 8, 3),
+    world->reference maps (m, 3, 4) and whether each map is affine (exactly, at the fit points)."""
+    from . import expansions as ex
+
+    ref_v = ex.SHAPE_VERTICES[shape]
+    V = np.einsum("vk,mkc->mvc", ex.basis_matrix(shape, gmodes, ref_v), G)
+    verts = np.concatenate([V, np.repeat(V[:, -1:], 8 - len(ref_v), axis=1)], axis=1)
+    axes = [int(np.nonzero((ref_v == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
+    J = 0.5 * np.transpose(V[:, axes] - V[:, :1], (0, 2, 1))  # (m, 3, 3): columns dx/dxi_d
+    extent = np.abs(V - V.mean(axis=1, keepdims=True)).max(axis=(1, 2))
+    det = np.linalg.det(J)
+    good = np.isfinite(det) & (extent > 0) & (np.abs(det) > 1e-12 * extent**3)
+    pts = ex.fit_points(shape, gmodes)
+    B = ex.basis_matrix(shape, gmodes, pts)
+    dev = np.abs(np.einsum("pk,mkc->mpc", B, G) - (V[:, None, 0] + np.einsum("pd,mcd->mpc", pts + 1.0, J))).max(axis=(1, 2))
+    ok = good & (dev <= 1e-12 * (extent + np.abs(V).max(axis=(1, 2))))
+    maps = np.zeros((len(G), 3, 4))
+    if ok.any():
+        A = np.linalg.inv(J[ok])
+        maps[ok, :, :3] = A
+        maps[ok, :, 3] = -np.einsum("mij,mj->mi", A, V[ok, 0]) - 1.0
+    return verts, maps, ok
+
+
 @dataclass
 class VolumeMesh:
     shape: np.ndarray  # (N,) int32
@@ -95,10 +120,7 @@ class VolumeMesh:
             raise MeshError(f"{n} elements but {len(coeffs_per_element)} field and "
                             f"{len(geom_coeffs_per_element)} geometry blocks")
         flat, gflat = [], []
-        vertices = np.zeros((n, 8, 3))
-        M = np.zeros((n, 3, 4))
-        affine = np.zeros(n, dtype=bool)
-        for e in range(n):
+        for e in range(n):  # validate every block (cheap), then do the geometry per group
             sh = int(shapes[e])
             if sh not in ex.SHAPE_NAMES:
                 raise MeshError(f"element {e}: unknown shape id {sh}")
@@ -114,17 +136,17 @@ class VolumeMesh:
                                 f"{geom_modes[e].tolist()} (needs {kg})")
             if not np.all(np.isfinite(g)):
                 raise MeshError(f"element {e}: geometry is not finite")
-            ref_v = ex.SHAPE_VERTICES[sh]
-            v = ex.eval_modal(sh, geom_modes[e], g, ref_v)
-            vertices[e, : len(ref_v)] = v
-            vertices[e, len(ref_v):] = v[-1]
-            # affine test: the map equals the affine map through vertices 0, 1, 3 (or 2), 4 (or 3)
-            A, b, ok = ex.affine_fit(sh, geom_modes[e], g)
-            if ok:
-                affine[e] = True
-                M[e, :, :3], M[e, :, 3] = A, b
             flat.append(c)
             gflat.append(g)
+        vertices = np.zeros((n, 8, 3))
+        M = np.zeros((n, 3, 4))
+        affine = np.zeros(n, dtype=bool)
+        keys = np.concatenate([shapes[:, None], geom_modes], axis=1)
+        for key in np.unique(keys, axis=0):
+            sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
+            idx = np.nonzero((keys == key).all(axis=1))[0]
+            G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
+            vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
         sizes = np.array([f.size for f in flat], dtype=np.int64)
         gsizes = np.array([g.shape[0] for g in gflat], dtype=np.int64)
         out = cls(
@@ -235,40 +257,50 @@ def mode_bounds(shape: int, modes) -> tuple[np.ndarray, np.ndarray]:
     return _BOUND_CACHE[key]
 
 
-def _modal_range(shape, modes, c):
-    """Certified (lo, hi) of a modal expansion with coefficients c (K,) or (K, 3)."""
+def _modal_ranges(shape, modes, C):
+    """Certified (lo, hi) of m modal expansions, C (m, K) or (m, K, 3)."""
     B, vidx = mode_bounds(shape, modes)
-    c = np.asarray(c, dtype=np.float64)
-    rest = np.ones(c.shape[0], dtype=bool)
+    C = np.asarray(C, dtype=np.float64)
+    rest = np.ones(C.shape[1], dtype=bool)
     rest[vidx] = False
-    spread = (np.abs(c[rest]) * (B[rest] if c.ndim == 1 else B[rest][:, None])).sum(axis=0)
+    Bx = B[rest] if C.ndim == 2 else B[rest][:, None]
+    spread = (np.abs(C[:, rest]) * Bx).sum(axis=1)
     if vidx.size:
-        return c[vidx].min(axis=0) - spread, c[vidx].max(axis=0) + spread
+        return C[:, vidx].min(axis=1) - spread, C[:, vidx].max(axis=1) + spread
     return -spread, spread
 
 
-def element_field_ranges(mesh: "VolumeMesh"):
-    lo = np.empty(mesh.num_elements)
-    hi = np.empty(mesh.num_elements)
-    for e in range(mesh.num_elements):
-        lo[e], hi[e] = _modal_range(int(mesh.shape[e]), mesh.modes[e], mesh.element_coeffs(e))
+def _grouped_ranges(shapes, modes, offsets, flat):
+    """_modal_ranges over every element, grouped by (shape, modes) for speed."""
+    from . import expansions as ex
+
+    n = len(shapes)
+    keys = np.concatenate([np.asarray(shapes)[:, None], np.asarray(modes)], axis=1)
+    lo = np.empty((n,) + flat.shape[1:])
+    hi = np.empty((n,) + flat.shape[1:])
+    for key in np.unique(keys, axis=0):
+        sh, m = int(key[0]), tuple(int(v) for v in key[1:])
+        idx = np.nonzero((keys == key).all(axis=1))[0]
+        k = ex.num_coeffs(sh, m)
+        gather = offsets[idx][:, None] + np.arange(k)[None, :]
+        lo[idx], hi[idx] = _modal_ranges(sh, m, flat[gather])
     return lo, hi
 
 
+def element_field_ranges(mesh: "VolumeMesh"):
+    return _grouped_ranges(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs)
+
+
 def element_boxes(mesh: "VolumeMesh"):
-    """Axis-aligned boxes that enclose each element, curved ones included (modal bound)."""
+    """Axis-aligned boxes that enclose each element, curved ones included (modal bound);
+    affine elements get their vertex hull."""
     if mesh.geom_coeffs is None:
         return mesh.bounds()
-    lo = np.empty((mesh.num_elements, 3))
-    hi = np.empty((mesh.num_elements, 3))
-    for e in range(mesh.num_elements):
-        if mesh.affine is not None and mesh.affine[e]:
-            nv = {0: 8, 1: 6, 2: 4, 3: 5}[int(mesh.shape[e])]
-            lo[e], hi[e] = mesh.vertices[e, :nv].min(axis=0), mesh.vertices[e, :nv].max(axis=0)
-            continue
-        o = int(mesh.geom_offset[e])
-        from . import expansions as ex
-
-        k = ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])
-        lo[e], hi[e] = _modal_range(int(mesh.shape[e]), mesh.geom_modes[e], mesh.geom_coeffs[o : o + k])
+    lo, hi = _grouped_ranges(mesh.shape, mesh.geom_modes, mesh.geom_offset, mesh.geom_coeffs)
+    if mesh.affine is not None and mesh.affine.any():
+        nv = np.array([8, 6, 4, 5])[mesh.shape]
+        for count in np.unique(nv):
+            sel = mesh.affine & (nv == count)
+            lo[sel] = mesh.vertices[sel, :count].min(axis=1)
+            hi[sel] = mesh.vertices[sel, :count].max(axis=1)
     return lo, hi
