@@ -40,6 +40,11 @@ class RayCamera:
     t_min: float = 0.0
     t_max: float = float("inf")
     projection: str = "perspective"
+    # optional clip planes along a view axis (Blender's clip start/end for perspective
+    # cameras): a ray d keeps t in [clip_near / c, clip_far / c], c = d . clip_axis
+    clip_axis: tuple = (0.0, 0.0, 0.0)
+    clip_near: float = 0.0
+    clip_far: float = float("inf")
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self):

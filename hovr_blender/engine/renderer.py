@@ -116,6 +116,9 @@ class Renderer:
             cam.width, cam.height = W, H
             cam.t_min = float(camera.t_min)
             cam.t_max = float(min(camera.t_max, 1e30))
+            cam.clip_axis = wp.vec3(*map(float, camera.clip_axis))
+            cam.clip_near = float(camera.clip_near)
+            cam.clip_far = float(min(camera.clip_far, 1e30))
             t = k.TransferArgs()
             t.color_s = wp.array(tf.color_s.astype(np.float32), dtype=wp.float32)
             t.color_rgb = wp.array(tf.color_rgb.astype(np.float32), dtype=wp.vec3)

@@ -90,3 +90,24 @@ def test_tiled_render_progress_and_cancel(device):
                          progress=lambda f: calls.append(f) or False, tile_pixels=256)
     assert cancelled.cancelled and len(calls) == 1
     assert np.all(cancelled.rgba.reshape(-1, 4)[256:] == 0)
+
+
+def test_clip_planes_along_the_view_axis(device):
+    """Blender-style clip start/end along the axis: per ray t in [near/c, far/c]."""
+    lo, hi = np.array([-1.0, -1.0, -1.0]), np.array([1.0, 1.0, 1.0])
+    mesh = brick(lo, hi, (1, 1, 1), 2, lambda x, y, z: 0.0 * x + 1.0)
+    tf = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2, 1, 1, 1]], "density": [[0, 0.8], [2, 0.8]]})
+    base = {"eye": [0.0, 0.0, 5.0], "target": [0, 0, 0], "up": [0, 1, 0], "fov_y_deg": 40}
+    cam = RayCamera.from_contract(base, 24, 24)
+    near, far = 4.5, 5.5  # planes z = 0.5 and z = -0.5
+    import dataclasses
+
+    clipped = dataclasses.replace(cam, clip_axis=(0.0, 0.0, -1.0), clip_near=near, clip_far=far)
+    res = Renderer(mesh, device).render(clipped, tf, [0, 0, 0], RenderOptions(method="split", min_transmittance=0))
+    o, d = cam.rays()
+    c = -d[..., 2]
+    t0 = np.maximum(near / c, np.nanmax(np.minimum((lo - o) / d, (hi - o) / d), axis=-1))
+    t1 = np.minimum(far / c, np.nanmin(np.maximum((lo - o) / d, (hi - o) / d), axis=-1))
+    L = np.clip(t1 - t0, 0, None)
+    np.testing.assert_allclose(-np.log(1 - res.rgba[..., 3]), 0.8 * L, atol=1e-5)
+    assert L.max() > 0.9 and L.max() < 1.2  # the slab, not the whole cube

@@ -97,6 +97,11 @@ class CameraArgs:
     height: wp.int32
     t_min: wp.float32
     t_max: wp.float32
+    # Blender's clip planes measured along the view axis (zero axis: unused): per ray,
+    # t in [clip_near / c, clip_far / c] with c = dot(d, clip_axis)
+    clip_axis: wp.vec3
+    clip_near: wp.float32
+    clip_far: wp.float32
 
 
 @wp.struct
@@ -869,7 +874,13 @@ def render_kernel(
     n_empty = int(0)
     n_smooth = int(0)
     n_pw = int(0)
-    t_cur = cam.t_min
+    t_lo = cam.t_min
+    t_hi = cam.t_max
+    cax = wp.dot(d, cam.clip_axis)
+    if cax > 0.0:
+        t_lo = wp.max(t_lo, cam.clip_near / cax)
+        t_hi = wp.min(t_hi, cam.clip_far / cax)
+    t_cur = t_lo
     regathered_at = float(-1.0e30)
     done = int(0)
     guard = int(0)
@@ -889,7 +900,7 @@ def render_kernel(
             else:
                 iv = curved_interval(mesh, e, o, d, t_cur)
             t0 = wp.max(iv[1], t_cur)
-            t1 = wp.min(iv[2], cam.t_max)
+            t1 = wp.min(iv[2], t_hi)
             if iv[0] > 0.0 and t1 > t0:
                 if nwin < WINDOW or t0 < win_t0[WINDOW - 1]:
                     k = wp.min(nwin, WINDOW - 1)
@@ -1043,7 +1054,7 @@ def render_kernel(
     rgba[tid] = wp.vec4(state[0] + T * q.background[0], state[1] + T * q.background[1], state[2] + T * q.background[2], 1.0 - T)
     depth_out = state[5]
     if depth_out < 0.0:
-        depth_out = cam.t_max
+        depth_out = t_hi
     aux[tid] = wp.vec2(depth_out, state[6])
     stats[tid, 0] = n_field
     stats[tid, 1] = n_restr + int(state[4])
