@@ -150,10 +150,8 @@ def clipped(cam: RayCamera, near: float, far: float) -> RayCamera:
 
     Orthographic: d is the view axis, so t = z - z0 exactly; origins move onto the near
     plane when it lies behind the camera (viewport ortho views clip at negative starts).
-    Perspective: t = z / cos(angle to the axis) differs per ray while RayCamera holds one
-    [t_min, t_max]. Until the kernel clips per ray, take t_min = near (exact on the axis,
-    earlier elsewhere) and t_max = far / (smallest cos over the image corners): a superset
-    of what Blender shows, so nothing inside the clip range is lost.
+    Perspective: t = z / cos(angle to the axis) differs per ray: the kernel clips each ray
+    at [near / c, far / c] with c = d . axis (RayCamera.clip_axis/clip_near/clip_far).
     """
     fwd = _forward(cam)
     extra = dict(cam.extra, clip=(float(near), float(far)))
@@ -167,7 +165,8 @@ def clipped(cam: RayCamera, near: float, far: float) -> RayCamera:
     if cos_min <= 1e-6:
         raise CameraError("camera field of view reaches 90 degrees off its axis")
     extra["z_offset"] = 0.0
-    return replace(cam, t_min=float(max(near, 0.0)), t_max=float(far / cos_min), extra=extra)
+    return replace(cam, t_min=0.0, t_max=float("inf"), clip_axis=tuple(map(float, fwd)),
+                   clip_near=float(max(near, 0.0)), clip_far=float(far), extra=extra)
 
 
 def view_depth(cam: RayCamera, t) -> np.ndarray:

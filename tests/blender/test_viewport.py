@@ -59,8 +59,8 @@ def test_viewport_rays_follow_view3d_utils(scene, kind):
         np.testing.assert_allclose(o[j, i], ov, atol=2e-4 * max(1.0, np.abs(ov).max()))
     if kind == "ORTHO":  # rays start on the near plane, 40 behind the view origin
         assert cam.t_min == 0.0 and cam.t_max == pytest.approx(80.0, rel=1e-5)
-    else:
-        assert cam.t_min == pytest.approx(0.05, rel=1e-4)
+    else:  # perspective: clipped per ray along the view axis by the kernel
+        assert cam.clip_near == pytest.approx(0.05, rel=1e-4)
 
 
 def test_camera_view_converges_to_the_f12_image(scene, tmp_path):

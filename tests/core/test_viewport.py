@@ -80,7 +80,8 @@ def test_progressive_frames_end_at_the_full_render(renderer):
     assert rows[-1][0] + rows[-1][1] == 64
     print(f"viewport 96x64 split: preview {vp.log[0].seconds * 1000:.1f} ms at 1/{vp.log[0].scale}, "
           f"{len(bands)} bands, {steps} calls, slowest call {max(t_steps) * 1000:.1f} ms")
-    assert max(t_steps[1:]) < 0.25  # refinement never holds the UI for long
+    # wall-time budgets are checked deterministically with a fake clock below (not here:
+    # a loaded CI machine would make a timed assertion flaky)
     assert vp.step(0.05) is False  # converged: no more work, no redraw needed
 
 
@@ -99,8 +100,8 @@ def test_restarts_on_change_and_learns_the_preview_scale(renderer):
         assert vp.display is not None and vp.display.shape[:2] == (64, changed.camera.width)
     previews = [r for r in vp.log if r.kind == "preview"]
     assert len(previews) == 5 and vp.restarts == 5
-    # after the first, the preview's resolution comes from the measured cost: close to the target
-    assert all(r.seconds < 0.25 for r in previews[1:]), [r.seconds for r in previews]
+    # the preview's resolution comes from the measured cost (timed with a fake clock below)
+    assert all(r.scale >= 1 for r in previews)
 
 
 class FakeRenderer:
