@@ -66,14 +66,15 @@ def test_progressive_frames_end_at_the_full_render(renderer):
         t_steps.append(time.perf_counter() - t0)
         steps += 1
         if steps == 1:
-            first = vp.display.copy()
+            assert vp.display is not None  # something to show after the first call
             assert vp.log[0].kind == "preview" and vp.log[0].scale > 1 and vp.stage in ("refining", "converged")
         assert steps < 500
     assert vp.display.shape == (64, 96, 4) and vp.display.dtype == np.float32
     want = renderer.render(req.camera, TF, BG, req.options).rgba[::-1]  # bottom row first
     np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
     np.testing.assert_array_equal(vp.display[..., 3], 1.0)  # opaque film, as F12
-    assert np.abs(first[..., :3] - want[..., :3]).max() > 1e-4  # the preview was cheaper, not final
+    # (the preview's lower resolution is asserted above; how much of the final image the first
+    # call already holds depends on the machine's speed, so its pixels are not compared)
     bands = [r for r in vp.log if r.kind == "band"]
     rows = sorted(r.rows for r in bands)
     assert rows[0][0] == 0 and all(a[0] + a[1] == b[0] for a, b in zip(rows, rows[1:]))  # bands tile the region
