@@ -101,3 +101,31 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
     n_modes = (modes,) * 3
     return VolumeMesh.from_elements(shapes, n_modes, coeffs, (2, 2, 2), geoms, field_name=field_name,
                                     source=f"synthetic:mixed_cube{n}")
+
+
+def with_field(mesh: VolumeMesh, func, modes: int, field_name="f") -> VolumeMesh:
+    """The same geometry carrying func(x, y, z) fitted with `modes` per direction in every
+    element (exact for polynomials the element's space holds); for meshes that come without
+    a field, such as scaleHO."""
+    from ..engine import expansions as ex
+
+    n = mesh.num_elements
+    coeffs = [None] * n
+    keys = np.concatenate([mesh.shape[:, None], mesh.geom_modes], axis=1)
+    for key in np.unique(keys, axis=0):
+        sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
+        idx = np.nonzero((keys == key).all(axis=1))[0]
+        m = (modes,) * 3
+        pts = ex.fit_points(sh, m)
+        Bg = ex.basis_matrix(sh, gm, pts)
+        kg = ex.num_coeffs(sh, gm)
+        G = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(kg)[None, :]]  # (k, K, 3)
+        X = np.einsum("pk,ekc->epc", Bg, G)
+        vals = func(X[..., 0], X[..., 1], X[..., 2])  # (k, P)
+        C = ex.fit_modal(sh, m, vals.T)  # (K, k)
+        for j, e in enumerate(idx):
+            coeffs[e] = C[:, j]
+    gco = [mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
+           for e in range(n)]
+    return VolumeMesh.from_elements(mesh.shape, (modes,) * 3, coeffs, mesh.geom_modes, gco, field_name=field_name,
+                                    source=mesh.source)

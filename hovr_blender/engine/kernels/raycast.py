@@ -898,7 +898,10 @@ def render_kernel(
             if mesh.affine[e] == 1:
                 iv = element_interval(mesh, e, o, d)
             else:
-                iv = curved_interval(mesh, e, o, d, t_cur)
+                # Newton location is costly: only for elements whose box can still enter the window
+                bx = box_interval(mesh, e, o, d)
+                if bx[1] > t_cur and (nwin < WINDOW or wp.max(bx[0], t_cur) < win_t0[WINDOW - 1]):
+                    iv = curved_interval(mesh, e, o, d, t_cur)
             t0 = wp.max(iv[1], t_cur)
             t1 = wp.min(iv[2], t_hi)
             if iv[0] > 0.0 and t1 > t0:
