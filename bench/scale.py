@@ -101,6 +101,7 @@ def main(argv=None):
         lo, hi = np.percentile(hump.coeffs, [2, 98])
         tf = tents(lo, hi, [(0.9, 0.3, 0.1), (0.2, 0.7, 0.3), (0.1, 0.3, 0.9)], 40.0 / float(np.ptp(element_boxes(hump)[1])))
         summary["hump3D"] = run("hump3D", hump, load, tf, args, args.out)
+        _dump(summary, args.out)
     if "scaleHO" in args.only:
         t0 = time.perf_counter()
         geo = read_nektar(os.path.join(DATA, "scaleHO.xml"))
@@ -111,7 +112,12 @@ def main(argv=None):
         load = time.perf_counter() - t0
         tf = tents(-1.0, 1.0, [(0.9, 0.4, 0.1), (0.9, 0.9, 0.9), (0.1, 0.4, 0.9)], 8.0 / L)
         summary["scaleHO"] = run("scaleHO", mesh, load, tf, args, args.out)
-    with open(os.path.join(args.out, "scale.json"), "w") as fh:
+        _dump(summary, args.out)
+
+
+def _dump(summary, out):
+    """Written after each dataset, so a run cut short still reports what it measured."""
+    with open(os.path.join(out, "scale.json"), "w") as fh:
         json.dump(summary, fh, indent=1)
 
 
