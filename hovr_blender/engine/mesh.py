@@ -227,6 +227,24 @@ class VolumeMesh:
         M = np.asarray(matrix, dtype=np.float64).reshape(4, 4)
         if not np.all(np.isfinite(M)) or np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-12:
             raise MeshError("object transform must be a finite affine matrix")
+        if self.geom_coeffs is not None:
+            # x' = A x + t: every geometry mode scales by A; the vertex modes sum to one, so the
+            # translation goes onto them alone
+            from . import expansions as ex
+
+            geoms = []
+            for e in range(self.num_elements):
+                sh, gm = int(self.shape[e]), self.geom_modes[e]
+                o = int(self.geom_offset[e])
+                g = self.geom_coeffs[o : o + ex.num_coeffs(sh, gm)] @ M[:3, :3].T
+                g[ex.vertex_mode_indices(sh, gm)] += M[:3, 3]
+                geoms.append(g)
+            out = VolumeMesh.from_elements(self.shape, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],
+                                           self.geom_modes, geoms, field_name=self.field_name, source=self.source)
+            for attr in ("warnings", "has_field", "element_ids"):
+                if hasattr(self, attr):
+                    setattr(out, attr, getattr(self, attr))
+            return out
         verts = self.vertices @ M[:3, :3].T + M[:3, 3]
         out = VolumeMesh.from_affine_hexes(
             verts, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],

@@ -98,3 +98,21 @@ def test_mixed_shapes_render_like_hexes(device):
     b = Renderer(hexes, device).render(cam, tf, [0, 0, 0], opts)
     assert b.rgba[..., 3].max() > 0.3
     np.testing.assert_allclose(a.rgba, b.rgba, atol=5e-5)
+
+
+def test_transformed_general_mesh_moves_geometry_and_field():
+    """Object transforms on any mesh (all shapes): vertices move by the matrix and the field
+    travels with the element (f'(M x) = f(x))."""
+    f = lambda x, y, z: x + 2 * y - z * z  # noqa: E731
+    mesh = mixed_cube(2, 3, f)
+    M = np.eye(4)
+    M[:3, :3] = [[0, -2.0, 0], [1.5, 0, 0], [0, 0, 0.5]]
+    M[:3, 3] = [1.0, -2.0, 3.0]
+    moved = mesh.transformed(M)
+    np.testing.assert_allclose(moved.vertices, mesh.vertices @ M[:3, :3].T + M[:3, 3], atol=1e-12)
+    assert moved.affine.all()
+    for e in range(mesh.num_elements):
+        x = mesh.vertices[e, :4].mean(axis=0)  # an interior point
+        xi = mesh.reference_coords(e, x)
+        xi2 = moved.reference_coords(e, x @ M[:3, :3].T + M[:3, 3])
+        np.testing.assert_allclose(xi2, xi, atol=1e-12)
