@@ -126,4 +126,8 @@ def load_data(data: dict, base_dir: str = ".") -> VolumeMesh:
         from ..io import nektar
 
         return nektar.read_nektar(path, sol, field=data.get("field"))
-    raise ViewError(f"{path}: unsupported data format {ext!r} (Nektar++ .xml for now)")
+    if ext == ".vtu":
+        from ..io import vtu
+
+        return vtu.read_vtu(path, field=data.get("field"), component=data.get("component"))
+    raise ViewError(f"{path}: unsupported data format {ext!r} (Nektar++ .xml or VTK .vtu)")
