@@ -213,6 +213,25 @@ def element_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec3:
     return el_k.reference_interval(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
+@wp.func
+def chebyshev_from_lobatto(f: vecr, deg: int) -> vecr:
+    """Chebyshev coefficients c_0..c_deg of the interpolant through f_j = f(cos(pi j / deg))."""
+    c = vecr()
+    fd = float(deg)
+    for k in range(deg + 1):
+        acc = float(0.0)
+        for j in range(deg + 1):
+            wj = float(1.0)
+            if j == 0 or j == deg:
+                wj = 0.5
+            acc += wj * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
+        acc = acc * 2.0 / fd
+        if k == 0 or k == deg:
+            acc = acc * 0.5
+        c[k] = acc
+    return c
+
+
 # ------------------------------------------------------------ curved elements
 # A non-affine element is located along the ray by Newton inversion of x(xi) at samples,
 # with the entry and exit bisected on the inside/outside answer; the field along the ray is
@@ -469,17 +488,7 @@ def curved_restriction(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
         r = invert_point(mesh, e, o + (mid + half * s) * d, xi)
         xi = wp.vec3(r[0], r[1], r[2])
         f[j] = eval_field(mesh, e, xi)
-    for k in range(deg + 1):
-        acc = float(0.0)
-        for j in range(deg + 1):
-            wj = float(1.0)
-            if j == 0 or j == deg:
-                wj = 0.5
-            acc += wj * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
-        acc = acc * 2.0 / fd
-        if k == 0 or k == deg:
-            acc = acc * 0.5
-        c[k] = acc
+    c = chebyshev_from_lobatto(f, deg)
     c[MAX_RESTRICTION - 3] = wp.abs(c[deg]) + wp.abs(c[deg - 1])
     c[MAX_RESTRICTION - 2] = 1.0
     c[MAX_RESTRICTION - 1] = 1.0
@@ -517,17 +526,7 @@ def chebyshev_restriction(mesh: MeshArgs, e: int, xo: wp.vec3, xd: wp.vec3, a: f
         xi = xo + (mid + half * s) * xd
         w = el_k.restriction_weight(sh, xi)
         f[j] = eval_field(mesh, e, xi) * w * w
-    for k in range(deg + 1):
-        acc = float(0.0)
-        for j in range(deg + 1):
-            wj = float(1.0)
-            if j == 0 or j == deg:
-                wj = 0.5
-            acc += wj * f[j] * wp.cos(wp.pi * float((j * k) % (2 * deg)) / fd)
-        acc = acc * 2.0 / fd
-        if k == 0 or k == deg:
-            acc = acc * 0.5
-        c[k] = acc
+    c = chebyshev_from_lobatto(f, deg)
     c[MAX_RESTRICTION - 2] = el_k.restriction_weight(sh, xo + a * xd)
     c[MAX_RESTRICTION - 1] = el_k.restriction_weight(sh, xo + b * xd)
     return c
