@@ -63,17 +63,23 @@ def modified_a_values(n: int, x: float) -> vecm:
 
 
 @wp.func
+def collapsed_row(k: int, alpha: float, n: int, x: float) -> vecm:
+    """((1-x)/2)^k times [1, (1+x)/2 P^(alpha,1)_{r-1}(x) for r >= 1], r = 0..n-1: the shared
+    form of Modified_B (k = p) and ModifiedPyr_C (k = p + q - 2) in a collapsed direction."""
+    v = vecm()
+    lo = wp.pow(0.5 * (1.0 - x), float(k))
+    v[0] = lo
+    for r in range(1, n):
+        v[r] = lo * 0.5 * (1.0 + x) * jacobi_p(r - 1, alpha, x)
+    return v
+
+
+@wp.func
 def modified_b_row(p: int, n: int, x: float) -> vecm:
     """phi^B_{p,r}(x) for r = 0..n-1 (p = 0: Modified_A; p >= 1: ((1-x)/2)^p [(1+x)/2 P^(2p-1,1)_{r-1}])."""
     if p == 0:
         return modified_a_values(n, x)
-    v = vecm()
-    lo = wp.pow(0.5 * (1.0 - x), float(p))
-    v[0] = lo
-    alpha = 2.0 * float(p) - 1.0
-    for r in range(1, n):
-        v[r] = lo * 0.5 * (1.0 + x) * jacobi_p(r - 1, alpha, x)
-    return v
+    return collapsed_row(p, 2.0 * float(p) - 1.0, n, x)
 
 
 @wp.func
@@ -81,13 +87,7 @@ def modified_pyr_c_row(p: int, q: int, n: int, x: float) -> vecm:
     """ModifiedPyr_C phi_{p,q,r}(x) for r = 0..n-1."""
     if p <= 1 or q <= 1:
         return modified_b_row(wp.max(p, q), n, x)
-    v = vecm()
-    lo = wp.pow(0.5 * (1.0 - x), float(p + q - 2))
-    v[0] = lo
-    alpha = 2.0 * float(p + q) - 3.0
-    for r in range(1, n):
-        v[r] = lo * 0.5 * (1.0 + x) * jacobi_p(r - 1, alpha, x)
-    return v
+    return collapsed_row(p + q - 2, 2.0 * float(p + q) - 3.0, n, x)
 
 
 @wp.func

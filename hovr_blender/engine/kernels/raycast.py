@@ -364,6 +364,24 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 
 
 @wp.func
+def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: float, t_in: float, xi_in: wp.vec3) -> float:
+    """Where the ray crosses element e's boundary between t_out (outside) and t_in (inside),
+    bisected 24 times; the inside end of the last bracket (t_out < t_in or the reverse)."""
+    a = t_out
+    b = t_in
+    g = xi_in
+    for it in range(24):
+        m = 0.5 * (a + b)
+        rm = curved_inside(mesh, e, o, d, m, g)
+        if rm[3] > 0.0:
+            b = m
+            g = wp.vec3(rm[0], rm[1], rm[2])
+        else:
+            a = m
+    return b
+
+
+@wp.func
 def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float) -> wp.vec3:
     """(hit, t0, t1): the first stretch of the ray beyond t_from inside curved element e.
     Found on CURVED_SAMPLES samples of the box interval, ends bisected to 1e-7 relative;
@@ -394,36 +412,13 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
             best_xi = xi_t
         if entered == 0:
             if r[3] > 0.0:
-                if i == 0:
-                    t_enter = t
-                else:
-                    lo = prev_t
-                    hi = t
-                    g = xi_t
-                    for it in range(24):
-                        m = 0.5 * (lo + hi)
-                        rm = curved_inside(mesh, e, o, d, m, g)
-                        if rm[3] > 0.0:
-                            hi = m
-                            g = wp.vec3(rm[0], rm[1], rm[2])
-                        else:
-                            lo = m
-                    t_enter = hi
+                t_enter = t
+                if i > 0:
+                    t_enter = boundary_crossing(mesh, e, o, d, prev_t, t, xi_t)
                 entered = 1
         else:
             if r[3] <= 0.0:
-                lo = prev_t
-                hi = t
-                g = prev_xi
-                for it in range(24):
-                    m = 0.5 * (lo + hi)
-                    rm = curved_inside(mesh, e, o, d, m, g)
-                    if rm[3] > 0.0:
-                        lo = m
-                        g = wp.vec3(rm[0], rm[1], rm[2])
-                    else:
-                        hi = m
-                return wp.vec3(1.0, t_enter, lo)
+                return wp.vec3(1.0, t_enter, boundary_crossing(mesh, e, o, d, t, prev_t, prev_xi))
         prev_t = t
         prev_xi = xi_t
     if entered == 1:
@@ -449,26 +444,9 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
         rp = curved_inside(mesh, e, o, d, tp, g)
         if rp[3] > 0.0:
             gp = wp.vec3(rp[0], rp[1], rp[2])
-            lo = wp.max(ta, best_t - dt)
-            hi = tp
-            for it in range(24):
-                m = 0.5 * (lo + hi)
-                rm = curved_inside(mesh, e, o, d, m, gp)
-                if rm[3] > 0.0:
-                    hi = m
-                else:
-                    lo = m
-            t_in = hi
-            lo = tp
-            hi = wp.min(tb, best_t + dt)
-            for it in range(24):
-                m = 0.5 * (lo + hi)
-                rm = curved_inside(mesh, e, o, d, m, gp)
-                if rm[3] > 0.0:
-                    lo = m
-                else:
-                    hi = m
-            return wp.vec3(1.0, t_in, lo)
+            t_in = boundary_crossing(mesh, e, o, d, wp.max(ta, best_t - dt), tp, gp)
+            t_out = boundary_crossing(mesh, e, o, d, wp.min(tb, best_t + dt), tp, gp)
+            return wp.vec3(1.0, t_in, t_out)
     return wp.vec3(0.0, 0.0, 0.0)
 
 
