@@ -183,19 +183,12 @@ TF_PRESETS = {
 
 
 def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 200_000) -> np.ndarray:
-    """Field values on a lattice of reference points in every element (for the value range
-    and the histogram); the lattice shrinks for big meshes to keep this under ~max_values."""
+    """Field values on a lattice of reference points inside every element (for the value
+    range and the histogram); the lattice shrinks for big meshes to keep this under ~max_values."""
     n = mesh.num_elements
     if samples_per_axis is None:
         samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
-    g = np.linspace(-1.0, 1.0, samples_per_axis)
-    xi = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    out = []
-    for e in range(n):
-        M = mesh.ref_from_world[e]
-        x = np.linalg.solve(M[:, :3], (xi - M[:, 3]).T).T  # world points of the lattice
-        out.append(np.asarray(mesh.evaluate(e, x), dtype=np.float64).ravel())
-    values = np.concatenate(out) if out else np.zeros(0)
+    values = mesh.field_samples(samples_per_axis)
     return values[np.isfinite(values)]
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .basis import MAX_MODES, MODIFIED_A, eval_tensor
+from .basis import MAX_MODES, MODIFIED_A
 
 HEX = 0
 SHAPE_NAMES = {HEX: "hexahedron"}
@@ -216,8 +216,36 @@ class VolumeMesh:
         return self.coeffs[o : o + num_coeffs(int(self.shape[e]), self.modes[e])]
 
     def evaluate(self, e: int, x) -> np.ndarray:
-        """float64 field of element e at world points x (..., 3) (no inside test)."""
-        return eval_tensor(self.element_coeffs(e), self.modes[e], self.reference_coords(e, x), int(self.basis[e]))
+        """float64 field of element e at world points x (..., 3), any shape (no inside test);
+        curved and non-affine elements are inverted by Newton (expansions.invert_map)."""
+        from . import expansions as ex
+
+        sh = int(self.shape[e])
+        x = np.asarray(x, dtype=np.float64)
+        if self.affine is None or self.affine[e]:
+            xi = self.reference_coords(e, x)
+        else:
+            o = int(self.geom_offset[e])
+            g = self.geom_coeffs[o : o + ex.num_coeffs(sh, self.geom_modes[e])]
+            xi = ex.invert_map(sh, self.geom_modes[e], g, x.reshape(-1, 3))[0].reshape(x.shape)
+        return ex.eval_modal(sh, self.modes[e], self.element_coeffs(e), xi)
+
+    def field_samples(self, per_axis: int) -> np.ndarray:
+        """Field values at a lattice of reference points inside every element (all shapes,
+        curved ones too: nothing to invert), grouped by (shape, modes) for speed."""
+        from . import expansions as ex
+
+        g = np.linspace(-1.0, 1.0, per_axis)
+        lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        keys = np.concatenate([self.shape[:, None], self.modes], axis=1)
+        out = []
+        for key in np.unique(keys, axis=0):
+            sh, m = int(key[0]), tuple(int(v) for v in key[1:])
+            idx = np.nonzero((keys == key).all(axis=1))[0]
+            pts = lattice[ex.inside(sh, lattice, tol=1e-12)]
+            C = self.coeffs[self.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(sh, m))[None, :]]
+            out.append((C @ ex.basis_matrix(sh, m, pts).T).ravel())
+        return np.concatenate(out)
 
     def transformed(self, matrix) -> "VolumeMesh":
         """The same field on geometry moved by a 4x4 affine world matrix (object transform).

@@ -116,3 +116,18 @@ def test_transformed_general_mesh_moves_geometry_and_field():
         xi = mesh.reference_coords(e, x)
         xi2 = moved.reference_coords(e, x @ M[:3, :3].T + M[:3, 3])
         np.testing.assert_allclose(xi2, xi, atol=1e-12)
+
+
+def test_mesh_evaluate_and_samples_for_every_shape():
+    """VolumeMesh.evaluate and field_samples (value range, histogram) hold for all shapes."""
+    f = lambda x, y, z: 1.0 + x * y - 2 * z  # noqa: E731
+    mesh = mixed_cube(2, 3, f)
+    rng = np.random.default_rng(5)
+    for e in range(0, mesh.num_elements, 3):
+        nv = {ex.HEX: 8, ex.PRISM: 6, ex.TET: 4, ex.PYR: 5}[int(mesh.shape[e])]
+        w = rng.dirichlet(np.ones(nv), 4)  # convex combinations of the vertices: inside
+        x = w @ mesh.vertices[e, :nv]
+        np.testing.assert_allclose(mesh.evaluate(e, x), f(*x.T), atol=1e-12)
+    v = mesh.field_samples(5)
+    assert v.size > 5 * mesh.num_elements
+    assert v.min() >= 1.0 - 2.0 - 1e-9 and v.max() <= 1.0 + 1.0 + 1e-9  # f's range on the unit cube
