@@ -92,6 +92,9 @@ class VolumeMesh:
     geom_offset: np.ndarray | None = None  # (N,) int64
     geom_coeffs: np.ndarray | None = None  # (G, 3) float64
     affine: np.ndarray | None = None  # (N,) bool: ref_from_world is exact for these
+    # (lo (N,), hi (N,)) that element_field_ranges must also enclose: a derived field (io/derived.py)
+    # is rendered through a polynomial fit, and its true values may leave the fit's own range
+    field_range_hull: tuple | None = None
 
     def __post_init__(self):
         n = self.shape.shape[0]
@@ -269,7 +272,7 @@ class VolumeMesh:
                 geoms.append(g)
             out = VolumeMesh.from_elements(self.shape, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],
                                            self.geom_modes, geoms, field_name=self.field_name, source=self.source)
-            for attr in ("warnings", "has_field", "element_ids"):
+            for attr in ("warnings", "has_field", "element_ids", "field_range_hull"):
                 if hasattr(self, attr):
                     setattr(out, attr, getattr(self, attr))
             return out
@@ -334,7 +337,10 @@ def _grouped_ranges(shapes, modes, offsets, flat):
 
 
 def element_field_ranges(mesh: "VolumeMesh"):
-    return _grouped_ranges(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs)
+    lo, hi = _grouped_ranges(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs)
+    if mesh.field_range_hull is not None:
+        lo, hi = np.minimum(lo, mesh.field_range_hull[0]), np.maximum(hi, mesh.field_range_hull[1])
+    return lo, hi
 
 
 def element_boxes(mesh: "VolumeMesh"):
