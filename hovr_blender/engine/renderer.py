@@ -82,15 +82,17 @@ class Renderer:
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
             m.affine = wp.array(affine, dtype=wp.int32)
-            if mesh.geom_coeffs is None:  # affine hexes from from_affine_hexes: no geometry needed
-                gm, go, g = np.full((n, 3), 2, np.int32), np.zeros(n, np.int32), np.zeros((1, 3))
-            else:
-                gm, go, g = mesh.geom_modes, mesh.geom_offset, mesh.geom_coeffs
-            m.geom_modes = wp.array(gm.astype(np.int32), dtype=wp.vec3i)
-            m.geom_offset = wp.array(go.astype(np.int32), dtype=wp.int32)
-            m.geom_x = wp.array(g[:, 0].astype(np.float32), dtype=wp.float32)
-            m.geom_y = wp.array(g[:, 1].astype(np.float32), dtype=wp.float32)
-            m.geom_z = wp.array(g[:, 2].astype(np.float32), dtype=wp.float32)
+            from .tensor_geometry import mesh_tensor_geometry
+
+            gdeg, goff, gco, gcen = mesh_tensor_geometry(mesh)
+            if gco.shape[0] >= 2**31:
+                raise RenderError("curved geometry too large for 32-bit offsets")
+            m.geo_degree = wp.array(gdeg.astype(np.int32), dtype=wp.int32)
+            m.geo_offset = wp.array(goff.astype(np.int32), dtype=wp.int32)
+            m.geo_coeffs = wp.array(gco.astype(np.float32), dtype=wp.vec3)
+            m.geo_centre = wp.array(gcen.astype(np.float32), dtype=wp.vec3)
+            # affine-only meshes get the kernel without the curved machinery
+            self._kernel = raycast.render_kernel(curved=not bool(affine.all()))
             m.box_lo = self._lowers
             m.box_hi = self._uppers
             self._mesh_args = m
@@ -139,7 +141,7 @@ class Renderer:
                 stats = wp.zeros((W * H, k.NUM_STATS), dtype=wp.int32)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            wp.load_module(k, device=self.device)  # compile outside the timed region
+            wp.load_module(self._kernel.module, device=self.device)  # compile outside the timed region
             wp.synchronize_device(self.device)
             t0 = time.perf_counter()
             total = W * H
@@ -147,7 +149,7 @@ class Renderer:
             cancelled = False
             for start in range(0, total, step):
                 n = min(step, total - start)
-                wp.launch(k.render_kernel, dim=n, inputs=[self._mesh_args, cam, t, q, start, rgba, aux, stats])
+                wp.launch(self._kernel, dim=n, inputs=[self._mesh_args, cam, t, q, start, rgba, aux, stats])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -180,6 +182,7 @@ class Renderer:
                 "segments_empty": int(tot[k.STAT_EMPTY]),
                 "segments_smooth": int(tot[k.STAT_SMOOTH]),
                 "segments_piecewise_smooth": int(tot[k.STAT_PIECEWISE]),
+                "curved_locates": int(tot[k.STAT_LOCATES]),
                 "elements": self.mesh.num_elements,
                 "precision": "float32",
             },

@@ -1,8 +1,9 @@
 """The ray kernel: one thread per pixel, render contract §3-4.
 
 Per ray: front-to-back element segments from a BVH over element boxes (a window of the
-WINDOW nearest exact intervals per pass, so any number of elements along a ray works
-without a per-ray list), then per segment the quadrature of the chosen method:
+WINDOW nearest candidates per pass, so any number of elements along a ray works without a
+per-ray list; curved elements are located lazily and cached, see the kernel), then per
+segment the quadrature of the chosen method:
 
 - riemann / trapezoid: the named baselines, step h, evaluating the element field;
 - classified (Nelson, Kirby, Haimes 2014, Algorithm 1): bound the field on the segment,
@@ -17,6 +18,12 @@ D = sum(modes - 1). classified and split recover it exactly from D + 1 field eva
 at Chebyshev-Lobatto points (the "restriction"); bounds come from its Chebyshev
 coefficients (|f - c0| <= sum |c_k|, never excludes a true value) and every later sample
 is an O(D) Clenshaw evaluation instead of an O(n^3) element evaluation.
+
+Curved and non-affine elements: Newton inversion of the map (exact Jacobian, tensor
+Legendre form) locates the ray's stretch in the element and samples the field along it.
+
+The kernel is built per specialisation (render_kernel(curved)): meshes of affine elements
+get a kernel with the curved machinery compiled out.
 """
 from __future__ import annotations
 
@@ -47,12 +54,16 @@ STAT_SEGMENTS = 2  # element segments met
 STAT_EMPTY = 3  # segments skipped as empty (classified/split)
 STAT_SMOOTH = 4  # segments integrated as smooth
 STAT_PIECEWISE = 5  # segments integrated as piecewise-smooth
-NUM_STATS = 6
+STAT_LOCATES = 6  # curved elements located along the ray (Newton sampling of the box interval)
+NUM_STATS = 7
+LOCATE_CACHE = 32  # curved locations a ray remembers across BVH passes
 
 vecm = wp.types.vector(length=16, dtype=wp.float32)
 vecr = wp.types.vector(length=MAX_RESTRICTION, dtype=wp.float32)
 vecw = wp.types.vector(length=WINDOW, dtype=wp.float32)
 vecwi = wp.types.vector(length=WINDOW, dtype=wp.int32)
+vecl = wp.types.vector(length=LOCATE_CACHE, dtype=wp.float32)
+vecli = wp.types.vector(length=LOCATE_CACHE, dtype=wp.int32)
 vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
 vecsi = wp.types.vector(length=GK_STACK, dtype=wp.int32)
 vec15 = wp.types.vector(length=15, dtype=wp.float32)
@@ -74,13 +85,13 @@ class MeshArgs:
     coeffs: wp.array(dtype=wp.float32)
     field_lo: wp.array(dtype=wp.float32)  # certified range of each element's field
     field_hi: wp.array(dtype=wp.float32)
-    # curved / non-affine elements: geometry x(xi) as three modal expansions, and boxes
+    # curved / non-affine elements: (x - centre) w^2 as tensor Legendre coefficients of
+    # degree geo_degree per direction (engine/tensor_geometry.py), and boxes
     affine: wp.array(dtype=wp.int32)
-    geom_modes: wp.array(dtype=wp.vec3i)
-    geom_offset: wp.array(dtype=wp.int32)
-    geom_x: wp.array(dtype=wp.float32)
-    geom_y: wp.array(dtype=wp.float32)
-    geom_z: wp.array(dtype=wp.float32)
+    geo_degree: wp.array(dtype=wp.int32)
+    geo_offset: wp.array(dtype=wp.int32)
+    geo_coeffs: wp.array(dtype=wp.vec3)
+    geo_centre: wp.array(dtype=wp.vec3)
     box_lo: wp.array(dtype=wp.vec3)
     box_hi: wp.array(dtype=wp.vec3)
 
@@ -234,21 +245,80 @@ def chebyshev_from_lobatto(f: vecr, deg: int) -> vecr:
 
 # ------------------------------------------------------------ curved elements
 # A non-affine element is located along the ray by Newton inversion of x(xi) at samples,
-# with the entry and exit bisected on the inside/outside answer; the field along the ray is
-# then interpolated at Chebyshev points (no longer exact: its tail is the error estimate).
+# with the entry and exit found by regula falsi on the inside/outside margin; the field along
+# the ray is then interpolated at Chebyshev points (no longer exact: its tail is the error
+# estimate). The map comes as a tensor Legendre polynomial (engine/tensor_geometry.py), so
+# x and its Jacobian cost one pass over the coefficients, with no collapse to avoid.
 
 CURVED_SAMPLES = 16  # samples of the box interval when looking for the element
 INSIDE_TOL = 1.0e-5
+MAX_GEO = 17  # Legendre values per direction (tensor_geometry.MAX_DEGREE + 1)
+vecg = wp.types.vector(length=MAX_GEO, dtype=wp.float32)
 
 
 @wp.func
-def geometry_at(mesh: MeshArgs, e: int, xi: wp.vec3) -> wp.vec3:
+def legendre_with_derivative(D: int, x: float):
+    """L_0..L_D at x and their derivatives (L'_{k+1} = L'_{k-1} + (2k + 1) L_k)."""
+    v = vecg()
+    dv = vecg()
+    v[0] = 1.0
+    if D >= 1:
+        v[1] = x
+        dv[1] = 1.0
+    for k in range(1, D):
+        fk = float(k)
+        v[k + 1] = ((2.0 * fk + 1.0) * x * v[k] - fk * v[k - 1]) / (fk + 1.0)
+        dv[k + 1] = dv[k - 1] + (2.0 * fk + 1.0) * v[k]
+    return v, dv
+
+
+@wp.func
+def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
+    """x(xi) and dx/dxi (columns d/dxi_k) of curved element e, in one pass."""
     sh = mesh.shape[e]
-    gm = mesh.geom_modes[e]
-    off = mesh.geom_offset[e]
-    return wp.vec3(el_k.eval_element(sh, mesh.geom_x, off, gm, xi),
-                   el_k.eval_element(sh, mesh.geom_y, off, gm, xi),
-                   el_k.eval_element(sh, mesh.geom_z, off, gm, xi))
+    xi = xi_in
+    if sh == el_k.PYR:
+        xi[2] = wp.min(xi[2], 0.9999)  # the apex: x w^2 is polynomial, x is not defined there
+    D = mesh.geo_degree[e]
+    n = D + 1
+    a, da = legendre_with_derivative(D, xi[0])
+    b, db = legendre_with_derivative(D, xi[1])
+    c, dc = legendre_with_derivative(D, xi[2])
+    x = wp.vec3(0.0, 0.0, 0.0)
+    g1 = wp.vec3(0.0, 0.0, 0.0)
+    g2 = wp.vec3(0.0, 0.0, 0.0)
+    g3 = wp.vec3(0.0, 0.0, 0.0)
+    idx = mesh.geo_offset[e]
+    for k in range(n):
+        p = wp.vec3(0.0, 0.0, 0.0)
+        p1 = wp.vec3(0.0, 0.0, 0.0)
+        p2 = wp.vec3(0.0, 0.0, 0.0)
+        for j in range(n):
+            s = wp.vec3(0.0, 0.0, 0.0)
+            sd = wp.vec3(0.0, 0.0, 0.0)
+            for i in range(n):
+                cc = mesh.geo_coeffs[idx]
+                idx += 1
+                s += a[i] * cc
+                sd += da[i] * cc
+            p += b[j] * s
+            p1 += b[j] * sd
+            p2 += db[j] * s
+        x += c[k] * p
+        g1 += c[k] * p1
+        g2 += c[k] * p2
+        g3 += dc[k] * p
+    if sh == el_k.PYR:
+        # stored G = (x - centre) w^2 with w = (1 - xi3) / 2: x - centre = G / w^2 and
+        # d/dxi3 (G / w^2) = (G_3 + (x - centre) w) / w^2
+        w = 0.5 * (1.0 - xi[2])
+        iw2 = 1.0 / (w * w)
+        x = x * iw2
+        g1 = g1 * iw2
+        g2 = g2 * iw2
+        g3 = (g3 + x * w) * iw2
+    J = wp.mat33(g1[0], g2[0], g3[0], g1[1], g2[1], g3[1], g1[2], g2[2], g3[2])
+    return x + mesh.geo_centre[e], J
 
 
 @wp.func
@@ -263,43 +333,17 @@ def centroid(shape: int) -> wp.vec3:
 
 
 @wp.func
-def below_collapse(shape: int, xi: wp.vec3) -> wp.vec3:
-    """Collapsed shapes are evaluated below their collapse (xi3 < 1; tets also xi2 + xi3 < 0)."""
-    y = xi
-    if shape != el_k.HEX:
-        y[2] = wp.min(y[2], 0.9999)
-        if shape == el_k.TET and y[1] + y[2] > -1.0e-4:
-            y[1] = -1.0e-4 - y[2]
-    return y
-
-
-@wp.func
-def fd_column(mesh: MeshArgs, e: int, xi: wp.vec3, step: wp.vec3) -> wp.vec3:
-    """dx/dxi along `step` by central differences, one-sided where the collapse is near."""
-    sh = mesh.shape[e]
-    xp = below_collapse(sh, xi + step)
-    xm = below_collapse(sh, xi - step)
-    dist = wp.length(xp - xm)
-    return (geometry_at(mesh, e, xp) - geometry_at(mesh, e, xm)) / wp.max(dist, 1.0e-12)
-
-
-@wp.func
 def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3) -> wp.vec4:
-    """(xi, converged) with x(xi) = p: Newton with a central-difference Jacobian, steps
-    clamped so xi stays in a slightly enlarged reference box."""
+    """(xi, converged) with x(xi) = p: Newton with the exact Jacobian, steps clamped so xi
+    stays in a slightly enlarged reference box."""
     xi = xi0
     ok = float(0.0)
-    hstep = 1.0e-3
     for it in range(12):
-        r = geometry_at(mesh, e, xi) - p
-        c0 = fd_column(mesh, e, xi, wp.vec3(hstep, 0.0, 0.0))
-        c1 = fd_column(mesh, e, xi, wp.vec3(0.0, hstep, 0.0))
-        c2 = fd_column(mesh, e, xi, wp.vec3(0.0, 0.0, hstep))
-        J = wp.mat33(c0[0], c1[0], c2[0], c0[1], c1[1], c2[1], c0[2], c1[2], c2[2])
+        x, J = geometry_with_jacobian(mesh, e, xi)
         det = wp.determinant(J)
         if wp.abs(det) < 1.0e-30:
             break
-        dxi = wp.inverse(J) * r
+        dxi = wp.inverse(J) * (x - p)
         xi = xi - dxi
         for k in range(3):
             xi[k] = wp.clamp(xi[k], -1.5, 1.5)
@@ -323,13 +367,6 @@ def reference_margin(shape: int, xi: wp.vec3) -> float:
     else:
         m = wp.min(m, wp.min(-(xi[0] + xi[2]), -(xi[1] + xi[2])))
     return m
-
-
-@wp.func
-def inside_reference(shape: int, xi: wp.vec3, tol: float) -> int:
-    if reference_margin(shape, xi) >= -tol:
-        return 1
-    return 0
 
 
 @wp.func
@@ -364,27 +401,49 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 
 
 @wp.func
-def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: float, t_in: float, xi_in: wp.vec3) -> float:
-    """Where the ray crosses element e's boundary between t_out (outside) and t_in (inside),
-    bisected 24 times; the inside end of the last bracket (t_out < t_in or the reverse)."""
+def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: float, m_out: float, t_in: float,
+                      m_in: float, xi_in: wp.vec3) -> float:
+    """Where the ray crosses element e's boundary between t_out (margin m_out <= 0) and t_in
+    (margin m_in > 0): Illinois regula falsi on the margin, which is smooth across one face
+    (bracketing, so a failed Newton solve's margin of -1 only slows it). Returns the inside
+    end of the final bracket, 1e-7 relative."""
     a = t_out
+    fa = m_out
     b = t_in
+    fb = m_in
     g = xi_in
-    for it in range(24):
+    side = int(0)
+    for it in range(40):
+        if wp.abs(b - a) <= 1.0e-7 * (wp.abs(a) + wp.abs(b)) + 1.0e-30:
+            break
         m = 0.5 * (a + b)
+        if fb != fa:
+            m = b - fb * (b - a) / (fb - fa)
+            # stay strictly inside the bracket, and halve when falsi would crawl along one end
+            lim = 0.01 * wp.abs(b - a)
+            if wp.abs(m - a) < lim or wp.abs(m - b) < lim:
+                m = 0.5 * (a + b)
         rm = curved_inside(mesh, e, o, d, m, g)
         if rm[3] > 0.0:
             b = m
+            fb = rm[3]
             g = wp.vec3(rm[0], rm[1], rm[2])
+            if side == 1:
+                fa = 0.5 * fa
+            side = 1
         else:
             a = m
+            fa = rm[3]
+            if side == -1:
+                fb = 0.5 * fb
+            side = -1
     return b
 
 
 @wp.func
 def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float) -> wp.vec3:
     """(hit, t0, t1): the first stretch of the ray beyond t_from inside curved element e.
-    Found on CURVED_SAMPLES samples of the box interval, ends bisected to 1e-7 relative;
+    Found on CURVED_SAMPLES samples of the box interval, ends located to 1e-7 relative;
     a stretch thinner than the sample spacing can be missed (re-entries are found on the
     traversal's next pass, which asks again beyond the current t)."""
     bi = box_interval(mesh, e, o, d)
@@ -397,6 +456,7 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
     dt = (tb - ta) / float(CURVED_SAMPLES)
     prev_t = ta
     prev_xi = xi
+    prev_m = float(-1.0)
     t_enter = float(0.0)
     entered = int(0)
     best_m = float(-1.0e30)
@@ -414,13 +474,14 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
             if r[3] > 0.0:
                 t_enter = t
                 if i > 0:
-                    t_enter = boundary_crossing(mesh, e, o, d, prev_t, t, xi_t)
+                    t_enter = boundary_crossing(mesh, e, o, d, prev_t, prev_m, t, r[3], xi_t)
                 entered = 1
         else:
             if r[3] <= 0.0:
-                return wp.vec3(1.0, t_enter, boundary_crossing(mesh, e, o, d, t, prev_t, prev_xi))
+                return wp.vec3(1.0, t_enter, boundary_crossing(mesh, e, o, d, t, r[3], prev_t, prev_m, prev_xi))
         prev_t = t
         prev_xi = xi_t
+        prev_m = r[3]
     if entered == 1:
         return wp.vec3(1.0, t_enter, tb)
     if best_m > -0.25:
@@ -444,17 +505,16 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
         rp = curved_inside(mesh, e, o, d, tp, g)
         if rp[3] > 0.0:
             gp = wp.vec3(rp[0], rp[1], rp[2])
-            t_in = boundary_crossing(mesh, e, o, d, wp.max(ta, best_t - dt), tp, gp)
-            t_out = boundary_crossing(mesh, e, o, d, wp.min(tb, best_t + dt), tp, gp)
+            t_in = boundary_crossing(mesh, e, o, d, wp.max(ta, best_t - dt), -1.0, tp, rp[3], gp)
+            t_out = boundary_crossing(mesh, e, o, d, wp.min(tb, best_t + dt), -1.0, tp, rp[3], gp)
             return wp.vec3(1.0, t_in, t_out)
     return wp.vec3(0.0, 0.0, 0.0)
 
 
 @wp.func
-def curved_restriction(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, deg: int) -> vecr:
+def curved_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, deg: int) -> vecr:
     """Chebyshev interpolant of f(t) on [a, b] from deg + 1 Newton-located Lobatto samples;
     slot MAX-3 keeps |c_deg| + |c_deg-1| (the interpolant's error estimate), MAX-2/-1 w = 1."""
-    c = vecr()
     f = vecr()
     mid = 0.5 * (a + b)
     half = 0.5 * (b - a)
@@ -474,10 +534,28 @@ def curved_restriction(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
 
 
 @wp.func
-def curved_degree(mesh: MeshArgs, e: int) -> int:
-    """Chebyshev degree for a curved segment: the field's own degree plus room for the map."""
-    g = el_k.polynomial_degree(mesh.shape[e], mesh.geom_modes[e])
-    return wp.min(el_k.polynomial_degree(mesh.shape[e], mesh.modes[e]) + 2 * g + 4, MAX_RESTRICTION - 4)
+def curved_base_degree(mesh: MeshArgs, e: int) -> int:
+    """First Chebyshev degree for a curved segment: the field's degree plus the map's."""
+    deg = wp.min(el_k.polynomial_degree(mesh.shape[e], mesh.modes[e]) + mesh.geo_degree[e], MAX_RESTRICTION - 5)
+    return wp.max(deg, 2)
+
+
+@wp.func
+def curved_restriction(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float) -> vecr:
+    """The field along a curved segment: f(x^-1(o + t d)) is no polynomial, so it is
+    interpolated at the field's degree plus the map's, and again at twice that (up to the
+    vector's room) when the last two coefficients are not below 1e-6 of the sum.
+    Slot MAX-4 keeps the degree used."""
+    deg = curved_base_degree(mesh, e)
+    c = curved_samples(mesh, e, o, d, a, b, deg)
+    total = float(0.0)
+    for k in range(deg + 1):
+        total += wp.abs(c[k])
+    if c[MAX_RESTRICTION - 3] > 1.0e-6 * total + 1.0e-30 and deg < MAX_RESTRICTION - 5:
+        deg = wp.min(2 * deg, MAX_RESTRICTION - 5)
+        c = curved_samples(mesh, e, o, d, a, b, deg)
+    c[MAX_RESTRICTION - 4] = float(deg)
+    return c
 
 
 # ----------------------------------------------------------------- 1-D restriction
@@ -822,223 +900,331 @@ def critical_points(c: vecr, deg: int, a: float, b: float) -> vecr:
 # --------------------------------------------------------------------------- kernel
 
 
-@wp.kernel
-def render_kernel(
-    mesh: MeshArgs,
-    cam: CameraArgs,
-    tf: TransferArgs,
-    q: QuadArgs,
-    pixel_offset: wp.int32,
-    rgba: wp.array(dtype=wp.vec4),
-    aux: wp.array(dtype=wp.vec2),
-    stats: wp.array2d(dtype=wp.int32),
-):
-    # one thread per pixel of a tile starting at pixel_offset (tiles let the host cancel)
-    tid = wp.tid() + pixel_offset
-    px = tid % cam.width
-    py = tid // cam.width
-    fw = float(cam.width)
-    fh = float(cam.height)
-    u = (2.0 * (float(px) + 0.5) / fw - 1.0) * (fw / fh)
-    v = 1.0 - 2.0 * (float(py) + 0.5) / fh
-    o = cam.o0 + u * cam.ou + v * cam.ov
-    d = wp.normalize(cam.d0 + u * cam.du + v * cam.dv)
+_KERNELS = {}
 
-    state = vecst(0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
-    n_field = int(0)
-    n_restr = int(0)
-    n_seg = int(0)
-    n_empty = int(0)
-    n_smooth = int(0)
-    n_pw = int(0)
-    t_lo = cam.t_min
-    t_hi = cam.t_max
-    cax = wp.dot(d, cam.clip_axis)
-    if cax > 0.0:
-        t_lo = wp.max(t_lo, cam.clip_near / cax)
-        t_hi = wp.min(t_hi, cam.clip_far / cax)
-    t_cur = t_lo
-    regathered_at = float(-1.0e30)
-    done = int(0)
-    guard = int(0)
-    while done == 0 and guard < 1000000:
-        guard += 1
-        # gather the WINDOW nearest element intervals that end beyond t_cur
-        win_t0 = vecw()
-        win_t1 = vecw()
-        win_e = vecwi()
-        nwin = int(0)
-        query = wp.bvh_query_ray(mesh.bvh, o, d)
-        e = int(0)
-        while wp.bvh_query_next(query, e):
-            iv = wp.vec3(0.0, 0.0, 0.0)
-            if mesh.affine[e] == 1:
-                iv = element_interval(mesh, e, o, d)
-            else:
-                # Newton location is costly: only for elements whose box can still enter the window
-                bx = box_interval(mesh, e, o, d)
-                if bx[1] > t_cur and (nwin < WINDOW or wp.max(bx[0], t_cur) < win_t0[WINDOW - 1]):
-                    iv = curved_interval(mesh, e, o, d, t_cur)
-            t0 = wp.max(iv[1], t_cur)
-            t1 = wp.min(iv[2], t_hi)
-            if iv[0] > 0.0 and t1 > t0:
-                if nwin < WINDOW or t0 < win_t0[WINDOW - 1]:
-                    k = wp.min(nwin, WINDOW - 1)
-                    while k > 0 and win_t0[k - 1] > t0:
-                        win_t0[k] = win_t0[k - 1]
-                        win_t1[k] = win_t1[k - 1]
-                        win_e[k] = win_e[k - 1]
-                        k -= 1
-                    win_t0[k] = t0
-                    win_t1[k] = t1
-                    win_e[k] = e
-                    nwin = wp.min(nwin + 1, WINDOW)
-        if nwin == 0:
-            break
-        regather = int(0)
-        for w in range(nwin):
-            el = win_e[w]
-            a = wp.max(win_t0[w], t_cur)
-            b = win_t1[w]
-            if b <= a:
-                continue
-            # a gap after a processed segment may hide a curved element entered there whose
-            # stretch was too short for the gathering samples: gather again from here once
-            if w > 0 and a > t_cur + 1.0e-6 * (wp.abs(t_cur) + 1.0) and regathered_at != t_cur:
-                regathered_at = t_cur
-                regather = 1
-                break
-            t_cur = b
-            n_seg += 1
-            A = mesh.ref_a[el]
-            xo = A * o + mesh.ref_b[el]
-            xd = A * d
-            curved = int(1) - mesh.affine[el]
-            c = vecr()
-            deg = int(0)
-            if curved == 1:
-                # curved: every method samples the Chebyshev interpolant along the ray
-                deg = curved_degree(mesh, el)
-                c = curved_restriction(mesh, el, o, d, a, b, deg)
-                n_field += deg + 1
-                state[6] = state[6] + c[MAX_RESTRICTION - 3]
-            if q.method == METHOD_RIEMANN:
-                nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
-                if curved == 0:
-                    n_field += nsteps
-                state = march_riemann(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
-            elif q.method == METHOD_TRAPEZOID:
-                nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
-                if curved == 0:
-                    n_field += nsteps + 1
-                state = march_trapezoid(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
-            else:
-                lo = float(0.0)
-                hi = float(0.0)
-                if curved == 1:
-                    # the interpolant is not exact: classify with the element's certified range
-                    lo = mesh.field_lo[el]
-                    hi = mesh.field_hi[el]
+
+def render_kernel(curved: bool):
+    """The ray kernel, specialised at compile time: with `curved` False the Newton location
+    and curved sampling are compiled out (meshes of affine elements only pay for what they use)."""
+    key = bool(curved)
+    if key not in _KERNELS:
+        _KERNELS[key] = _make_render_kernel(key)
+    return _KERNELS[key]
+
+
+def _make_render_kernel(CURVED: bool):
+    @wp.kernel(enable_backward=False, module="unique")
+    def render(
+        mesh: MeshArgs,
+        cam: CameraArgs,
+        tf: TransferArgs,
+        q: QuadArgs,
+        pixel_offset: wp.int32,
+        rgba: wp.array(dtype=wp.vec4),
+        aux: wp.array(dtype=wp.vec2),
+        stats: wp.array2d(dtype=wp.int32),
+    ):
+        # one thread per pixel of a tile starting at pixel_offset (tiles let the host cancel)
+        tid = wp.tid() + pixel_offset
+        px = tid % cam.width
+        py = tid // cam.width
+        fw = float(cam.width)
+        fh = float(cam.height)
+        u = (2.0 * (float(px) + 0.5) / fw - 1.0) * (fw / fh)
+        v = 1.0 - 2.0 * (float(py) + 0.5) / fh
+        o = cam.o0 + u * cam.ou + v * cam.ov
+        d = wp.normalize(cam.d0 + u * cam.du + v * cam.dv)
+
+        state = vecst(0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
+        n_field = int(0)
+        n_restr = int(0)
+        n_seg = int(0)
+        n_empty = int(0)
+        n_smooth = int(0)
+        n_pw = int(0)
+        n_locate = int(0)
+        t_lo = cam.t_min
+        t_hi = cam.t_max
+        cax = wp.dot(d, cam.clip_axis)
+        if cax > 0.0:
+            t_lo = wp.max(t_lo, cam.clip_near / cax)
+            t_hi = wp.min(t_hi, cam.clip_far / cax)
+        t_cur = t_lo
+        # Traversal. Each BVH pass gathers a window of the WINDOW smallest keys (t where an element
+        # may start beyond t_cur): exact for affine elements, the box entry for curved ones until
+        # they are located. Curved elements are located lazily, only when they reach the front of
+        # the window, and remembered in a per-ray cache across passes, so each is located about
+        # once. `thresh` is the smallest key left out of the window: the front is final only while
+        # its key is not above it. A pass may skip curved elements whose stretch is behind t_cur;
+        # re-entering one shows as a gap, and a gap (or the end) is only trusted after a full pass.
+        full_at = float(-1.0e30)
+        full = int(1)
+        cache_e = vecli()
+        cache_from = vecl()
+        cache_t0 = vecl()
+        cache_t1 = vecl()
+        ncache = int(0)
+        cnext = int(0)
+        done = int(0)
+        guard = int(0)
+        while done == 0 and guard < 65536:
+            guard += 1
+            win_key = vecw()
+            win_t1 = vecw()
+            win_e = vecwi()
+            win_res = vecwi()
+            nwin = int(0)
+            thresh = float(1.0e30)
+            skipped = int(0)
+            query = wp.bvh_query_ray(mesh.bvh, o, d)
+            e = int(0)
+            while wp.bvh_query_next(query, e):
+                key = float(0.0)
+                t1 = float(0.0)
+                res = int(1)
+                use = int(0)
+                if mesh.affine[e] == 1:
+                    iv = element_interval(mesh, e, o, d)
+                    if iv[0] > 0.0:
+                        key = wp.max(iv[1], t_cur)
+                        t1 = wp.min(iv[2], t_hi)
+                        use = 1
                 else:
-                    deg = restriction_degree(mesh, el)
-                    c = chebyshev_restriction(mesh, el, xo, xd, a, b, deg)
-                    n_field += deg + 1
-                    rad = float(0.0)
-                    for k in range(1, deg + 1):
-                        rad += wp.abs(c[k])
-                    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])  # float32 rounding margin
-                    glo = c[0] - rad
-                    ghi = c[0] + rad
-                    # f = g / w^2 with w linear and positive on the segment: interval division
-                    w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)
-                    w2hi = wp.max(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1])
-                    w2lo = w2lo * w2lo
-                    w2hi = w2hi * w2hi
-                    lo = wp.min(glo / w2lo, glo / w2hi)
-                    hi = wp.max(ghi / w2lo, ghi / w2hi)
-                dens_max = density_max_on(tf, lo, hi)
-                emitting = int(0)
-                if color_max_on(tf, lo, hi) > 0.0:
-                    emitting = 1
-                if dens_max <= 0.0:
-                    n_empty += 1
-                    continue
-                piecewise = breakpoint_inside(tf.density_s, lo, hi)
-                if emitting == 1 and breakpoint_inside(tf.color_s, lo, hi) == 1:
-                    piecewise = 1
-                if piecewise == 0:
-                    n_smooth += 1
-                    state = gauss_kronrod_smooth(tf, q, c, deg, a, b, a, b, emitting, state)
-                elif q.method == METHOD_CLASSIFIED:
-                    n_pw += 1
-                    nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
-                    n_restr += nsteps + 1
-                    state = march_trapezoid(mesh, tf, q, el, xo, xd, 1, c, deg, a, b, state)
-                else:
-                    # split: cut at every breakpoint crossing, then G-K each (smooth) piece.
-                    # Between consecutive critical points f is monotone, so a level is crossed
-                    # there at most once and a sign change at the piece ends finds it exactly.
-                    n_pw += 1
-                    bnd = critical_points(c, deg, a, b)
-                    nb = int(bnd[MAX_RESTRICTION - 1])
-                    n_restr += int(bnd[MAX_RESTRICTION - 2])
-                    piece_start = a
-                    ts = a
-                    fs = restriction_at(c, deg, a, b, a)
-                    for i in range(nb + 1):
-                        te = b
-                        if i < nb:
-                            te = bnd[i]
-                        fe = restriction_at(c, deg, a, b, te)
-                        n_restr += 1
-                        t_last = ts
-                        more = int(1)
-                        while more == 1:
-                            best = te
-                            found = int(0)
-                            for kk in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
-                                lvl = float(0.0)
-                                if kk < tf.density_s.shape[0]:
-                                    lvl = tf.density_s[kk]
-                                else:
-                                    lvl = tf.color_s[kk - tf.density_s.shape[0]]
-                                if (fs - lvl) * (fe - lvl) < 0.0:
-                                    bc = bisect_crossing(c, deg, a, b, ts, te, fs, lvl)
-                                    n_restr += int(bc[1])
-                                    tc = bc[0]
-                                    if tc > t_last + 1.0e-7 * (b - a) and tc < best:
-                                        best = tc
-                                        found = 1
-                            if found == 1:
-                                if best > piece_start:
-                                    state = gauss_kronrod_smooth(tf, q, c, deg, a, b, piece_start, best, emitting, state)
-                                piece_start = best
-                                t_last = best
+                    if wp.static(CURVED):
+                        bx = box_interval(mesh, e, o, d)
+                        key = wp.max(bx[0], t_cur)
+                        t1 = wp.min(bx[1], t_hi)
+                        res = 0
+                        use = 1
+                        slot = int(-1)
+                        for s in range(ncache):
+                            if cache_e[s] == e and cache_from[s] <= t_cur:
+                                if slot < 0:
+                                    slot = s
+                                elif cache_from[s] > cache_from[slot]:
+                                    slot = s
+                        if slot >= 0:
+                            if cache_t1[slot] < -1.0e29:
+                                use = 0  # located before: nothing beyond a t_from <= t_cur
+                            elif cache_t1[slot] <= t_cur:
+                                if full == 0:  # its stretch is behind us
+                                    use = 0
+                                    skipped = 1
                             else:
-                                more = 0
+                                key = wp.max(cache_t0[slot], t_cur)
+                                t1 = wp.min(cache_t1[slot], t_hi)
+                                res = 1
+                if use == 1 and t1 > key:
+                    if nwin == WINDOW and key >= win_key[WINDOW - 1]:
+                        thresh = wp.min(thresh, key)
+                    else:
+                        if nwin == WINDOW:
+                            thresh = wp.min(thresh, win_key[WINDOW - 1])
+                        k = wp.min(nwin, WINDOW - 1)
+                        while k > 0 and win_key[k - 1] > key:
+                            win_key[k] = win_key[k - 1]
+                            win_t1[k] = win_t1[k - 1]
+                            win_e[k] = win_e[k - 1]
+                            win_res[k] = win_res[k - 1]
+                            k -= 1
+                        win_key[k] = key
+                        win_t1[k] = t1
+                        win_e[k] = e
+                        win_res[k] = res
+                        nwin = wp.min(nwin + 1, WINDOW)
+            if full == 1 or skipped == 0:
+                full_at = t_cur
+            full = 0
+            action = int(0)  # 0: window used up, 1: regather (the front passed thresh), 2: full regather
+            head = int(0)
+            while head < nwin and done == 0:
+                if win_key[head] > thresh:
+                    action = 1
+                    break
+                el = win_e[head]
+                if win_res[head] == 0:
+                    if wp.static(CURVED):
+                        # locate the nearest candidate, remember it, re-insert it at its true key
+                        iv = curved_interval(mesh, el, o, d, t_cur)
+                        n_locate += 1
+                        cache_e[cnext] = el
+                        cache_from[cnext] = t_cur
+                        cache_t0[cnext] = -1.0e30
+                        cache_t1[cnext] = -1.0e30
+                        if iv[0] > 0.0:
+                            cache_t0[cnext] = iv[1]
+                            cache_t1[cnext] = iv[2]
+                        cnext = (cnext + 1) % LOCATE_CACHE
+                        ncache = wp.min(ncache + 1, LOCATE_CACHE)
+                        k0 = wp.max(iv[1], t_cur)
+                        k1 = wp.min(iv[2], t_hi)
+                        if iv[0] > 0.0 and k1 > k0:
+                            k = head
+                            while k + 1 < nwin and win_key[k + 1] < k0:
+                                win_key[k] = win_key[k + 1]
+                                win_t1[k] = win_t1[k + 1]
+                                win_e[k] = win_e[k + 1]
+                                win_res[k] = win_res[k + 1]
+                                k += 1
+                            win_key[k] = k0
+                            win_t1[k] = k1
+                            win_e[k] = el
+                            win_res[k] = 1
+                        else:
+                            head += 1
+                    continue
+                a = wp.max(win_key[head], t_cur)
+                b = win_t1[head]
+                head += 1
+                if b <= a:
+                    continue
+                # a gap may hide a curved element re-entered there that this pass skipped
+                if a > t_cur + 1.0e-6 * (wp.abs(t_cur) + 1.0) and full_at != t_cur:
+                    action = 2
+                    break
+                t_cur = b
+                n_seg += 1
+                A = mesh.ref_a[el]
+                xo = A * o + mesh.ref_b[el]
+                xd = A * d
+                curved = int(0)
+                c = vecr()
+                deg = int(0)
+                if wp.static(CURVED):
+                    curved = int(1) - mesh.affine[el]
+                    if curved == 1:
+                        # curved: every method samples the Chebyshev interpolant along the ray
+                        c = curved_restriction(mesh, el, o, d, a, b)
+                        deg = int(c[MAX_RESTRICTION - 4])
+                        n_field += deg + 1
+                        if deg != curved_base_degree(mesh, el):
+                            n_field += curved_base_degree(mesh, el) + 1
+                        state[6] = state[6] + c[MAX_RESTRICTION - 3]
+                if q.method == METHOD_RIEMANN:
+                    nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
+                    if curved == 0:
+                        n_field += nsteps
+                    state = march_riemann(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
+                elif q.method == METHOD_TRAPEZOID:
+                    nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
+                    if curved == 0:
+                        n_field += nsteps + 1
+                    state = march_trapezoid(mesh, tf, q, el, xo, xd, curved, c, deg, a, b, state)
+                else:
+                    lo = float(0.0)
+                    hi = float(0.0)
+                    if curved == 1:
+                        # the interpolant is not exact: classify with the element's certified range
+                        lo = mesh.field_lo[el]
+                        hi = mesh.field_hi[el]
+                    else:
+                        deg = restriction_degree(mesh, el)
+                        c = chebyshev_restriction(mesh, el, xo, xd, a, b, deg)
+                        n_field += deg + 1
+                        rad = float(0.0)
+                        for k in range(1, deg + 1):
+                            rad += wp.abs(c[k])
+                        rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])  # float32 rounding margin
+                        glo = c[0] - rad
+                        ghi = c[0] + rad
+                        # f = g / w^2 with w linear and positive on the segment: interval division
+                        w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)
+                        w2hi = wp.max(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1])
+                        w2lo = w2lo * w2lo
+                        w2hi = w2hi * w2hi
+                        lo = wp.min(glo / w2lo, glo / w2hi)
+                        hi = wp.max(ghi / w2lo, ghi / w2hi)
+                    dens_max = density_max_on(tf, lo, hi)
+                    emitting = int(0)
+                    if color_max_on(tf, lo, hi) > 0.0:
+                        emitting = 1
+                    if dens_max <= 0.0:
+                        n_empty += 1
+                        continue
+                    piecewise = breakpoint_inside(tf.density_s, lo, hi)
+                    if emitting == 1 and breakpoint_inside(tf.color_s, lo, hi) == 1:
+                        piecewise = 1
+                    if piecewise == 0:
+                        n_smooth += 1
+                        state = gauss_kronrod_smooth(tf, q, c, deg, a, b, a, b, emitting, state)
+                    elif q.method == METHOD_CLASSIFIED:
+                        n_pw += 1
+                        nsteps = wp.max(1, int(wp.ceil((b - a) / q.h)))
+                        n_restr += nsteps + 1
+                        state = march_trapezoid(mesh, tf, q, el, xo, xd, 1, c, deg, a, b, state)
+                    else:
+                        # split: cut at every breakpoint crossing, then G-K each (smooth) piece.
+                        # Between consecutive critical points f is monotone, so a level is crossed
+                        # there at most once and a sign change at the piece ends finds it exactly.
+                        n_pw += 1
+                        bnd = critical_points(c, deg, a, b)
+                        nb = int(bnd[MAX_RESTRICTION - 1])
+                        n_restr += int(bnd[MAX_RESTRICTION - 2])
+                        piece_start = a
+                        ts = a
+                        fs = restriction_at(c, deg, a, b, a)
+                        for i in range(nb + 1):
+                            te = b
+                            if i < nb:
+                                te = bnd[i]
+                            fe = restriction_at(c, deg, a, b, te)
+                            n_restr += 1
+                            t_last = ts
+                            more = int(1)
+                            while more == 1:
+                                best = te
+                                found = int(0)
+                                for kk in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
+                                    lvl = float(0.0)
+                                    if kk < tf.density_s.shape[0]:
+                                        lvl = tf.density_s[kk]
+                                    else:
+                                        lvl = tf.color_s[kk - tf.density_s.shape[0]]
+                                    if (fs - lvl) * (fe - lvl) < 0.0:
+                                        bc = bisect_crossing(c, deg, a, b, ts, te, fs, lvl)
+                                        n_restr += int(bc[1])
+                                        tc = bc[0]
+                                        if tc > t_last + 1.0e-7 * (b - a) and tc < best:
+                                            best = tc
+                                            found = 1
+                                if found == 1:
+                                    if best > piece_start:
+                                        state = gauss_kronrod_smooth(tf, q, c, deg, a, b, piece_start, best, emitting, state)
+                                    piece_start = best
+                                    t_last = best
+                                else:
+                                    more = 0
+                                if state[3] < q.min_transmittance:
+                                    more = 0
+                            ts = te
+                            fs = fe
                             if state[3] < q.min_transmittance:
-                                more = 0
-                        ts = te
-                        fs = fe
-                        if state[3] < q.min_transmittance:
-                            break
-                    if piece_start < b and state[3] >= q.min_transmittance:
-                        state = gauss_kronrod_smooth(tf, q, c, deg, a, b, piece_start, b, emitting, state)
-            if state[3] < q.min_transmittance:
-                done = 1
-                break
-        if nwin < WINDOW and regather == 0:
-            done = 1
+                                break
+                        if piece_start < b and state[3] >= q.min_transmittance:
+                            state = gauss_kronrod_smooth(tf, q, c, deg, a, b, piece_start, b, emitting, state)
+                if state[3] < q.min_transmittance:
+                    done = 1
+            if done == 0:
+                if action == 2:
+                    full = 1
+                elif action == 0 and thresh >= 1.0e29:
+                    if full_at == t_cur:
+                        done = 1
+                    else:
+                        full = 1
 
-    T = state[3]
-    rgba[tid] = wp.vec4(state[0] + T * q.background[0], state[1] + T * q.background[1], state[2] + T * q.background[2], 1.0 - T)
-    depth_out = state[5]
-    if depth_out < 0.0:
-        depth_out = t_hi
-    aux[tid] = wp.vec2(depth_out, state[6])
-    stats[tid, 0] = n_field
-    stats[tid, 1] = n_restr + int(state[4])
-    stats[tid, 2] = n_seg
-    stats[tid, 3] = n_empty
-    stats[tid, 4] = n_smooth
-    stats[tid, 5] = n_pw
+        T = state[3]
+        rgba[tid] = wp.vec4(state[0] + T * q.background[0], state[1] + T * q.background[1], state[2] + T * q.background[2], 1.0 - T)
+        depth_out = state[5]
+        if depth_out < 0.0:
+            depth_out = t_hi
+        aux[tid] = wp.vec2(depth_out, state[6])
+        stats[tid, 0] = n_field
+        stats[tid, 1] = n_restr + int(state[4])
+        stats[tid, 2] = n_seg
+        stats[tid, 3] = n_empty
+        stats[tid, 4] = n_smooth
+        stats[tid, 5] = n_pw
+        stats[tid, 6] = n_locate
+
+    return render
