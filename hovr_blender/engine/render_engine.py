@@ -15,7 +15,7 @@ import numpy as np
 
 from .blender_camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
 from .blender_scene import (
-    VolumeSource, combined_pass, depth_pass, flip_rows, load_volume_source, render_background,
+    VolumeSource, cached_volume, combined_pass, depth_pass, flip_rows, render_background,
     transfer_function_from_ramp, volume_source,
 )
 
@@ -92,13 +92,15 @@ _MAX_RENDERERS = 2
 
 def _renderer(source: VolumeSource, matrix: tuple, device: str):
     """(Renderer, number of elements) for a volume source placed by an object matrix.
-    A file is re-read only when its path (the frame's file), size or mtime changes."""
+    A file is re-read only when its path (the frame's file), size or mtime changes: the
+    object-space mesh comes from blender_scene.cached_volume, so a moved object or another
+    device uploads again without reading the file."""
     key = (source.key, matrix, device)
     entry = _RENDERERS.pop(key, None)
     if entry is None:
         from .renderer import Renderer
 
-        mesh = load_volume_source(source).transformed(np.array(matrix).reshape(4, 4))
+        mesh = cached_volume(source).transformed(np.array(matrix).reshape(4, 4))
         entry = (Renderer(mesh, device=device), mesh.num_elements)
     _RENDERERS[key] = entry  # re-insert: most recently used last
     while len(_RENDERERS) > _MAX_RENDERERS:
@@ -107,7 +109,10 @@ def _renderer(source: VolumeSource, matrix: tuple, device: str):
 
 
 def clear_cache():
+    from .blender_scene import clear_mesh_cache
+
     _RENDERERS.clear()
+    clear_mesh_cache()
 
 
 def _matrix_tuple(m) -> tuple:
@@ -140,7 +145,7 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     library = volume.original.library if volume.original is not None else None
     vh = hovr_of(volume)
     source = volume_source(vh.source, vh.solution, vh.field, scene.frame_current,
-                           abspath=lambda p: bpy.path.abspath(p, library=library))
+                           abspath=lambda p: bpy.path.abspath(p, library=library), component=vh.component)
 
     texture = settings.transfer_function
     if texture is None:

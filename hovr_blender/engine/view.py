@@ -123,9 +123,9 @@ def load_data(data: dict, base_dir: str = ".") -> VolumeMesh:
             raise ViewError(f"data file not found: {p}")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".xml":
-        from ..io import nektar
+        from ..io import derived
 
-        return nektar.read_nektar(path, sol, field=data.get("field"))
+        return derived.read_nektar_field(path, sol, field=data.get("field"))  # "|u,v,w|": the magnitude
     if ext == ".vtu":
         from ..io import vtu
 

@@ -217,3 +217,15 @@ def test_main_prints_the_error_line(capsys):
     xml, fld = shared_file("nektar", "Tet_channel_m3.xml"), shared_file("nektar", "Tet_channel_m3.fld")
     assert derived.main([str(xml), str(fld), "|u,v,w|"]) == 0
     assert re.match(r"48 elements; \|u,v,w\|: magnitude fitted with 7 modes .* max error", capsys.readouterr().out)
+
+
+def test_view_files_accept_the_magnitude_syntax():
+    """The CLI's data.field takes "|u,v,w|" too (Nektar++); VTU vectors keep read_vtu's nodal
+    magnitude there (VTK's interpolation, what tests/core/test_vtu.py checks)."""
+    from hovr_blender.engine.view import load_data
+
+    xml, fld = shared_file("nektar", "Tet_channel_m3.xml"), shared_file("nektar", "Tet_channel_m3.fld")
+    mesh = load_data({"path": str(xml), "solution": str(fld), "field": "|u,v,w|"})
+    np.testing.assert_array_equal(mesh.coeffs, read_nektar_field(xml, fld, "|u,v,w|").coeffs)
+    with pytest.raises(nektar.NektarError, match="no field 'q'"):
+        load_data({"path": str(xml), "solution": str(fld), "field": "|u,q|"})
