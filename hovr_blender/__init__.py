@@ -12,7 +12,7 @@ bl_info = {
     "author": "HOVR developers",
     "version": (0, 1, 0),
     "blender": (3, 4, 0),
-    "location": "Properties > Render > Render Engine: HOVR; Add > HOVR Sphere Volume",
+    "location": "Properties > Render > Render Engine: HOVR; Add > HOVR Sphere Volume; File > Import > HOVR",
     "description": "Volume rendering of high-order finite element fields with NVIDIA Warp",
     "category": "Render",
 }
@@ -20,10 +20,10 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .ui import properties, operators, panels
+    from .ui import properties, operators, import_operators, panels
     from .engine import render_engine
 
-    return (properties, render_engine, operators, panels)
+    return (properties, render_engine, operators, import_operators, panels)
 
 
 def register():

@@ -3,7 +3,9 @@ fit the value range to the data (which also gives the panel its histogram)."""
 import bpy
 import numpy as np
 
-from ..engine.blender_scene import TF_PRESETS, field_samples, load_volume_source, value_histogram, volume_source
+from ..engine.blender_scene import (
+    TF_PRESETS, cached_volume, field_samples, load_volume_source, value_histogram, volume_source,
+)
 
 # The 12 edges of a hexahedron in the reference numbering (bottom face, top face, verticals).
 HEX_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7))
@@ -34,7 +36,7 @@ def _volume_object(context):
 
 def _source_of(obj, scene):
     return volume_source(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
-                         abspath=lambda p: bpy.path.abspath(p, library=obj.library))
+                         abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
 
 
 def histogram_for(context):
@@ -110,7 +112,7 @@ class HOVR_OT_fit_value_range(bpy.types.Operator):
             source = _source_of(obj, context.scene)
             values = _SAMPLES.get(source.key)
             if values is None:
-                values = field_samples(load_volume_source(source))
+                values = field_samples(cached_volume(source))
         except (ValueError, OSError, MemoryError) as exc:
             self.report({'ERROR'}, f"HOVR: cannot read {obj.name!r}: {exc}")
             return {'CANCELLED'}

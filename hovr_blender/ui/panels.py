@@ -120,8 +120,12 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
         hovr = context.object.hovr
         layout.prop(hovr, "source")
         if not hovr.source.startswith("builtin:"):
-            layout.prop(hovr, "solution")
+            is_vtu = hovr.source.lower().endswith(".vtu")
+            if not is_vtu:
+                layout.prop(hovr, "solution")
             layout.prop(hovr, "field")
+            if is_vtu:
+                layout.prop(hovr, "component")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')
 

@@ -16,6 +16,17 @@ DEVICE_ITEMS = (
 )
 
 
+def _path_options() -> set:
+    """String options of a data path: Blender 4.5+ wants '//' paths declared as supported
+    (older versions have no such option; their Property has no is_path_supports_blend_relative)."""
+    if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties:
+        return {'ANIMATABLE', 'PATH_SUPPORTS_BLEND_RELATIVE'}
+    return {'ANIMATABLE'}
+
+
+PATH_OPTIONS = _path_options()
+
+
 def _is_blend_texture(_self, texture):
     return texture.type == 'BLEND'
 
@@ -53,13 +64,17 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
 class HovrObjectSettings(bpy.types.PropertyGroup):
     is_volume: BoolProperty(name="HOVR Volume", default=False,
                             description="Render this object's finite-element data with HOVR")
-    source: StringProperty(name="Source", default="", subtype='FILE_PATH',
+    source: StringProperty(name="Source", default="", subtype='FILE_PATH', options=PATH_OPTIONS,
                            description='"builtin:sphere", or a Nektar++ .xml / .vtu file; a run of # is replaced by '
                                        'the frame number ("flow_####.vtu")')
-    solution: StringProperty(name="Solution", default="", subtype='FILE_PATH',
+    solution: StringProperty(name="Solution", default="", subtype='FILE_PATH', options=PATH_OPTIONS,
                              description="Nektar++ field file (.fld/.chk) for the mesh; # runs become the frame number")
     field: StringProperty(name="Field", default="",
-                          description="Name of the scalar field to render (empty: the file's only or first field)")
+                          description='Name of the scalar field to render (empty: the file\'s only or first field); '
+                                      'Nektar++: "|u,v,w|" renders the magnitude of the fields u, v, w')
+    component: StringProperty(name="Component", default="",
+                              description="VTU vector arrays: empty or \"magnitude\" renders the vector's magnitude, "
+                                          "an index (0, 1, 2, ...) that component")
 
     @classmethod
     def register(cls):
