@@ -292,9 +292,24 @@ def _load(path: Path, header_only=False):
     except ImportError:
         raise VtuError(f"{path}: reading .vtu needs the meshio package (pip install meshio)") from None
 
-    raw_appended = cut >= 0 and re.search(rb'<AppendedData[^>]*encoding="raw"', raw[cut:cut + 200]) is not None
+    raw_appended = False
+    if cut >= 0:
+        m = re.match(rb'<AppendedData\b[^>]*?\bencoding="([^"]*)"', raw[cut:cut + 200])
+        if m is None or m.group(1) not in (b"raw", b"base64"):
+            enc = m.group(1).decode(errors="replace") if m else None
+            raise VtuError(f"{path}: <AppendedData> encoding {enc!r} (VTK writes raw or base64)")
+        raw_appended = m.group(1) == b"raw"
     if raw_appended:
-        root = _vtu._parse_raw_binary(str(path))  # re-encodes raw blocks as base64, inflated
+        if raw.rfind(b"</AppendedData>") < cut:
+            raise VtuError(f"{path}: truncated (raw <AppendedData> has no closing tag)")
+        try:
+            root = _vtu._parse_raw_binary(str(path))  # re-encodes raw blocks as base64, inflated
+        except ET.ParseError as exc:
+            raise VtuError(f"{path}: not well-formed XML ({exc})") from None
+        except Exception as exc:  # truncation, block sizes that miss the offsets, broken zlib/lzma, ...
+            detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+            raise VtuError(f"{path}: raw <AppendedData> cannot be decoded (truncated, or block headers, "
+                           f"offsets and compressed data do not agree: {detail})") from exc
     else:
         try:
             root = ET.fromstring(raw)
@@ -304,7 +319,10 @@ def _load(path: Path, header_only=False):
     for da in root.iter("DataArray"):
         if da.attrib.get("NumberOfComponents", None) == "":
             da.attrib.pop("NumberOfComponents")
-    grid, appended = _vtu.get_grid(root)
+    try:
+        grid, appended = _vtu.get_grid(root)
+    except Exception as exc:  # meshio's ReadError: extra top-level tags, no '_' before appended data, ...
+        raise VtuError(f"{path}: malformed <VTKFile> contents ({type(exc).__name__}: {exc or 'bad <AppendedData>'})") from exc
     dec = _vtu.VtuReader.__new__(_vtu.VtuReader)  # only its decoders are used (see module doc)
     dec.compression = root.attrib.get("compressor")
     dec.header_type = root.attrib.get("header_type", "UInt32")
