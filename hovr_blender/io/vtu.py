@@ -613,8 +613,9 @@ def _read(path, field, component):
         X = np.stack([cell_nodes[e] for e in members])  # (n, N, 3)
         V = np.stack([cell_vals[e] for e in members])  # (n, N)
         T = conversion_matrix(shape, family, degs, v8)
-        G = np.matmul(T, X)  # (n, K, 3)
-        C = V @ T.T
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow is diagnosed below
+            G = np.matmul(T, X)  # (n, K, 3)
+            C = V @ T.T
         flip = _orientation(path, shape, md, G, X, members)
         if flip.any():
             Tm = conversion_matrix(shape, family, degs, v8, True)
@@ -632,10 +633,18 @@ def _orientation(path, shape, modes, G, X, members):
     D = _jacobian_probe(shape, modes)  # (S, K, 3)
     n, k = G.shape[:2]
     s = D.shape[0]
-    J = (G.transpose(0, 2, 1).reshape(n * 3, k) @ D.transpose(1, 0, 2).reshape(k, s * 3))
-    det = np.linalg.det(J.reshape(n, 3, s, 3).transpose(0, 2, 1, 3))  # (n, S): J[e, s, c, d]
-    h = np.ptp(X, axis=1).max(axis=1)  # cell size
-    tol = 1e-12 * h**3
+    with np.errstate(over="ignore", invalid="ignore"):
+        J = (G.transpose(0, 2, 1).reshape(n * 3, k) @ D.transpose(1, 0, 2).reshape(k, s * 3))
+        det = np.linalg.det(J.reshape(n, 3, s, 3).transpose(0, 2, 1, 3))  # (n, S): J[e, s, c, d]
+        h = np.ptp(X, axis=1).max(axis=1)  # cell size
+        tol = 1e-12 * h**3
+    # finite coordinates can still be too large for the test (and the geometry) in doubles:
+    # an inf/NaN Jacobian or tolerance is neither inverted nor degenerate
+    big = np.flatnonzero(~(np.isfinite(tol) & np.isfinite(det).all(axis=1)))
+    if big.size:
+        i = big[0]
+        raise VtuError(f"{path}: cell {members[i]}: node coordinates too large (up to "
+                       f"{np.abs(X[i]).max():.3g}): the geometry overflows double precision")
     lo, hi = det.min(axis=1), det.max(axis=1)
     for i in np.flatnonzero(~((lo > tol) | (hi < -tol))):
         gc = members[i]

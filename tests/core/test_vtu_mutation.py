@@ -138,3 +138,16 @@ def test_raw_appended_damage_is_diagnosed(vm, vtk_files, tmp_path):
     m = re.search(rb'\scompressor="[^"]*"', doc.raw[s:e])
     expect(p, doc.build([(s + m.start(), s + m.end(), b"")]), r"raw <AppendedData> cannot be decoded")
 
+
+def test_overflowing_coordinates_are_named(vm, vtk_files, tmp_path):
+    """Found by the mutation test: a finite node coordinate of 1e308 made the Jacobian test
+    overflow, and the cell was reported 'inverted or tangled (Jacobian determinant changes sign:
+    nan .. nan)'."""
+    doc = vm.Doc(vtk_files["binary-zlib"].read_bytes())
+    conn, offs, pts = doc.find(0, "Cells", "connectivity"), doc.find(0, "Cells", "offsets"), doc.find(0, "Points")
+    O = doc.values(offs)
+    nodes = doc.values(conn)[int(O[0]):int(O[1])]
+    for big in (1e308, -1e308):
+        P = doc.values(pts).reshape(-1, 3).copy()
+        P[nodes[3], 0] = big
+        expect(tmp_path / "big.vtu", doc.with_values(pts, P.ravel()), r"cell 1: node coordinates too large")
