@@ -96,7 +96,11 @@ def main(argv=None):
     ap.add_argument("--only", default="hump3D,scaleHO")
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
-    summary = {"device": args.device, "date": time.strftime("%Y-%m-%d")}
+    import warp as wp
+
+    wp.init()
+    summary = {"device": args.device, "device_name": wp.get_device(args.device).name, "date": time.strftime("%Y-%m-%d"),
+               "command": "python " + " ".join(sys.argv)}
     if "hump3D" in args.only:
         t0 = time.perf_counter()
         hump = read_nektar(os.path.join(DATA, "hump3D_GLL.xml"), os.path.join(DATA, "hump3D.rst"), field="rho")

@@ -913,7 +913,12 @@ def render_kernel(curved: bool):
 
 
 def _make_render_kernel(CURVED: bool):
-    @wp.kernel(enable_backward=False, module="unique")
+    # The curved kernel inlines Newton solves at many call sites: unrolling its fixed loops
+    # costs NVRTC time, not speed (H100, hump3D 1920x1080: compile 143 s -> 103 s with
+    # max_unroll 4, frame 1.52 s either way; bench/results/h100/compile_unroll.json).
+    opts = {"max_unroll": 4} if CURVED else {}
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=opts)
     def render(
         mesh: MeshArgs,
         cam: CameraArgs,
