@@ -27,6 +27,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--min-transmittance", type=float, help="early ray termination threshold")
     r.add_argument("--inner", choices=("spectral", "trapezoid"), help="inner integral on smooth segments")
     r.add_argument("--device", help="Warp device: cpu or cuda:0")
+    r.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic (default float32)")
     f = sub.add_parser("reference", help="render the float64 reference (affine hexahedra)")
     f.add_argument("view")
     f.add_argument("-o", "--output", required=True)
@@ -51,6 +52,7 @@ def main(argv=None) -> int:
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
                 min_transmittance=args.min_transmittance, inner=args.inner, device=args.device,
+                precision=args.precision,
             )
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats

@@ -160,7 +160,8 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     )
     world_color = tuple(scene.world.color) if scene.world is not None else None
     options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
-                            min_transmittance=settings.min_transmittance, device=settings.device)
+                            min_transmittance=settings.min_transmittance, device=settings.device,
+                            precision=settings.precision)
     return SceneInputs(
         transfer_function=tf, background=render_background(world_color, render.film_transparent),
         film_transparent=bool(render.film_transparent), options=options, source=source,

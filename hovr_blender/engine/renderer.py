@@ -46,61 +46,103 @@ def resolve_device(device: str) -> str:
         raise RenderError(f"Warp device {device!r} is not available here (available: {avail})") from exc
 
 
+FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
+
+
+def _check_float32_range(mesh: VolumeMesh):
+    """float32 kernels need data well inside float32's range: name the first element that is not."""
+    for what, values, offsets in (("field coefficients", mesh.coeffs, mesh.coeff_offset),
+                                  ("geometry", mesh.geom_coeffs, mesh.geom_offset)):
+        if values is None or values.size == 0:
+            continue
+        big = np.abs(values.reshape(len(values), -1)).max(axis=1) > FLOAT32_LIMIT
+        if big.any():
+            e = int(np.searchsorted(offsets, int(np.argmax(big)), side="right") - 1)
+            raise RenderError(f"element {e}: {what} exceed the float32 kernels' range (|value| > {FLOAT32_LIMIT:.0e}); "
+                              f"render with precision float64 or rescale the data")
+
+
 class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
     def __init__(self, mesh: VolumeMesh, device: str = "cpu"):
         wp = _warp()
-        from .kernels import raycast, quadrature_tables
-
         self.device = resolve_device(device)
         self.mesh = mesh
-        self._k = raycast
+        self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
-            from .mesh import element_boxes, element_field_ranges
+            from .mesh import element_boxes
 
             lowers, uppers = element_boxes(mesh)
             pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
-            self._lowers = wp.array((lowers - pad).astype(np.float32), dtype=wp.vec3)
-            self._uppers = wp.array((uppers + pad).astype(np.float32), dtype=wp.vec3)
+            self._box_lo = lowers - pad
+            self._box_hi = uppers + pad
+            # Warp's BVH is float32 in both precisions (padded boxes: conservative either way)
+            self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
+            self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
             self._bvh = wp.Bvh(self._lowers, self._uppers)
+        try:
+            self._upload("float32")  # the default precision, uploaded up front
+        except RenderError:
+            pass  # data float32 cannot hold: render() says so, unless asked for float64
+        self.upload_seconds = time.perf_counter() - t0
+
+    def mesh_args(self, precision: str = "float32"):
+        """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
+        return self._upload(precision)[1]
+
+    def _upload(self, precision: str):
+        """Mesh arrays and kernel for one precision (float64 on first use)."""
+        if precision in self._uploads:
+            return self._uploads[precision]
+        wp = _warp()
+        from .kernels import precision as kp, quadrature_tables
+        from .mesh import element_field_ranges
+        from .tensor_geometry import mesh_tensor_geometry
+
+        raycast = kp.kernels(precision)
+        mesh = self.mesh
+        f64 = precision == "float64"
+        if not f64:
+            _check_float32_range(mesh)
+        fdt, v3, m33 = (np.float64, wp.vec3d, wp.mat33d) if f64 else (np.float32, wp.vec3, wp.mat33)
+        scalar = wp.float64 if f64 else wp.float32
+        with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
             m.shape = wp.array(mesh.shape.astype(np.int32), dtype=wp.int32)
-            m.ref_a = wp.array(mesh.ref_from_world[:, :, :3].astype(np.float32), dtype=wp.mat33)
-            m.ref_b = wp.array(mesh.ref_from_world[:, :, 3].astype(np.float32), dtype=wp.vec3)
+            m.ref_a = wp.array(mesh.ref_from_world[:, :, :3].astype(fdt), dtype=m33)
+            m.ref_b = wp.array(mesh.ref_from_world[:, :, 3].astype(fdt), dtype=v3)
             m.modes = wp.array(mesh.modes.astype(np.int32), dtype=wp.vec3i)
             m.basis = wp.array(mesh.basis.astype(np.int32), dtype=wp.int32)
             if mesh.coeffs.size >= 2**31:
                 raise RenderError("field too large for 32-bit coefficient offsets")
             m.coeff_offset = wp.array(mesh.coeff_offset.astype(np.int32), dtype=wp.int32)
-            m.coeffs = wp.array(mesh.coeffs.astype(np.float32), dtype=wp.float32)
+            m.coeffs = wp.array(mesh.coeffs.astype(fdt), dtype=scalar)
             flo, fhi = element_field_ranges(mesh)
-            m.field_lo = wp.array(flo.astype(np.float32), dtype=wp.float32)
-            m.field_hi = wp.array(fhi.astype(np.float32), dtype=wp.float32)
+            m.field_lo = wp.array(flo.astype(fdt), dtype=scalar)
+            m.field_hi = wp.array(fhi.astype(fdt), dtype=scalar)
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
             m.affine = wp.array(affine, dtype=wp.int32)
-            from .tensor_geometry import mesh_tensor_geometry
-
             gdeg, goff, gco, gcen = mesh_tensor_geometry(mesh)
             if gco.shape[0] >= 2**31:
                 raise RenderError("curved geometry too large for 32-bit offsets")
             m.geo_degree = wp.array(gdeg.astype(np.int32), dtype=wp.int32)
             m.geo_offset = wp.array(goff.astype(np.int32), dtype=wp.int32)
-            m.geo_coeffs = wp.array(gco.astype(np.float32), dtype=wp.vec3)
-            m.geo_centre = wp.array(gcen.astype(np.float32), dtype=wp.vec3)
-            # affine-only meshes get the kernel without the curved machinery
-            self._kernel = raycast.render_kernel(curved=not bool(affine.all()))
-            m.box_lo = self._lowers
-            m.box_hi = self._uppers
-            self._mesh_args = m
+            m.geo_coeffs = wp.array(gco.astype(fdt), dtype=v3)
+            m.geo_centre = wp.array(gcen.astype(fdt), dtype=v3)
+            m.box_lo = wp.array(self._box_lo.astype(fdt), dtype=v3)
+            m.box_hi = wp.array(self._box_hi.astype(fdt), dtype=v3)
             x, wk, wg = quadrature_tables.gauss_kronrod_15()
             S = quadrature_tables.integration_matrix(x)
-            self._gk = [wp.array(a.astype(np.float32), dtype=wp.float32) for a in (x, wk, wg)]
-            self._gk_s = wp.array(S.astype(np.float32), dtype=wp.float32)
-        self.upload_seconds = time.perf_counter() - t0
+            gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
+            gk_s = wp.array(S.astype(fdt), dtype=scalar)
+            # affine-only meshes get the kernel without the curved machinery
+            kernel = raycast.render_kernel(curved=not bool(affine.all()))
+        self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
+        return self._uploads[precision]
 
     def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None) -> RenderResult:
@@ -108,40 +150,44 @@ class Renderer:
         pixels and progress(fraction_done) is called after each; returning False cancels
         (the result then has cancelled=True and only the finished tiles filled in)."""
         wp = _warp()
-        k = self._k
+        k, mesh_args, gk, gk_s, kernel = self._upload(options.precision)
+        f64 = options.precision == "float64"
+        vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
+        scalar = wp.float64 if f64 else wp.float32
+        fdt = np.float64 if f64 else np.float32
         W, H = int(camera.width), int(camera.height)
         bg = np.asarray(background, dtype=np.float64).reshape(3)
         with wp.ScopedDevice(self.device):
             cam = k.CameraArgs()
             for name in ("o0", "ou", "ov", "d0", "du", "dv"):
-                setattr(cam, name, wp.vec3(*map(float, getattr(camera, name))))
+                setattr(cam, name, vec3(*map(float, getattr(camera, name))))
             cam.width, cam.height = W, H
             cam.t_min = float(camera.t_min)
             cam.t_max = float(min(camera.t_max, 1e30))
-            cam.clip_axis = wp.vec3(*map(float, camera.clip_axis))
+            cam.clip_axis = vec3(*map(float, camera.clip_axis))
             cam.clip_near = float(camera.clip_near)
             cam.clip_far = float(min(camera.clip_far, 1e30))
             t = k.TransferArgs()
-            t.color_s = wp.array(tf.color_s.astype(np.float32), dtype=wp.float32)
-            t.color_rgb = wp.array(tf.color_rgb.astype(np.float32), dtype=wp.vec3)
-            t.density_s = wp.array(tf.density_s.astype(np.float32), dtype=wp.float32)
-            t.density_tau = wp.array(tf.density_tau.astype(np.float32), dtype=wp.float32)
+            t.color_s = wp.array(tf.color_s.astype(fdt), dtype=scalar)
+            t.color_rgb = wp.array(tf.color_rgb.astype(fdt), dtype=vec3)
+            t.density_s = wp.array(tf.density_s.astype(fdt), dtype=scalar)
+            t.density_tau = wp.array(tf.density_tau.astype(fdt), dtype=scalar)
             q = k.QuadArgs()
             q.method = _METHOD_IDS[options.method]
             q.inner = _INNER_IDS[options.inner]
             q.h = float(options.h)
             q.tol = float(options.tolerance)
             q.min_transmittance = float(options.min_transmittance)
-            q.background = wp.vec3(*map(float, bg))
-            q.gk_x, q.gk_wk, q.gk_wg = self._gk
-            q.gk_s = self._gk_s
+            q.background = vec3(*map(float, bg))
+            q.gk_x, q.gk_wk, q.gk_wg = gk
+            q.gk_s = gk_s
             try:
-                rgba = wp.zeros(W * H, dtype=wp.vec4)
-                aux = wp.zeros(W * H, dtype=wp.vec2)
+                rgba = wp.zeros(W * H, dtype=vec4)
+                aux = wp.zeros(W * H, dtype=vec2)
                 stats = wp.zeros((W * H, k.NUM_STATS), dtype=wp.int32)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            wp.load_module(self._kernel.module, device=self.device)  # compile outside the timed region
+            wp.load_module(kernel.module, device=self.device)  # compile outside the timed region
             wp.synchronize_device(self.device)
             t0 = time.perf_counter()
             total = W * H
@@ -149,7 +195,7 @@ class Renderer:
             cancelled = False
             for start in range(0, total, step):
                 n = min(step, total - start)
-                wp.launch(self._kernel, dim=n, inputs=[self._mesh_args, cam, t, q, start, rgba, aux, stats])
+                wp.launch(kernel, dim=n, inputs=[mesh_args, cam, t, q, start, rgba, aux, stats])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -157,7 +203,7 @@ class Renderer:
                         break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
-            img = rgba.numpy().reshape(H, W, 4)
+            img = rgba.numpy().reshape(H, W, 4).astype(np.float32 if not f64 else np.float64)
             depth_err = aux.numpy().reshape(H, W, 2)
             st = stats.numpy().astype(np.int64)
         if not np.all(np.isfinite(img)):
@@ -184,7 +230,7 @@ class Renderer:
                 "segments_piecewise_smooth": int(tot[k.STAT_PIECEWISE]),
                 "curved_locates": int(tot[k.STAT_LOCATES]),
                 "elements": self.mesh.num_elements,
-                "precision": "float32",
+                "precision": options.precision,
             },
         )
 

@@ -28,6 +28,7 @@ class RenderOptions:
     min_transmittance: float = 1e-5  # early ray termination: stop once T falls below this
     inner: str = "spectral"  # smooth/smooth inner integral: "spectral" or the paper's "trapezoid"
     device: str = "cpu"
+    precision: str = "float32"  # kernel arithmetic: "float32" or "float64" (same kernel source)
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -40,12 +41,14 @@ class RenderOptions:
             raise ViewError(f"min_transmittance must be in [0, 1), got {self.min_transmittance}")
         if self.inner not in ("spectral", "trapezoid"):
             raise ViewError(f"inner must be 'spectral' or 'trapezoid', got {self.inner!r}")
+        if self.precision not in ("float32", "float64"):
+            raise ViewError(f"precision must be 'float32' or 'float64', got {self.precision!r}")
 
     def with_(self, **kw) -> "RenderOptions":
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
 
     def as_dict(self) -> dict:
-        return {k: getattr(self, k) for k in ("method", "h", "tolerance", "min_transmittance", "inner", "device")}
+        return {k: getattr(self, k) for k in ("method", "h", "tolerance", "min_transmittance", "inner", "device", "precision")}
 
 
 @dataclass

@@ -51,6 +51,7 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         layout.prop(settings, "tolerance")
         layout.prop(settings, "min_transmittance")
         layout.prop(settings, "device")
+        layout.prop(settings, "precision")
 
 
 class HOVR_RENDER_PT_transfer_function(HovrButtonsPanel, bpy.types.Panel):

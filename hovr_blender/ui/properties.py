@@ -10,6 +10,10 @@ METHOD_ITEMS = (
     ("classified", "Classified", "Segment each ray at transfer-function breakpoints, adaptive quadrature per segment", 2),
     ("split", "Split", "Split each ray into smooth segments before integrating", 3),
 )
+PRECISION_ITEMS = (
+    ("float32", "Float32", "Single-precision kernels: fastest; about 1e-5 relative error", 0),
+    ("float64", "Float64", "Double-precision kernels (the same kernel source): for error budgets below float32's", 1),
+)
 DEVICE_ITEMS = (
     ("cpu", "CPU", "Run the Warp kernels on the CPU", 0),
     ("cuda:0", "CUDA GPU 0", "Run the Warp kernels on the first CUDA device", 1),
@@ -42,6 +46,8 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
                                      description="Stop a ray once its transmittance falls below this")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="cpu",
                          description="Warp device the kernels run on")
+    precision: EnumProperty(name="Precision", items=PRECISION_ITEMS, default="float32",
+                            description="Arithmetic of the ray kernels")
     density_scale: FloatProperty(name="Density Scale", default=1.0, min=0.0, soft_max=100.0,
                                  description="Extinction per world unit at ramp alpha 1")
     value_min: FloatProperty(name="Value Min", default=0.0,

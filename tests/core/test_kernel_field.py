@@ -28,7 +28,7 @@ def test_modified_a_tensor_all_orders(device):
     xi = rng.uniform(-1, 1, (elem.size, 3))
     out = wp.zeros(elem.size, dtype=wp.float32, device=r.device)
     wp.launch(_eval_points, dim=elem.size, device=r.device,
-              inputs=[r._mesh_args, wp.array(elem, dtype=wp.int32, device=r.device),
+              inputs=[r.mesh_args(), wp.array(elem, dtype=wp.int32, device=r.device),
                       wp.array(xi.astype(np.float32), dtype=wp.vec3, device=r.device), out])
     got = out.numpy()
     worst = 0.0

@@ -48,7 +48,7 @@ def test_kernel_expansion_matches_numpy(device, shape):
     xi = np.concatenate([random_inside(shape, npts, rng) for _ in orders])
     out = wp.zeros(elem.size, dtype=wp.float32, device=r.device)
     wp.launch(_eval_points, dim=elem.size, device=r.device,
-              inputs=[r._mesh_args, wp.array(elem, dtype=wp.int32, device=r.device),
+              inputs=[r.mesh_args(), wp.array(elem, dtype=wp.int32, device=r.device),
                       wp.array(xi.astype(np.float32), dtype=wp.vec3, device=r.device), out])
     got = out.numpy()
     for e, m in enumerate(orders):

@@ -251,7 +251,10 @@ def chebyshev_from_lobatto(f: vecr, deg: int) -> vecr:
 # x and its Jacobian cost one pass over the coefficients, with no collapse to avoid.
 
 CURVED_SAMPLES = 16  # samples of the box interval when looking for the element
-INSIDE_TOL = 1.0e-5
+# Tolerances sized for float32; the float64 twin gets kernels/precision.FLOAT64_CONSTANTS.
+INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
+NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
+ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
 MAX_GEO = 17  # Legendre values per direction (tensor_geometry.MAX_DEGREE + 1)
 vecg = wp.types.vector(length=MAX_GEO, dtype=wp.float32)
 
@@ -348,7 +351,7 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3) -> wp.vec4:
         for k in range(3):
             xi[k] = wp.clamp(xi[k], -1.5, 1.5)
         # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence)
-        if wp.length(dxi) < 1.0e-5:
+        if wp.length(dxi) < NEWTON_STEP_TOL:
             ok = 1.0
             break
     return wp.vec4(xi[0], xi[1], xi[2], ok)
@@ -414,7 +417,7 @@ def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: flo
     g = xi_in
     side = int(0)
     for it in range(40):
-        if wp.abs(b - a) <= 1.0e-7 * (wp.abs(a) + wp.abs(b)) + 1.0e-30:
+        if wp.abs(b - a) <= ROOT_RTOL * (wp.abs(a) + wp.abs(b)) + 1.0e-30:
             break
         m = 0.5 * (a + b)
         if fb != fa:
@@ -453,7 +456,8 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
         return wp.vec3(0.0, 0.0, 0.0)
     sh = mesh.shape[e]
     xi = centroid(sh)
-    dt = (tb - ta) / float(CURVED_SAMPLES)
+    n_samples = int(CURVED_SAMPLES)  # a local int: Warp retypes a global cast in place (float64 twin)
+    dt = (tb - ta) / float(n_samples)
     prev_t = ta
     prev_xi = xi
     prev_m = float(-1.0)
@@ -462,7 +466,7 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
     best_m = float(-1.0e30)
     best_t = ta
     best_xi = xi
-    for i in range(CURVED_SAMPLES + 1):
+    for i in range(n_samples + 1):
         t = ta + float(i) * dt
         r = curved_inside(mesh, e, o, d, t, prev_xi)
         xi_t = wp.vec3(r[0], r[1], r[2])
@@ -826,7 +830,7 @@ def bisect_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float,
             if side == 1:
                 flo = 0.5 * flo
             side = 1
-        if hi - lo <= 1.0e-7 * (wp.abs(hi) + wp.abs(lo)) + 1.0e-30:
+        if hi - lo <= ROOT_RTOL * (wp.abs(hi) + wp.abs(lo)) + 1.0e-30:
             m = 0.5 * (lo + hi)
             break
     return wp.vec2(m, nev)
