@@ -289,18 +289,14 @@ _BOUND_CACHE: dict = {}
 
 
 def mode_bounds(shape: int, modes) -> tuple[np.ndarray, np.ndarray]:
-    """(B, vertex_idx): B[m] >= max |phi_m| over the element (dense sampling with a 5 %
-    margin: the modes are smooth, low-degree polynomials), and the vertex modes' indices
-    (a non-negative partition of unity, so their part of a sum lies between its coefficients)."""
+    """(B, vertex_idx): B[m] >= max |phi_m| over the element (certified:
+    expansions.mode_max_bounds), and the vertex modes' indices (a non-negative partition of
+    unity, so their part of a sum lies between its coefficients)."""
     from . import expansions as ex
 
     key = (int(shape), tuple(int(m) for m in modes))
     if key not in _BOUND_CACHE:
-        rng = np.random.default_rng(0)
-        pts = rng.uniform(-1, 1, (3000, 3))
-        pts = np.concatenate([pts[ex.inside(shape, pts, tol=0.0)], ex.fit_points(shape, modes),
-                              ex.SHAPE_VERTICES[shape]])
-        B = np.abs(ex.basis_matrix(shape, modes, pts)).max(axis=0) * 1.05
+        B = ex.mode_max_bounds(*key)
         vidx = ex.vertex_mode_indices(shape, modes) if min(key[1]) >= 2 else np.zeros(0, np.int64)
         _BOUND_CACHE[key] = (B, vidx)
     return _BOUND_CACHE[key]

@@ -13,10 +13,10 @@ constraints), the kind of coefficients and a seed. Hexahedra and prisms are capp
 MAX_COEFFS coefficients: mode_bounds' fit-point pseudo-inverse costs 38 s for a 15^3 hex on
 this machine, so a 15^3 hex is not drawn (every per-direction order up to 14 still is).
 
-A known engine bug (mode_bounds samples |phi_m| at random points with a 5 % margin, which
-underestimates single modes by up to ~40 %) is pinned by the strict xfail below; the
-hypothesis test (a) draws dense / decaying / offset coefficients, for which the sum of
-|c_m| B_m is loose enough that the bug does not show.
+Two engine bugs these tests found are fixed: mode_bounds sampled |phi_m| at random points
+with a 5 % margin (single high modes exceeded it by up to ~40 %; now certified by
+expansions.mode_max_bounds), and collapse_ratio let one rounding error next to a collapsed
+vertex give eta ~ 1e5, overflowing float32 into NaN at order >= ~9 (now held to [-1, 1]).
 """
 import inspect
 
@@ -132,9 +132,6 @@ def test_element_field_ranges_enclose_sampled_field(case):
     assert f.max() <= hi[0] + slack, f"{ex.SHAPE_NAMES[shape]} {modes} {kind}: max {f.max():.6g} > hi {hi[0]:.6g}"
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug: mesh.mode_bounds takes max|phi_m| from ~3000 random points "
-                   "with a 5% margin; single high modes exceed it by up to ~40% (tet 15^3 mode 607: 1.44x the "
-                   "sampled max), so element_field_ranges / element_boxes are not certified")
 @pytest.mark.parametrize("shape", SHAPES)
 def test_element_field_ranges_enclose_single_modes(shape):
     """One-hot coefficients on every mode of a degree-5 element: the range must enclose the
@@ -206,10 +203,7 @@ def random_segments(shape, n, rng):
     e = V[rng.integers(0, len(V), (2, 4))]
     P[2 * k:2 * k + 4], Q[2 * k:2 * k + 4] = e[0], e[1]  # vertex to vertex: edges, face diagonals
     P[-4:] = near_collapse(shape, 4, rng) if shape != ex.HEX else P[-4:]
-    # exactly at a collapsed vertex the float32 expansions overflow (strict xfail below): end
-    # 1e-4 inside instead, still deep in the collapsed region
-    cen = ex.CENTROIDS[shape]
-    return P + 1e-4 * (cen - P), Q + 1e-4 * (cen - Q)
+    return P, Q  # ends exactly at vertices too, collapsed ones included
 
 
 @settings(max_examples=24, **SETTINGS)
@@ -250,9 +244,6 @@ def test_segment_bounds_enclose_field_along_segments(case):
             f"field in [{fi.min():.7g}, {fi.max():.7g}], bound [{lohi[i, 0]:.7g}, {lohi[i, 1]:.7g}]")
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug: element.collapse_ratio clamps the denominator at 1e-12 but "
-                   "not the result, so one float32 ulp from a collapsed vertex/edge (numerator ~1e-7, "
-                   "denominator 0) eta ~ 2e5, eta^(P-1) overflows and inf * 0 gives NaN for P >= ~9")
 @pytest.mark.parametrize("shape", [ex.PRISM, ex.TET, ex.PYR])
 def test_segment_bounds_finite_next_to_collapsed_vertices(shape):
     """Segments of an order-14 element that start one float32 ulp (2^-23) off the collapsed

@@ -92,11 +92,14 @@ def modified_pyr_c_row(p: int, q: int, n: int, x: float) -> vecm:
 
 @wp.func
 def collapse_ratio(num: float, den: float) -> float:
-    """2 num / den - 1 with the denominator clamped away from 0 (Nektar++ kNekZeroTol)."""
+    """2 num / den - 1 with the denominator clamped away from 0 (Nektar++ kNekZeroTol), and the
+    result held to [-1, 1], where it lies inside the element: one rounding error next to a
+    collapsed vertex (num ~ 1e-7 over den ~ 0) would otherwise give eta ~ 1e5, whose high
+    powers overflow float32 and turn into NaN against the vanishing collapse factor."""
     d = den
     if wp.abs(d) < 1.0e-12:
         d = 1.0e-12
-    return 2.0 * num / d - 1.0
+    return wp.clamp(2.0 * num / d - 1.0, -1.0, 1.0)
 
 
 @wp.func
