@@ -130,7 +130,8 @@ def load_data(data: dict, base_dir: str = ".") -> VolumeMesh:
 
         return derived.read_nektar_field(path, sol, field=data.get("field"))  # "|u,v,w|": the magnitude
     if ext == ".vtu":
-        from ..io import vtu
+        from ..io import derived
 
-        return vtu.read_vtu(path, field=data.get("field"), component=data.get("component"))
+        # a vector's magnitude from its exact components, as in Blender (io/derived.py)
+        return derived.read_vtu_field(path, field=data.get("field"), component=data.get("component"))
     raise ViewError(f"{path}: unsupported data format {ext!r} (Nektar++ .xml or VTK .vtu)")

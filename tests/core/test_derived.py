@@ -219,10 +219,14 @@ def test_main_prints_the_error_line(capsys):
     assert re.match(r"48 elements; \|u,v,w\|: magnitude fitted with 7 modes .* max error", capsys.readouterr().out)
 
 
-def test_view_files_accept_the_magnitude_syntax():
-    """The CLI's data.field takes "|u,v,w|" too (Nektar++); VTU vectors keep read_vtu's nodal
-    magnitude there (VTK's interpolation, what tests/core/test_vtu.py checks)."""
+def test_view_files_accept_the_magnitude_syntax(tmp_path):
+    """The CLI's data.field takes "|u,v,w|" too (Nektar++), and a VTU vector's magnitude is the
+    same derived fit as in Blender (only the low-level read_vtu keeps VTK's nodal magnitude)."""
     from hovr_blender.engine.view import load_data
+
+    vec = _vector_vtu(tmp_path)
+    np.testing.assert_array_equal(load_data({"path": str(vec), "field": "vel"}).coeffs,
+                                  read_vtu_field(vec, "vel").coeffs)
 
     xml, fld = shared_file("nektar", "Tet_channel_m3.xml"), shared_file("nektar", "Tet_channel_m3.fld")
     mesh = load_data({"path": str(xml), "solution": str(fld), "field": "|u,v,w|"})
