@@ -336,53 +336,111 @@ def centroid(shape: int) -> wp.vec3:
 
 
 @wp.func
-def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3) -> wp.vec4:
+def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
     """(xi, converged) with x(xi) = p: Newton with the exact Jacobian, steps clamped so xi
-    stays in a slightly enlarged reference box."""
+    stays in a slightly enlarged reference box; and the last inverse Jacobian dxi/dx (it turns
+    the ray direction into the reference-space velocity, for warm starts and slopes)."""
     xi = xi0
     ok = float(0.0)
+    Jinv = wp.identity(n=3, dtype=float)
+    held_count = int(0)
     for it in range(12):
         x, J = geometry_with_jacobian(mesh, e, xi)
         det = wp.determinant(J)
         if wp.abs(det) < 1.0e-30:
             break
-        dxi = wp.inverse(J) * (x - p)
+        Jinv = wp.inverse(J)
+        dxi = Jinv * (x - p)
         xi = xi - dxi
+        held = int(0)
         for k in range(3):
+            if wp.abs(xi[k]) > 1.5:
+                held = 1
             xi[k] = wp.clamp(xi[k], -1.5, 1.5)
+        # pushed against the enlarged box twice: p is far outside the element (the usual
+        # fate of box samples off the element), not worth the remaining iterations
+        held_count += held
+        if held_count >= 2:
+            break
         # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence)
         if wp.length(dxi) < NEWTON_STEP_TOL:
             ok = 1.0
             break
-    return wp.vec4(xi[0], xi[1], xi[2], ok)
+    return wp.vec4(xi[0], xi[1], xi[2], ok), Jinv
 
 
 @wp.func
 def reference_margin(shape: int, xi: wp.vec3) -> float:
     """Signed distance-like margin to the reference element's faces (> 0 inside)."""
-    m = wp.min(wp.min(xi[0] + 1.0, xi[1] + 1.0), xi[2] + 1.0)
-    if shape == el_k.HEX:
-        m = wp.min(m, wp.min(wp.min(1.0 - xi[0], 1.0 - xi[1]), 1.0 - xi[2]))
-    elif shape == el_k.PRISM:
-        m = wp.min(m, wp.min(1.0 - xi[1], -(xi[0] + xi[2])))
-    elif shape == el_k.TET:
-        m = wp.min(m, -1.0 - (xi[0] + xi[1] + xi[2]))
-    else:
-        m = wp.min(m, wp.min(-(xi[0] + xi[2]), -(xi[1] + xi[2])))
-    return m
+    return reference_margin_and_face(shape, xi)[0]
 
 
 @wp.func
-def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3) -> wp.vec4:
-    """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; -1 where Newton fails."""
-    r = invert_point(mesh, e, o + t * d, xi0)
+def reference_margin_and_face(shape: int, xi: wp.vec3) -> wp.vec4:
+    """(margin, gradient of the nearest face's margin in xi): the margin's slope along a
+    reference-space velocity v is the dot product of that gradient with v."""
+    m = xi[0] + 1.0
+    g = wp.vec3(1.0, 0.0, 0.0)
+    if xi[1] + 1.0 < m:
+        m = xi[1] + 1.0
+        g = wp.vec3(0.0, 1.0, 0.0)
+    if xi[2] + 1.0 < m:
+        m = xi[2] + 1.0
+        g = wp.vec3(0.0, 0.0, 1.0)
+    if shape == el_k.HEX:
+        for k in range(3):
+            if 1.0 - xi[k] < m:
+                m = 1.0 - xi[k]
+                g = wp.vec3(0.0, 0.0, 0.0)
+                g[k] = -1.0
+    elif shape == el_k.PRISM:
+        if 1.0 - xi[1] < m:
+            m = 1.0 - xi[1]
+            g = wp.vec3(0.0, -1.0, 0.0)
+        if -(xi[0] + xi[2]) < m:
+            m = -(xi[0] + xi[2])
+            g = wp.vec3(-1.0, 0.0, -1.0)
+    elif shape == el_k.TET:
+        if -1.0 - (xi[0] + xi[1] + xi[2]) < m:
+            m = -1.0 - (xi[0] + xi[1] + xi[2])
+            g = wp.vec3(-1.0, -1.0, -1.0)
+    else:
+        if -(xi[0] + xi[2]) < m:
+            m = -(xi[0] + xi[2])
+            g = wp.vec3(-1.0, 0.0, -1.0)
+        if -(xi[1] + xi[2]) < m:
+            m = -(xi[1] + xi[2])
+            g = wp.vec3(0.0, -1.0, -1.0)
+    return wp.vec4(m, g[0], g[1], g[2])
+
+
+@wp.func
+def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3):
+    """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; -1 where Newton fails; and
+    (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on the margin."""
+    r, Jinv = invert_point(mesh, e, o + t * d, xi0)
     if r[3] <= 0.0:  # a warm start from a bad neighbour: retry from the element's centre
-        r = invert_point(mesh, e, o + t * d, centroid(mesh.shape[e]))
+        r, Jinv = invert_point(mesh, e, o + t * d, centroid(mesh.shape[e]))
     xi = wp.vec3(r[0], r[1], r[2])
+    v = Jinv * d
     m = float(-1.0)
+    slope = float(0.0)
     if r[3] > 0.0:
-        m = reference_margin(mesh.shape[e], xi) + INSIDE_TOL
-    return wp.vec4(xi[0], xi[1], xi[2], m)
+        mf = reference_margin_and_face(mesh.shape[e], xi)
+        m = mf[0] + INSIDE_TOL
+        slope = wp.dot(wp.vec3(mf[1], mf[2], mf[3]), v)
+    return wp.vec4(xi[0], xi[1], xi[2], m), wp.vec4(v[0], v[1], v[2], slope)
+
+
+@wp.func
+def ahead(r: wp.vec4, dv: wp.vec4, dt: float) -> wp.vec3:
+    """Warm start dt further along the ray from a solved point (xi, velocity), kept in Newton's box."""
+    y = wp.vec3(r[0], r[1], r[2])
+    if r[3] > -1.0:
+        y = y + dt * wp.vec3(dv[0], dv[1], dv[2])
+    for k in range(3):
+        y[k] = wp.clamp(y[k], -1.5, 1.5)
+    return y
 
 
 @wp.func
@@ -407,17 +465,24 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: float, m_out: float, t_in: float,
                       m_in: float, xi_in: wp.vec3) -> float:
     """Where the ray crosses element e's boundary between t_out (margin m_out <= 0) and t_in
-    (margin m_in > 0): Illinois regula falsi on the margin, which is smooth across one face
-    (bracketing, so a failed Newton solve's margin of -1 only slows it). Returns the inside
-    end of the final bracket, 1e-7 relative."""
+    (margin m_in > 0). The margin is smooth across one face and its slope is known
+    (curved_inside), so Newton steps on it are taken while they stay inside the bracket,
+    with Illinois regula falsi otherwise (a failed Newton solve's margin of -1 only slows it).
+    Returns an inside point within 1e-7 relative of the crossing."""
     a = t_out
     fa = m_out
     b = t_in
     fb = m_in
     g = xi_in
     side = int(0)
+    have = int(0)  # a converged last evaluation: its t, margin, slope and solution
+    tl = float(0.0)
+    ml = float(0.0)
+    rl = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    dvl = wp.vec4(0.0, 0.0, 0.0, 0.0)
     for it in range(40):
-        if wp.abs(b - a) <= ROOT_RTOL * (wp.abs(a) + wp.abs(b)) + 1.0e-30:
+        tol = ROOT_RTOL * (wp.abs(a) + wp.abs(b)) + 1.0e-30
+        if wp.abs(b - a) <= tol:
             break
         m = 0.5 * (a + b)
         if fb != fa:
@@ -426,7 +491,22 @@ def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: flo
             lim = 0.01 * wp.abs(b - a)
             if wp.abs(m - a) < lim or wp.abs(m - b) < lim:
                 m = 0.5 * (a + b)
-        rm = curved_inside(mesh, e, o, d, m, g)
+        start = g
+        if have == 1:
+            start = ahead(rl, dvl, m - tl)
+            if dvl[3] != 0.0:
+                tn = tl - ml / dvl[3]
+                if tn > wp.min(a, b) and tn < wp.max(a, b):
+                    m = tn
+                    start = ahead(rl, dvl, m - tl)
+        rm, dvm = curved_inside(mesh, e, o, d, m, start)
+        have = int(0)
+        if rm[3] > -1.0:
+            have = 1
+            tl = m
+            ml = rm[3]
+            rl = rm
+            dvl = dvm
         if rm[3] > 0.0:
             b = m
             fb = rm[3]
@@ -434,6 +514,9 @@ def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: flo
             if side == 1:
                 fa = 0.5 * fa
             side = 1
+            # inside, and Newton says the crossing is within the tolerance: done
+            if dvm[3] != 0.0 and wp.abs(rm[3] / dvm[3]) <= tol:
+                break
         else:
             a = m
             fa = rm[3]
@@ -461,6 +544,8 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
     prev_t = ta
     prev_xi = xi
     prev_m = float(-1.0)
+    prev_r = wp.vec4(xi[0], xi[1], xi[2], -1.0)
+    prev_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
     t_enter = float(0.0)
     entered = int(0)
     best_m = float(-1.0e30)
@@ -468,7 +553,7 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
     best_xi = xi
     for i in range(n_samples + 1):
         t = ta + float(i) * dt
-        r = curved_inside(mesh, e, o, d, t, prev_xi)
+        r, dv = curved_inside(mesh, e, o, d, t, ahead(prev_r, prev_dv, t - prev_t))
         xi_t = wp.vec3(r[0], r[1], r[2])
         if r[3] > best_m:
             best_m = r[3]
@@ -486,6 +571,8 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
         prev_t = t
         prev_xi = xi_t
         prev_m = r[3]
+        prev_r = r
+        prev_dv = dv
     if entered == 1:
         return wp.vec3(1.0, t_enter, tb)
     if best_m > -0.25:
@@ -497,8 +584,8 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
         for it in range(30):
             m1 = lo + (hi - lo) / 3.0
             m2 = hi - (hi - lo) / 3.0
-            r1 = curved_inside(mesh, e, o, d, m1, g)
-            r2 = curved_inside(mesh, e, o, d, m2, g)
+            r1, dv1 = curved_inside(mesh, e, o, d, m1, g)
+            r2, dv2 = curved_inside(mesh, e, o, d, m2, g)
             if r1[3] < r2[3]:
                 lo = m1
                 g = wp.vec3(r2[0], r2[1], r2[2])
@@ -506,7 +593,7 @@ def curved_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: floa
                 hi = m2
                 g = wp.vec3(r1[0], r1[1], r1[2])
         tp = 0.5 * (lo + hi)
-        rp = curved_inside(mesh, e, o, d, tp, g)
+        rp, dvp = curved_inside(mesh, e, o, d, tp, g)
         if rp[3] > 0.0:
             gp = wp.vec3(rp[0], rp[1], rp[2])
             t_in = boundary_crossing(mesh, e, o, d, wp.max(ta, best_t - dt), -1.0, tp, rp[3], gp)
@@ -523,13 +610,23 @@ def curved_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: 
     mid = 0.5 * (a + b)
     half = 0.5 * (b - a)
     fd = float(deg)
-    xi = centroid(mesh.shape[e])
+    r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    c0 = centroid(mesh.shape[e])
+    r[0] = c0[0]
+    r[1] = c0[1]
+    r[2] = c0[2]
+    dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    t_prev = a
     for jj in range(deg + 1):
-        j = deg - jj  # from a to b, so each Newton solve starts from its neighbour
-        s = wp.cos(wp.pi * float(j) / fd)
-        r = invert_point(mesh, e, o + (mid + half * s) * d, xi)
-        xi = wp.vec3(r[0], r[1], r[2])
-        f[j] = eval_field(mesh, e, xi)
+        j = deg - jj  # from a to b, each Newton solve starting one step ahead of its neighbour
+        t = mid + half * wp.cos(wp.pi * float(j) / fd)
+        r, Jinv = invert_point(mesh, e, o + t * d, ahead(r, dv, t - t_prev))
+        v = Jinv * d
+        dv = wp.vec4(v[0], v[1], v[2], 0.0)
+        if r[3] <= 0.0:
+            r[3] = -1.0
+        t_prev = t
+        f[j] = eval_field(mesh, e, wp.vec3(r[0], r[1], r[2]))
     c = chebyshev_from_lobatto(f, deg)
     c[MAX_RESTRICTION - 3] = wp.abs(c[deg]) + wp.abs(c[deg - 1])
     c[MAX_RESTRICTION - 2] = 1.0
