@@ -1,0 +1,655 @@
+"""The bench suite (issue 6): small on the CPU (regressions), full on a CUDA GPU (the figures).
+
+    python bench/suite.py --device cpu --size small --out bench/results/cpu
+    python bench/suite.py --device cuda:0 --size full --out OUT/cuda
+    python bench/suite.py --plot OUT/cuda/suite.json          (plots again from a JSON)
+
+Needs numpy, warp-lang and matplotlib only (no bpy, no file readers, no network). Writes
+DIR/suite.json after every section (a run cut short keeps what it measured) and the plots
+DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_scale.png.
+
+1. methods: time against max error of riemann / trapezoid / classified (a sweep of h) and
+   split (a sweep of tolerance) on three datasets: the paper's sphere (reference: the float64
+   integrator, engine/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
+   and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
+   curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
+   order 6). Curved datasets have no float64 reference: theirs is the Renderer with split,
+   tolerance 1e-7 and no early termination (on the sphere the suite records how far that is
+   from the float64 reference). Full: at 1900x950 and 1920x1080.
+2. resample: what users do today (bench/resample_baseline.py): the field resampled onto a
+   regular grid of spacing h_g and ray-marched trilinearly (step h_g / 2): error against the
+   reference, grid build and render time, grid memory, for several h_g; on the sphere and
+   the paper-scale dataset (the paper's Figs. 9-11).
+3. scaling: render time against image size (paper-scale dataset), samples per ray (from 1),
+   order 1..14 (a brick of affine hexahedra), element count (affine bricks, full: 1,000 to
+   1,000,000), and the fraction of element segments skipped as empty.
+
+Every render is bounded: in a sweep that gets more expensive step by step, a configuration
+whose time estimated from the previous one exceeds the budget (--budget, seconds; small 20,
+full 30) is skipped and recorded as such; so are grids and meshes estimated to be too large,
+and every render left once the suite has run --max-minutes (small 15, full 150).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.join(HERE, "..")
+sys.path.insert(0, ROOT)
+sys.path.insert(0, HERE)
+
+from hovr_blender.engine import expansions as ex  # noqa: E402
+from hovr_blender.engine.basis import MODIFIED_A  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+
+METHODS = ("riemann", "trapezoid", "classified", "split")
+BACKGROUND = [0.02, 0.02, 0.03]
+
+CONFIG = {
+    "small": {
+        "method_sizes": [(64, 48)],
+        "paper": {"n_hex": 48, "n_prism": 96},
+        "cube_cells": 2,
+        "h_divisions": [25, 50, 100, 200, 400],
+        "tolerances": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6],
+        "repeats": 1,
+        "budget": 20.0,
+        "max_minutes": 15.0,
+        "resample_sphere": [0.4, 0.2, 0.1, 0.05],
+        "resample_paper": [2, 4, 8, 16],  # h_g = cell size / this
+        "max_pairs": 3e6,
+        "image_sizes": [(32, 16), (64, 32), (128, 64)],
+        "order_cells": 3, "order_size": (32, 24), "orders": list(range(1, 15)),
+        "count_cells": [10, 20, 40], "count_size": (32, 24), "count_modes": 4,
+    },
+    "full": {
+        "method_sizes": [(1900, 950), (1920, 1080)],
+        "paper": {"n_hex": 3400, "n_prism": 7600},
+        "cube_cells": 6,
+        "h_divisions": [25, 50, 100, 200, 400, 800, 1600, 3200],
+        "tolerances": [1e-2, 1e-3, 1e-4, 1e-5, 1e-6],
+        "repeats": 3,
+        "budget": 30.0,
+        "max_minutes": 150.0,
+        "resample_sphere": [0.4, 0.2, 0.1, 0.05, 0.025, 0.0125],
+        "resample_paper": [1, 2, 4, 8, 16],
+        "max_pairs": 1.2e8,
+        "image_sizes": [(480, 270), (960, 540), (1920, 1080), (3840, 2160)],
+        "order_cells": 10, "order_size": (1920, 1080), "orders": list(range(1, 15)),
+        "count_cells": [10, 20, 40, 60, 80, 100], "count_size": (1920, 1080), "count_modes": 4,
+    },
+}
+
+
+# --------------------------------------------------------------------------------- datasets
+
+
+def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 1.0, 1.0), chunk=20000) -> VolumeMesh:
+    """cells^3 axis-aligned affine hexahedra, func interpolated at the tensor GLL points with
+    `modes` per direction: io/synthetic.brick's mesh, built vectorised (a million elements in
+    seconds, where brick's per-element loop takes many minutes)."""
+    from hovr_blender.engine.basis import basis_values, gll_points
+
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    h = (upper - lower) / cells
+    idx = np.stack(np.meshgrid(*[np.arange(cells)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    mid = lower + h * (idx + 0.5)
+    half = 0.5 * h
+    n = len(mid)
+    g = gll_points(modes)
+    Vi = np.linalg.inv(basis_values(MODIFIED_A, modes, g))  # nodal -> modal, one direction
+    A, B, C = np.meshgrid(g, g, g, indexing="ij")
+    k = modes ** 3
+    coeffs = np.empty((n, k))
+    for a in range(0, n, chunk):
+        m0 = mid[a:a + chunk, :, None, None, None]
+        vals = func(m0[:, 0] + half[0] * A, m0[:, 1] + half[1] * B, m0[:, 2] + half[2] * C)  # (e, i, j, k)
+        c = np.einsum("ai,eijk,bj,ck->ecba", Vi, vals, Vi, Vi, optimize=True)  # direction 0 fastest
+        coeffs[a:a + chunk] = c.reshape(len(m0), k)
+    verts = mid[:, None, :] + half * ex.SHAPE_VERTICES[ex.HEX][None]
+    M = np.zeros((n, 3, 4))
+    M[:, [0, 1, 2], [0, 1, 2]] = 1.0 / half
+    M[:, :, 3] = -mid / half
+    return VolumeMesh(shape=np.zeros(n, np.int32), vertices=verts, ref_from_world=M,
+                      modes=np.full((n, 3), modes, np.int32), basis=np.full(n, MODIFIED_A, np.int32),
+                      coeff_offset=(np.arange(n, dtype=np.int64) * k), coeffs=coeffs.ravel(), field_name="f",
+                      source=f"suite:brick{cells}^3_m{modes}")
+
+
+def wave(x, y, z):
+    return np.sin(2 * np.pi * x) * np.sin(2 * np.pi * y) * np.cos(np.pi * z) + 0.3 * z
+
+
+def cube_field(x, y, z):
+    return np.sin(2.5 * x + 0.5) * np.cos(2.0 * y) + z * z
+
+
+def curved_cube(cells: int) -> VolumeMesh:
+    from hovr_blender.io.paper_scale import curved_copy
+    from hovr_blender.io.synthetic import mixed_cube
+
+    base = mixed_cube(cells, 5, cube_field)
+
+    def bend(x, y, z):
+        return 0.08 * (1 - (2 * x - 1) ** 2), 0.05 * x * y, -0.06 * (y - 0.5) ** 2 + 0.02 * x
+
+    return curved_copy(base, bend, geom_modes=3)
+
+
+def tents(lo, hi, colors, density):
+    """len(colors) tents spread over [lo, hi] (zero density between: empty segments exist)."""
+    k = len(colors)
+    cs, col, dens = [], [], []
+    for i, rgb in enumerate(colors):
+        m = lo + (i + 1) * (hi - lo) / (k + 1)
+        w = 0.07 * (hi - lo)
+        for s, a in ((m - w, 0.0), (m, density), (m + w, 0.0)):
+            cs.append(s), col.append(rgb), dens.append(a)
+    return TransferFunction(np.array(cs), np.array(col), np.array(cs), np.array(dens))
+
+
+COLORS = [(0.95, 0.35, 0.1), (0.2, 0.75, 0.3), (0.15, 0.35, 0.95)]
+SPHERE_TF = {
+    "color": [[1.0, 1.0, 0.9, 0.2], [4.0, 0.2, 1.0, 0.3], [9.0, 0.1, 0.4, 1.0], [16.0, 1.0, 0.2, 0.6]],
+    "density": [[1.5, 0.0], [2.0, 2.0], [2.5, 0.0], [4.5, 0.0], [5.0, 1.5], [5.5, 0.0],
+                [8.5, 0.0], [9.0, 1.0], [9.5, 0.0], [15.0, 0.0], [16.0, 0.4], [17.0, 0.0]],
+}
+
+
+def bounds(mesh):
+    lo, hi = element_boxes(mesh)
+    return lo.min(axis=0), hi.max(axis=0)
+
+
+def framing(mesh, w, h, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0):
+    lo, hi = bounds(mesh)
+    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    return RayCamera.from_contract({"eye": (c + distance * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
+                                    "fov_y_deg": fov}, w, h)
+
+
+def dataset(name, cfg):
+    """(mesh, transfer function, camera factory(w, h), description)."""
+    from hovr_blender.io.builtin import sphere
+
+    if name == "sphere":
+        cam = {"projection": "perspective", "eye": [7.0, 5.5, 8.0], "target": [0.0, 0.0, 1.0], "up": [0.0, 0.0, 1.0],
+               "fov_y_deg": 40.0}
+        return (sphere(), TransferFunction.from_contract(SPHERE_TF), lambda w, h: RayCamera.from_contract(cam, w, h),
+                "the paper's sphere: one hexahedron, f = x^2 + y^2 + z^2")
+    if name == "curved_mixed":
+        mesh = curved_cube(cfg["cube_cells"])
+        lo, hi = np.percentile(mesh.field_samples(4), [2, 98])
+        return (mesh, tents(lo, hi, COLORS, 12.0), lambda w, h: framing(mesh, w, h),
+                f"mixed_cube({cfg['cube_cells']}) of all four shapes, order 4, bent by a quadratic map (3 geometry modes)")
+    if name == "paper_scale":
+        from hovr_blender.io.paper_scale import paper_scale_mesh
+
+        mesh = paper_scale_mesh(**cfg["paper"])
+        info = {k: v for k, v in mesh.paper_scale.items() if k not in ("map", "source")}
+        return (mesh, tents(0.25, 1.55, COLORS, 3.0), lambda w, h: framing(mesh, w, h, direction=(0.3, -1.0, 1.2)),
+                f"paper-scale channel with a block: {info}")
+    raise ValueError(name)
+
+
+# ----------------------------------------------------------------------------------- helpers
+
+
+def rgb_error(img, ref):
+    return float(np.abs(np.asarray(img)[..., :3].astype(np.float64) - np.asarray(ref)[..., :3]).max())
+
+
+def timed(renderer, cam, tf, opts, repeats):
+    """Best of `repeats` renders; a render over 2 s is not repeated (its noise is small)."""
+    best = None
+    for _ in range(repeats):
+        res = renderer.render(cam, tf, BACKGROUND, opts)
+        if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
+            best = res
+        if res.stats["render_seconds"] > 2.0:
+            break
+    return best
+
+
+def row_of(res, **extra):
+    s = res.stats
+    return {**extra, "seconds": s["render_seconds"], "samples_per_ray": s["samples_per_ray"],
+            "field_evaluations": s["field_evaluations"], "restriction_evaluations": s["restriction_evaluations"],
+            "segments": s["segments"], "segments_empty": s["segments_empty"],
+            "segments_smooth": s["segments_smooth"], "segments_piecewise_smooth": s["segments_piecewise_smooth"],
+            "empty_fraction": s["segments_empty"] / max(s["segments"], 1), "curved_locates": s["curved_locates"]}
+
+
+class Suite:
+    def __init__(self, args):
+        import warp as wp
+
+        wp.config.quiet = True
+        wp.init()
+        self.wp = wp
+        self.args = args
+        self.cfg = dict(CONFIG[args.size])
+        if args.budget is not None:
+            self.cfg["budget"] = args.budget
+        self.t_start = time.perf_counter()
+        if args.max_minutes is None:
+            args.max_minutes = self.cfg["max_minutes"]
+        self.deadline = self.t_start + 60.0 * args.max_minutes
+        dev = wp.get_device(args.device)
+        self.out = {
+            "device": str(dev), "device_name": getattr(dev, "name", str(dev)), "size": args.size,
+            "date": datetime.datetime.now().isoformat(timespec="seconds"),
+            "command": "python " + " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
+            "git_commit": _git("rev-parse", "HEAD"), "git_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "host": platform.node(), "python": platform.python_version(), "warp": wp.__version__,
+            "numpy": np.__version__, "config": {k: v for k, v in self.cfg.items()},
+            "note": ("CPU numbers are for regressions only (one CPU thread per render on a shared 2-core machine); "
+                     "the figures come from the full run on a GPU.") if dev.is_cpu else
+                    "Render seconds exclude kernel compilation and data loading (best of 'repeats').",
+            "sections": {},
+        }
+        os.makedirs(args.out, exist_ok=True)
+
+    def skip(self, est):
+        """Why a render estimated to take `est` seconds is not run, or None."""
+        if time.perf_counter() > self.deadline:
+            return f"suite deadline ({self.args.max_minutes} min) passed"
+        if est > self.cfg["budget"]:
+            return f"estimated {est:.1f} s > budget {self.cfg['budget']} s"
+        return None
+
+    def log(self, *a):
+        print(f"[{time.perf_counter() - self.t_start:7.1f} s]", *a, flush=True)
+
+    def dump(self):
+        self.out["wall_seconds"] = time.perf_counter() - self.t_start
+        path = os.path.join(self.args.out, "suite.json")
+        with open(path, "w") as fh:
+            json.dump(self.out, fh, indent=1, default=_jsonable)
+        return path
+
+    def renderer(self, mesh):
+        from hovr_blender.engine.renderer import Renderer
+        from hovr_blender.engine.view import RenderOptions
+
+        r = Renderer(mesh, self.args.device)
+        t0 = time.perf_counter()  # the first render compiles (or loads from the kernel cache)
+        r.render(RayCamera.from_contract({"eye": [9, 9, 9], "target": [0, 0, 0], "up": [0, 0, 1], "fov_y_deg": 30}, 4, 3),
+                 TransferFunction.from_contract({"color": [[0, 1, 1, 1]], "density": [[0, 0.0]]}), BACKGROUND,
+                 RenderOptions(method="split", device=self.args.device))
+        return r, time.perf_counter() - t0
+
+    def opts(self, **kw):
+        from hovr_blender.engine.view import RenderOptions
+
+        return RenderOptions(device=self.args.device, **kw)
+
+    # ------------------------------------------------------------------------------ section 1
+
+    def methods(self):
+        from hovr_blender.engine.reference import reference_render
+        from hovr_blender.engine.image_io import write_png
+
+        sec = self.out["sections"].setdefault("methods", {})
+        cfg = self.cfg
+        for name in ("sphere", "curved_mixed", "paper_scale"):
+            t0 = time.perf_counter()
+            mesh, tf, camera, desc = dataset(name, cfg)
+            build = time.perf_counter() - t0
+            r, first = self.renderer(mesh)
+            lo, hi = bounds(mesh)
+            diag = float(np.linalg.norm(hi - lo))
+            self.log(f"{name}: {mesh.num_elements} elements, built in {build:.1f} s, upload {r.upload_seconds:.2f} s, "
+                     f"first render (compile/load) {first:.1f} s")
+            for W, H in cfg["method_sizes"]:
+                cam = camera(W, H)
+                case = {"dataset": name, "description": desc, "elements": mesh.num_elements, "size": [W, H],
+                        "build_seconds": build, "upload_seconds": r.upload_seconds, "first_render_seconds": first,
+                        "transfer_function": tf.to_contract(), "runs": []}
+                t1 = time.perf_counter()
+                ref_res = r.render(cam, tf, BACKGROUND, self.opts(method="split", tolerance=1e-7, min_transmittance=0.0))
+                case["split_1e-7_seconds"] = ref_res.stats["render_seconds"]
+                if name == "sphere":
+                    ref, info = reference_render(mesh, cam, tf, BACKGROUND)
+                    case["reference"] = "float64 integrator (engine/reference.py)"
+                    case["reference_error_estimate"] = info.get("error_estimate")
+                    case["split_1e-7_vs_float64"] = rgb_error(ref_res.rgba, ref)
+                else:
+                    ref = ref_res.rgba.astype(np.float64)
+                    case["reference"] = "Renderer split, tolerance 1e-7, min_transmittance 0"
+                case["reference_seconds"] = time.perf_counter() - t1
+                self.log(f"  {W}x{H}: reference in {case['reference_seconds']:.1f} s")
+                if name == "paper_scale" and (W, H) == tuple(cfg["method_sizes"][-1]):
+                    write_png(os.path.join(self.args.out, "suite_paper_scale.png"), ref_res.rgba, alpha=False)
+                for method in METHODS:
+                    if method == "split":
+                        sweep = [dict(tolerance=t) for t in cfg["tolerances"]]
+                    else:
+                        sweep = [dict(h=diag / d) for d in cfg["h_divisions"]]
+                    last = None
+                    for i, kw in enumerate(sweep):
+                        grow = 2.0 if method == "split" or i == 0 else (sweep[i - 1]["h"] / kw["h"])
+                        why = self.skip((last or 0.0) * grow)
+                        if why:
+                            case["runs"].append({"method": method, **kw, "skipped": why})
+                            self.log(f"    {method} {kw}: skipped ({why})")
+                            continue
+                        res = timed(r, cam, tf, self.opts(method=method, min_transmittance=0.0, **kw), cfg["repeats"])
+                        row = row_of(res, method=method, **kw, max_error=rgb_error(res.rgba, ref))
+                        last = row["seconds"]
+                        case["runs"].append(row)
+                        self.log(f"    {method:10s} {kw}: error {row['max_error']:.2e}, {row['seconds'] * 1e3:.1f} ms, "
+                                 f"{row['samples_per_ray']:.1f} samples/ray, empty {row['empty_fraction']:.2f}")
+                sec[f"{name}@{W}x{H}"] = case
+                self.dump()
+            del r
+
+    # ------------------------------------------------------------------------------ section 2
+
+    def resample(self):
+        import resample_baseline as rb
+        from hovr_blender.engine.reference import reference_render
+
+        sec = self.out["sections"].setdefault("resample", {})
+        cfg = self.cfg
+        W, H = cfg["method_sizes"][-1]
+        for name in ("sphere", "paper_scale"):
+            mesh, tf, camera, desc = dataset(name, cfg)
+            cam = camera(W, H)
+            r, _ = self.renderer(mesh)
+            split = timed(r, cam, tf, self.opts(method="split", tolerance=1e-5), cfg["repeats"])
+            if name == "sphere":
+                ref = reference_render(mesh, cam, tf, BACKGROUND)[0]
+                hs = cfg["resample_sphere"]
+            else:
+                ref, _ = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                hs = [mesh.paper_scale["cell_size"] / d for d in cfg["resample_paper"]]
+            case = {"dataset": name, "description": desc, "size": [W, H], "elements": mesh.num_elements,
+                    "mesh_bytes": rb.mesh_memory_bytes(mesh),
+                    "split_1e-5": {"seconds": split.stats["render_seconds"], "max_error": rgb_error(split.rgba, ref)},
+                    "step": "h_g / 2", "rows": []}
+            self.log(f"resample baseline on {name} at {W}x{H} (split 1e-5: error {case['split_1e-5']['max_error']:.2e}, "
+                     f"{case['split_1e-5']['seconds'] * 1e3:.1f} ms; mesh {case['mesh_bytes'] / 2**20:.2f} MiB)")
+            rb.march(rb.resample(mesh, max(hs) * 2), cam, tf, BACKGROUND, device=self.args.device)  # compile
+            case["rows"] = rb.compare(mesh, cam, tf, BACKGROUND, hs, ref, device=self.args.device,
+                                      max_pairs=cfg["max_pairs"], log=self.log)
+            sec[name] = case
+            self.dump()
+            del r
+
+    # ------------------------------------------------------------------------------ section 3
+
+    def scaling(self):
+        sec = self.out["sections"].setdefault("scaling", {})
+        cfg = self.cfg
+
+        # image size, on the paper-scale dataset
+        mesh, tf, camera, _ = dataset("paper_scale", cfg)
+        r, _ = self.renderer(mesh)
+        lo, hi = bounds(mesh)
+        h = float(np.linalg.norm(hi - lo)) / 400
+        rows, last = [], {}
+        for W, H in cfg["image_sizes"]:
+            for method, kw in (("split", {"tolerance": 1e-5}), ("classified", {"h": h})):
+                t_prev, px_prev = last.get(method, (0.0, 1))
+                why = self.skip(t_prev * W * H / px_prev)  # time grows with the pixel count
+                if why:
+                    rows.append({"method": method, "size": [W, H], "pixels": W * H, **kw, "skipped": why})
+                    continue
+                res = timed(r, camera(W, H), tf, self.opts(method=method, **kw), cfg["repeats"])
+                last[method] = (res.stats["render_seconds"], W * H)
+                rows.append(row_of(res, method=method, size=[W, H], pixels=W * H, **kw))
+                self.log(f"image size {W}x{H} {method}: {rows[-1]['seconds'] * 1e3:.1f} ms")
+        sec["image_size"] = {"dataset": "paper_scale", "elements": mesh.num_elements, "rows": rows}
+        del r
+        self.dump()
+
+        # order 1..14 on an affine brick
+        n = cfg["order_cells"]
+        W, H = cfg["order_size"]
+        rows = []
+        last = {}
+        for order in cfg["orders"]:
+            mesh = fast_brick(n, order + 1, wave)
+            r, _ = self.renderer(mesh)
+            cam = framing(mesh, W, H)
+            tf = tents(-0.9, 1.2, COLORS, 8.0)
+            for method, kw in (("split", {"tolerance": 1e-5}), ("classified", {"h": np.sqrt(3) / 400})):
+                why = self.skip(last.get(method, 0.0) * 2.0)
+                if why:
+                    rows.append({"method": method, "order": order, **kw, "skipped": why})
+                    continue
+                res = timed(r, cam, tf, self.opts(method=method, **kw), cfg["repeats"])
+                last[method] = res.stats["render_seconds"]
+                rows.append(row_of(res, method=method, order=order, modes=order + 1, **kw))
+                self.log(f"order {order} {method}: {rows[-1]['seconds'] * 1e3:.1f} ms, "
+                         f"{rows[-1]['samples_per_ray']:.1f} samples/ray")
+            del r
+        sec["order"] = {"elements": n ** 3, "size": [W, H], "rows": rows}
+        self.dump()
+
+        # element count, affine bricks over the unit cube (the same field at every count)
+        W, H = cfg["count_size"]
+        modes = cfg["count_modes"]
+        rows, last = [], {}
+        for c in cfg["count_cells"]:
+            N = c ** 3
+            need = N * (modes ** 3 * (8 + 4) + 8 * 3 * 8 * 2 + 200)  # host float64 + device float32, roughly
+            if not self._fits(need):
+                rows.append({"elements": N, "skipped": f"needs about {need / 2**30:.1f} GiB"})
+                continue
+            t0 = time.perf_counter()
+            mesh = fast_brick(c, modes, wave)
+            build = time.perf_counter() - t0
+            r, _ = self.renderer(mesh)
+            cam = framing(mesh, W, H)
+            tf = tents(-0.9, 1.2, COLORS, 8.0)
+            for method, kw in (("split", {"tolerance": 1e-5}), ("classified", {"h": np.sqrt(3) / 400})):
+                why = self.skip(last.get(method, (0.0, 1))[0] * (N / last.get(method, (0.0, 1))[1]) ** (2.0 / 3.0))
+                if why:
+                    rows.append({"method": method, "elements": N, **kw, "skipped": why})
+                    continue
+                res = timed(r, cam, tf, self.opts(method=method, **kw), cfg["repeats"])
+                last[method] = (res.stats["render_seconds"], N)
+                rows.append(row_of(res, method=method, elements=N, build_seconds=build, upload_seconds=r.upload_seconds, **kw))
+                self.log(f"{N} elements {method}: {rows[-1]['seconds'] * 1e3:.1f} ms, segments {rows[-1]['segments']}, "
+                         f"empty {rows[-1]['empty_fraction']:.2f}")
+            del r, mesh
+        sec["element_count"] = {"modes": modes, "size": [W, H], "rows": rows}
+        self.dump()
+
+    def _fits(self, nbytes):
+        dev = self.wp.get_device(self.args.device)
+        free = getattr(dev, "free_memory", None) if dev.is_cuda else None
+        host = _host_memory()
+        return (free is None or nbytes < 0.6 * free) and (host is None or nbytes < 0.5 * host)
+
+
+def _host_memory():
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _git(*args):
+    try:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _jsonable(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+# ------------------------------------------------------------------------------------- plots
+
+STYLE = {"riemann": ("tab:red", "o"), "trapezoid": ("tab:blue", "s"), "classified": ("tab:green", "^"),
+         "split": ("tab:purple", "D")}
+
+
+def plot(path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(path) as fh:
+        d = json.load(fh)
+    folder = os.path.dirname(os.path.abspath(path))
+    title = f"{d['device_name']} ({d['device']}), size {d['size']}, {d['date'][:10]}"
+    written = []
+    secs = d["sections"]
+
+    if "methods" in secs and secs["methods"]:
+        cases = secs["methods"]
+        fig, axs = plt.subplots(1, len(cases), figsize=(5 * len(cases), 4.3), squeeze=False)
+        for ax, (key, case) in zip(axs[0], cases.items()):
+            for m in METHODS:
+                rows = [r for r in case["runs"] if r["method"] == m and "skipped" not in r]
+                if rows:
+                    col, mk = STYLE[m]
+                    ax.loglog([r["seconds"] for r in rows], [max(r["max_error"], 1e-9) for r in rows], marker=mk,
+                              color=col, label=m)
+            ax.axhline(1e-3, color="0.6", ls=":", lw=1)
+            ax.set_title(f"{key} ({case['elements']} el.)", fontsize=9)
+            ax.set_xlabel("render time (s)")
+            ax.set_ylabel("max RGB error vs reference")
+            ax.legend(fontsize=8)
+        fig.suptitle(f"Time against error per method: {title}", fontsize=10)
+        fig.tight_layout()
+        written.append(_save(fig, folder, "suite_time_vs_error.png"))
+
+    if "resample" in secs and secs["resample"]:
+        fig, axs = plt.subplots(1, 3, figsize=(15, 4.3))
+        for i, (name, case) in enumerate(secs["resample"].items()):
+            rows = [r for r in case["rows"] if "skipped" not in r]
+            if not rows:
+                continue
+            col = f"C{i}"
+            hs = [r["h_g"] for r in rows]
+            axs[0].loglog(hs, [r["max_error"] for r in rows], "o-", color=col, label=f"{name}: grid + trilinear, max")
+            if "p99_error" in rows[0]:
+                axs[0].loglog(hs, [r["p99_error"] for r in rows], "v:", color=col, label=f"{name}: 99th percentile")
+            axs[0].axhline(case["split_1e-5"]["max_error"], color=col, ls="--", lw=1, label=f"{name}: split 1e-5 (exact geometry)")
+            axs[1].loglog(hs, [r["render_seconds"] for r in rows], "o-", color=col, label=f"{name}: march")
+            axs[1].loglog(hs, [r["build_seconds"] for r in rows], "x:", color=col, label=f"{name}: grid build (host)")
+            axs[1].axhline(case["split_1e-5"]["seconds"], color=col, ls="--", lw=1, label=f"{name}: split 1e-5")
+            axs[2].loglog(hs, [r["grid_bytes"] / 2**20 for r in rows], "o-", color=col, label=f"{name}: grid")
+            axs[2].axhline(case["mesh_bytes"] / 2**20, color=col, ls="--", lw=1, label=f"{name}: high-order mesh")
+        for ax, yl in zip(axs, ("max RGB error", "seconds", "memory (MiB)")):
+            ax.set_xlabel("grid spacing h_g")
+            ax.set_ylabel(yl)
+            ax.invert_xaxis()
+            ax.legend(fontsize=7)
+        fig.suptitle(f"Resample onto a grid and ray-march trilinearly (step h_g/2): {title}", fontsize=10)
+        fig.tight_layout()
+        written.append(_save(fig, folder, "suite_resample.png"))
+
+    if "scaling" in secs and secs["scaling"]:
+        sc = secs["scaling"]
+        fig, axs = plt.subplots(2, 3, figsize=(16, 8.6))
+        axs = axs.ravel()
+        for m in ("split", "classified"):
+            col, mk = STYLE[m]
+
+            def ok(part):
+                return [r for r in sc.get(part, {}).get("rows", []) if r.get("method") == m and "skipped" not in r]
+
+            rows = ok("image_size")
+            axs[0].loglog([r["pixels"] for r in rows], [r["seconds"] for r in rows], marker=mk, color=col, label=m)
+            rows = ok("order")
+            axs[2].semilogy([r["order"] for r in rows], [r["seconds"] for r in rows], marker=mk, color=col, label=m)
+            rows = ok("element_count")
+            axs[3].loglog([r["elements"] for r in rows], [r["seconds"] for r in rows], marker=mk, color=col, label=m)
+            axs[4].semilogx([r["elements"] for r in rows], [r["empty_fraction"] for r in rows], marker=mk, color=col,
+                            label=f"{m}: affine bricks")
+            axs[5].loglog([r["elements"] for r in rows], [r["segments"] / r["seconds"] for r in rows], marker=mk,
+                          color=col, label=m)
+        for i, (key, case) in enumerate(secs.get("methods", {}).items()):
+            for m in METHODS:
+                rows = [r for r in case["runs"] if r["method"] == m and "skipped" not in r]
+                if not rows:
+                    continue
+                col, mk = STYLE[m]
+                if key.startswith("paper_scale"):
+                    axs[1].loglog([r["samples_per_ray"] for r in rows], [r["seconds"] for r in rows], marker=mk,
+                                  color=col, ls="", label=f"{m} ({key})")
+                if m in ("classified", "split"):
+                    axs[4].semilogx([case["elements"]], [rows[-1]["empty_fraction"]], marker=mk, color=f"C{i + 3}",
+                                    ls="", label=f"{m}: {key}")
+        for ax, (xl, yl, t) in zip(axs, [("pixels", "seconds", "image size (paper-scale data)"),
+                                         ("samples per ray", "seconds", "samples per ray (paper-scale methods sweep)"),
+                                         ("order", "seconds", f"order (affine brick, {sc.get('order', {}).get('elements', '?')} el.)"),
+                                         ("elements", "seconds", "element count (affine bricks)"),
+                                         ("elements", "segments_empty / segments", "segments skipped as empty"),
+                                         ("elements", "element segments per second", "traversal throughput (bricks)")]):
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl)
+            ax.set_title(t, fontsize=9)
+            if ax.get_legend_handles_labels()[0]:
+                ax.legend(fontsize=7)
+        fig.suptitle(f"Scaling: {title}", fontsize=10)
+        fig.tight_layout()
+        written.append(_save(fig, folder, "suite_scaling.png"))
+    return written
+
+
+def _save(fig, folder, name):
+    import matplotlib.pyplot as plt
+
+    p = os.path.join(folder, name)
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return p
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description="hovr bench suite (issue 6)")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--size", choices=sorted(CONFIG), default="small")
+    ap.add_argument("--out", default=os.path.join(HERE, "results", "cpu"))
+    ap.add_argument("--only", default="methods,resample,scaling", help="comma list of sections")
+    ap.add_argument("--budget", type=float, default=None, help="seconds one render may be estimated to take")
+    ap.add_argument("--max-minutes", type=float, default=None,
+                    help="after this, the renders left are skipped (recorded); default 15 small, 150 full")
+    ap.add_argument("--plot", metavar="SUITE_JSON", help="only draw the plots of an existing suite.json")
+    args = ap.parse_args(argv)
+    if args.plot:
+        for p in plot(args.plot):
+            print("wrote", p)
+        return
+    s = Suite(args)
+    s.log(f"suite {args.size} on {s.out['device_name']} ({s.out['device']}), commit {s.out['git_commit']}")
+    for section in args.only.split(","):
+        t0 = time.perf_counter()
+        getattr(s, section.strip())()
+        s.out.setdefault("section_seconds", {})[section.strip()] = time.perf_counter() - t0
+        s.dump()
+    path = s.dump()
+    for p in plot(path):
+        s.log("wrote", p)
+    s.log("wrote", path)
+
+
+if __name__ == "__main__":
+    main()
