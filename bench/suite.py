@@ -243,6 +243,8 @@ class Suite:
         self.cfg = dict(CONFIG[args.size])
         if args.budget is not None:
             self.cfg["budget"] = args.budget
+        if args.method_sizes:
+            self.cfg["method_sizes"] = [tuple(int(v) for v in wh.split("x")) for wh in args.method_sizes.split(",")]
         self.t_start = time.perf_counter()
         if args.max_minutes is None:
             args.max_minutes = self.cfg["max_minutes"]
@@ -632,6 +634,7 @@ def main(argv=None):
     ap.add_argument("--budget", type=float, default=None, help="seconds one render may be estimated to take")
     ap.add_argument("--max-minutes", type=float, default=None,
                     help="after this, the renders left are skipped (recorded); default 15 small, 150 full")
+    ap.add_argument("--method-sizes", default=None, help="e.g. 1920x1080 (default: small 64x48; full 1900x950,1920x1080)")
     ap.add_argument("--plot", metavar="SUITE_JSON", help="only draw the plots of an existing suite.json")
     args = ap.parse_args(argv)
     if args.plot:
