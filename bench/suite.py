@@ -622,7 +622,18 @@ def plot(path):
 
 def _save(fig, folder, name):
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter
 
+    for ax in fig.axes:  # minor-tick labels of short log axes overlap: label 1, 2, 5 x 10^k instead
+        for axis in (ax.xaxis, ax.yaxis):
+            if axis.get_scale() == "log":
+                lo, hi = sorted(axis.get_view_interval())
+                if lo > 0 and hi / lo < 3:  # a narrow range (curved data: time set by location) reads best linear
+                    (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("linear")
+                    continue
+                if lo > 0 and hi / lo < 30:
+                    axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+                axis.set_minor_formatter(NullFormatter())
     p = os.path.join(folder, name)
     fig.savefig(p, dpi=110)
     plt.close(fig)
