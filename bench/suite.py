@@ -254,7 +254,7 @@ class Suite:
             "device": str(dev), "device_name": getattr(dev, "name", str(dev)), "size": args.size,
             "date": datetime.datetime.now().isoformat(timespec="seconds"),
             "command": "python " + " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
-            "git_commit": _git("rev-parse", "HEAD"), "git_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "git_commit": _git("rev-parse", "HEAD"), "git_dirty": _dirty(args.out),
             "host": platform.node(), "python": platform.python_version(), "warp": wp.__version__,
             "numpy": np.__version__, "config": {k: v for k, v in self.cfg.items()},
             "note": ("CPU numbers are for regressions only (one CPU thread per render on a shared 2-core machine); "
@@ -495,6 +495,13 @@ def _git(*args):
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
         return None
+
+
+def _dirty(out_dir):
+    """Tracked files changed since the commit, the output folder (rewritten by this run) aside."""
+    rel = os.path.relpath(os.path.abspath(out_dir), os.path.abspath(ROOT))
+    spec = ["--", ".", f":(exclude){rel}"] if not rel.startswith("..") else []
+    return bool(_git("status", "--porcelain", "--untracked-files=no", *spec))
 
 
 def _jsonable(o):
