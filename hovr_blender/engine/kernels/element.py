@@ -16,6 +16,9 @@ TET = 2
 PYR = 3
 
 vecm = wp.types.vector(length=16, dtype=wp.float32)
+# reference-space margin of the affine clip (reference_interval); sized for float32 (a few
+# ulps of 1), retightened for the float64 twin in precision.FLOAT64_CONSTANTS
+CLIP_TOL = 1.0e-6
 
 
 @wp.func
@@ -236,7 +239,10 @@ def polynomial_degree(shape: int, m: wp.vec3i) -> int:
 @wp.func
 def reference_interval(shape: int, xo: wp.vec3, xd: wp.vec3) -> wp.vec3:
     """(hit, t0, t1) of the line xo + t xd inside the reference element (a convex polytope):
-    Cyrus-Beck clipping against xi_k >= -1 and the shape's other faces."""
+    Cyrus-Beck clipping against xi_k >= -1 and the shape's other faces, each moved out by
+    CLIP_TOL. Two elements that share a face see it through their own rounded maps, so a ray
+    running inside that face can land a rounding error outside both; with the margin it is
+    inside both, and the traversal counts the overlap once."""
     t0 = float(-1.0e30)
     t1 = float(1.0e30)
     hit = float(1.0)
@@ -279,7 +285,7 @@ def reference_interval(shape: int, xo: wp.vec3, xd: wp.vec3) -> wp.vec3:
             else:
                 use = 0
         if use == 1:
-            num = c - wp.dot(n, xo)
+            num = c + CLIP_TOL - wp.dot(n, xo)
             den = wp.dot(n, xd)
             if wp.abs(den) < 1.0e-30:
                 if num < 0.0:

@@ -21,7 +21,7 @@ _TYPE_MAP = {"float32": "float64", "vec2": "vec2d", "vec3": "vec3d", "vec4": "ve
              "vec2f": "vec2d", "vec3f": "vec3d", "vec4f": "vec4d", "mat33f": "mat33d"}
 _MODULES = ("element", "raycast")
 # float32-sized tolerances of raycast.py, retightened for float64 (same names, new values)
-FLOAT64_CONSTANTS = {"INSIDE_TOL": 1.0e-11, "NEWTON_STEP_TOL": 1.0e-8, "ROOT_RTOL": 1.0e-13}
+FLOAT64_CONSTANTS = {"CLIP_TOL": 1.0e-12, "INSIDE_TOL": 1.0e-11, "NEWTON_STEP_TOL": 1.0e-8, "ROOT_RTOL": 1.0e-13}
 _loaded = {}
 
 
