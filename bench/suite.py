@@ -232,6 +232,20 @@ def row_of(res, **extra):
             "empty_fraction": s["segments_empty"] / max(s["segments"], 1), "curved_locates": s["curved_locates"]}
 
 
+def compiled_renderer(mesh, device):
+    """(Renderer, seconds of its first render): the first render compiles the kernel (or loads
+    it from Warp's cache), so timed renders after it measure the kernel alone."""
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
+
+    r = Renderer(mesh, device)
+    t0 = time.perf_counter()
+    r.render(RayCamera.from_contract({"eye": [9, 9, 9], "target": [0, 0, 0], "up": [0, 0, 1], "fov_y_deg": 30}, 4, 3),
+             TransferFunction.from_contract({"color": [[0, 1, 1, 1]], "density": [[0, 0.0]]}), BACKGROUND,
+             RenderOptions(method="split", device=device))
+    return r, time.perf_counter() - t0
+
+
 class Suite:
     def __init__(self, args):
         import warp as wp
@@ -283,15 +297,7 @@ class Suite:
         return path
 
     def renderer(self, mesh):
-        from hovr_blender.engine.renderer import Renderer
-        from hovr_blender.engine.view import RenderOptions
-
-        r = Renderer(mesh, self.args.device)
-        t0 = time.perf_counter()  # the first render compiles (or loads from the kernel cache)
-        r.render(RayCamera.from_contract({"eye": [9, 9, 9], "target": [0, 0, 0], "up": [0, 0, 1], "fov_y_deg": 30}, 4, 3),
-                 TransferFunction.from_contract({"color": [[0, 1, 1, 1]], "density": [[0, 0.0]]}), BACKGROUND,
-                 RenderOptions(method="split", device=self.args.device))
-        return r, time.perf_counter() - t0
+        return compiled_renderer(mesh, self.args.device)
 
     def opts(self, **kw):
         from hovr_blender.engine.view import RenderOptions

@@ -1,0 +1,110 @@
+"""One frame, looked at closely: the paper-scale channel (curved and straight), at chosen image
+sizes and method settings, with the kernel's counters per ray and the error against a
+converged render of the same frame. The quick probe for performance work; bench/suite.py
+is the full benchmark.
+
+    python bench/frame.py --device cuda:0 --sizes 1920x1080,512x512 --out $OUT/frame.json
+    python bench/frame.py --device cpu --paper 48,96 --sizes 64x48          (a small CPU check)
+
+Each case: the build time, the first render (kernel compile or cache load), then per setting
+the best of --repeats renders: seconds, element segments, curved locations, field and
+restriction evaluations per ray, the empty/smooth/piecewise counts, and the max RGB error
+against split at tolerance 1e-7 without early termination (--no-reference skips it).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, ".."))
+sys.path.insert(0, HERE)
+
+import suite  # noqa: E402  (datasets, framing and transfer functions are the suite's own)
+
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
+
+SETTINGS = {
+    "split-1e-5": dict(method="split", tolerance=1e-5),
+    "split-1e-3": dict(method="split", tolerance=1e-3),
+    "classified-d400": dict(method="classified", h_div=400),
+    "trapezoid-d400": dict(method="trapezoid", h_div=400),
+    "trapezoid-d3200": dict(method="trapezoid", h_div=3200),
+}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--sizes", default="1920x1080")
+    ap.add_argument("--paper", default="3400,7600", help="requested hexahedra,prisms")
+    ap.add_argument("--variants", default="curved,straight")
+    ap.add_argument("--settings", default="split-1e-5,split-1e-3,classified-d400,trapezoid-d400")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-reference", action="store_true")
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.init()
+    n_hex, n_prism = (int(v) for v in args.paper.split(","))
+    out = {"device": args.device, "device_name": wp.get_device(args.device).name,
+           "date": datetime.datetime.now().isoformat(timespec="seconds"),
+           "command": "python " + " ".join([os.path.relpath(sys.argv[0], os.path.join(HERE, ".."))] + sys.argv[1:]),
+           "git_commit": suite._git("rev-parse", "HEAD"), "cases": []}
+    from hovr_blender.io.paper_scale import paper_scale_mesh
+
+    for variant in args.variants.split(","):
+        t0 = time.perf_counter()
+        mesh = paper_scale_mesh(n_hex, n_prism, curved=(variant == "curved"))
+        build = time.perf_counter() - t0
+        tf = suite.tents(0.25, 1.55, suite.COLORS, 3.0)
+        r, first = suite.compiled_renderer(mesh, args.device)
+        lo, hi = suite.bounds(mesh)
+        diag = float(np.linalg.norm(hi - lo))
+        print(f"{variant}: {mesh.num_elements} elements ({int(mesh.affine.sum())} affine), build {build:.1f} s, "
+              f"upload {r.upload_seconds:.2f} s, first render {first:.1f} s", flush=True)
+        for size in args.sizes.split(","):
+            W, H = (int(v) for v in size.split("x"))
+            cam = suite.framing(mesh, W, H, direction=(0.3, -1.0, 1.2))
+            case = {"variant": variant, "elements": mesh.num_elements, "affine": int(mesh.affine.sum()),
+                    "size": [W, H], "build_seconds": build, "first_render_seconds": first, "runs": []}
+            ref = None
+            if not args.no_reference:
+                rr = r.render(cam, tf, suite.BACKGROUND, RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
+                                                                       device=args.device))
+                ref = rr.rgba.astype(np.float64)
+                case["reference_seconds"] = rr.stats["render_seconds"]
+            for name in args.settings.split(","):
+                kw = dict(SETTINGS[name])
+                if "h_div" in kw:
+                    kw["h"] = diag / kw.pop("h_div")
+                res = suite.timed(r, cam, tf, RenderOptions(device=args.device, **kw), args.repeats)
+                row = suite.row_of(res, setting=name, **kw)
+                px = W * H
+                row.update(segments_per_ray=row["segments"] / px, locates_per_ray=row["curved_locates"] / px,
+                           field_evals_per_ray=row["field_evaluations"] / px,
+                           restriction_evals_per_ray=row["restriction_evaluations"] / px)
+                if ref is not None:
+                    row["max_error"] = suite.rgb_error(res.rgba, ref)
+                case["runs"].append(row)
+                print(f"  {W}x{H} {name:16s} {row['seconds'] * 1e3:9.1f} ms  err {row.get('max_error', float('nan')):.1e}  "
+                      f"seg/ray {row['segments_per_ray']:.2f} loc/ray {row['locates_per_ray']:.2f} "
+                      f"field/ray {row['field_evals_per_ray']:.1f} restr/ray {row['restriction_evals_per_ray']:.1f} "
+                      f"empty {row['empty_fraction']:.2f}", flush=True)
+            out["cases"].append(case)
+            if args.out:
+                with open(args.out, "w") as fh:
+                    json.dump(out, fh, indent=1, default=suite._jsonable)
+        del r
+
+
+if __name__ == "__main__":
+    main()
