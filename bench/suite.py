@@ -497,6 +497,10 @@ def _host_memory():
 
 
 def _git(*args):
+    """git's answer here; on a device machine whose copy of .git can be stale, the command
+    passes the commit in HOVR_COMMIT (HOVR_COMMIT=$(git rev-parse --short HEAD) where it was sent from)."""
+    if args == ("rev-parse", "HEAD") and os.environ.get("HOVR_COMMIT"):
+        return os.environ["HOVR_COMMIT"]
     try:
         return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
