@@ -92,8 +92,14 @@ def main(argv=None):
                 row.update(segments_per_ray=row["segments"] / px, locates_per_ray=row["curved_locates"] / px,
                            field_evals_per_ray=row["field_evaluations"] / px,
                            restriction_evals_per_ray=row["restriction_evaluations"] / px)
+                row["rounds"] = res.stats.get("rounds")
                 if ref is not None:
                     row["max_error"] = suite.rgb_error(res.rgba, ref)
+                    err = np.abs(res.rgba[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
+                    worst = np.unravel_index(int(err.argmax()), err.shape)
+                    row["worst_pixel"] = {"row": int(worst[0]), "col": int(worst[1]),
+                                          "got": res.rgba[worst].tolist(), "reference": ref[worst].tolist()}
+                    row["pixels_over"] = {f"{v:g}": int((err > v).sum()) for v in (1e-5, 1e-4, 1e-3, 1 / 255)}
                 case["runs"].append(row)
                 print(f"  {W}x{H} {name:16s} {row['seconds'] * 1e3:9.1f} ms  err {row.get('max_error', float('nan')):.1e}  "
                       f"seg/ray {row['segments_per_ray']:.2f} loc/ray {row['locates_per_ray']:.2f} "

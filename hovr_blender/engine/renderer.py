@@ -65,8 +65,9 @@ def _check_float32_range(mesh: VolumeMesh):
 class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
-    def __init__(self, mesh: VolumeMesh, device: str = "cpu"):
+    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int = 1 << 18):
         wp = _warp()
+        self.max_tile_rays = int(max_tile_rays)  # bounds the per-render buffers (~1.8 kB a ray)
         self.device = resolve_device(device)
         self.mesh = mesh
         self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
@@ -82,11 +83,40 @@ class Renderer:
             self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
             self._bvh = wp.Bvh(self._lowers, self._uppers)
+            from .adjacency import face_neighbours, vertex_affine_guess
+
+            self._neighbour = wp.array(face_neighbours(mesh), dtype=wp.int32)
+            self._affine_guess = vertex_affine_guess(mesh)
         try:
             self._upload("float32")  # the default precision, uploaded up front
         except RenderError:
             pass  # data float32 cannot hold: render() says so, unless asked for float64
         self.upload_seconds = time.perf_counter() - t0
+
+    def _tile_buffers(self, k, tile, scalar, vec2, vec4, stats):
+        """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
+        a few hundred bytes per ray, plus SEGMENTS_PER_ROUND * MAX_SAMPLES samples)."""
+        wp = _warp()
+        rays = k.RayState()
+        rays.color_t = wp.zeros(tile, dtype=vec4)
+        rays.depth_err = wp.zeros(tile, dtype=vec2)
+        rays.t_cur = wp.zeros(tile, dtype=scalar)
+        rays.t_end = wp.zeros(tile, dtype=scalar)
+        rays.next_element = wp.zeros(tile, dtype=wp.int32)
+        rays.phase = wp.zeros(tile, dtype=wp.int32)
+        rays.stats = stats
+        rays.active = wp.zeros(1, dtype=wp.int32)
+        segs = k.Segments()
+        slots = tile * k.SEGMENTS_PER_ROUND
+        segs.count = wp.zeros(tile, dtype=wp.int32)
+        segs.element = wp.zeros(slots, dtype=wp.int32)
+        segs.t0 = wp.zeros(slots, dtype=scalar)
+        segs.t1 = wp.zeros(slots, dtype=scalar)
+        segs.degree = wp.zeros(slots, dtype=wp.int32)
+        segs.flags = wp.zeros(slots, dtype=wp.int32)
+        segs.tail = wp.zeros(slots, dtype=scalar)
+        segs.samples = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
+        return rays, segs
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
@@ -112,8 +142,11 @@ class Renderer:
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
             m.shape = wp.array(mesh.shape.astype(np.int32), dtype=wp.int32)
-            m.ref_a = wp.array(mesh.ref_from_world[:, :, :3].astype(fdt), dtype=m33)
-            m.ref_b = wp.array(mesh.ref_from_world[:, :, 3].astype(fdt), dtype=v3)
+            # affine elements: the exact map; curved ones: Newton's straight-sided start
+            guess = self._affine_guess
+            m.ref_a = wp.array(guess[:, :, :3].astype(fdt), dtype=m33)
+            m.ref_b = wp.array(guess[:, :, 3].astype(fdt), dtype=v3)
+            m.neighbour = self._neighbour
             m.modes = wp.array(mesh.modes.astype(np.int32), dtype=wp.vec3i)
             m.basis = wp.array(mesh.basis.astype(np.int32), dtype=wp.int32)
             if mesh.coeffs.size >= 2**31:
@@ -139,8 +172,8 @@ class Renderer:
             S = quadrature_tables.integration_matrix(x)
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
-            # affine-only meshes get the kernel without the curved machinery
-            kernel = raycast.render_kernel(curved=not bool(affine.all()))
+            # affine-only meshes get the traverse kernel without the curved machinery
+            kernel = raycast.traverse_kernel(curved=not bool(affine.all()))
         self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
         return self._uploads[precision]
 
@@ -150,7 +183,7 @@ class Renderer:
         pixels and progress(fraction_done) is called after each; returning False cancels
         (the result then has cancelled=True and only the finished tiles filled in)."""
         wp = _warp()
-        k, mesh_args, gk, gk_s, kernel = self._upload(options.precision)
+        k, mesh_args, gk, gk_s, traverse = self._upload(options.precision)
         f64 = options.precision == "float64"
         vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
         scalar = wp.float64 if f64 else wp.float32
@@ -181,21 +214,34 @@ class Renderer:
             q.background = vec3(*map(float, bg))
             q.gk_x, q.gk_wk, q.gk_wg = gk
             q.gk_s = gk_s
+            total = W * H
+            # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
+            tile = total if progress is None else max(1, int(tile_pixels or 65536))
+            tile = min(tile, self.max_tile_rays, total)
             try:
-                rgba = wp.zeros(W * H, dtype=vec4)
-                aux = wp.zeros(W * H, dtype=vec2)
-                stats = wp.zeros((W * H, k.NUM_STATS), dtype=wp.int32)
+                rgba = wp.zeros(total, dtype=vec4)
+                aux = wp.zeros(total, dtype=vec2)
+                stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
+                rays, segs = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            wp.load_module(kernel.module, device=self.device)  # compile outside the timed region
+            for kern in (traverse, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
+                wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
             t0 = time.perf_counter()
-            total = W * H
-            step = total if progress is None else max(1, int(tile_pixels or 65536))
             cancelled = False
-            for start in range(0, total, step):
-                n = min(step, total - start)
-                wp.launch(kernel, dim=n, inputs=[mesh_args, cam, t, q, start, rgba, aux, stats])
+            rounds = 0
+            for start in range(0, total, tile):
+                n = min(tile, total - start)
+                wp.launch(k.init_rays, dim=n, inputs=[cam, start, rays])
+                while True:
+                    rays.active.zero_()
+                    wp.launch(traverse, dim=n, inputs=[mesh_args, cam, t, q, start, rays, segs])
+                    wp.launch(k.integrate, dim=n, inputs=[mesh_args, cam, t, q, start, rays, segs])
+                    rounds += 1
+                    if int(rays.active.numpy()[0]) == 0:
+                        break
+                wp.launch(k.finalize, dim=n, inputs=[q, start, rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -229,6 +275,8 @@ class Renderer:
                 "segments_smooth": int(tot[k.STAT_SMOOTH]),
                 "segments_piecewise_smooth": int(tot[k.STAT_PIECEWISE]),
                 "curved_locates": int(tot[k.STAT_LOCATES]),
+                "walks": int(tot[k.STAT_WALKS]),
+                "rounds": rounds,
                 "elements": self.mesh.num_elements,
                 "precision": options.precision,
             },

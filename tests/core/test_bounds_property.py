@@ -4,9 +4,9 @@
     element: checked against the float64 numpy oracle at random points inside it.
 (b) the per-segment bound of the classified/split methods on affine elements (Chebyshev
     restriction of f w^2 along the segment, |g - c0| <= sum |c_k|, then the pyramid's w^2
-    divided out by interval division; kernels/raycast.py, render kernel) must enclose the
-    field along the segment: a tiny Warp kernel computes lo/hi the way the render kernel
-    does, the oracle samples the segment.
+    divided out by interval division; kernels/restriction.py) must enclose the field along
+    the segment: a tiny Warp kernel calls the kernels' own functions, the oracle samples the
+    segment.
 
 Hypothesis draws the shape, the modes (2..15 per direction, anisotropic within each shape's
 constraints), the kind of coefficients and a seed. Hexahedra and prisms are capped at
@@ -18,8 +18,6 @@ with a 5 % margin (single high modes exceeded it by up to ~40 %; now certified b
 expansions.mode_max_bounds), and collapse_ratio let one rounding error next to a collapsed
 vertex give eta ~ 1e5, overflowing float32 into NaN at order >= ~9 (now held to [-1, 1]).
 """
-import inspect
-
 import numpy as np
 import pytest
 import warp as wp
@@ -27,7 +25,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.kernels import raycast
+from hovr_blender.engine.kernels import args
+from hovr_blender.engine.kernels import restriction as rs
 from hovr_blender.engine.mesh import VolumeMesh, element_field_ranges
 from hovr_blender.engine.renderer import Renderer
 from hovr_blender.io.synthetic import straight_geometry
@@ -156,39 +155,27 @@ def test_element_field_ranges_enclose_single_modes(shape):
 
 
 @wp.kernel
-def _segment_bounds(mesh: raycast.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.array(dtype=wp.vec3),
-                    ab: wp.array(dtype=wp.vec2), out: wp.array(dtype=wp.vec2)):
-    # the affine branch of the render kernel's classification (kernels/raycast.py, "else:" after
-    # "if curved == 1:" in the classified/split block), line for line
+def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.array(dtype=wp.vec3),
+                    ab: wp.array(dtype=wp.vec2), segs: args.Segments, out: wp.array(dtype=wp.vec2)):
+    # what the kernels do for a segment of affine element 0: the traverse kernel writes the
+    # samples, the integrate kernel turns them into the series and bounds it
     i = wp.tid()
-    el = int(0)
-    a = ab[i][0]
-    b = ab[i][1]
-    deg = raycast.restriction_degree(mesh, el)
-    c = raycast.chebyshev_restriction(mesh, el, xo[i], xd[i], a, b, deg)
-    rad = float(0.0)
-    for k in range(1, deg + 1):
-        rad += wp.abs(c[k])
-    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])
-    glo = c[0] - rad
-    ghi = c[0] + rad
-    w2lo = wp.max(wp.min(c[raycast.MAX_RESTRICTION - 2], c[raycast.MAX_RESTRICTION - 1]), 1.0e-6)
-    w2hi = wp.max(c[raycast.MAX_RESTRICTION - 2], c[raycast.MAX_RESTRICTION - 1])
-    w2lo = w2lo * w2lo
-    w2hi = w2hi * w2hi
-    lo = wp.min(glo / w2lo, glo / w2hi)
-    hi = wp.max(ghi / w2lo, ghi / w2hi)
-    out[i] = wp.vec2(lo, hi)
+    deg = rs.restriction_degree(mesh, 0)
+    rs.write_exact_samples(mesh, 0, xo[i], xd[i], ab[i][0], ab[i][1], deg, segs, i)
+    c = rs.chebyshev_from_samples(segs, i, deg)
+    out[i] = rs.segment_bounds(c, deg)
 
 
-def test_segment_bound_copy_matches_render_kernel():
-    """_segment_bounds is a copy of the render kernel's lines: fail loudly if those change."""
-    src = inspect.getsource(raycast)
-    for line in ("c = chebyshev_restriction(mesh, el, xo, xd, a, b, deg)",
-                 "rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])",
-                 "w2lo = wp.max(wp.min(c[MAX_RESTRICTION - 2], c[MAX_RESTRICTION - 1]), 1.0e-6)",
-                 "lo = wp.min(glo / w2lo, glo / w2hi)", "hi = wp.max(ghi / w2lo, ghi / w2hi)"):
-        assert line in src, f"render kernel's segment bound changed ({line!r}): update _segment_bounds"
+def segment_bounds(mesh_args, xo, xd, ab):
+    n = len(xo)
+    segs = args.Segments()
+    segs.samples = wp.zeros(n * args.MAX_SAMPLES, dtype=wp.float32, device="cpu")
+    out = wp.zeros(n, dtype=wp.vec2, device="cpu")
+    wp.launch(_segment_bounds, dim=n, device="cpu",
+              inputs=[mesh_args, wp.array(np.asarray(xo, np.float32), dtype=wp.vec3, device="cpu"),
+                      wp.array(np.asarray(xd, np.float32), dtype=wp.vec3, device="cpu"),
+                      wp.array(np.asarray(ab, np.float32), dtype=wp.vec2, device="cpu"), segs, out])
+    return out.numpy().astype(np.float64)
 
 
 def random_segments(shape, n, rng):
@@ -224,11 +211,7 @@ def test_segment_bounds_enclose_field_along_segments(case):
     sub = rng.integers(0, 3, n) == 0  # some sub-segments, as a ray's segment of an element
     a[sub] = rng.uniform(0.0, 0.5, sub.sum())
     b[sub] = rng.uniform(0.5, 1.0, sub.sum())
-    out = wp.zeros(n, dtype=wp.vec2, device="cpu")
-    wp.launch(_segment_bounds, dim=n, device="cpu",
-              inputs=[r.mesh_args(), wp.array(xo, dtype=wp.vec3, device="cpu"), wp.array(xd, dtype=wp.vec3, device="cpu"),
-                      wp.array(np.stack([a, b], 1), dtype=wp.vec2, device="cpu"), out])
-    lohi = out.numpy().astype(np.float64)
+    lohi = segment_bounds(r.mesh_args(), xo, xd, np.stack([a, b], 1))
     # the oracle at exactly the segment the kernel saw (float32 inputs, float32 coefficients)
     c32 = c.astype(np.float32).astype(np.float64)
     s = np.concatenate([np.linspace(0.0, 1.0, 41), rng.uniform(0, 1, 40)])
@@ -257,11 +240,6 @@ def test_segment_bounds_finite_next_to_collapsed_vertices(shape):
     start = np.array([-1.0, -1.0, 1.0]) if shape != ex.PRISM else np.array([-1.0, 0.25, 1.0])
     P = start + np.array([[ulp, 0, 0], [0, 0, 0], [ulp, ulp, 0], [0, 0, -ulp]])
     n = len(P)
-    out = wp.zeros(n, dtype=wp.vec2, device="cpu")
-    wp.launch(_segment_bounds, dim=n, device="cpu",
-              inputs=[r.mesh_args(), wp.array(P.astype(np.float32), dtype=wp.vec3, device="cpu"),
-                      wp.array((ex.CENTROIDS[shape] - P).astype(np.float32), dtype=wp.vec3, device="cpu"),
-                      wp.array(np.tile([0.0, 1.0], (n, 1)).astype(np.float32), dtype=wp.vec2, device="cpu"), out])
-    lohi = out.numpy()
+    lohi = segment_bounds(r.mesh_args(), P, ex.CENTROIDS[shape] - P, np.tile([0.0, 1.0], (n, 1)))
     bad = ~np.isfinite(lohi).all(axis=1)
     assert not bad.any(), f"{ex.SHAPE_NAMES[shape]}: non-finite bounds on segments from {P[bad].tolist()}"

@@ -4,16 +4,16 @@ import pytest
 import warp as wp
 
 from hovr_blender.engine.basis import eval_tensor
-from hovr_blender.engine.kernels import raycast
+from hovr_blender.engine.kernels import args, restriction
 from hovr_blender.engine.renderer import Renderer
 from hovr_blender.io.builtin import box_vertices
 from hovr_blender.engine.mesh import VolumeMesh
 
 
 @wp.kernel
-def _eval_points(mesh: raycast.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
+def _eval_points(mesh: args.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.float32)):
     i = wp.tid()
-    out[i] = raycast.eval_field(mesh, elem[i], xi[i])
+    out[i] = restriction.eval_field(mesh, elem[i], xi[i])
 
 
 def test_modified_a_tensor_all_orders(device):

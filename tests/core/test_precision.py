@@ -20,18 +20,18 @@ F32_NAMES = {"float32", "vec2", "vec3", "vec4", "mat33", "vec2f", "vec3f", "vec4
 
 def test_generated_source_has_no_float32_arithmetic():
     """Every float literal, float() cast and float32 type inside Warp code is rewritten; the only
-    float32 left is the BVH query's ray (Warp's BVH is float32)."""
+    float32 left is the BVH query's ray and its max_dist (Warp's BVH is float32)."""
     from pathlib import Path
 
     import hovr_blender.engine.kernels as kdir
 
-    for name in ("element", "raycast"):
+    for name in precision._MODULES:
         src = precision.float64_source(Path(kdir.__file__).parent / f"{name}.py")
         tree = ast.parse(src)
         for node in ast.walk(tree):
             if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "wp":
                 if node.attr in F32_NAMES:
-                    assert node.attr == "vec3f", f"{name}: wp.{node.attr} left in the float64 source"
+                    assert node.attr in ("vec3f", "float32"), f"{name}: wp.{node.attr} left in the float64 source"
         for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and precision._is_warp_decorated(n)):
             for node in ast.walk(fn):
                 if isinstance(node, ast.Constant) and isinstance(node.value, float):
@@ -40,6 +40,7 @@ def test_generated_source_has_no_float32_arithmetic():
                 if isinstance(node, ast.Name):
                     assert node.id != "float", f"{name}.{fn.name}: float() left"
         assert src.count("vec3f(") == (2 if name == "raycast" else 0)
+        assert src.count("float32(") == (1 if name == "raycast" else 0)
 
 
 def test_precision_option_is_validated():

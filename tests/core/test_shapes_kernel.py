@@ -8,7 +8,7 @@ if not hasattr(ex, "eval_modal"):
     pytest.skip("engine/expansions.py not implemented yet", allow_module_level=True)
 
 from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.kernels import raycast  # noqa: E402
+from hovr_blender.engine.kernels import args, restriction  # noqa: E402
 from hovr_blender.engine.renderer import Renderer  # noqa: E402
 from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.engine.view import RenderOptions  # noqa: E402
@@ -17,10 +17,10 @@ from hovr_blender.engine.mesh import VolumeMesh  # noqa: E402
 
 
 @wp.kernel
-def _eval_points(mesh: raycast.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3),
+def _eval_points(mesh: args.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3),
                  out: wp.array(dtype=wp.float32)):
     i = wp.tid()
-    out[i] = raycast.eval_field(mesh, elem[i], xi[i])
+    out[i] = restriction.eval_field(mesh, elem[i], xi[i])
 
 
 def random_inside(shape, n, rng):

@@ -237,65 +237,71 @@ def polynomial_degree(shape: int, m: wp.vec3i) -> int:
 
 
 @wp.func
-def reference_interval(shape: int, xo: wp.vec3, xd: wp.vec3) -> wp.vec3:
-    """(hit, t0, t1) of the line xo + t xd inside the reference element (a convex polytope):
-    Cyrus-Beck clipping against xi_k >= -1 and the shape's other faces, each moved out by
-    CLIP_TOL. Two elements that share a face see it through their own rounded maps, so a ray
-    running inside that face can land a rounding error outside both; with the margin it is
-    inside both, and the traversal counts the overlap once."""
+def num_faces(shape: int) -> int:
+    if shape == HEX:
+        return 6
+    if shape == TET:
+        return 4
+    return 5
+
+
+@wp.func
+def face_plane(shape: int, f: int) -> wp.vec4:
+    """Face f of the reference element as (n, c), inside where n . xi <= c. Faces 0..2 are
+    xi_k = -1; then hexahedra xi_0, xi_1, xi_2 = 1; prisms xi_1 = 1, xi_0 + xi_2 = 0;
+    tetrahedra xi_0 + xi_1 + xi_2 = -1; pyramids xi_0 + xi_2 = 0, xi_1 + xi_2 = 0. The host's
+    face adjacency (engine/adjacency.py) numbers faces the same way."""
+    n = wp.vec3(0.0, 0.0, 0.0)
+    c = float(1.0)
+    if f < 3:
+        n[f] = -1.0
+    elif shape == HEX:
+        n[f - 3] = 1.0
+    elif shape == PRISM:
+        if f == 3:
+            n = wp.vec3(0.0, 1.0, 0.0)
+        else:
+            n = wp.vec3(1.0, 0.0, 1.0)
+            c = 0.0
+    elif shape == TET:
+        n = wp.vec3(1.0, 1.0, 1.0)
+        c = -1.0
+    else:  # pyramid
+        c = 0.0
+        if f == 3:
+            n = wp.vec3(1.0, 0.0, 1.0)
+        else:
+            n = wp.vec3(0.0, 1.0, 1.0)
+    return wp.vec4(n[0], n[1], n[2], c)
+
+
+@wp.func
+def reference_clip(shape: int, xo: wp.vec3, xd: wp.vec3) -> wp.vec4:
+    """(hit, t0, t1, exit face) of the line xo + t xd inside the reference element (a convex
+    polytope): Cyrus-Beck clipping against its faces, each moved out by CLIP_TOL. Two elements
+    that share a face see it through their own rounded maps, so a ray running inside that face
+    can land a rounding error outside both; with the margin it is inside both, and the
+    traversal counts the overlap once."""
     t0 = float(-1.0e30)
     t1 = float(1.0e30)
     hit = float(1.0)
-    for f in range(7):
-        # face f: n . xi <= c
-        n = wp.vec3(0.0, 0.0, 0.0)
-        c = float(0.0)
-        use = int(1)
-        if f < 3:
-            n[f] = -1.0
-            c = 1.0
-        elif shape == HEX:
-            if f < 6:
-                n[f - 3] = 1.0
-                c = 1.0
+    exit_face = int(-1)
+    for f in range(num_faces(shape)):
+        p = face_plane(shape, f)
+        n = wp.vec3(p[0], p[1], p[2])
+        num = p[3] + CLIP_TOL - wp.dot(n, xo)
+        den = wp.dot(n, xd)
+        if wp.abs(den) < 1.0e-30:
+            if num < 0.0:
+                hit = 0.0
+        else:
+            t = num / den
+            if den > 0.0:
+                if t < t1:
+                    t1 = t
+                    exit_face = f
             else:
-                use = 0
-        elif shape == PRISM:
-            if f == 3:
-                n = wp.vec3(0.0, 1.0, 0.0)
-                c = 1.0
-            elif f == 4:
-                n = wp.vec3(1.0, 0.0, 1.0)
-                c = 0.0
-            else:
-                use = 0
-        elif shape == TET:
-            if f == 3:
-                n = wp.vec3(1.0, 1.0, 1.0)
-                c = -1.0
-            else:
-                use = 0
-        else:  # pyramid
-            if f == 3:
-                n = wp.vec3(1.0, 0.0, 1.0)
-                c = 0.0
-            elif f == 4:
-                n = wp.vec3(0.0, 1.0, 1.0)
-                c = 0.0
-            else:
-                use = 0
-        if use == 1:
-            num = c + CLIP_TOL - wp.dot(n, xo)
-            den = wp.dot(n, xd)
-            if wp.abs(den) < 1.0e-30:
-                if num < 0.0:
-                    hit = 0.0
-            else:
-                t = num / den
-                if den > 0.0:
-                    t1 = wp.min(t1, t)
-                else:
-                    t0 = wp.max(t0, t)
+                t0 = wp.max(t0, t)
     if t1 <= t0:
         hit = 0.0
-    return wp.vec3(hit, t0, t1)
+    return wp.vec4(hit, t0, t1, float(exit_face))

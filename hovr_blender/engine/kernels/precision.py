@@ -2,7 +2,7 @@
 
 Warp types every float literal and `float(...)` as float32 and refuses to mix them with
 float64, so a float64 kernel cannot simply take other argument types. Instead the
-kernel modules (element.py, raycast.py) are rewritten once, mechanically, on their syntax
+kernel modules (_MODULES) are rewritten once, mechanically, on their syntax
 tree: float literals and `float(...)` become wp.float64, the float32 vector/matrix types
 their float64 twins; the BVH query (Warp's BVH is float32) gets float32 ray arguments.
 The result is written to a cache folder as a package (Warp compiles from source files)
@@ -19,9 +19,10 @@ from pathlib import Path
 
 _TYPE_MAP = {"float32": "float64", "vec2": "vec2d", "vec3": "vec3d", "vec4": "vec4d", "mat33": "mat33d",
              "vec2f": "vec2d", "vec3f": "vec3d", "vec4f": "vec4d", "mat33f": "mat33d"}
-_MODULES = ("element", "raycast")
+_MODULES = ("args", "element", "geometry", "restriction", "quadrature", "raycast")
 # float32-sized tolerances of raycast.py, retightened for float64 (same names, new values)
-FLOAT64_CONSTANTS = {"CLIP_TOL": 1.0e-12, "INSIDE_TOL": 1.0e-11, "NEWTON_STEP_TOL": 1.0e-8, "ROOT_RTOL": 1.0e-13}
+FLOAT64_CONSTANTS = {"CLIP_TOL": 1.0e-12, "INSIDE_TOL": 1.0e-11, "NEWTON_STEP_TOL": 1.0e-8, "ROOT_RTOL": 1.0e-13,
+                     "STRETCH_RTOL": 1.0e-11, "CURVED_TAIL_RTOL": 1.0e-12}
 _loaded = {}
 
 
@@ -84,6 +85,10 @@ class _ToFloat64(ast.NodeTransformer):
     def visit_Call(self, node):
         self.generic_visit(node)
         f = node.func
+        if isinstance(f, ast.Attribute) and f.attr == "bvh_query_next" and len(node.args) == 3:
+            # the ray query's max_dist is float32 too
+            node.args[2] = ast.Call(func=ast.Attribute(value=ast.Name("wp", ast.Load()), attr="float32", ctx=ast.Load()),
+                                    args=[node.args[2]], keywords=[])
         if isinstance(f, ast.Attribute) and f.attr == "bvh_query_ray":
             node.args = [node.args[0]] + [ast.Call(func=ast.Attribute(value=ast.Name("wp", ast.Load()), attr="vec3f",
                                                                       ctx=ast.Load()), args=[a], keywords=[])

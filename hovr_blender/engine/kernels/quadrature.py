@@ -1,0 +1,391 @@
+"""Integrating one element segment (render contract §3): the transfer function, the methods'
+quadratures and the segment classification of Nelson, Kirby and Haimes (2014).
+
+- riemann / trapezoid: the named baselines, step h (march);
+- classified (Algorithm 1): bound f on the segment, classify density and colour as empty /
+  piecewise-smooth / smooth; skip empty segments, trapezoid with step h on piecewise-smooth
+  ones, adaptive Gauss-Kronrod (G7/K15) on smooth ones (absorption only when the colour is 0);
+- split: like classified, but piecewise-smooth segments are cut at the exact crossings of the
+  transfer function's breakpoints (next_cut), so every piece is smooth and gets Gauss-Kronrod.
+
+The ray state (vecst) is (C.r, C.g, C.b, T, restriction evaluations, depth, error estimate):
+depth is the t where 1 - T first reaches 0.5 (-1 until then); the error estimate sums the
+accepted Gauss-Kronrod panels' own estimates (0 for methods without one).
+"""
+from __future__ import annotations
+
+import warp as wp
+
+from .args import MAX_SAMPLES, MeshArgs, QuadArgs, TransferArgs
+from .geometry import ROOT_RTOL
+from .restriction import clenshaw_with_slope, eval_field, restriction_at, vecr
+
+wp.set_module_options({"enable_backward": False})
+
+METHOD_RIEMANN = 0
+METHOD_TRAPEZOID = 1
+METHOD_CLASSIFIED = 2
+METHOD_SPLIT = 3
+
+INNER_SPECTRAL = 0
+INNER_TRAPEZOID = 1
+
+GK_STACK = 32  # adaptive Gauss-Kronrod depth-first stack
+GK_MAX_DEPTH = 24
+SCAN_PER_DEGREE = 4  # split: cells per degree of the restriction in the search for crossings
+
+vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
+vecsi = wp.types.vector(length=GK_STACK, dtype=wp.int32)
+vec15 = wp.types.vector(length=15, dtype=wp.float32)
+vecst = wp.types.vector(length=7, dtype=wp.float32)
+
+
+# ------------------------------------------------------------------ transfer function
+
+
+@wp.func
+def ramp_segment(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
+    """(k, w): s lies between breakpoints k and k + 1 at fraction w, clamped at both ends."""
+    n = s_arr.shape[0]
+    if n == 1 or s <= s_arr[0]:
+        return wp.vec2(0.0, 0.0)
+    if s >= s_arr[n - 1]:
+        return wp.vec2(float(n - 2), 1.0)
+    k = int(0)
+    while s_arr[k + 1] < s:
+        k += 1
+    return wp.vec2(float(k), (s - s_arr[k]) / (s_arr[k + 1] - s_arr[k]))
+
+
+@wp.func
+def tf_density(tf: TransferArgs, s: float) -> float:
+    kw = ramp_segment(tf.density_s, s)
+    k = int(kw[0])
+    if tf.density_s.shape[0] == 1:
+        return tf.density_tau[0]
+    return tf.density_tau[k] + kw[1] * (tf.density_tau[k + 1] - tf.density_tau[k])
+
+
+@wp.func
+def tf_color(tf: TransferArgs, s: float) -> wp.vec3:
+    kw = ramp_segment(tf.color_s, s)
+    k = int(kw[0])
+    if tf.color_s.shape[0] == 1:
+        return tf.color_rgb[0]
+    return tf.color_rgb[k] + kw[1] * (tf.color_rgb[k + 1] - tf.color_rgb[k])
+
+
+@wp.func
+def density_max_on(tf: TransferArgs, lo: float, hi: float) -> float:
+    """max tau over [lo, hi]: a piecewise-linear maximum sits at an end or a breakpoint."""
+    r = wp.max(tf_density(tf, lo), tf_density(tf, hi))
+    for k in range(tf.density_s.shape[0]):
+        s = tf.density_s[k]
+        if s > lo and s < hi:
+            r = wp.max(r, tf.density_tau[k])
+    return r
+
+
+@wp.func
+def color_max_on(tf: TransferArgs, lo: float, hi: float) -> float:
+    c0 = tf_color(tf, lo)
+    c1 = tf_color(tf, hi)
+    r = wp.max(wp.max(wp.max(wp.abs(c0[0]), wp.abs(c0[1])), wp.abs(c0[2])), wp.max(wp.max(wp.abs(c1[0]), wp.abs(c1[1])), wp.abs(c1[2])))
+    for k in range(tf.color_s.shape[0]):
+        s = tf.color_s[k]
+        if s > lo and s < hi:
+            q = tf.color_rgb[k]
+            r = wp.max(r, wp.max(wp.max(wp.abs(q[0]), wp.abs(q[1])), wp.abs(q[2])))
+    return r
+
+
+@wp.func
+def breakpoint_inside(s_arr: wp.array(dtype=wp.float32), lo: float, hi: float) -> int:
+    for k in range(s_arr.shape[0]):
+        s = s_arr[k]
+        if s > lo and s < hi:
+            return 1
+    return 0
+
+
+@wp.func
+def level(tf: TransferArgs, k: int) -> float:
+    """Breakpoint k of density then colour (the levels where the integrand has a kink)."""
+    nd = tf.density_s.shape[0]
+    if k < nd:
+        return tf.density_s[k]
+    return tf.color_s[k - nd]
+
+
+# ------------------------------------------------------------------------ marching
+
+
+@wp.func
+def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> float:
+    """First t with T = 0.5, interpolated as if extinction were constant on [t0, t1]."""
+    if depth < 0.0 and T0 > 0.5 and T1 <= 0.5:
+        return t0 + (t1 - t0) * wp.log(T0 / 0.5) / wp.max(wp.log(T0 / wp.max(T1, 1.0e-30)), 1.0e-30)
+    return depth
+
+
+@wp.func
+def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
+          evaluate: int, c: vecr, deg: int, a: float, b: float, state_in: vecst):
+    """The baselines on [a, b] with n = ceil((b - a) / h) equal steps: left Riemann sum
+    (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
+    samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
+    restriction c. Returns the new state and (element evaluations, restriction evaluations)."""
+    state = state_in
+    n = wp.max(1, int(wp.ceil((b - a) / q.h)))
+    w = (b - a) / float(n)
+    col = wp.vec3(state[0], state[1], state[2])
+    T = state[3]
+    depth = state[5]
+    tau0 = float(0.0)
+    g0 = wp.vec3(0.0, 0.0, 0.0)
+    nev = int(0)
+    for i in range(n + trapezoid):
+        t = a + float(i) * w
+        s = float(0.0)
+        if evaluate == 1:
+            s = eval_field(mesh, e, xo + t * xd)
+        else:
+            s = restriction_at(c, deg, a, b, t)
+        nev += 1
+        tau = tf_density(tf, s)
+        g = tau * tf_color(tf, s)
+        if trapezoid == 0:
+            col += T * w * g
+            T1 = T * wp.exp(-tau * w)
+            depth = depth_update(depth, t, t + w, T, T1)
+            T = T1
+        elif i > 0:
+            T1 = T * wp.exp(-0.5 * w * (tau0 + tau))
+            col += 0.5 * w * (T * g0 + T1 * g)
+            depth = depth_update(depth, t - w, t, T, T1)
+            T = T1
+        tau0 = tau
+        g0 = g
+        if T < q.min_transmittance:
+            break
+    state[0] = col[0]
+    state[1] = col[1]
+    state[2] = col[2]
+    state[3] = T
+    state[5] = depth
+    if evaluate == 1:
+        return state, wp.vec2(float(nev), 0.0)
+    return state, wp.vec2(0.0, float(nev))
+
+
+@wp.func
+def gauss_kronrod_smooth(
+    tf: TransferArgs, q: QuadArgs, c: vecr, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
+) -> vecst:
+    """Adaptive G7/K15 over [lo, hi] (inside segment [a, b]) where kappa and tau are smooth.
+
+    Depth-first, left half first, so panels finish front to back and each panel starts
+    from the exact transmittance of everything before it. Inside a panel the optical depth
+    to each node comes from the spectral integration matrix (or the paper's trapezoid
+    rule over the nodes). A panel is accepted when the G7/K15 difference of its emission
+    plus T times that of its optical depth is below tol."""
+    col = wp.vec3(state[0], state[1], state[2])
+    T = state[3]
+    nev = state[4]
+    depth_t = state[5]
+    err_sum = state[6]
+    stack_l = vecs()
+    stack_r = vecs()
+    stack_d = vecsi()
+    stack_l[0] = lo
+    stack_r[0] = hi
+    stack_d[0] = 0
+    top = int(1)
+    while top > 0:
+        top -= 1
+        l = stack_l[top]
+        r = stack_r[top]
+        depth = stack_d[top]
+        half = 0.5 * (r - l)
+        mid = 0.5 * (r + l)
+        taus = vec15()
+        svals = vec15()
+        nev += 15.0
+        for j in range(15):
+            svals[j] = restriction_at(c, deg, a, b, mid + half * q.gk_x[j])
+            taus[j] = tf_density(tf, svals[j])
+        dk = float(0.0)
+        dg = float(0.0)
+        for j in range(15):
+            dk += q.gk_wk[j] * taus[j]
+            dg += q.gk_wg[j] * taus[j]
+        dk = dk * half
+        dg = dg * half
+        ek = wp.vec3(0.0, 0.0, 0.0)
+        eg = wp.vec3(0.0, 0.0, 0.0)
+        if emitting == 1:
+            run = float(0.0)
+            for j in range(15):
+                inner = float(0.0)
+                if q.inner == 0:
+                    for i in range(15):
+                        inner += q.gk_s[j, i] * taus[i]
+                    inner = inner * half
+                else:
+                    # trapezoid over the nodes; first node from the panel start with tau_0
+                    if j == 0:
+                        run = taus[0] * half * (q.gk_x[0] + 1.0)
+                    else:
+                        run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
+                    inner = run
+                g = taus[j] * wp.exp(-inner) * tf_color(tf, svals[j])
+                ek += q.gk_wk[j] * g
+                eg += q.gk_wg[j] * g
+            ek = ek * (T * half)
+            eg = eg * (T * half)
+        diff = ek - eg
+        err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
+        if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK:
+            col += ek
+            T1 = T * wp.exp(-dk)
+            depth_t = depth_update(depth_t, l, r, T, T1)
+            err_sum += err
+            T = T1
+            if T < q.min_transmittance:
+                break
+        else:
+            stack_l[top] = mid
+            stack_r[top] = r
+            stack_d[top] = depth + 1
+            stack_l[top + 1] = l
+            stack_r[top + 1] = mid
+            stack_d[top + 1] = depth + 1
+            top += 2
+    return vecst(col[0], col[1], col[2], T, nev, depth_t, err_sum)
+
+
+# ------------------------------------------------------------------- breakpoint cuts
+
+
+@wp.func
+def level_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float, f0: float, f1: float,
+                   lvl: float) -> wp.vec2:
+    """(t, evaluations): t in [t0, t1] where the restriction crosses `lvl` (f0, f1 on opposite
+    sides). Illinois regula falsi: bracketing like bisection, superlinear on a monotone piece."""
+    lo = t0
+    hi = t1
+    flo = f0 - lvl
+    fhi = f1 - lvl
+    nev = float(0.0)
+    side = int(0)
+    m = 0.5 * (lo + hi)
+    for it in range(48):
+        m = 0.5 * (lo + hi)
+        if fhi != flo:
+            m = wp.clamp((lo * fhi - hi * flo) / (fhi - flo), lo, hi)
+        fm = restriction_at(c, deg, a, b, m) - lvl
+        nev += 1.0
+        if fm == 0.0:
+            break
+        if (fm < 0.0) == (flo < 0.0):
+            lo = m
+            flo = fm
+            if side == -1:
+                fhi = 0.5 * fhi
+            side = -1
+        else:
+            hi = m
+            fhi = fm
+            if side == 1:
+                flo = 0.5 * flo
+            side = 1
+        if hi - lo <= ROOT_RTOL * (wp.abs(hi) + wp.abs(lo)) + 1.0e-30:
+            m = 0.5 * (lo + hi)
+            break
+    return wp.vec2(m, nev)
+
+
+@wp.func
+def value_and_slope_sign(c: vecr, deg: int, s: float) -> wp.vec2:
+    """(f, a quantity with the sign of df/ds) at s in [-1, 1], for f = g / w^2 (w linear)."""
+    wa = c[MAX_SAMPLES - 2]
+    wb = c[MAX_SAMPLES - 1]
+    w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
+    gs = clenshaw_with_slope(c, deg, s)
+    return wp.vec2(gs[0] / (w * w), gs[1] * w - gs[0] * (wb - wa))
+
+
+@wp.func
+def first_crossing(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, p: float, q_: float, fp: float,
+                   fq: float, t_after: float) -> wp.vec2:
+    """(t, evaluations): the first t in (t_after, q_] where f crosses a breakpoint level on the
+    monotone piece [p, q_] (f(p) = fp, f(q_) = fq); q_ itself if none."""
+    best = q_
+    nev = float(0.0)
+    for k in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
+        lvl = level(tf, k)
+        if (fp - lvl) * (fq - lvl) < 0.0:
+            bc = level_crossing(c, deg, a, b, p, q_, fp, fq, lvl)
+            nev += bc[1]
+            if bc[0] > t_after and bc[0] < best:
+                best = bc[0]
+    return wp.vec2(best, nev)
+
+
+@wp.func
+def next_cut(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, t_from: float) -> wp.vec2:
+    """(t, evaluations): the first breakpoint crossing of f beyond t_from on [a, b], or b.
+    The segment is scanned in SCAN_PER_DEGREE * deg + 4 equal cells; a cell whose slope changes
+    sign is split at the critical point (bisection on the slope's sign), so each piece is
+    monotone and a level is crossed there at most once, found by a sign change at its ends.
+    (Two critical points in one cell are missed: a polynomial's extrema that close hide only a
+    sliver of crossing.)"""
+    nev = float(0.0)
+    n_cells = SCAN_PER_DEGREE * deg + 4
+    eps = 1.0e-7 * (b - a)
+    t_after = t_from + eps
+    half = 0.5 * (b - a)
+    mid = 0.5 * (a + b)
+    s_from = wp.clamp((t_from - mid) / half, -1.0, 1.0)
+    i = wp.min(int((s_from + 1.0) * 0.5 * float(n_cells)), n_cells - 1)
+    su = s_from
+    fu = value_and_slope_sign(c, deg, su)
+    nev += 1.0
+    while i < n_cells:
+        sv = -1.0 + 2.0 * float(i + 1) / float(n_cells)
+        fv = value_and_slope_sign(c, deg, sv)
+        nev += 1.0
+        if sv > su:
+            # a critical point inside: bisect the slope's sign to it
+            sc = sv
+            fc = fv
+            if fu[1] * fv[1] < 0.0:
+                lo = su
+                hi = sv
+                glo = fu[1]
+                for it in range(40):
+                    m = 0.5 * (lo + hi)
+                    gm = value_and_slope_sign(c, deg, m)
+                    nev += 1.0
+                    if (gm[1] < 0.0) == (glo < 0.0):
+                        lo = m
+                        glo = gm[1]
+                    else:
+                        hi = m
+                sc = 0.5 * (lo + hi)
+                fc = value_and_slope_sign(c, deg, sc)
+                nev += 1.0
+            # the monotone pieces [su, sc] and [sc, sv]
+            r = first_crossing(tf, c, deg, a, b, mid + half * su, mid + half * sc, fu[0], fc[0], t_after)
+            nev += r[1]
+            if r[0] < mid + half * sc:
+                return wp.vec2(r[0], nev)
+            if sc < sv:
+                r = first_crossing(tf, c, deg, a, b, mid + half * sc, mid + half * sv, fc[0], fv[0], t_after)
+                nev += r[1]
+                if r[0] < mid + half * sv:
+                    return wp.vec2(r[0], nev)
+        su = sv
+        fu = fv
+        i += 1
+    return wp.vec2(b, nev)

@@ -1,0 +1,72 @@
+"""Compile the render kernels for a CUDA architecture without a GPU (Warp's NVRTC), time the
+compile, and report each kernel's registers, stack frame and spills.
+
+    python scripts/kernel_report.py                              # sm_90, float32, report only
+    python scripts/kernel_report.py --cache .gpu/kcache          # also fill a Warp kernel cache
+    python scripts/kernel_report.py --precision float64 --arch 90
+
+--cache writes the compiled modules (PTX and CUBIN) where Warp looks for them when
+WARP_CACHE_PATH points there, so a GPU machine given that folder loads the kernels instead of
+compiling them (the module hash is the same on any machine with the same source and Warp).
+The register report needs ptxas from CUDA 13.x or newer (NVRTC here writes PTX 9.x): set
+PTXAS=/path/to/ptxas, or put it on PATH (pip's nvidia-cuda-nvcc wheel carries one).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+sys.path.insert(0, ROOT)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--arch", type=int, default=90)
+    ap.add_argument("--precision", default="float32", choices=["float32", "float64"])
+    ap.add_argument("--cache", default=None, help="a Warp kernel cache folder to fill (WARP_CACHE_PATH)")
+    args = ap.parse_args(argv)
+    if args.cache:
+        os.environ["WARP_CACHE_PATH"] = os.path.abspath(args.cache)
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.init()
+    from hovr_blender.engine.kernels import precision as kp
+
+    k = kp.kernels(args.precision)
+    kernels = [("traverse (curved)", k.traverse_kernel(True)), ("traverse (affine)", k.traverse_kernel(False)),
+               ("integrate, init_rays, finalize", k.integrate)]
+    ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
+    tmp = tempfile.mkdtemp()
+    for name, kern in kernels:
+        t0 = time.perf_counter()
+        for use_ptx in (True, False):
+            paths = wp.compile_aot_module(kern.module, arch=args.arch, use_ptx=use_ptx,
+                                          module_dir=None if args.cache else tmp)
+            if use_ptx:
+                ptx = str(paths[0])
+        secs = time.perf_counter() - t0
+        print(f"{name}: NVRTC {secs:.1f} s (PTX and CUBIN)")
+        if ptxas:
+            clean = os.path.join(tmp, "clean.ptx")
+            with open(ptx, "rb") as src, open(clean, "wb") as dst:
+                dst.write(src.read().replace(b"\x00", b""))
+            r = subprocess.run([ptxas, f"-arch=sm_{args.arch}", "-v", clean, "-o", os.devnull],
+                               capture_output=True, text=True)
+            for line in r.stderr.splitlines():
+                line = line.strip()
+                if "Compiling entry" in line:
+                    print("   ", line.split("'")[1].split("_cuda_kernel")[0])
+                elif "registers" in line or "spill" in line:
+                    print("       ", line.replace("ptxas info    : ", ""))
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
