@@ -48,6 +48,7 @@ def main(argv=None):
     ap.add_argument("--settings", default="split-1e-5,split-1e-3,classified-d400,trapezoid-d400")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-reference", action="store_true")
+    ap.add_argument("--profile", action="store_true", help="one more render per setting, each kernel waited for and timed")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     import warp as wp
@@ -93,6 +94,9 @@ def main(argv=None):
                            field_evals_per_ray=row["field_evaluations"] / px,
                            restriction_evals_per_ray=row["restriction_evaluations"] / px)
                 row["rounds"] = res.stats.get("rounds")
+                if args.profile:
+                    prof = r.render(cam, tf, suite.BACKGROUND, RenderOptions(device=args.device, **kw), profile=True)
+                    row["kernel_seconds"] = prof.stats["kernel_seconds"]
                 if ref is not None:
                     row["max_error"] = suite.rgb_error(res.rgba, ref)
                     err = np.abs(res.rgba[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
@@ -104,7 +108,8 @@ def main(argv=None):
                 print(f"  {W}x{H} {name:16s} {row['seconds'] * 1e3:9.1f} ms  err {row.get('max_error', float('nan')):.1e}  "
                       f"seg/ray {row['segments_per_ray']:.2f} loc/ray {row['locates_per_ray']:.2f} "
                       f"field/ray {row['field_evals_per_ray']:.1f} restr/ray {row['restriction_evals_per_ray']:.1f} "
-                      f"empty {row['empty_fraction']:.2f}", flush=True)
+                      f"empty {row['empty_fraction']:.2f}" + (f" kernels {row['kernel_seconds']}" if args.profile else ""),
+                      flush=True)
             out["cases"].append(case)
             if args.out:
                 with open(args.out, "w") as fh:

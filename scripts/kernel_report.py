@@ -40,8 +40,9 @@ def main(argv=None):
     from hovr_blender.engine.kernels import precision as kp
 
     k = kp.kernels(args.precision)
-    kernels = [("traverse (curved)", k.traverse_kernel(True)), ("traverse (affine)", k.traverse_kernel(False)),
-               ("integrate, init_rays, finalize", k.integrate)]
+    kernels = [(f"{name} ({kind})", kern) for kind in ("curved", "affine")
+               for name, kern in zip(("search", "traverse"), k.walk_kernels(kind == "curved"))]
+    kernels.append(("integrate, init_rays, finalize", k.integrate))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:
@@ -62,7 +63,7 @@ def main(argv=None):
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:
-                    print("   ", line.split("'")[1].split("_cuda_kernel")[0])
+                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].replace("_make_walk_kernels__locals__", ""))
                 elif "registers" in line or "spill" in line:
                     print("       ", line.replace("ptxas info    : ", ""))
     shutil.rmtree(tmp, ignore_errors=True)

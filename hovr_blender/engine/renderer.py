@@ -46,7 +46,8 @@ def resolve_device(device: str) -> str:
         raise RenderError(f"Warp device {device!r} is not available here (available: {avail})") from exc
 
 
-FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
+FLOAT32_LIMIT = 1.0e30
+MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 
 
 def _check_float32_range(mesh: VolumeMesh):
@@ -103,9 +104,14 @@ class Renderer:
         rays.t_cur = wp.zeros(tile, dtype=scalar)
         rays.t_end = wp.zeros(tile, dtype=scalar)
         rays.next_element = wp.zeros(tile, dtype=wp.int32)
+        rays.left_element = wp.zeros(tile, dtype=wp.int32)
+        rays.entry_r = wp.zeros(tile, dtype=vec4)
+        rays.entry_dv = wp.zeros(tile, dtype=vec4)
         rays.phase = wp.zeros(tile, dtype=wp.int32)
         rays.stats = stats
-        rays.active = wp.zeros(1, dtype=wp.int32)
+        rays.active = wp.zeros(tile, dtype=wp.int32)
+        rays.active_next = wp.zeros(tile, dtype=wp.int32)
+        rays.active_count = wp.zeros(1, dtype=wp.int32)
         segs = k.Segments()
         slots = tile * k.SEGMENTS_PER_ROUND
         segs.count = wp.zeros(tile, dtype=wp.int32)
@@ -172,18 +178,20 @@ class Renderer:
             S = quadrature_tables.integration_matrix(x)
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
-            # affine-only meshes get the traverse kernel without the curved machinery
-            kernel = raycast.traverse_kernel(curved=not bool(affine.all()))
+            # affine-only meshes get search and traverse kernels without the curved machinery
+            kernel = raycast.walk_kernels(curved=not bool(affine.all()))
         self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
         return self._uploads[precision]
 
     def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
-               progress=None, tile_pixels: int | None = None) -> RenderResult:
+               progress=None, tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
         """Render one image. With `progress`, the image is launched in tiles of `tile_pixels`
         pixels and progress(fraction_done) is called after each; returning False cancels
-        (the result then has cancelled=True and only the finished tiles filled in)."""
+        (the result then has cancelled=True and only the finished tiles filled in). With `profile`,
+        every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
+        waits add a little to render_seconds)."""
         wp = _warp()
-        k, mesh_args, gk, gk_s, traverse = self._upload(options.precision)
+        k, mesh_args, gk, gk_s, (search, traverse) = self._upload(options.precision)
         f64 = options.precision == "float64"
         vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
         scalar = wp.float64 if f64 else wp.float32
@@ -225,23 +233,37 @@ class Renderer:
                 rays, segs = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            for kern in (traverse, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
+            for kern in (search, traverse, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
+            kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "integrate": 0.0, "finalize": 0.0}
+
+            def launch(name, kern, dim, inputs):
+                t_launch = time.perf_counter()
+                wp.launch(kern, dim=dim, inputs=inputs)
+                if profile:
+                    wp.synchronize_device(self.device)
+                    kernel_seconds[name] += time.perf_counter() - t_launch
+
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
             for start in range(0, total, tile):
                 n = min(tile, total - start)
-                wp.launch(k.init_rays, dim=n, inputs=[cam, start, rays])
-                while True:
-                    rays.active.zero_()
-                    wp.launch(traverse, dim=n, inputs=[mesh_args, cam, t, q, start, rays, segs])
-                    wp.launch(k.integrate, dim=n, inputs=[mesh_args, cam, t, q, start, rays, segs])
+                launch("init_rays", k.init_rays, n, [cam, start, rays])
+                active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
+                while active > 0:
+                    rays.active_count.zero_()
+                    launch("search", search, active, [mesh_args, cam, start, rays])
+                    launch("traverse", traverse, active, [mesh_args, cam, t, q, start, rays, segs])
+                    launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
                     rounds += 1
-                    if int(rays.active.numpy()[0]) == 0:
-                        break
-                wp.launch(k.finalize, dim=n, inputs=[q, start, rays, rgba, aux])
+                    active = int(rays.active_count.numpy()[0])
+                    rays.active, rays.active_next = rays.active_next, rays.active
+                    if rounds > MAX_ROUNDS_PER_TILE * (start // tile + 1):
+                        raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
+                                          f"still going): a bug, please report it with the data")
+                launch("finalize", k.finalize, n, [q, start, rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -277,6 +299,7 @@ class Renderer:
                 "curved_locates": int(tot[k.STAT_LOCATES]),
                 "walks": int(tot[k.STAT_WALKS]),
                 "rounds": rounds,
+                **({"kernel_seconds": kernel_seconds} if profile else {}),
                 "elements": self.mesh.num_elements,
                 "precision": options.precision,
             },

@@ -157,11 +157,13 @@ def test_element_field_ranges_enclose_single_modes(shape):
 @wp.kernel
 def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.array(dtype=wp.vec3),
                     ab: wp.array(dtype=wp.vec2), segs: args.Segments, out: wp.array(dtype=wp.vec2)):
-    # what the kernels do for a segment of affine element 0: the traverse kernel writes the
+    # what the kernels do for a segment of affine element 0 (its map the identity, so the ray
+    # in world space is the segment in reference space): the traverse kernel writes the
     # samples, the integrate kernel turns them into the series and bounds it
     i = wp.tid()
-    deg = rs.restriction_degree(mesh, 0)
-    rs.write_exact_samples(mesh, 0, xo[i], xd[i], ab[i][0], ab[i][1], deg, segs, i)
+    none = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    ws = rs.write_samples(mesh, 0, xo[i], xd[i], ab[i][0], ab[i][1], 0, none, none, segs, i)
+    deg = int(ws[0])
     c = rs.chebyshev_from_samples(segs, i, deg)
     out[i] = rs.segment_bounds(c, deg)
 

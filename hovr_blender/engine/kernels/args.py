@@ -2,10 +2,11 @@
 quadrature settings, the per-round segment buffer and the per-ray state (one module, so the
 float64 twin of every kernel module sees the same struct types; kernels/precision.py).
 
-A render is a loop of rounds over a tile of rays (kernels/raycast.py): the traverse kernel
-walks each ray through the mesh and writes up to SEGMENTS_PER_ROUND element segments, each
-with the samples of the field along it; the integrate kernel turns them into colour and
-transmittance. Per-ray state carries everything from one round to the next.
+A render is a loop of rounds over a tile of rays (kernels/raycast.py): the search kernel finds
+where rays that need it enter the mesh, the traverse kernel walks each ray through the mesh
+and writes up to SEGMENTS_PER_ROUND element segments, each with the samples of the field
+along it; the integrate kernel turns them into colour and transmittance. Per-ray state
+carries everything from one round to the next.
 """
 from __future__ import annotations
 
@@ -127,8 +128,15 @@ class RayState:
     depth_err: wp.array(dtype=wp.vec2)
     t_cur: wp.array(dtype=wp.float32)  # how far the traversal got
     t_end: wp.array(dtype=wp.float32)  # the ray's far end (camera t_max and clip far)
-    next_element: wp.array(dtype=wp.int32)  # walking: the element the ray enters at t_cur (-1: search)
+    next_element: wp.array(dtype=wp.int32)  # the element the ray enters at t_cur (-1: search the BVH)
+    left_element: wp.array(dtype=wp.int32)  # the element the ray has just left (-1: none)
+    # the search's solution in a curved next_element at t_cur (entry_r[3] > 0: valid)
+    entry_r: wp.array(dtype=wp.vec4)
+    entry_dv: wp.array(dtype=wp.vec4)
     # 0 active, 1 traversal finished (integrate what is left), 2 done
     phase: wp.array(dtype=wp.int32)
     stats: wp.array2d(dtype=wp.int32)
-    active: wp.array(dtype=wp.int32)  # [0]: rays still active after the round (atomic count)
+    # the active rays of this round (tile-local indices) and the next round's, with its count
+    active: wp.array(dtype=wp.int32)
+    active_next: wp.array(dtype=wp.int32)
+    active_count: wp.array(dtype=wp.int32)

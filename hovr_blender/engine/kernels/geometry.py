@@ -174,11 +174,17 @@ def margin_and_face(shape: int, xi: wp.vec3) -> wp.vec2:
 @wp.func
 def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3):
     """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; -1 where Newton fails; and
-    (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on the margin."""
+    (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on the margin. A
+    warm start that fails is retried once from the affine guess."""
     p = o + t * d
-    r, Jinv = invert_point(mesh, e, p, xi0)
-    if r[3] <= 0.0:  # a warm start from a bad neighbour: retry from the affine guess
-        r, Jinv = invert_point(mesh, e, p, start_guess(mesh, e, p))
+    r = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    Jinv = wp.identity(n=3, dtype=float)
+    start = xi0
+    for attempt in range(2):
+        r, Jinv = invert_point(mesh, e, p, start)
+        if r[3] > 0.0:
+            break
+        start = start_guess(mesh, e, p)
     xi = wp.vec3(r[0], r[1], r[2])
     v = Jinv * d
     m = float(-1.0)
@@ -220,75 +226,105 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
     return wp.vec2(t0, t1)
 
 
+# ------------------------------------------------------------------ boundary crossings
+# Where the ray crosses an element's boundary between an outside point a (margin fa <= 0) and
+# an inside point b (solution rb, velocity dvb): the margin is smooth across one face and its
+# slope is known (curved_inside), so Newton steps on it are taken while they stay inside the
+# bracket, with Illinois regula falsi otherwise (a failed solve's margin of -1 only slows it).
+# The result is an inside point within ROOT_RTOL relative of the crossing with the solution
+# found there (solving again at that t can land a rounding error on the other side). The
+# callers' loops ask bracket_query for the next t, solve there, and hand it to bracket_update,
+# so each has a single Newton call site.
+
+
+@wp.struct
+class Bracket:
+    a: wp.float32
+    fa: wp.float32
+    b: wp.float32
+    fb: wp.float32  # the inside margin as regula falsi weighs it (Illinois halves it)
+    rb: wp.vec4
+    dvb: wp.vec4
+    side: wp.int32
+    have: wp.int32  # the last evaluation converged: its t, solution and velocity
+    tl: wp.float32
+    rl: wp.vec4
+    dvl: wp.vec4
+    done: wp.int32
+
+
 @wp.func
-def boundary_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_out: float, m_out: float, t_in: float,
-                      r_in: wp.vec4, dv_in: wp.vec4):
-    """Where the ray crosses element e's boundary between t_out (margin m_out <= 0) and t_in
-    (solution r_in inside, velocity dv_in): an inside point within ROOT_RTOL relative of the
-    crossing, with its solution and velocity (curved_inside's), as (t, r, dv). The margin is
-    smooth across one face and its slope is known, so Newton steps on it are taken while they
-    stay inside the bracket, with Illinois regula falsi otherwise (a failed Newton solve's
-    margin of -1 only slows it). The solution is the one found there: solving again at that t
-    can land a rounding error on the other side of the face."""
-    a = t_out
-    fa = m_out
-    b = t_in
-    fb = r_in[3]
-    g = wp.vec3(r_in[0], r_in[1], r_in[2])
-    rb = r_in
-    dvb = dv_in
-    side = int(0)
-    have = int(0)  # a converged last evaluation: its t, margin, slope and solution
-    tl = float(0.0)
-    ml = float(0.0)
-    rl = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    dvl = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    for it in range(40):
-        tol = ROOT_RTOL * (wp.abs(a) + wp.abs(b)) + 1.0e-30
-        if wp.abs(b - a) <= tol:
-            break
-        m = 0.5 * (a + b)
-        if fb != fa:
-            m = b - fb * (b - a) / (fb - fa)
-            # stay strictly inside the bracket, and halve when falsi would crawl along one end
-            lim = 0.01 * wp.abs(b - a)
-            if wp.abs(m - a) < lim or wp.abs(m - b) < lim:
-                m = 0.5 * (a + b)
-        start = g
-        if have == 1:
-            start = ahead(rl, dvl, m - tl)
-            if dvl[3] != 0.0:
-                tn = tl - ml / dvl[3]
-                if tn > wp.min(a, b) and tn < wp.max(a, b):
-                    m = tn
-                    start = ahead(rl, dvl, m - tl)
-        rm, dvm = curved_inside(mesh, e, o, d, m, start)
-        have = int(0)
-        if rm[3] > -1.0:
-            have = 1
-            tl = m
-            ml = rm[3]
-            rl = rm
-            dvl = dvm
-        if rm[3] > 0.0:
-            b = m
-            fb = rm[3]
-            g = wp.vec3(rm[0], rm[1], rm[2])
-            rb = rm
-            dvb = dvm
-            if side == 1:
-                fa = 0.5 * fa
-            side = 1
-            # inside, and Newton says the crossing is within the tolerance: done
-            if dvm[3] != 0.0 and wp.abs(rm[3] / dvm[3]) <= tol:
-                break
-        else:
-            a = m
-            fa = rm[3]
-            if side == -1:
-                fb = 0.5 * fb
-            side = -1
-    return b, rb, dvb
+def bracket_start(t_out: float, m_out: float, t_in: float, r_in: wp.vec4, dv_in: wp.vec4) -> Bracket:
+    br = Bracket()
+    br.a = t_out
+    br.fa = m_out
+    br.b = t_in
+    br.fb = r_in[3]
+    br.rb = r_in
+    br.dvb = dv_in
+    br.side = 0
+    br.have = 0
+    br.tl = t_in
+    br.rl = r_in
+    br.dvl = dv_in
+    br.done = 0
+    return br
+
+
+@wp.func
+def bracket_query(br: Bracket):
+    """The next t to solve at and its warm start (br.done set where the bracket is closed)."""
+    a = br.a
+    b = br.b
+    fb = br.fb
+    m = 0.5 * (a + b)
+    if fb != br.fa:
+        m = b - fb * (b - a) / (fb - br.fa)
+        # stay strictly inside the bracket, and halve when falsi would crawl along one end
+        lim = 0.01 * wp.abs(b - a)
+        if wp.abs(m - a) < lim or wp.abs(m - b) < lim:
+            m = 0.5 * (a + b)
+    start = wp.vec3(br.rb[0], br.rb[1], br.rb[2])
+    if br.have == 1:
+        start = ahead(br.rl, br.dvl, m - br.tl)
+        if br.dvl[3] != 0.0:
+            tn = br.tl - br.rl[3] / br.dvl[3]
+            if tn > wp.min(a, b) and tn < wp.max(a, b):
+                m = tn
+                start = ahead(br.rl, br.dvl, m - br.tl)
+    return m, start
+
+
+@wp.func
+def bracket_update(br_in: Bracket, m: float, rm: wp.vec4, dvm: wp.vec4) -> Bracket:
+    br = br_in
+    br.have = 0
+    if rm[3] > -1.0:
+        br.have = 1
+        br.tl = m
+        br.rl = rm
+        br.dvl = dvm
+    tol = ROOT_RTOL * (wp.abs(br.a) + wp.abs(br.b)) + 1.0e-30
+    if rm[3] > 0.0:
+        br.b = m
+        br.fb = rm[3]
+        br.rb = rm
+        br.dvb = dvm
+        if br.side == 1:
+            br.fa = 0.5 * br.fa
+        br.side = 1
+        # inside, and Newton says the crossing is within the tolerance: done
+        if dvm[3] != 0.0 and wp.abs(rm[3] / dvm[3]) <= tol:
+            br.done = 1
+    else:
+        br.a = m
+        br.fa = rm[3]
+        if br.side == -1:
+            br.fb = 0.5 * br.fb
+        br.side = -1
+    if wp.abs(br.b - br.a) <= ROOT_RTOL * (wp.abs(br.a) + wp.abs(br.b)) + 1.0e-30:
+        br.done = 1
+    return br
 
 
 @wp.func
@@ -309,31 +345,45 @@ def tangent_face_step(shape: int, xi: wp.vec3, v: wp.vec3) -> float:
 def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_in: wp.vec4, dv_in: wp.vec4,
                 t_end: float):
     """The ray is inside curved element e at t_in (solution r_in, velocity dv_in): where it
-    leaves, as (t_exit, exit face or -1, its solution) and the velocity there. Steps go to the
-    face the tangent predicts (a little beyond it, at most half the box chord at a time) until
-    one lands outside; the crossing is then found by boundary_crossing. Reaching t_end (the
-    box's or the ray's end) inside ends the stretch there with face -1."""
+    leaves, as (t_exit, exit face or -1, 0), with the solution and velocity there. Steps go to
+    the face the tangent in reference space predicts (a little beyond it, at most half the box
+    chord at a time) until one lands outside; then the bracket closes on the crossing. Reaching
+    t_end (the box's or the ray's end) inside ends the stretch there with face -1."""
     t = t_in
     r = r_in
     dv = dv_in
     span = t_end - t_in
     shape = mesh.shape[e]
-    for step in range(MAX_EXIT_STEPS):
-        s = tangent_face_step(shape, wp.vec3(r[0], r[1], r[2]), wp.vec3(dv[0], dv[1], dv[2]))
-        dt = wp.min(s * (1.0 + EXIT_OVERSHOOT) + 1.0e-4 * span, 0.5 * span)
-        t_new = wp.min(t + dt, t_end)
-        r_new, dv_new = curved_inside(mesh, e, o, d, t_new, ahead(r, dv, t_new - t))
-        if r_new[3] > 0.0:
-            t = t_new
-            r = r_new
-            dv = dv_new
-            if t >= t_end:
-                return wp.vec3(t_end, -1.0, 0.0), r, dv
+    stepping = int(1)
+    br = Bracket()
+    for it in range(MAX_EXIT_STEPS + 40):
+        tq = t
+        start = wp.vec3(0.0, 0.0, 0.0)
+        if stepping == 1:
+            s = tangent_face_step(shape, wp.vec3(r[0], r[1], r[2]), wp.vec3(dv[0], dv[1], dv[2]))
+            tq = wp.min(t + wp.min(s * (1.0 + EXIT_OVERSHOOT) + 1.0e-4 * span, 0.5 * span), t_end)
+            start = ahead(r, dv, tq - t)
         else:
-            tc, rc, dvc = boundary_crossing(mesh, e, o, d, t_new, r_new[3], t, r, dv)
-            mf = margin_and_face(shape, wp.vec3(rc[0], rc[1], rc[2]))
-            return wp.vec3(tc, mf[1], 0.0), rc, dvc
-    return wp.vec3(t, -1.0, 0.0), r, dv
+            tq, start = bracket_query(br)
+        rq, dvq = curved_inside(mesh, e, o, d, tq, start)
+        if stepping == 1:
+            if rq[3] > 0.0:
+                t = tq
+                r = rq
+                dv = dvq
+                if t >= t_end:
+                    return wp.vec3(t_end, -1.0, 0.0), r, dv
+            else:
+                stepping = 0
+                br = bracket_start(tq, rq[3], t, r, dv)
+        else:
+            br = bracket_update(br, tq, rq, dvq)
+            if br.done == 1:
+                break
+    if stepping == 1:
+        return wp.vec3(t, -1.0, 0.0), r, dv
+    mf = margin_and_face(shape, wp.vec3(br.rb[0], br.rb[1], br.rb[2]))
+    return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb
 
 
 @wp.func
@@ -354,62 +404,80 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     xi = start_guess(mesh, e, o + ta * d)
     n_samples = int(CURVED_SAMPLES)  # a local int: Warp retypes a global cast in place (float64 twin)
     dt = (tb - ta) / float(n_samples)
+    phase = int(0)  # 0: samples, 1: ternary search, 2: its peak, 3: the entry crossing
+    i = int(0)
     prev_t = ta
     prev_r = wp.vec4(xi[0], xi[1], xi[2], -1.0)
     prev_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
     best_r = prev_r
     best_t = ta
-    # the bracket handed to boundary_crossing: outside at t_out, inside at t_in
-    t_out = float(0.0)
-    m_out = float(-1.0)
-    t_in = float(0.0)
-    r_in = prev_r
-    dv_in = prev_dv
-    found = int(0)
-    for i in range(n_samples + 1):
-        t = ta + float(i) * dt
-        r, dv = curved_inside(mesh, e, o, d, t, ahead(prev_r, prev_dv, t - prev_t))
-        if r[3] > best_r[3]:
-            best_r = r
-            best_t = t
-        if r[3] > 0.0:
-            if i == 0:
-                return wp.vec3(1.0, t, 0.0), r, dv
-            found = 1
-            t_out = prev_t
-            m_out = prev_r[3]
-            t_in = t
-            r_in = r
-            dv_in = dv
-            break
-        prev_t = t
-        prev_r = r
-        prev_dv = dv
-    if found == 0 and best_r[3] > -0.25:
-        lo = wp.max(ta, best_t - dt)
-        hi = wp.min(tb, best_t + dt)
-        g = wp.vec3(best_r[0], best_r[1], best_r[2])
-        for it in range(30):
-            m1 = lo + (hi - lo) / 3.0
-            m2 = hi - (hi - lo) / 3.0
-            r1, dv1 = curved_inside(mesh, e, o, d, m1, g)
-            r2, dv2 = curved_inside(mesh, e, o, d, m2, g)
-            if r1[3] < r2[3]:
-                lo = m1
-                g = wp.vec3(r2[0], r2[1], r2[2])
+    lo = float(0.0)
+    hi = float(0.0)
+    g = xi
+    m1_margin = float(0.0)
+    g1 = xi
+    tern = int(0)
+    br = Bracket()
+    for it in range(CURVED_SAMPLES + 1 + 61 + 40):
+        tq = ta
+        start = g
+        if phase == 0:
+            tq = ta + float(i) * dt
+            start = ahead(prev_r, prev_dv, tq - prev_t)
+        elif phase == 1:
+            if tern % 2 == 0:
+                tq = lo + (hi - lo) / 3.0
             else:
-                hi = m2
-                g = wp.vec3(r1[0], r1[1], r1[2])
-        tp = 0.5 * (lo + hi)
-        rp, dvp = curved_inside(mesh, e, o, d, tp, g)
-        if rp[3] > 0.0:
-            found = 1
-            t_out = wp.max(ta, best_t - dt)
-            m_out = -1.0
-            t_in = tp
-            r_in = rp
-            dv_in = dvp
-    if found == 0:
+                tq = hi - (hi - lo) / 3.0
+        elif phase == 2:
+            tq = 0.5 * (lo + hi)
+        else:
+            tq, start = bracket_query(br)
+        rq, dvq = curved_inside(mesh, e, o, d, tq, start)
+        if phase == 0:
+            if rq[3] > best_r[3]:
+                best_r = rq
+                best_t = tq
+            if rq[3] > 0.0:
+                if i == 0:
+                    return wp.vec3(1.0, tq, 0.0), rq, dvq
+                phase = 3
+                br = bracket_start(prev_t, prev_r[3], tq, rq, dvq)
+            else:
+                prev_t = tq
+                prev_r = rq
+                prev_dv = dvq
+                i += 1
+                if i > n_samples:
+                    if best_r[3] <= -0.25:
+                        return wp.vec3(0.0, 0.0, 0.0), none, none
+                    phase = 1
+                    lo = wp.max(ta, best_t - dt)
+                    hi = wp.min(tb, best_t + dt)
+                    g = wp.vec3(best_r[0], best_r[1], best_r[2])
+        elif phase == 1:
+            if tern % 2 == 0:
+                m1_margin = rq[3]
+                g1 = wp.vec3(rq[0], rq[1], rq[2])
+            else:
+                if m1_margin < rq[3]:
+                    lo = lo + (hi - lo) / 3.0
+                    g = wp.vec3(rq[0], rq[1], rq[2])
+                else:
+                    hi = hi - (hi - lo) / 3.0
+                    g = g1
+            tern += 1
+            if tern >= 60:
+                phase = 2
+        elif phase == 2:
+            if rq[3] <= 0.0:
+                return wp.vec3(0.0, 0.0, 0.0), none, none
+            phase = 3
+            br = bracket_start(wp.max(ta, best_t - dt), -1.0, tq, rq, dvq)
+        else:
+            br = bracket_update(br, tq, rq, dvq)
+            if br.done == 1:
+                break
+    if phase != 3:
         return wp.vec3(0.0, 0.0, 0.0), none, none
-    tc, rc, dvc = boundary_crossing(mesh, e, o, d, t_out, m_out, t_in, r_in, dv_in)
-    return wp.vec3(1.0, tc, 0.0), rc, dvc
+    return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb

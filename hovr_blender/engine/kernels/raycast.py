@@ -1,22 +1,26 @@
 """The ray kernels: render contract §3-4, one thread per pixel of a tile, in rounds.
 
 A render of a tile (engine/renderer.py) runs init_rays once, then rounds of
-1. traverse: each ray walks front to back through the mesh and writes up to
-   SEGMENTS_PER_ROUND element segments with the field's samples along each;
-2. integrate: each ray integrates its segments (kernels/quadrature.py) into colour,
-   transmittance, depth and error, and counts itself if it is still going;
-until no ray is left, then finalize writes the pixels. Two kernels instead of one keep each
-small: the geometry (BVH, Newton, element evaluation) and the quadrature never hold their
-registers at the same time, and each compiles quickly.
+1. search: rays that are not inside a known element find, in the BVH over element boxes,
+   the element they enter next (search_entry);
+2. traverse: each ray walks front to back through the mesh and writes up to
+   SEGMENTS_PER_ROUND element segments with the field's samples along each, until it needs
+   a search again;
+3. integrate: each ray integrates its segments (kernels/quadrature.py) into colour,
+   transmittance, depth and error, and puts itself on the next round's list if it is not done;
+until no ray is left, then finalize writes the pixels. Rounds run over the list of rays
+still going (no thread is spent on a finished ray). Three kernels instead of one keep each
+small: the search (BVH, locating curved candidates), the walk (Newton, element evaluation)
+and the quadrature never hold their registers at the same time, and each compiles quickly.
 
 Traversal walks through shared faces: where a ray leaves an element through a face it
 shares with another (MeshArgs.neighbour), the next segment starts there, at the same t (no
 gap, no double count), in that element: an affine element's exact clip, or a curved one's
 Newton solution followed along the ray to its exit (geometry.curved_exit). Where there is
 no neighbour (the domain's boundary, a gap, a non-conforming face, a ray through an edge),
-the BVH over element boxes finds the next element beyond t (search_entry): the smallest
-exact entry among affine candidates, curved candidates located lazily in order of their box
-entry. Meshes of affine elements get a traverse kernel with the curved machinery compiled out.
+the next round's search finds the next element beyond t: the smallest exact entry among
+affine candidates, curved candidates located lazily in order of their box entry. Meshes of
+affine elements get search and traverse kernels with the curved machinery compiled out.
 """
 from __future__ import annotations
 
@@ -34,7 +38,7 @@ from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, vecst
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "NUM_STATS",
-           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "traverse_kernel", "init_rays", "integrate", "finalize"]
+           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "integrate", "finalize"]
 
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
@@ -80,9 +84,12 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
     rays.t_cur[i] = t_lo
     rays.t_end[i] = t_hi
     rays.next_element[i] = -1
+    rays.left_element[i] = -1
+    rays.entry_r[i] = wp.vec4(0.0, 0.0, 0.0, -1.0)
     rays.phase[i] = 0
     if t_hi <= t_lo:
         rays.phase[i] = 2
+    rays.active[i] = i
 
 
 @wp.func
@@ -100,7 +107,7 @@ def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
     return el_k.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
-def _make_traverse_kernel(CURVED: bool):
+def _make_walk_kernels(CURVED: bool):
     # The curved kernel inlines Newton solves at several call sites: unrolling their fixed
     # loops costs NVRTC time, not speed (bench/results/h100/compile_unroll.json).
     opts = {"max_unroll": 4} if CURVED else {}
@@ -108,8 +115,9 @@ def _make_traverse_kernel(CURVED: bool):
     @wp.func
     def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int):
         """The element whose stretch of the ray starts first beyond t_from (and reaches past
-        t_from + eps): element (or -1), (t0, t1, exit face), the curved solution and velocity at
-        t0, and the number of curved candidates located. Each BVH pass takes the smallest exact
+        t_from + eps): element (or -1), (t0, t1, exit face) (a curved element's t1 and face are
+        left for curved_exit), the curved solution and velocity at t0, and the number of
+        curved candidates located. Each BVH pass takes the smallest exact
         entry among affine candidates and gathers the WINDOW curved candidates with the
         smallest box entries, then locates those in order while they can still come first;
         another pass follows only if a curved candidate left out of the window could. `left`:
@@ -170,40 +178,56 @@ def _make_traverse_kernel(CURVED: bool):
                             t_look = t_from + (bx[1] - bx[0]) / LEAVE_FRACTION
                         ent, r, dv = geo.curved_entry(mesh, cand, o, d, t_look)
                         if ent[0] > 0.0 and ent[1] < best[0]:
-                            ex, rb, dvb = geo.curved_exit(mesh, cand, o, d, ent[1], r, dv, wp.min(bx[1], t_end))
-                            if ex[0] > ent[1]:
-                                best_e = cand
-                                best = wp.vec3(ent[1], ex[0], ex[1])
-                                best_r = r
-                                best_dv = dv
+                            best_e = cand
+                            best = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
+                            best_r = r
+                            best_dv = dv
             if thresh >= best[0]:
                 break
         return best_e, best, best_r, best_dv, nloc
 
     @wp.kernel(enable_backward=False, module="unique", module_options=opts)
+    def search(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
+        i = rays.active[wp.tid()]
+        if rays.phase[i] != 0 or rays.next_element[i] >= 0:
+            return
+        pixel = i + pixel_offset
+        o, d = camera_ray(cam, pixel)
+        e, found, r, dv, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
+        rays.stats[pixel, STAT_LOCATES] += nl
+        if e < 0:
+            rays.phase[i] = 1
+        else:
+            rays.next_element[i] = e
+            rays.t_cur[i] = wp.max(rays.t_cur[i], found[0])
+            rays.entry_r[i] = r
+            rays.entry_dv[i] = dv
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=opts)
     def traverse(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
                  rays: RayState, segs: Segments):
-        i = wp.tid()
+        i = rays.active[wp.tid()]
         pixel = i + pixel_offset
         n = int(0)
-        if rays.phase[i] != 0:
+        if rays.phase[i] != 0 or rays.next_element[i] < 0:
             segs.count[i] = 0
             return
         o, d = camera_ray(cam, pixel)
         t = rays.t_cur[i]
         t_end = rays.t_end[i]
         e = rays.next_element[i]
+        r_entry = rays.entry_r[i]  # the search's solution in a curved e at t (margin > 0: valid)
+        dv_entry = rays.entry_dv[i]
         restriction = int(0)  # classified and split integrate the restriction; skip empty elements
         if q.method >= METHOD_CLASSIFIED:
             restriction = 1
         n_field = int(0)
         n_seg = int(0)
         n_empty = int(0)
-        n_locate = int(0)
         n_walk = int(0)
         zero_steps = int(0)
         finished = int(0)
-        left = int(-1)  # the element the ray has just left
+        left = rays.left_element[i]  # the element the ray has just left
         for step in range(STEPS_PER_ROUND):
             if n >= SEGMENTS_PER_ROUND:
                 break
@@ -215,40 +239,39 @@ def _make_traverse_kernel(CURVED: bool):
             face = int(-1)
             r_a = wp.vec4(0.0, 0.0, 0.0, -1.0)
             dv_a = wp.vec4(0.0, 0.0, 0.0, 0.0)
+            need_exit = int(0)  # a curved element entered at a (solution r_a): find where it leaves
             if e < 0:
-                e, found, r_s, dv_s, nl = search_entry(mesh, o, d, t, t_end, left)
-                n_locate += nl
-                if e < 0:
-                    finished = 1
-                    break
-                a = found[0]
-                b = found[1]
-                face = int(found[2])
-                r_a = r_s
-                dv_a = dv_s
+                break  # the next round's search finds where the ray goes on
+            n_walk += 1
+            inside = int(1)
+            if mesh.affine[e] == 1:
+                cl = affine_stretch(mesh, e, o, d)
+                if cl[0] <= 0.0 or cl[1] > a + STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
+                    inside = 0
+                else:
+                    b = wp.max(a, wp.min(cl[2], t_end))
+                    face = int(cl[3])
             else:
-                n_walk += 1
-                inside = int(1)
-                if mesh.affine[e] == 1:
-                    cl = affine_stretch(mesh, e, o, d)
-                    if cl[0] <= 0.0 or cl[1] > a + STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
+                if wp.static(CURVED):
+                    if r_entry[3] > 0.0:
+                        r_a = r_entry
+                        dv_a = dv_entry
+                        r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)
+                    else:
+                        r_a, dv_a = geo.curved_inside(mesh, e, o, d, a, geo.start_guess(mesh, e, o + a * d))
+                    if r_a[3] <= 0.0:
                         inside = 0
                     else:
-                        b = wp.max(a, wp.min(cl[2], t_end))
-                        face = int(cl[3])
-                else:
-                    if wp.static(CURVED):
-                        r_a, dv_a = geo.curved_inside(mesh, e, o, d, a, geo.start_guess(mesh, e, o + a * d))
-                        if r_a[3] <= 0.0:
-                            inside = 0
-                        else:
-                            bx = geo.box_interval(mesh, e, o, d)
-                            ex, rb, dvb = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
-                            b = wp.max(a, ex[0])
-                            face = int(ex[1])
-                if inside == 0:
-                    e = -1  # not in the neighbour after all: search from here
-                    continue
+                        need_exit = 1
+            if inside == 0:
+                e = -1  # not in the neighbour after all: the next round searches from here
+                break
+            if wp.static(CURVED):
+                if need_exit == 1:
+                    bx = geo.box_interval(mesh, e, o, d)
+                    ex, rb, dvb = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+                    b = wp.max(a, ex[0])
+                    face = int(ex[1])
             if b > a:
                 zero_steps = 0
                 n_seg += 1
@@ -260,24 +283,16 @@ def _make_traverse_kernel(CURVED: bool):
                     segs.t0[slot] = a
                     segs.t1[slot] = b
                     segs.tail[slot] = 0.0
-                    if mesh.affine[e] == 1:
-                        if restriction == 1:
-                            deg = rs.restriction_degree(mesh, e)
-                            A = mesh.ref_a[e]
-                            rs.write_exact_samples(mesh, e, A * o + mesh.ref_b[e], A * d, a, b, deg, segs, slot)
-                            n_field += deg + 1
-                            segs.degree[slot] = deg
-                            segs.flags[slot] = 0
-                        else:
-                            segs.degree[slot] = -1
-                            segs.flags[slot] = SEG_EVALUATE
+                    curved = int(1) - mesh.affine[e]
+                    if curved == 0 and restriction == 0:
+                        segs.degree[slot] = -1  # the baselines evaluate affine elements themselves
+                        segs.flags[slot] = SEG_EVALUATE
                     else:
-                        if wp.static(CURVED):
-                            cs = rs.write_curved_samples(mesh, e, o, d, a, b, r_a, dv_a, segs, slot)
-                            segs.degree[slot] = int(cs[0])
-                            segs.tail[slot] = cs[1]
-                            segs.flags[slot] = SEG_CURVED
-                            n_field += int(cs[2])
+                        ws = rs.write_samples(mesh, e, o, d, a, b, curved, r_a, dv_a, segs, slot)
+                        segs.degree[slot] = int(ws[0])
+                        segs.tail[slot] = ws[1]
+                        segs.flags[slot] = curved * SEG_CURVED
+                        n_field += int(ws[2])
                     n += 1
             else:
                 zero_steps += 1
@@ -291,26 +306,27 @@ def _make_traverse_kernel(CURVED: bool):
             rays.phase[i] = 1
         rays.t_cur[i] = t
         rays.next_element[i] = e
+        rays.left_element[i] = left
+        rays.entry_r[i] = r_entry
         segs.count[i] = n
         rays.stats[pixel, STAT_FIELD_EVALS] += n_field
         rays.stats[pixel, STAT_SEGMENTS] += n_seg
         rays.stats[pixel, STAT_EMPTY] += n_empty
-        rays.stats[pixel, STAT_LOCATES] += n_locate
         rays.stats[pixel, STAT_WALKS] += n_walk
 
-    return traverse
+    return search, traverse
 
 
-_TRAVERSE = {}
+_WALK = {}
 
 
-def traverse_kernel(curved: bool):
-    """The traverse kernel, specialised at compile time: with `curved` False the Newton
+def walk_kernels(curved: bool):
+    """(search, traverse), specialised at compile time: with `curved` False the Newton
     location and curved sampling are compiled out (affine meshes pay only for what they use)."""
     key = bool(curved)
-    if key not in _TRAVERSE:
-        _TRAVERSE[key] = _make_traverse_kernel(key)
-    return _TRAVERSE[key]
+    if key not in _WALK:
+        _WALK[key] = _make_walk_kernels(key)
+    return _WALK[key]
 
 
 @wp.func
@@ -375,7 +391,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
 @wp.kernel(enable_backward=False)
 def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
               rays: RayState, segs: Segments):
-    i = wp.tid()
+    i = rays.active[wp.tid()]
     if rays.phase[i] == 2:
         return
     pixel = i + pixel_offset
@@ -414,7 +430,7 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
     if state[3] < q.min_transmittance or rays.phase[i] == 1:
         rays.phase[i] = 2
     else:
-        wp.atomic_add(rays.active, 0, 1)
+        rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
 
 
 @wp.kernel(enable_backward=False)

@@ -132,21 +132,6 @@ def restriction_degree(mesh: MeshArgs, e: int) -> int:
 
 
 @wp.func
-def write_exact_samples(mesh: MeshArgs, e: int, xo: wp.vec3, xd: wp.vec3, a: float, b: float, deg: int,
-                        segs: Segments, slot: int):
-    """Affine element: f w^2 at the deg + 1 Lobatto points of [a, b] (xi = xo + t xd), and
-    w at both ends; exact for the element's polynomial."""
-    base = slot * MAX_SAMPLES
-    sh = mesh.shape[e]
-    for j in range(deg + 1):
-        xi = xo + lobatto_t(a, b, j, deg) * xd
-        w = el_k.restriction_weight(sh, xi)
-        segs.samples[base + j] = eval_field(mesh, e, xi) * w * w
-    segs.samples[base + MAX_SAMPLES - 2] = el_k.restriction_weight(sh, xo + a * xd)
-    segs.samples[base + MAX_SAMPLES - 1] = el_k.restriction_weight(sh, xo + b * xd)
-
-
-@wp.func
 def curved_base_degree(mesh: MeshArgs, e: int) -> int:
     """First Chebyshev degree for a curved segment: the field's degree plus the map's."""
     deg = wp.min(el_k.polynomial_degree(mesh.shape[e], mesh.modes[e]) + mesh.geo_degree[e], MAX_SAMPLES - 5)
@@ -154,16 +139,28 @@ def curved_base_degree(mesh: MeshArgs, e: int) -> int:
 
 
 @wp.func
-def write_curved_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, r_a: wp.vec4,
-                         dv_a: wp.vec4, segs: Segments, slot: int) -> wp.vec3:
-    """Curved element: f at Lobatto points of [a, b], each located by Newton started one step
-    ahead of its neighbour (from the solution r_a at a). The degree starts at the field's plus
-    the map's and doubles (up to the buffer) while the last two coefficients are not below
-    CURVED_TAIL_RTOL of the samples' size: doubling keeps every old node (they are the even
-    nodes of the finer set), so only the new ones are solved for.
-    Returns (degree, tail estimate |c_deg| + |c_deg-1|, field evaluations)."""
+def write_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, curved: int, r_a: wp.vec4,
+                  dv_a: wp.vec4, segs: Segments, slot: int) -> wp.vec3:
+    """The field along segment [a, b] of element e at Chebyshev-Lobatto points, into the slot.
+
+    Affine element: f w^2 at restriction_degree + 1 points (xi = A o + b + t A d), and w at
+    both ends: exact for the element's polynomial (w = 1 but for pyramids).
+    Curved element: f at points each located by Newton started one step ahead of its
+    neighbour (from the solution r_a at a). The degree starts at the field's plus the map's
+    and doubles (up to the buffer) while the last two coefficients are not below
+    CURVED_TAIL_RTOL of the samples' size: doubling keeps every old point (they are the even
+    points of the finer set), so only the new ones are solved for.
+    Returns (degree, tail estimate |c_deg| + |c_deg-1| (curved; 0 affine), field evaluations)."""
     base = slot * MAX_SAMPLES
-    deg = curved_base_degree(mesh, e)
+    sh = mesh.shape[e]
+    A = mesh.ref_a[e]
+    xo = A * o + mesh.ref_b[e]
+    xd = A * d
+    deg = int(0)
+    if curved == 1:
+        deg = curved_base_degree(mesh, e)
+    else:
+        deg = restriction_degree(mesh, e)
     evals = int(0)
     tail = float(0.0)
     for attempt in range(3):
@@ -172,29 +169,36 @@ def write_curved_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: floa
         t_prev = a
         scale = float(0.0)
         for jj in range(deg + 1):
-            j = deg - jj  # from a (j = deg) to b (j = 0)
+            j = deg - jj  # from a (j = deg) to b (j = 0), each curved solve one step ahead of the last
             t = lobatto_t(a, b, j, deg)
             if attempt == 0 or j % 2 == 1:
-                r, Jinv = geo.invert_point(mesh, e, o + t * d, geo.ahead(r, dv, t - t_prev))
-                v = Jinv * d
-                dv = wp.vec4(v[0], v[1], v[2], 0.0)
-                if r[3] <= 0.0:
-                    r[3] = -1.0
-                segs.samples[base + j] = eval_field(mesh, e, wp.vec3(r[0], r[1], r[2]))
+                xi = xo + t * xd
+                w = float(1.0)
+                if curved == 1:
+                    r, Jinv = geo.invert_point(mesh, e, o + t * d, geo.ahead(r, dv, t - t_prev))
+                    v = Jinv * d
+                    dv = wp.vec4(v[0], v[1], v[2], 0.0)
+                    if r[3] <= 0.0:
+                        r[3] = -1.0
+                    t_prev = t
+                    xi = wp.vec3(r[0], r[1], r[2])
+                else:
+                    w = el_k.restriction_weight(sh, xi)
+                segs.samples[base + j] = eval_field(mesh, e, xi) * w * w
                 evals += 1
-                t_prev = t
             scale = wp.max(scale, wp.abs(segs.samples[base + j]))
+        if curved == 0:
+            break
         # the last two Chebyshev coefficients: T_deg(x_j) = (-1)^j, T_deg-1(x_j) = (-1)^j x_j
         cd = float(0.0)
         cd1 = float(0.0)
         for j in range(deg + 1):
-            w = 1.0
+            wj = 1.0
             if j == 0 or j == deg:
-                w = 0.5
-            sgn = 1.0
+                wj = 0.5
             if j % 2 == 1:
-                sgn = -1.0
-            fj = w * sgn * segs.samples[base + j]
+                wj = -wj
+            fj = wj * segs.samples[base + j]
             cd += fj
             cd1 += fj * wp.cos(wp.pi * float(j) / float(deg))
         tail = (0.5 * wp.abs(cd) + wp.abs(cd1)) * 2.0 / float(deg)
@@ -206,6 +210,11 @@ def write_curved_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: floa
             segs.samples[base + 2 * k] = segs.samples[base + k]
             k -= 1
         deg = 2 * deg
-    segs.samples[base + MAX_SAMPLES - 2] = 1.0
-    segs.samples[base + MAX_SAMPLES - 1] = 1.0
+    wa = float(1.0)
+    wb = float(1.0)
+    if curved == 0:
+        wa = el_k.restriction_weight(sh, xo + a * xd)
+        wb = el_k.restriction_weight(sh, xo + b * xd)
+    segs.samples[base + MAX_SAMPLES - 2] = wa
+    segs.samples[base + MAX_SAMPLES - 1] = wb
     return wp.vec3(float(deg), tail, float(evals))
