@@ -41,7 +41,7 @@ def main(argv=None):
 
     k = kp.kernels(args.precision)
     kernels = [(f"{name} ({kind})", kern) for kind in ("curved", "affine")
-               for name, kern in zip(("search", "traverse"), k.walk_kernels(kind == "curved"))]
+               for name, kern in zip(("search", "traverse", "sample"), k.walk_kernels(kind == "curved"))]
     kernels.append(("integrate, init_rays, finalize", k.integrate))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()

@@ -47,7 +47,8 @@ def resolve_device(device: str) -> str:
 
 
 FLOAT32_LIMIT = 1.0e30
-MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
+MAX_ROUNDS_PER_TILE = 100000
+ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 
 
 def _check_float32_range(mesh: VolumeMesh):
@@ -61,6 +62,25 @@ def _check_float32_range(mesh: VolumeMesh):
             e = int(np.searchsorted(offsets, int(np.argmax(big)), side="right") - 1)
             raise RenderError(f"element {e}: {what} exceed the float32 kernels' range (|value| > {FLOAT32_LIMIT:.0e}); "
                               f"render with precision float64 or rescale the data")
+
+
+def polynomial_degree(shape, modes):
+    """Degree along a straight line of an element's (weighted) expansion: kernels/element.py's."""
+    d = np.maximum(np.asarray(modes) - 1, 1)
+    return np.select([shape == 2, shape == 1, shape == 3], [d.max(axis=1), np.maximum(d[:, 0], d[:, 2]) + d[:, 1],
+                                                            d.sum(axis=1) + 2], d.sum(axis=1))
+
+
+def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
+    """Threads per slot in the sample kernel: the most sample points a first pass needs
+    (restriction.restriction_degree + 1, curved: curved_base_degree + 1), rounded up to a power
+    of two so that a warp holds whole slots."""
+    deg = polynomial_degree(mesh.shape, mesh.modes)
+    if mesh.affine is not None:
+        curved = ~mesh.affine
+        deg = np.where(curved, np.maximum(np.minimum(deg + geo_degree, k.MAX_SAMPLES - 5), 2), deg)
+    points = int(deg.max()) + 1
+    return 1 << (points - 1).bit_length()
 
 
 class Renderer:
@@ -121,8 +141,18 @@ class Renderer:
         segs.degree = wp.zeros(slots, dtype=wp.int32)
         segs.flags = wp.zeros(slots, dtype=wp.int32)
         segs.tail = wp.zeros(slots, dtype=scalar)
+        vec3 = wp.vec3d if scalar == wp.float64 else wp.vec3
+        segs.xi0 = wp.zeros(slots, dtype=vec3)
+        segs.v0 = wp.zeros(slots, dtype=vec3)
+        segs.xi1 = wp.zeros(slots, dtype=vec3)
+        segs.v1 = wp.zeros(slots, dtype=vec3)
         segs.samples = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
-        return rays, segs
+        segs.list = wp.zeros(slots, dtype=wp.int32)
+        segs.list_count = wp.zeros(1, dtype=wp.int32)
+        # a curved slot refined (degree doubled) goes on one of these for its odd points
+        again = [wp.zeros(slots, dtype=wp.int32) for _ in range(2)]
+        again_count = [wp.zeros(1, dtype=wp.int32) for _ in range(2)]
+        return rays, segs, again, again_count
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
@@ -178,8 +208,9 @@ class Renderer:
             S = quadrature_tables.integration_matrix(x)
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
-            # affine-only meshes get search and traverse kernels without the curved machinery
+            # affine-only meshes get search, traverse and sample kernels without the curved machinery
             kernel = raycast.walk_kernels(curved=not bool(affine.all()))
+            self._sample_stride = sample_stride(mesh, gdeg, k=raycast)
         self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
         return self._uploads[precision]
 
@@ -191,7 +222,9 @@ class Renderer:
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
         waits add a little to render_seconds)."""
         wp = _warp()
-        k, mesh_args, gk, gk_s, (search, traverse) = self._upload(options.precision)
+        k, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
+        curved = not bool(self.mesh.affine is None or self.mesh.affine.all())
+        stride = self._sample_stride
         f64 = options.precision == "float64"
         vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
         scalar = wp.float64 if f64 else wp.float32
@@ -230,13 +263,14 @@ class Renderer:
                 rgba = wp.zeros(total, dtype=vec4)
                 aux = wp.zeros(total, dtype=vec2)
                 stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
-                rays, segs = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
+                rays, segs, again, again_count = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            for kern in (search, traverse, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
+            for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
-            kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "integrate": 0.0, "finalize": 0.0}
+            kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "sample": 0.0, "refine": 0.0,
+                              "integrate": 0.0, "finalize": 0.0}
 
             def launch(name, kern, dim, inputs):
                 t_launch = time.perf_counter()
@@ -254,8 +288,24 @@ class Renderer:
                 active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
                 while active > 0:
                     rays.active_count.zero_()
+                    segs.list_count.zero_()
                     launch("search", search, active, [mesh_args, cam, start, rays])
                     launch("traverse", traverse, active, [mesh_args, cam, t, q, start, rays, segs])
+                    listed = int(segs.list_count.numpy()[0])
+                    if listed > 0:
+                        launch("sample", sample, listed * stride, [mesh_args, cam, start, segs, segs.list, stride, 0])
+                    # curved interpolants whose tail is too large: degree doubled (twice at most)
+                    slots, count, n_slots = segs.list, segs.list_count, listed
+                    for p in range(2 if curved and listed > 0 else 0):
+                        again_count[p].zero_()
+                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
+                        n_slots = int(again_count[p].numpy()[0])
+                        if n_slots == 0:
+                            break
+                        launch("sample", sample, n_slots * ODD_STRIDE, [mesh_args, cam, start, segs, again[p], ODD_STRIDE, 1])
+                        slots, count = again[p], again_count[p]
+                    if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
+                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
                     launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
                     rounds += 1
                     active = int(rays.active_count.numpy()[0])

@@ -161,9 +161,15 @@ def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.arr
     # in world space is the segment in reference space): the traverse kernel writes the
     # samples, the integrate kernel turns them into the series and bounds it
     i = wp.tid()
-    none = wp.vec4(0.0, 0.0, 0.0, -1.0)
-    ws = rs.write_samples(mesh, 0, xo[i], xd[i], ab[i][0], ab[i][1], 0, none, none, segs, i)
-    deg = int(ws[0])
+    segs.element[i] = 0
+    segs.t0[i] = ab[i][0]
+    segs.t1[i] = ab[i][1]
+    deg = rs.restriction_degree(mesh, 0)
+    for j in range(deg + 1):
+        segs.samples[i * args.MAX_SAMPLES + j] = rs.sample_at(mesh, xo[i], xd[i], segs, i, j, deg, 0)
+    w = rs.end_weights(mesh, xo[i], xd[i], segs, i, 0)
+    segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
+    segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
     c = rs.chebyshev_from_samples(segs, i, deg)
     out[i] = rs.segment_bounds(c, deg)
 
@@ -172,6 +178,9 @@ def segment_bounds(mesh_args, xo, xd, ab):
     n = len(xo)
     segs = args.Segments()
     segs.samples = wp.zeros(n * args.MAX_SAMPLES, dtype=wp.float32, device="cpu")
+    segs.element = wp.zeros(n, dtype=wp.int32, device="cpu")
+    segs.t0 = wp.zeros(n, dtype=wp.float32, device="cpu")
+    segs.t1 = wp.zeros(n, dtype=wp.float32, device="cpu")
     out = wp.zeros(n, dtype=wp.vec2, device="cpu")
     wp.launch(_segment_bounds, dim=n, device="cpu",
               inputs=[mesh_args, wp.array(np.asarray(xo, np.float32), dtype=wp.vec3, device="cpu"),

@@ -4,9 +4,9 @@ float64 twin of every kernel module sees the same struct types; kernels/precisio
 
 A render is a loop of rounds over a tile of rays (kernels/raycast.py): the search kernel finds
 where rays that need it enter the mesh, the traverse kernel walks each ray through the mesh
-and writes up to SEGMENTS_PER_ROUND element segments, each with the samples of the field
-along it; the integrate kernel turns them into colour and transmittance. Per-ray state
-carries everything from one round to the next.
+and writes up to SEGMENTS_PER_ROUND element segments, the sample kernel fills in the field's
+samples along them, and the integrate kernel turns them into colour and transmittance.
+Per-ray state carries everything from one round to the next.
 """
 from __future__ import annotations
 
@@ -105,7 +105,10 @@ class QuadArgs:
 
 @wp.struct
 class Segments:
-    """Up to SEGMENTS_PER_ROUND segments per ray of the tile, slot = ray * SEGMENTS_PER_ROUND + k."""
+    """Up to SEGMENTS_PER_ROUND segments per ray of the tile, slot = ray * SEGMENTS_PER_ROUND + k.
+    The traverse kernel fills a slot's record and lists the slots that need samples; the
+    sample kernel fills them, one thread per sample point; refine doubles a curved slot's
+    degree where its tail is too large."""
 
     count: wp.array(dtype=wp.int32)  # per ray: slots filled this round
     element: wp.array(dtype=wp.int32)
@@ -114,9 +117,18 @@ class Segments:
     degree: wp.array(dtype=wp.int32)  # samples 0..degree at Chebyshev-Lobatto points of [t0, t1]
     flags: wp.array(dtype=wp.int32)  # SEG_CURVED, SEG_EVALUATE
     tail: wp.array(dtype=wp.float32)  # curved: the interpolant's error estimate
+    # curved: the solutions (xi) and reference velocities (dxi/dt) at both ends, for the
+    # sample points' Newton starts (cubic Hermite between the ends)
+    xi0: wp.array(dtype=wp.vec3)
+    v0: wp.array(dtype=wp.vec3)
+    xi1: wp.array(dtype=wp.vec3)
+    v1: wp.array(dtype=wp.vec3)
     # slot * MAX_SAMPLES + j: f(t_j) w(t_j)^2 at t_j = mid + half cos(pi j / degree) (w = 1 but
     # for pyramids); MAX_SAMPLES - 2 / - 1: w(t0), w(t1)
     samples: wp.array(dtype=wp.float32)
+    # the slots that need samples this round: list[0..list_count)
+    list: wp.array(dtype=wp.int32)
+    list_count: wp.array(dtype=wp.int32)
 
 
 @wp.struct

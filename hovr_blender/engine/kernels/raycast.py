@@ -38,7 +38,7 @@ from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, vecst
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "NUM_STATS",
-           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "integrate", "finalize"]
+           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "integrate", "finalize"]
 
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
@@ -239,6 +239,8 @@ def _make_walk_kernels(CURVED: bool):
             face = int(-1)
             r_a = wp.vec4(0.0, 0.0, 0.0, -1.0)
             dv_a = wp.vec4(0.0, 0.0, 0.0, 0.0)
+            r_b = r_a
+            dv_b = dv_a
             need_exit = int(0)  # a curved element entered at a (solution r_a): find where it leaves
             if e < 0:
                 break  # the next round's search finds where the ray goes on
@@ -269,7 +271,7 @@ def _make_walk_kernels(CURVED: bool):
             if wp.static(CURVED):
                 if need_exit == 1:
                     bx = geo.box_interval(mesh, e, o, d)
-                    ex, rb, dvb = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+                    ex, r_b, dv_b = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
                     b = wp.max(a, ex[0])
                     face = int(ex[1])
             if b > a:
@@ -283,16 +285,26 @@ def _make_walk_kernels(CURVED: bool):
                     segs.t0[slot] = a
                     segs.t1[slot] = b
                     segs.tail[slot] = 0.0
-                    curved = int(1) - mesh.affine[e]
+                    curved = int(0)  # a constant in the affine kernel: the sample kernel's Newton compiles out
+                    if wp.static(CURVED):
+                        curved = int(1) - mesh.affine[e]
                     if curved == 0 and restriction == 0:
                         segs.degree[slot] = -1  # the baselines evaluate affine elements themselves
                         segs.flags[slot] = SEG_EVALUATE
                     else:
-                        ws = rs.write_samples(mesh, e, o, d, a, b, curved, r_a, dv_a, segs, slot)
-                        segs.degree[slot] = int(ws[0])
-                        segs.tail[slot] = ws[1]
+                        deg = int(0)
+                        if curved == 1:
+                            deg = rs.curved_base_degree(mesh, e)
+                            segs.xi0[slot] = wp.vec3(r_a[0], r_a[1], r_a[2])
+                            segs.v0[slot] = wp.vec3(dv_a[0], dv_a[1], dv_a[2])
+                            segs.xi1[slot] = wp.vec3(r_b[0], r_b[1], r_b[2])
+                            segs.v1[slot] = wp.vec3(dv_b[0], dv_b[1], dv_b[2])
+                        else:
+                            deg = rs.restriction_degree(mesh, e)
+                        segs.degree[slot] = deg
                         segs.flags[slot] = curved * SEG_CURVED
-                        n_field += int(ws[2])
+                        segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
+                        n_field += deg + 1
                     n += 1
             else:
                 zero_steps += 1
@@ -314,14 +326,57 @@ def _make_walk_kernels(CURVED: bool):
         rays.stats[pixel, STAT_EMPTY] += n_empty
         rays.stats[pixel, STAT_WALKS] += n_walk
 
-    return search, traverse
+    @wp.kernel(enable_backward=False, module="unique", module_options=opts)
+    def sample(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, segs: Segments, slots: wp.array(dtype=wp.int32),
+               stride: wp.int32, odd: wp.int32):
+        """One thread per sample point: slots[tid // stride]'s point tid % stride (odd = 1: its
+        odd points, the ones a doubled degree adds). The threads of one slot run side by side,
+        so a warp evaluates one element."""
+        tid = wp.tid()
+        slot = slots[tid // stride]
+        j = tid % stride
+        deg = segs.degree[slot]
+        if odd == 1:
+            j = 2 * j + 1
+        if j > deg:
+            return
+        o, d = camera_ray(cam, slot // SEGMENTS_PER_ROUND + pixel_offset)
+        curved = int(0)
+        if wp.static(CURVED):
+            if (segs.flags[slot] & SEG_CURVED) != 0:
+                curved = 1
+        segs.samples[slot * MAX_SAMPLES + j] = rs.sample_at(mesh, o, d, segs, slot, j, deg, curved)
+        if j == 0:
+            w = rs.end_weights(mesh, o, d, segs, slot, curved)
+            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 2] = w[0]
+            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 1] = w[1]
+
+    return search, traverse, sample
+
+
+@wp.kernel(enable_backward=False)
+def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.array(dtype=wp.int32),
+           count: wp.array(dtype=wp.int32), again: wp.array(dtype=wp.int32), again_count: wp.array(dtype=wp.int32),
+           allow: wp.int32):
+    """One thread per sampled slot: a curved slot's tail is its error estimate; if it is too
+    large (and allow is 1) the degree is doubled and the slot goes on the `again` list for the
+    sample kernel's odd points."""
+    idx = wp.tid()
+    if idx >= count[0]:
+        return
+    slot = slots[idx]
+    if (segs.flags[slot] & SEG_CURVED) == 0:
+        return
+    if rs.refine_degree(segs, slot, allow) == 1:
+        again[wp.atomic_add(again_count, 0, 1)] = slot
+        rays.stats[slot // SEGMENTS_PER_ROUND + pixel_offset, STAT_FIELD_EVALS] += segs.degree[slot] // 2
 
 
 _WALK = {}
 
 
 def walk_kernels(curved: bool):
-    """(search, traverse), specialised at compile time: with `curved` False the Newton
+    """(search, traverse, sample), specialised at compile time: with `curved` False the Newton
     location and curved sampling are compiled out (affine meshes pay only for what they use)."""
     key = bool(curved)
     if key not in _WALK:

@@ -139,82 +139,93 @@ def curved_base_degree(mesh: MeshArgs, e: int) -> int:
 
 
 @wp.func
-def write_samples(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, curved: int, r_a: wp.vec4,
-                  dv_a: wp.vec4, segs: Segments, slot: int) -> wp.vec3:
-    """The field along segment [a, b] of element e at Chebyshev-Lobatto points, into the slot.
+def hermite_start(segs: Segments, slot: int, t: float) -> wp.vec3:
+    """Newton's start at t in a curved segment: the cubic Hermite curve through the solutions
+    and reference velocities at both ends (kept in Newton's box)."""
+    a = segs.t0[slot]
+    L = segs.t1[slot] - a
+    s = float(0.0)
+    if L > 0.0:
+        s = (t - a) / L
+    s2 = s * s
+    s3 = s2 * s
+    xi = ((2.0 * s3 - 3.0 * s2 + 1.0) * segs.xi0[slot] + ((s3 - 2.0 * s2 + s) * L) * segs.v0[slot]
+          + (3.0 * s2 - 2.0 * s3) * segs.xi1[slot] + ((s3 - s2) * L) * segs.v1[slot])
+    for k in range(3):
+        xi[k] = wp.clamp(xi[k], -1.5, 1.5)
+    return xi
 
-    Affine element: f w^2 at restriction_degree + 1 points (xi = A o + b + t A d), and w at
-    both ends: exact for the element's polynomial (w = 1 but for pyramids).
-    Curved element: f at points each located by Newton started one step ahead of its
-    neighbour (from the solution r_a at a). The degree starts at the field's plus the map's
-    and doubles (up to the buffer) while the last two coefficients are not below
-    CURVED_TAIL_RTOL of the samples' size: doubling keeps every old point (they are the even
-    points of the finer set), so only the new ones are solved for.
-    Returns (degree, tail estimate |c_deg| + |c_deg-1| (curved; 0 affine), field evaluations)."""
-    base = slot * MAX_SAMPLES
-    sh = mesh.shape[e]
-    A = mesh.ref_a[e]
-    xo = A * o + mesh.ref_b[e]
-    xd = A * d
-    deg = int(0)
+
+@wp.func
+def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
+              curved: int) -> float:
+    """The slot's sample j of deg + 1 (Chebyshev-Lobatto point t_j of [t0, t1]).
+
+    Affine element: f w^2 at xi = A o + b + t A d (w = 1 but for pyramids): deg + 1 of these
+    are exact for the element's polynomial along the ray (restriction_degree).
+    Curved element: f at the point located by Newton from the Hermite start (from the vertex-
+    affine guess if that fails): an interpolant whose tail the refine kernel checks."""
+    e = segs.element[slot]
+    t = lobatto_t(segs.t0[slot], segs.t1[slot], j, deg)
+    w = float(1.0)
+    xi = wp.vec3(0.0, 0.0, 0.0)
     if curved == 1:
-        deg = curved_base_degree(mesh, e)
+        p = o + t * d
+        start = hermite_start(segs, slot, t)
+        for attempt in range(2):
+            r, Jinv = geo.invert_point(mesh, e, p, start)
+            xi = wp.vec3(r[0], r[1], r[2])
+            if r[3] > 0.0:
+                break
+            start = geo.start_guess(mesh, e, p)
     else:
-        deg = restriction_degree(mesh, e)
-    evals = int(0)
-    tail = float(0.0)
-    for attempt in range(3):
-        r = r_a
-        dv = dv_a
-        t_prev = a
-        scale = float(0.0)
-        for jj in range(deg + 1):
-            j = deg - jj  # from a (j = deg) to b (j = 0), each curved solve one step ahead of the last
-            t = lobatto_t(a, b, j, deg)
-            if attempt == 0 or j % 2 == 1:
-                xi = xo + t * xd
-                w = float(1.0)
-                if curved == 1:
-                    r, Jinv = geo.invert_point(mesh, e, o + t * d, geo.ahead(r, dv, t - t_prev))
-                    v = Jinv * d
-                    dv = wp.vec4(v[0], v[1], v[2], 0.0)
-                    if r[3] <= 0.0:
-                        r[3] = -1.0
-                    t_prev = t
-                    xi = wp.vec3(r[0], r[1], r[2])
-                else:
-                    w = el_k.restriction_weight(sh, xi)
-                segs.samples[base + j] = eval_field(mesh, e, xi) * w * w
-                evals += 1
-            scale = wp.max(scale, wp.abs(segs.samples[base + j]))
-        if curved == 0:
-            break
-        # the last two Chebyshev coefficients: T_deg(x_j) = (-1)^j, T_deg-1(x_j) = (-1)^j x_j
-        cd = float(0.0)
-        cd1 = float(0.0)
-        for j in range(deg + 1):
-            wj = 1.0
-            if j == 0 or j == deg:
-                wj = 0.5
-            if j % 2 == 1:
-                wj = -wj
-            fj = wj * segs.samples[base + j]
-            cd += fj
-            cd1 += fj * wp.cos(wp.pi * float(j) / float(deg))
-        tail = (0.5 * wp.abs(cd) + wp.abs(cd1)) * 2.0 / float(deg)
-        if tail <= CURVED_TAIL_RTOL * scale + 1.0e-30 or 2 * deg > MAX_SAMPLES - 5:
-            break
-        # spread the samples to the even slots of the doubled set
-        k = deg
-        while k >= 1:
-            segs.samples[base + 2 * k] = segs.samples[base + k]
-            k -= 1
-        deg = 2 * deg
-    wa = float(1.0)
-    wb = float(1.0)
-    if curved == 0:
-        wa = el_k.restriction_weight(sh, xo + a * xd)
-        wb = el_k.restriction_weight(sh, xo + b * xd)
-    segs.samples[base + MAX_SAMPLES - 2] = wa
-    segs.samples[base + MAX_SAMPLES - 1] = wb
-    return wp.vec3(float(deg), tail, float(evals))
+        A = mesh.ref_a[e]
+        xi = A * (o + t * d) + mesh.ref_b[e]
+        w = el_k.restriction_weight(mesh.shape[e], xi)
+    return eval_field(mesh, e, xi) * w * w
+
+
+@wp.func
+def end_weights(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, curved: int) -> wp.vec2:
+    """(w(t0), w(t1)): the pyramid weights of an affine segment (1 otherwise)."""
+    if curved == 1:
+        return wp.vec2(1.0, 1.0)
+    e = segs.element[slot]
+    A = mesh.ref_a[e]
+    sh = mesh.shape[e]
+    return wp.vec2(el_k.restriction_weight(sh, A * (o + segs.t0[slot] * d) + mesh.ref_b[e]),
+                   el_k.restriction_weight(sh, A * (o + segs.t1[slot] * d) + mesh.ref_b[e]))
+
+
+@wp.func
+def refine_degree(segs: Segments, slot: int, allow: int) -> int:
+    """A curved slot's tail |c_deg| + |c_deg-1| against CURVED_TAIL_RTOL of its samples' size:
+    small enough (or the buffer full): keep it as the error estimate and return 0; else spread
+    the samples to the even points of the doubled degree (every old point is one of those) and
+    return 1: the sample kernel fills the odd ones."""
+    base = slot * MAX_SAMPLES
+    deg = segs.degree[slot]
+    cd = float(0.0)
+    cd1 = float(0.0)
+    scale = float(0.0)
+    for j in range(deg + 1):
+        f = segs.samples[base + j]
+        scale = wp.max(scale, wp.abs(f))
+        wj = 1.0
+        if j == 0 or j == deg:
+            wj = 0.5
+        if j % 2 == 1:
+            wj = -wj
+        # T_deg(x_j) = (-1)^j, T_deg-1(x_j) = (-1)^j x_j
+        cd += wj * f
+        cd1 += wj * f * wp.cos(wp.pi * float(j) / float(deg))
+    tail = (0.5 * wp.abs(cd) + wp.abs(cd1)) * 2.0 / float(deg)
+    segs.tail[slot] = tail
+    if allow == 0 or tail <= CURVED_TAIL_RTOL * scale + 1.0e-30 or 2 * deg > MAX_SAMPLES - 5:
+        return 0
+    k = deg
+    while k >= 1:
+        segs.samples[base + 2 * k] = segs.samples[base + k]
+        k -= 1
+    segs.degree[slot] = 2 * deg
+    return 1
