@@ -28,7 +28,8 @@ wp.set_module_options({"enable_backward": False})
 INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
 NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
 ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
-CURVED_SAMPLES = 16  # samples of the box interval in the entry search
+NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
+ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit
 MAX_EXIT_STEPS = 32
 
@@ -173,7 +174,8 @@ def margin_and_face(shape: int, xi: wp.vec3) -> wp.vec2:
 
 @wp.func
 def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3):
-    """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; -1 where Newton fails; and
+    """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; NEWTON_FAILED where Newton does
+    not converge; and
     (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on the margin. A
     warm start that fails is retried once from the affine guess."""
     p = o + t * d
@@ -187,7 +189,7 @@ def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0:
         start = start_guess(mesh, e, p)
     xi = wp.vec3(r[0], r[1], r[2])
     v = Jinv * d
-    m = float(-1.0)
+    m = float(NEWTON_FAILED)
     slope = float(0.0)
     if r[3] > 0.0:
         mf = margin_and_face(mesh.shape[e], xi)
@@ -201,7 +203,7 @@ def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0:
 def ahead(r: wp.vec4, dv: wp.vec4, dt: float) -> wp.vec3:
     """Warm start dt further along the ray from a solved point (xi, velocity), kept in Newton's box."""
     y = wp.vec3(r[0], r[1], r[2])
-    if r[3] > -1.0:
+    if r[3] > NEWTON_FAILED:
         y = y + dt * wp.vec3(dv[0], dv[1], dv[2])
     for k in range(3):
         y[k] = wp.clamp(y[k], -1.5, 1.5)
@@ -230,7 +232,7 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 # Where the ray crosses an element's boundary between an outside point a (margin fa <= 0) and
 # an inside point b (solution rb, velocity dvb): the margin is smooth across one face and its
 # slope is known (curved_inside), so Newton steps on it are taken while they stay inside the
-# bracket, with Illinois regula falsi otherwise (a failed solve's margin of -1 only slows it).
+# bracket, with bisection where the outside end's solve failed and Illinois regula falsi otherwise.
 # The result is an inside point within ROOT_RTOL relative of the crossing with the solution
 # found there (solving again at that t can land a rounding error on the other side). The
 # callers' loops ask bracket_query for the next t, solve there, and hand it to bracket_update,
@@ -299,7 +301,7 @@ def bracket_query(br: Bracket):
 def bracket_update(br_in: Bracket, m: float, rm: wp.vec4, dvm: wp.vec4) -> Bracket:
     br = br_in
     br.have = 0
-    if rm[3] > -1.0:
+    if rm[3] > NEWTON_FAILED:
         br.have = 1
         br.tl = m
         br.rl = rm
@@ -387,97 +389,92 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
 
 
 @wp.func
+def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
+    """(s_in, s_out): where the tangent line xi + s v (s in t units) enters and leaves the
+    reference element (Cyrus-Beck against its face planes); s_in > s_out where it misses."""
+    s_in = float(-1.0e30)
+    s_out = float(1.0e30)
+    for f in range(el_k.num_faces(shape)):
+        p = el_k.face_plane(shape, f)
+        rate = p[0] * v[0] + p[1] * v[1] + p[2] * v[2]
+        gap = p[3] - (p[0] * xi[0] + p[1] * xi[1] + p[2] * xi[2])
+        if wp.abs(rate) < 1.0e-30:
+            if gap < 0.0:
+                s_in = 1.0e30
+        else:
+            s = gap / rate
+            if rate > 0.0:
+                s_out = wp.min(s_out, s)
+            else:
+                s_in = wp.max(s_in, s)
+    return wp.vec2(s_in, s_out)
+
+
+@wp.func
 def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     """Where the ray first is inside curved element e beyond t_from: (found, t, 0) and the
-    solution and velocity there (for curved_exit). Samples of the box interval
-    (CURVED_SAMPLES) find an inside point; before the first one the entry is located to
-    ROOT_RTOL relative. With no sample inside but the margin close, a clip thinner than the
-    sample spacing may hide next to the best sample: the margin's peak there is ternary-
-    searched. A thinner stretch can be missed; the traversal asks again beyond its t, so a
-    later re-entry is still found."""
+    solution and velocity there (for curved_exit).
+
+    Predictor-corrector from the start of the box interval: at each point, Newton's solution
+    (the polynomial map extends beyond the element) and the tangent line in reference space
+    predict the stretch where the ray is inside the reference element; the next point is just
+    past its entry (at most its middle, so that a thin clip is landed in), or back to its middle
+    where the stretch lies behind (the last step overshot a clip thinner than the prediction's
+    error). Where the tangent misses (or Newton fails far outside), the step is 1/ENTRY_STEPS of
+    the box interval, so a curved ray that clips the element near its tangent's miss is still
+    met by a later tangent. The first point inside closes a bracket with the last point known
+    to lie before the element, located to ROOT_RTOL relative. A clip thinner than the steps can
+    be missed; the traversal asks again beyond its t, so a later re-entry is still found."""
     none = wp.vec4(0.0, 0.0, 0.0, -1.0)
     bi = box_interval(mesh, e, o, d)
     ta = wp.max(bi[0], t_from)
     tb = bi[1]
     if tb <= ta:
         return wp.vec3(0.0, 0.0, 0.0), none, none
+    shape = mesh.shape[e]
+    span = tb - ta
     xi = start_guess(mesh, e, o + ta * d)
-    n_samples = int(CURVED_SAMPLES)  # a local int: Warp retypes a global cast in place (float64 twin)
-    dt = (tb - ta) / float(n_samples)
-    phase = int(0)  # 0: samples, 1: ternary search, 2: its peak, 3: the entry crossing
-    i = int(0)
-    prev_t = ta
-    prev_r = wp.vec4(xi[0], xi[1], xi[2], -1.0)
-    prev_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    best_r = prev_r
-    best_t = ta
-    lo = float(0.0)
-    hi = float(0.0)
-    g = xi
-    m1_margin = float(0.0)
-    g1 = xi
-    tern = int(0)
+    tq = ta
+    start = xi
+    t_lo = ta  # the last point known to lie before the element, and its margin
+    m_lo = float(NEWTON_FAILED)
+    bracketing = int(0)
     br = Bracket()
-    for it in range(CURVED_SAMPLES + 1 + 61 + 40):
-        tq = ta
-        start = g
-        if phase == 0:
-            tq = ta + float(i) * dt
-            start = ahead(prev_r, prev_dv, tq - prev_t)
-        elif phase == 1:
-            if tern % 2 == 0:
-                tq = lo + (hi - lo) / 3.0
-            else:
-                tq = hi - (hi - lo) / 3.0
-        elif phase == 2:
-            tq = 0.5 * (lo + hi)
-        else:
+    n_steps = int(ENTRY_STEPS)  # a local int: Warp retypes a global cast in place (float64 twin)
+    for it in range(2 * n_steps + 48):
+        if bracketing == 1:
             tq, start = bracket_query(br)
         rq, dvq = curved_inside(mesh, e, o, d, tq, start)
-        if phase == 0:
-            if rq[3] > best_r[3]:
-                best_r = rq
-                best_t = tq
-            if rq[3] > 0.0:
-                if i == 0:
-                    return wp.vec3(1.0, tq, 0.0), rq, dvq
-                phase = 3
-                br = bracket_start(prev_t, prev_r[3], tq, rq, dvq)
-            else:
-                prev_t = tq
-                prev_r = rq
-                prev_dv = dvq
-                i += 1
-                if i > n_samples:
-                    if best_r[3] <= -0.25:
-                        return wp.vec3(0.0, 0.0, 0.0), none, none
-                    phase = 1
-                    lo = wp.max(ta, best_t - dt)
-                    hi = wp.min(tb, best_t + dt)
-                    g = wp.vec3(best_r[0], best_r[1], best_r[2])
-        elif phase == 1:
-            if tern % 2 == 0:
-                m1_margin = rq[3]
-                g1 = wp.vec3(rq[0], rq[1], rq[2])
-            else:
-                if m1_margin < rq[3]:
-                    lo = lo + (hi - lo) / 3.0
-                    g = wp.vec3(rq[0], rq[1], rq[2])
-                else:
-                    hi = hi - (hi - lo) / 3.0
-                    g = g1
-            tern += 1
-            if tern >= 60:
-                phase = 2
-        elif phase == 2:
-            if rq[3] <= 0.0:
-                return wp.vec3(0.0, 0.0, 0.0), none, none
-            phase = 3
-            br = bracket_start(wp.max(ta, best_t - dt), -1.0, tq, rq, dvq)
-        else:
+        if bracketing == 1:
             br = bracket_update(br, tq, rq, dvq)
             if br.done == 1:
+                return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb
+            continue
+        if rq[3] > 0.0:
+            if tq <= ta:
+                return wp.vec3(1.0, tq, 0.0), rq, dvq
+            bracketing = 1
+            br = bracket_start(t_lo, m_lo, tq, rq, dvq)
+            continue
+        # outside: where does the tangent line meet the reference element?
+        step = span / float(n_steps)
+        behind = int(0)
+        if rq[3] > NEWTON_FAILED:
+            clip = tangent_clip(shape, wp.vec3(rq[0], rq[1], rq[2]), wp.vec3(dvq[0], dvq[1], dvq[2]))
+            if clip[0] <= clip[1]:
+                if clip[1] <= 0.0:
+                    behind = 1
+                    step = wp.max(0.5 * (clip[0] + clip[1]), t_lo - tq)
+                else:
+                    s_in = wp.max(clip[0], 0.0)
+                    step = wp.min(s_in + wp.min(EXIT_OVERSHOOT * s_in + 1.0e-4 * span, 0.5 * (clip[1] - s_in)),
+                                  4.0 * step)
+        if behind == 0:
+            if tq >= tb:
                 break
-    if phase != 3:
-        return wp.vec3(0.0, 0.0, 0.0), none, none
-    return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb
+            t_lo = tq
+            m_lo = rq[3]
+        t_new = wp.min(tq + step, tb)
+        start = ahead(rq, dvq, t_new - tq)
+        tq = t_new
+    return wp.vec3(0.0, 0.0, 0.0), none, none
