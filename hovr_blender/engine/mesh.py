@@ -315,21 +315,40 @@ def _modal_ranges(shape, modes, C):
     return -spread, spread
 
 
-def _grouped_ranges(shapes, modes, offsets, flat):
-    """_modal_ranges over every element, grouped by (shape, modes) for speed."""
+def _per_group(shapes, modes, offsets, flat, fn):
+    """fn(shape, modes, C) over every element, grouped by (shape, modes) for speed; fn returns a
+    tuple of per-element arrays."""
     from . import expansions as ex
 
     n = len(shapes)
     keys = np.concatenate([np.asarray(shapes)[:, None], np.asarray(modes)], axis=1)
-    lo = np.empty((n,) + flat.shape[1:])
-    hi = np.empty((n,) + flat.shape[1:])
+    out = None
     for key in np.unique(keys, axis=0):
         sh, m = int(key[0]), tuple(int(v) for v in key[1:])
         idx = np.nonzero((keys == key).all(axis=1))[0]
         k = ex.num_coeffs(sh, m)
         gather = offsets[idx][:, None] + np.arange(k)[None, :]
-        lo[idx], hi[idx] = _modal_ranges(sh, m, flat[gather])
-    return lo, hi
+        parts = fn(sh, m, flat[gather])
+        if out is None:
+            out = [np.empty((n,) + np.shape(p)[1:]) for p in parts]
+        for o, p in zip(out, parts):
+            o[idx] = p
+    return out
+
+
+def _grouped_ranges(shapes, modes, offsets, flat):
+    """_modal_ranges over every element."""
+    return _per_group(shapes, modes, offsets, flat, _modal_ranges)
+
+
+def element_coefficient_scale(mesh: "VolumeMesh") -> np.ndarray:
+    """(N,) sum_m |c_m| max|phi_m|: the size of the terms an evaluation of the element's field
+    adds up, so its rounding error is about this times the precision's epsilon."""
+    def scale(shape, modes, C):
+        B, _ = mode_bounds(shape, modes)
+        return ((np.abs(C) * B).sum(axis=1),)
+
+    return _per_group(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs, scale)[0]
 
 
 def element_field_ranges(mesh: "VolumeMesh"):

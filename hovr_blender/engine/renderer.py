@@ -48,7 +48,9 @@ def resolve_device(device: str) -> str:
 
 FLOAT32_LIMIT = 1.0e30
 MAX_ROUNDS_PER_TILE = 100000
-ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
+ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)
+EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
+COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 
 
 def _check_float32_range(mesh: VolumeMesh):
@@ -147,6 +149,7 @@ class Renderer:
         segs.xi1 = wp.zeros(slots, dtype=vec3)
         segs.v1 = wp.zeros(slots, dtype=vec3)
         segs.samples = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
+        segs.coeffs = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
         segs.list = wp.zeros(slots, dtype=wp.int32)
         segs.list_count = wp.zeros(1, dtype=wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
@@ -164,7 +167,7 @@ class Renderer:
             return self._uploads[precision]
         wp = _warp()
         from .kernels import precision as kp, quadrature_tables
-        from .mesh import element_field_ranges
+        from .mesh import element_coefficient_scale, element_field_ranges
         from .tensor_geometry import mesh_tensor_geometry
 
         raycast = kp.kernels(precision)
@@ -192,6 +195,10 @@ class Renderer:
             flo, fhi = element_field_ranges(mesh)
             m.field_lo = wp.array(flo.astype(fdt), dtype=scalar)
             m.field_hi = wp.array(fhi.astype(fdt), dtype=scalar)
+            # a sample is a sum of terms of this size: its rounding error, and the interpolant's
+            # (Lebesgue constant of <= 48 Chebyshev-Lobatto points < 4) times a few ulps per term
+            err = EVAL_ERROR_FACTOR * float(np.finfo(fdt).eps) * element_coefficient_scale(mesh)
+            m.field_err = wp.array(err.astype(fdt), dtype=scalar)
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
             m.affine = wp.array(affine, dtype=wp.int32)
@@ -266,11 +273,11 @@ class Renderer:
                 rays, segs, again, again_count = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region
+            for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region (coefficients: the module of integrate)
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
             kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "sample": 0.0, "refine": 0.0,
-                              "integrate": 0.0, "finalize": 0.0}
+                              "coefficients": 0.0, "integrate": 0.0, "finalize": 0.0}
 
             def launch(name, kern, dim, inputs):
                 t_launch = time.perf_counter()
@@ -306,6 +313,9 @@ class Renderer:
                         slots, count = again[p], again_count[p]
                     if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
                         launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
+                    if listed > 0:
+                        coef_stride = COEF_STRIDE_CURVED if curved else stride
+                        launch("coefficients", k.coefficients, listed * coef_stride, [segs, segs.list, coef_stride])
                     launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
                     rounds += 1
                     active = int(rays.active_count.numpy()[0])

@@ -49,12 +49,12 @@ def build_scene(scene, contract, method="classified", film_transparent=False, pe
                               OBJECT_LOCATION, OBJECT_ANGLE_Z, method, film_transparent, percentage)
 
 
-def core_render(contract, method, film_transparent, camera=None):
+def core_render(contract, method, film_transparent, camera=None, matrix=None):
     """The same view through the core API only: contract camera, ramp lists, numpy transform."""
     camera = RayCamera.from_contract(contract, W, H) if camera is None else camera
     tf = TransferFunction.from_rgba_ramp([p for p, _ in STOPS], [c for _, c in STOPS], DENSITY_SCALE, *VALUE_RANGE)
     bg = np.zeros(3) if film_transparent else np.array(BACKGROUND)
-    mesh = builtin.sphere().transformed(object_matrix())
+    mesh = builtin.sphere().transformed(object_matrix() if matrix is None else matrix)
     options = RenderOptions(method=method, h=0.01, tolerance=1e-6, device="cpu")
     return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
 
@@ -65,7 +65,7 @@ def core_render(contract, method, film_transparent, camera=None):
     (ORTHOGRAPHIC, "classified", False, 100),
 ])
 def test_f12_matches_core_render(scene, tmp_path, contract, method, film_transparent, percentage):
-    build_scene(scene, contract, method, film_transparent, percentage)
+    obj = build_scene(scene, contract, method, film_transparent, percentage)
     got = render_to_exr(scene, tmp_path / "f12.exr")
     want = core_render(contract, method, film_transparent)
     assert got.shape == (H, W, 4)
@@ -75,10 +75,10 @@ def test_f12_matches_core_render(scene, tmp_path, contract, method, film_transpa
     else:
         np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)  # RGB = C + T * world colour
         np.testing.assert_array_equal(got[..., 3], 1.0)
-    # With the engine's own (float32-derived) camera the core gives the EXR to the bit:
-    # TF, transform, background, row order and alpha all pass through unchanged.
+    # With the engine's own (float32-derived) camera and object transform the core gives the EXR
+    # to the bit: TF, transform, background, row order and alpha all pass through unchanged.
     blender_camera = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
-    same = core_render(contract, method, film_transparent, camera=blender_camera)
+    same = core_render(contract, method, film_transparent, camera=blender_camera, matrix=np.array(obj.matrix_world))
     if not film_transparent:
         same[..., 3] = 1.0
     np.testing.assert_array_equal(got, same)

@@ -170,14 +170,18 @@ def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.arr
     w = rs.end_weights(mesh, xo[i], xd[i], segs, i, 0)
     segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
     segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
-    c = rs.chebyshev_from_samples(segs, i, deg)
-    out[i] = rs.segment_bounds(c, deg)
+    for k in range(deg + 1):
+        segs.coeffs[i * args.MAX_SAMPLES + k] = rs.chebyshev_coefficient(segs, i, k, deg)
+    segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
+    segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
+    out[i] = rs.segment_bounds(segs.coeffs, i * args.MAX_SAMPLES, deg, mesh.field_err[0])
 
 
 def segment_bounds(mesh_args, xo, xd, ab):
     n = len(xo)
     segs = args.Segments()
     segs.samples = wp.zeros(n * args.MAX_SAMPLES, dtype=wp.float32, device="cpu")
+    segs.coeffs = wp.zeros(n * args.MAX_SAMPLES, dtype=wp.float32, device="cpu")
     segs.element = wp.zeros(n, dtype=wp.int32, device="cpu")
     segs.t0 = wp.zeros(n, dtype=wp.float32, device="cpu")
     segs.t1 = wp.zeros(n, dtype=wp.float32, device="cpu")

@@ -247,9 +247,8 @@ def test_grazing_rays_mixed_cube(device, camera):
     """mixed_cube(2): hexes, prisms, tets and pyramids sharing faces; the diagonal's centre ray
     runs along the tets' shared edges and through the pyramids' apex. Constant density:
     exp(-tau L); an order-8 field against the float64 reference of the same field on hexes.
-    Budget 2e-4: rays through a pyramid's apex lose digits in float32 (measured 7.6e-5 on the
-    pixels through the apex at (0.75, 0.75, 0.75), <= 7e-7 elsewhere; see
-    test_pyramid_apex_rays_float32_restriction)."""
+    Budget 1e-5 (measured <= 2.5e-6; 7.6e-5 on the pixels through the apex before pyramid
+    segments were cut near it, see test_pyramid_apex_rays_float32_restriction)."""
     cam = grazing_cameras(2)[camera]
     o, d = cam.rays()
     const = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0)
@@ -260,7 +259,7 @@ def test_grazing_rays_mixed_cube(device, camera):
     assert ref[..., 3].max() > 0.5
     res = Renderer(mesh, device).render(cam, GRID_TF, [0, 0, 0], split_opts())
     assert np.all(np.isfinite(res.rgba))
-    assert np.abs(res.rgba - ref).max() <= 2e-4
+    assert np.abs(res.rgba - ref).max() <= 1e-5
 
 
 # ------------------------------------------------------- collapsed vertices, flat elements
@@ -320,14 +319,13 @@ def interval(V, o, d):
     return max(0.0, t[den < 0].max()), t[den > 0].min()
 
 
-@pytest.mark.xfail(strict=True, reason="engine accuracy defect: the pyramid's restriction is g = f w^2 divided by "
-                   "w^2 again; near the apex (w -> 0) g's float32 rounding is amplified by 1/w^2: T off by 4-7e-5 "
-                   "for rays within 2e-3 of the apex (split and classified), 1.4e-7 by direct evaluation (trapezoid), "
-                   "1.9e-7 away from the apex")
 def test_pyramid_apex_rays_float32_restriction(device):
     """Rays within `spread` of a pyramid's apex, order 8 field, density linear in the field (no
     breakpoint: one smooth segment); T against the float64 oracle integrated per ray (32 panels
-    of 64-point Gauss-Legendre). Target: 1e-5, what every other ray reaches with margin."""
+    of 64-point Gauss-Legendre). Target: 1e-5, what every other ray reaches with margin.
+    Regression: the pyramid's restriction g = f w^2 divided by w^2 again amplified g's float32
+    rounding by 1/w^2 near the apex (T off by 4-7e-5 within 2e-3 of it); segments are now cut
+    where w changes by more than a factor 2 (kernels/raycast.pyramid_piece_end)."""
     V = ex.SHAPE_VERTICES[ex.PYR]
     mesh = single_element(ex.PYR, V, 9, lambda x, y, z: 0.5 * (x + 0.3) ** 8 + 0.4 * y**3 * z**4 + 0.2 * z + 0.8)
     tf = TransferFunction.from_contract({"color": [[-5, 1, 1, 1], [5, 1, 1, 1]], "density": [[-5, 0.0], [5, 2.0]]})

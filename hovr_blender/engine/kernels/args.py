@@ -48,6 +48,9 @@ class MeshArgs:
     coeffs: wp.array(dtype=wp.float32)
     field_lo: wp.array(dtype=wp.float32)  # certified range of each element's field
     field_hi: wp.array(dtype=wp.float32)
+    # how far an evaluation of the element's field can be off by rounding (a segment's bound
+    # from its samples is widened by this): EVAL_ERROR_FACTOR eps sum |c_m| max |phi_m|
+    field_err: wp.array(dtype=wp.float32)
     # element e's neighbour across its reference face f (element.face_plane order): e * 6 + f;
     # -1 on the boundary or where no element shares the face exactly
     neighbour: wp.array(dtype=wp.int32)
@@ -126,6 +129,8 @@ class Segments:
     # slot * MAX_SAMPLES + j: f(t_j) w(t_j)^2 at t_j = mid + half cos(pi j / degree) (w = 1 but
     # for pyramids); MAX_SAMPLES - 2 / - 1: w(t0), w(t1)
     samples: wp.array(dtype=wp.float32)
+    # slot * MAX_SAMPLES + k: the Chebyshev coefficients of the samples (and the same weights)
+    coeffs: wp.array(dtype=wp.float32)
     # the slots that need samples this round: list[0..list_count)
     list: wp.array(dtype=wp.int32)
     list_count: wp.array(dtype=wp.int32)

@@ -18,7 +18,7 @@ import warp as wp
 
 from .args import MAX_SAMPLES, MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
-from .restriction import clenshaw_with_slope, eval_field, restriction_at, vecr
+from .restriction import clenshaw_with_slope, eval_field, restriction_at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -44,35 +44,54 @@ vecst = wp.types.vector(length=7, dtype=wp.float32)
 
 
 @wp.func
-def ramp_segment(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
-    """(k, w): s lies between breakpoints k and k + 1 at fraction w, clamped at both ends."""
+def ramp_segment(s_arr: wp.array(dtype=wp.float32), s: float, hint: int) -> wp.vec2:
+    """(k, w): s lies between breakpoints k and k + 1 at fraction w, clamped at both ends.
+    `hint`: a k to try first (the last lookup's, along a ray the value moves little)."""
     n = s_arr.shape[0]
     if n == 1 or s <= s_arr[0]:
         return wp.vec2(0.0, 0.0)
     if s >= s_arr[n - 1]:
         return wp.vec2(float(n - 2), 1.0)
     k = int(0)
+    if hint >= 0 and hint < n - 1:
+        if s_arr[hint] <= s and s <= s_arr[hint + 1]:
+            k = hint
     while s_arr[k + 1] < s:
         k += 1
     return wp.vec2(float(k), (s - s_arr[k]) / (s_arr[k + 1] - s_arr[k]))
 
 
 @wp.func
-def tf_density(tf: TransferArgs, s: float) -> float:
-    kw = ramp_segment(tf.density_s, s)
-    k = int(kw[0])
+def tf_density_at(tf: TransferArgs, s: float, hint: int) -> wp.vec2:
+    """(tau(s), the breakpoint segment it came from)."""
     if tf.density_s.shape[0] == 1:
-        return tf.density_tau[0]
-    return tf.density_tau[k] + kw[1] * (tf.density_tau[k + 1] - tf.density_tau[k])
+        return wp.vec2(tf.density_tau[0], 0.0)
+    kw = ramp_segment(tf.density_s, s, hint)
+    k = int(kw[0])
+    return wp.vec2(tf.density_tau[k] + kw[1] * (tf.density_tau[k + 1] - tf.density_tau[k]), kw[0])
+
+
+@wp.func
+def tf_color_at(tf: TransferArgs, s: float, hint: int) -> wp.vec4:
+    """(kappa(s), the breakpoint segment it came from)."""
+    if tf.color_s.shape[0] == 1:
+        c = tf.color_rgb[0]
+        return wp.vec4(c[0], c[1], c[2], 0.0)
+    kw = ramp_segment(tf.color_s, s, hint)
+    k = int(kw[0])
+    c = tf.color_rgb[k] + kw[1] * (tf.color_rgb[k + 1] - tf.color_rgb[k])
+    return wp.vec4(c[0], c[1], c[2], kw[0])
+
+
+@wp.func
+def tf_density(tf: TransferArgs, s: float) -> float:
+    return tf_density_at(tf, s, -1)[0]
 
 
 @wp.func
 def tf_color(tf: TransferArgs, s: float) -> wp.vec3:
-    kw = ramp_segment(tf.color_s, s)
-    k = int(kw[0])
-    if tf.color_s.shape[0] == 1:
-        return tf.color_rgb[0]
-    return tf.color_rgb[k] + kw[1] * (tf.color_rgb[k + 1] - tf.color_rgb[k])
+    c = tf_color_at(tf, s, -1)
+    return wp.vec3(c[0], c[1], c[2])
 
 
 @wp.func
@@ -130,7 +149,7 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
-          evaluate: int, c: vecr, deg: int, a: float, b: float, state_in: vecst):
+          evaluate: int, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, state_in: vecst):
     """The baselines on [a, b] with n = ceil((b - a) / h) equal steps: left Riemann sum
     (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
     samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
@@ -144,16 +163,22 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
     tau0 = float(0.0)
     g0 = wp.vec3(0.0, 0.0, 0.0)
     nev = int(0)
+    hint_d = int(-1)
+    hint_c = int(-1)
     for i in range(n + trapezoid):
         t = a + float(i) * w
         s = float(0.0)
         if evaluate == 1:
             s = eval_field(mesh, e, xo + t * xd)
         else:
-            s = restriction_at(c, deg, a, b, t)
+            s = restriction_at(c, cb, deg, a, b, t)
         nev += 1
-        tau = tf_density(tf, s)
-        g = tau * tf_color(tf, s)
+        td = tf_density_at(tf, s, hint_d)
+        tc = tf_color_at(tf, s, hint_c)
+        hint_d = int(td[1])
+        hint_c = int(tc[3])
+        tau = td[0]
+        g = tau * wp.vec3(tc[0], tc[1], tc[2])
         if trapezoid == 0:
             col += T * w * g
             T1 = T * wp.exp(-tau * w)
@@ -180,7 +205,7 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
 
 @wp.func
 def gauss_kronrod_smooth(
-    tf: TransferArgs, q: QuadArgs, c: vecr, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
+    tf: TransferArgs, q: QuadArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
 ) -> vecst:
     """Adaptive G7/K15 over [lo, hi] (inside segment [a, b]) where kappa and tau are smooth.
 
@@ -201,6 +226,8 @@ def gauss_kronrod_smooth(
     stack_r[0] = hi
     stack_d[0] = 0
     top = int(1)
+    hint_d = int(-1)  # the breakpoint segments of the last lookups (between breakpoints: all of them)
+    hint_c = int(-1)
     while top > 0:
         top -= 1
         l = stack_l[top]
@@ -212,8 +239,10 @@ def gauss_kronrod_smooth(
         svals = vec15()
         nev += 15.0
         for j in range(15):
-            svals[j] = restriction_at(c, deg, a, b, mid + half * q.gk_x[j])
-            taus[j] = tf_density(tf, svals[j])
+            svals[j] = restriction_at(c, cb, deg, a, b, mid + half * q.gk_x[j])
+            td = tf_density_at(tf, svals[j], hint_d)
+            taus[j] = td[0]
+            hint_d = int(td[1])
         dk = float(0.0)
         dg = float(0.0)
         for j in range(15):
@@ -238,7 +267,9 @@ def gauss_kronrod_smooth(
                     else:
                         run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
                     inner = run
-                g = taus[j] * wp.exp(-inner) * tf_color(tf, svals[j])
+                tc = tf_color_at(tf, svals[j], hint_c)
+                hint_c = int(tc[3])
+                g = taus[j] * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
                 ek += q.gk_wk[j] * g
                 eg += q.gk_wg[j] * g
             ek = ek * (T * half)
@@ -268,7 +299,7 @@ def gauss_kronrod_smooth(
 
 
 @wp.func
-def level_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float, f0: float, f1: float,
+def level_crossing(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t0: float, t1: float, f0: float, f1: float,
                    lvl: float) -> wp.vec2:
     """(t, evaluations): t in [t0, t1] where the restriction crosses `lvl` (f0, f1 on opposite
     sides). Illinois regula falsi: bracketing like bisection, superlinear on a monotone piece."""
@@ -283,7 +314,7 @@ def level_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float, 
         m = 0.5 * (lo + hi)
         if fhi != flo:
             m = wp.clamp((lo * fhi - hi * flo) / (fhi - flo), lo, hi)
-        fm = restriction_at(c, deg, a, b, m) - lvl
+        fm = restriction_at(c, cb, deg, a, b, m) - lvl
         nev += 1.0
         if fm == 0.0:
             break
@@ -306,17 +337,17 @@ def level_crossing(c: vecr, deg: int, a: float, b: float, t0: float, t1: float, 
 
 
 @wp.func
-def value_and_slope_sign(c: vecr, deg: int, s: float) -> wp.vec2:
+def value_and_slope_sign(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
     """(f, a quantity with the sign of df/ds) at s in [-1, 1], for f = g / w^2 (w linear)."""
-    wa = c[MAX_SAMPLES - 2]
-    wb = c[MAX_SAMPLES - 1]
+    wa = c[cb + MAX_SAMPLES - 2]
+    wb = c[cb + MAX_SAMPLES - 1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
-    gs = clenshaw_with_slope(c, deg, s)
+    gs = clenshaw_with_slope(c, cb, deg, s)
     return wp.vec2(gs[0] / (w * w), gs[1] * w - gs[0] * (wb - wa))
 
 
 @wp.func
-def first_crossing(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, p: float, q_: float, fp: float,
+def first_crossing(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, p: float, q_: float, fp: float,
                    fq: float, t_after: float) -> wp.vec2:
     """(t, evaluations): the first t in (t_after, q_] where f crosses a breakpoint level on the
     monotone piece [p, q_] (f(p) = fp, f(q_) = fq); q_ itself if none."""
@@ -325,7 +356,7 @@ def first_crossing(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, p: f
     for k in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
         lvl = level(tf, k)
         if (fp - lvl) * (fq - lvl) < 0.0:
-            bc = level_crossing(c, deg, a, b, p, q_, fp, fq, lvl)
+            bc = level_crossing(c, cb, deg, a, b, p, q_, fp, fq, lvl)
             nev += bc[1]
             if bc[0] > t_after and bc[0] < best:
                 best = bc[0]
@@ -333,29 +364,48 @@ def first_crossing(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, p: f
 
 
 @wp.func
-def next_cut(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, t_from: float) -> wp.vec2:
+def level_near(tf: TransferArgs, lo: float, hi: float) -> int:
+    """1 if a breakpoint level lies in [lo, hi]."""
+    for k in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
+        lvl = level(tf, k)
+        if lvl >= lo and lvl <= hi:
+            return 1
+    return 0
+
+
+@wp.func
+def next_cut(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t_from: float) -> wp.vec2:
     """(t, evaluations): the first breakpoint crossing of f beyond t_from on [a, b], or b.
-    The segment is scanned in SCAN_PER_DEGREE * deg + 4 equal cells; a cell whose slope changes
-    sign is split at the critical point (bisection on the slope's sign), so each piece is
-    monotone and a level is crossed there at most once, found by a sign change at its ends.
-    (Two critical points in one cell are missed: a polynomial's extrema that close hide only a
-    sliver of crossing.)"""
+    The segment is scanned in SCAN_PER_DEGREE * deg + 4 equal cells. Where f = g (no pyramid
+    weight), M = sum k^2 |c_k| bounds |g'| (Markov), so a cell whose end values stay farther than
+    M h / 2 from every level cannot cross one: it costs one evaluation. Any other cell whose
+    slope changes sign is split at the critical point (bisection on the slope's sign), so each
+    piece is monotone and a level is crossed there at most once, found by a sign change at its
+    ends. (Two critical points in one cell are missed: a polynomial's extrema that close hide
+    only a sliver of crossing.)"""
     nev = float(0.0)
     n_cells = SCAN_PER_DEGREE * deg + 4
     eps = 1.0e-7 * (b - a)
     t_after = t_from + eps
     half = 0.5 * (b - a)
     mid = 0.5 * (a + b)
+    margin = float(1.0e30)  # M h / 2, or no filter (pyramids)
+    if c[cb + MAX_SAMPLES - 2] == c[cb + MAX_SAMPLES - 1]:
+        w2 = c[cb + MAX_SAMPLES - 2] * c[cb + MAX_SAMPLES - 2]
+        lip = float(0.0)
+        for k in range(1, deg + 1):
+            lip += float(k * k) * wp.abs(c[cb + k])
+        margin = lip / (w2 * float(n_cells)) * 1.0001
     s_from = wp.clamp((t_from - mid) / half, -1.0, 1.0)
     i = wp.min(int((s_from + 1.0) * 0.5 * float(n_cells)), n_cells - 1)
     su = s_from
-    fu = value_and_slope_sign(c, deg, su)
+    fu = value_and_slope_sign(c, cb, deg, su)
     nev += 1.0
     while i < n_cells:
         sv = -1.0 + 2.0 * float(i + 1) / float(n_cells)
-        fv = value_and_slope_sign(c, deg, sv)
+        fv = value_and_slope_sign(c, cb, deg, sv)
         nev += 1.0
-        if sv > su:
+        if sv > su and level_near(tf, wp.min(fu[0], fv[0]) - margin, wp.max(fu[0], fv[0]) + margin) == 1:
             # a critical point inside: bisect the slope's sign to it
             sc = sv
             fc = fv
@@ -365,7 +415,7 @@ def next_cut(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, t_from: fl
                 glo = fu[1]
                 for it in range(40):
                     m = 0.5 * (lo + hi)
-                    gm = value_and_slope_sign(c, deg, m)
+                    gm = value_and_slope_sign(c, cb, deg, m)
                     nev += 1.0
                     if (gm[1] < 0.0) == (glo < 0.0):
                         lo = m
@@ -373,15 +423,15 @@ def next_cut(tf: TransferArgs, c: vecr, deg: int, a: float, b: float, t_from: fl
                     else:
                         hi = m
                 sc = 0.5 * (lo + hi)
-                fc = value_and_slope_sign(c, deg, sc)
+                fc = value_and_slope_sign(c, cb, deg, sc)
                 nev += 1.0
             # the monotone pieces [su, sc] and [sc, sv]
-            r = first_crossing(tf, c, deg, a, b, mid + half * su, mid + half * sc, fu[0], fc[0], t_after)
+            r = first_crossing(tf, c, cb, deg, a, b, mid + half * su, mid + half * sc, fu[0], fc[0], t_after)
             nev += r[1]
             if r[0] < mid + half * sc:
                 return wp.vec2(r[0], nev)
             if sc < sv:
-                r = first_crossing(tf, c, deg, a, b, mid + half * sc, mid + half * sv, fc[0], fv[0], t_after)
+                r = first_crossing(tf, c, cb, deg, a, b, mid + half * sc, mid + half * sv, fc[0], fv[0], t_after)
                 nev += r[1]
                 if r[0] < mid + half * sv:
                     return wp.vec2(r[0], nev)

@@ -38,7 +38,8 @@ from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, vecst
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "NUM_STATS",
-           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "integrate", "finalize"]
+           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients", "integrate",
+           "finalize"]
 
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
@@ -50,6 +51,8 @@ SEARCH_PASSES = 4
 STRETCH_RTOL = 1.0e-5
 LEAVE_FRACTION = 64.0
 MAX_ZERO_STEPS = 3  # zero-length walks in a row (a ray through an edge) before searching instead
+PYRAMID_W_RATIO = 2.0  # a pyramid's segment is cut where its weight w changes by more than this
+PYRAMID_W_FLOOR = 1.0e-6  # ... down to this w (the last sliver at the apex stays whole)
 STEPS_PER_ROUND = 64 * SEGMENTS_PER_ROUND  # walking steps a ray may take in one round (hang guard)
 
 vecw = wp.types.vector(length=WINDOW, dtype=wp.float32)
@@ -105,6 +108,25 @@ def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
     """(hit, t0, t1, exit face) of the ray in affine element e: the clip in reference space."""
     A = mesh.ref_a[e]
     return el_k.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
+
+
+@wp.func
+def pyramid_piece_end(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float) -> float:
+    """Where the first piece of affine pyramid e's segment [a, b] ends: w = (1 - xi_3) / 2 is
+    linear along the ray, and the piece goes on while w stays within a factor
+    PYRAMID_W_RATIO of w(a)."""
+    A = mesh.ref_a[e]
+    wa = 0.5 * (1.0 - (A * (o + a * d) + mesh.ref_b[e])[2])
+    wb = 0.5 * (1.0 - (A * (o + b * d) + mesh.ref_b[e])[2])
+    wa = wp.max(wa, 0.0)
+    wb = wp.max(wb, 0.0)
+    # within the ratio, or all of it below PYRAMID_W_FLOOR (the apex's own sliver): one piece
+    if wp.max(wa, wb) <= PYRAMID_W_RATIO * wp.max(wp.min(wa, wb), PYRAMID_W_FLOOR):
+        return b
+    target = wa / PYRAMID_W_RATIO
+    if wb > wa:
+        target = PYRAMID_W_RATIO * wp.max(wa, PYRAMID_W_FLOOR)
+    return a + (b - a) * (target - wa) / (wb - wa)
 
 
 def _make_walk_kernels(CURVED: bool):
@@ -274,6 +296,15 @@ def _make_walk_kernels(CURVED: bool):
                     ex, r_b, dv_b = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
                     b = wp.max(a, ex[0])
                     face = int(ex[1])
+            stay = int(0)
+            if restriction == 1 and mesh.shape[e] == el_k.PYR and mesh.affine[e] == 1 and b > a:
+                # a pyramid's restriction is f w^2 (w linear): its rounding is amplified by
+                # 1 / w^2 where w is small, near the apex. Pieces where w changes by at most
+                # PYRAMID_W_RATIO keep that within PYRAMID_W_RATIO^2 of the rest of the segment.
+                cut = pyramid_piece_end(mesh, e, o, d, a, b)
+                if cut < b:
+                    b = cut
+                    stay = 1
             if b > a:
                 zero_steps = 0
                 n_seg += 1
@@ -309,6 +340,8 @@ def _make_walk_kernels(CURVED: bool):
             else:
                 zero_steps += 1
             t = wp.max(t, b)
+            if stay == 1:
+                continue  # the rest of the pyramid's stretch next
             left = e
             if face >= 0 and zero_steps < MAX_ZERO_STEPS:
                 e = mesh.neighbour[e * 6 + face]
@@ -355,6 +388,22 @@ def _make_walk_kernels(CURVED: bool):
 
 
 @wp.kernel(enable_backward=False)
+def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int32):
+    """One thread per Chebyshev coefficient: slots[tid // stride]'s c_(tid % stride)."""
+    tid = wp.tid()
+    slot = slots[tid // stride]
+    k = tid % stride
+    deg = segs.degree[slot]
+    if k > deg:
+        return
+    base = slot * MAX_SAMPLES
+    segs.coeffs[base + k] = rs.chebyshev_coefficient(segs, slot, k, deg)
+    if k == 0:
+        segs.coeffs[base + MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
+        segs.coeffs[base + MAX_SAMPLES - 1] = segs.samples[base + MAX_SAMPLES - 1]
+
+
+@wp.kernel(enable_backward=False)
 def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.array(dtype=wp.int32),
            count: wp.array(dtype=wp.int32), again: wp.array(dtype=wp.int32), again_count: wp.array(dtype=wp.int32),
            allow: wp.int32):
@@ -390,7 +439,8 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     """One segment into the ray state; returns the new state and (element evaluations,
     restriction evaluations, class: 1 empty, 2 smooth, 3 piecewise-smooth, 0 unclassified)."""
     state = state_in
-    c = rs.vecr()
+    c = segs.coeffs
+    cb = slot * MAX_SAMPLES
     evaluate = int(0)
     xo = wp.vec3(0.0, 0.0, 0.0)
     xd = wp.vec3(0.0, 0.0, 0.0)
@@ -399,8 +449,6 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         A = mesh.ref_a[e]
         xo = A * o + mesh.ref_b[e]
         xd = A * d
-    else:
-        c = rs.chebyshev_from_samples(segs, slot, deg)
     counts = wp.vec3(0.0, 0.0, 0.0)
     mode = int(0)  # 0: march (the baselines; classified's piecewise-smooth), 1: Gauss-Kronrod pieces
     trapezoid = int(1)
@@ -413,7 +461,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         if (flags & SEG_CURVED) != 0:
             bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])  # the interpolant is no bound
         else:
-            bnd = rs.segment_bounds(c, deg)
+            bnd = rs.segment_bounds(c, cb, deg, mesh.field_err[e])
         emitting = int(0)
         if qd.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
             emitting = 1
@@ -427,7 +475,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
-        state, nev = qd.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, c, deg, a, b, state)
+        state, nev = qd.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, c, cb, deg, a, b, state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
@@ -435,10 +483,10 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         while piece < b and state[3] >= q.min_transmittance:
             cut = b
             if piecewise == 1:
-                nc = qd.next_cut(tf, c, deg, a, b, piece)
+                nc = qd.next_cut(tf, c, cb, deg, a, b, piece)
                 cut = nc[0]
                 counts[1] = counts[1] + nc[1]
-            state = qd.gauss_kronrod_smooth(tf, q, c, deg, a, b, piece, cut, emitting, state)
+            state = qd.gauss_kronrod_smooth(tf, q, c, cb, deg, a, b, piece, cut, emitting, state)
             piece = cut
     return state, counts
 

@@ -6,8 +6,10 @@ Chebyshev-Lobatto points of the segment give it exactly ("the restriction"); its
 bound it (|f - c_0| <= sum |c_k|) and every later sample is an O(D) Clenshaw evaluation. On a
 curved element the same samples give an interpolant, whose tail is the error estimate.
 
-The traverse kernel writes the samples (write_*), the integrate kernel turns them into
-coefficients (chebyshev_from_samples) and evaluates them.
+The sample kernel writes the samples (sample_at), the coefficients kernel turns them into the
+series (chebyshev_coefficient, one thread per coefficient) in Segments.coeffs, and the
+integrate kernel evaluates it there: a series is (array, base offset), never a local vector
+(a vector argument is copied at every call).
 """
 from __future__ import annotations
 
@@ -19,7 +21,6 @@ from .args import MAX_SAMPLES, MeshArgs, Segments
 
 wp.set_module_options({"enable_backward": False})
 
-vecr = wp.types.vector(length=MAX_SAMPLES, dtype=wp.float32)
 CURVED_TAIL_RTOL = 1.0e-6  # a curved interpolant is refined (degree doubled) above this tail
 
 
@@ -30,49 +31,46 @@ def lobatto_t(a: float, b: float, j: int, deg: int) -> float:
 
 
 @wp.func
-def chebyshev_from_samples(segs: Segments, slot: int, deg: int) -> vecr:
-    """Chebyshev coefficients c_0..c_deg of the interpolant through the segment's samples
-    f_j = f(cos(pi j / deg)); the pyramid weights w(t0), w(t1) in the last two slots. T_k at
-    each node by the three-term recurrence: one cosine per node."""
-    c = vecr()
+def chebyshev_coefficient(segs: Segments, slot: int, k: int, deg: int) -> float:
+    """c_k of the interpolant through the slot's samples f_j = f(cos(pi j / deg)):
+    (2 / deg) sum'' f_j cos(pi j k / deg), the cosines by their three-term recurrence in j
+    (one cosine per coefficient); c_0 and c_deg halved."""
     base = slot * MAX_SAMPLES
     fd = float(deg)
+    ca = wp.cos(wp.pi * float(k) / fd)
+    cos_prev = ca  # cos(-a)
+    cos_j = float(1.0)
+    acc = float(0.0)
     for j in range(deg + 1):
-        x = wp.cos(wp.pi * float(j) / fd)
-        w = 2.0 / fd
+        w = float(1.0)
         if j == 0 or j == deg:
-            w = 1.0 / fd
-        fj = w * segs.samples[base + j]
-        tkm = float(1.0)
-        tk = x
-        c[0] = c[0] + fj
-        for k in range(1, deg + 1):
-            c[k] = c[k] + fj * tk
-            tkn = 2.0 * x * tk - tkm
-            tkm = tk
-            tk = tkn
-    c[0] = 0.5 * c[0]
-    c[deg] = 0.5 * c[deg]
-    c[MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
-    c[MAX_SAMPLES - 1] = segs.samples[base + MAX_SAMPLES - 1]
-    return c
+            w = 0.5
+        acc += w * segs.samples[base + j] * cos_j
+        cos_next = 2.0 * ca * cos_j - cos_prev
+        cos_prev = cos_j
+        cos_j = cos_next
+    acc = acc * 2.0 / fd
+    if k == 0 or k == deg:
+        acc = 0.5 * acc
+    return acc
 
 
 @wp.func
-def clenshaw(c: vecr, deg: int, s: float) -> float:
+def clenshaw(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> float:
+    """The series c[cb .. cb + deg] at s in [-1, 1]."""
     b1 = float(0.0)
     b2 = float(0.0)
     k = deg
     while k >= 1:
-        b0 = c[k] + 2.0 * s * b1 - b2
+        b0 = c[cb + k] + 2.0 * s * b1 - b2
         b2 = b1
         b1 = b0
         k -= 1
-    return c[0] + s * b1 - b2
+    return c[cb] + s * b1 - b2
 
 
 @wp.func
-def clenshaw_with_slope(c: vecr, deg: int, s: float) -> wp.vec2:
+def clenshaw_with_slope(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
     """(g(s), g'(s)) of the series in one pass (the recurrence differentiated in s)."""
     b1 = float(0.0)
     b2 = float(0.0)
@@ -80,38 +78,41 @@ def clenshaw_with_slope(c: vecr, deg: int, s: float) -> wp.vec2:
     d2 = float(0.0)
     k = deg
     while k >= 1:
-        b0 = c[k] + 2.0 * s * b1 - b2
+        b0 = c[cb + k] + 2.0 * s * b1 - b2
         d0 = 2.0 * b1 + 2.0 * s * d1 - d2
         b2 = b1
         b1 = b0
         d2 = d1
         d1 = d0
         k -= 1
-    return wp.vec2(c[0] + s * b1 - b2, b1 + s * d1 - d2)
+    return wp.vec2(c[cb] + s * b1 - b2, b1 + s * d1 - d2)
 
 
 @wp.func
-def restriction_at(c: vecr, deg: int, a: float, b: float, t: float) -> float:
-    """f(t) = g(s) / w(s)^2 (w = 1 but for pyramids), s the position of t in [a, b]."""
+def restriction_at(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t: float) -> float:
+    """f(t) = g(s) / w(s)^2 (w = 1 but for pyramids), s the position of t in [a, b]; the
+    series at c[cb ..], the weights w(a), w(b) in its last two slots."""
     s = wp.clamp((2.0 * t - a - b) / (b - a), -1.0, 1.0)
-    wa = c[MAX_SAMPLES - 2]
-    wb = c[MAX_SAMPLES - 1]
+    wa = c[cb + MAX_SAMPLES - 2]
+    wb = c[cb + MAX_SAMPLES - 1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
-    return clenshaw(c, deg, s) / (w * w)
+    return clenshaw(c, cb, deg, s) / (w * w)
 
 
 @wp.func
-def segment_bounds(c: vecr, deg: int) -> wp.vec2:
+def segment_bounds(c: wp.array(dtype=wp.float32), cb: int, deg: int, err: float) -> wp.vec2:
     """(lo, hi) enclosing f on the whole segment: |g - c_0| <= sum |c_k| (with a float32
-    rounding margin), divided by w^2 in interval arithmetic (w linear and positive)."""
+    rounding margin), widened by `err` (the samples' rounding, mesh.field_err scaled by the
+    Lebesgue constant of the points), divided by w^2 in interval arithmetic (w linear and
+    positive)."""
     rad = float(0.0)
     for k in range(1, deg + 1):
-        rad += wp.abs(c[k])
-    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[0])
-    glo = c[0] - rad
-    ghi = c[0] + rad
-    w2lo = wp.max(wp.min(c[MAX_SAMPLES - 2], c[MAX_SAMPLES - 1]), 1.0e-6)
-    w2hi = wp.max(c[MAX_SAMPLES - 2], c[MAX_SAMPLES - 1])
+        rad += wp.abs(c[cb + k])
+    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[cb]) + err
+    glo = c[cb] - rad
+    ghi = c[cb] + rad
+    w2lo = wp.max(wp.min(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1]), 1.0e-6)
+    w2hi = wp.max(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1])
     w2lo = w2lo * w2lo
     w2hi = w2hi * w2hi
     return wp.vec2(wp.min(glo / w2lo, glo / w2hi), wp.max(ghi / w2lo, ghi / w2hi))
