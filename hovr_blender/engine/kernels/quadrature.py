@@ -18,7 +18,7 @@ import warp as wp
 
 from .args import MAX_SAMPLES, MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
-from .restriction import clenshaw_with_slope, eval_field, restriction_at
+from .restriction import clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -204,16 +204,53 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
 
 
 @wp.func
+def linear_piece(s_arr: wp.array(dtype=wp.float32), vals: wp.array(dtype=wp.float32), s: float) -> wp.vec4:
+    """The piece of a piecewise-linear function around s: (value at s = v0 + slope * s: v0,
+    slope, and the piece's ends in s). Outside the breakpoints it is constant to infinity."""
+    n = s_arr.shape[0]
+    if n == 1:
+        return wp.vec4(vals[0], 0.0, -1.0e30, 1.0e30)
+    if s <= s_arr[0]:
+        return wp.vec4(vals[0], 0.0, -1.0e30, s_arr[0])
+    if s >= s_arr[n - 1]:
+        return wp.vec4(vals[n - 1], 0.0, s_arr[n - 1], 1.0e30)
+    k = int(0)
+    while s_arr[k + 1] < s:
+        k += 1
+    slope = (vals[k + 1] - vals[k]) / (s_arr[k + 1] - s_arr[k])
+    return wp.vec4(vals[k] - slope * s_arr[k], slope, s_arr[k], s_arr[k + 1])
+
+
+@wp.func
+def piece_ends(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
+    """The breakpoints around s (-1e30 / 1e30 beyond the first / last)."""
+    n = s_arr.shape[0]
+    if s <= s_arr[0]:
+        return wp.vec2(-1.0e30, s_arr[0])
+    if s >= s_arr[n - 1]:
+        return wp.vec2(s_arr[n - 1], 1.0e30)
+    k = int(0)
+    while s_arr[k + 1] < s:
+        k += 1
+    return wp.vec2(s_arr[k], s_arr[k + 1])
+
+
+@wp.func
 def gauss_kronrod_smooth(
     tf: TransferArgs, q: QuadArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
 ) -> vecst:
     """Adaptive G7/K15 over [lo, hi] (inside segment [a, b]) where kappa and tau are smooth.
 
     Depth-first, left half first, so panels finish front to back and each panel starts
-    from the exact transmittance of everything before it. Inside a panel the optical depth
-    to each node comes from the spectral integration matrix (or the paper's trapezoid
-    rule over the nodes). A panel is accepted when the G7/K15 difference of its emission
-    plus T times that of its optical depth is below tol."""
+    from the exact transmittance of everything before it. Where every node's value lies on
+    the transfer function's piece at the panel's middle (the usual case: the pieces are cut
+    at breakpoint crossings) and f is the series itself (no pyramid weight), tau is linear in
+    f and the optical depth to each node is exact, from the series' antiderivative; the
+    emission alone is a quadrature, accepted when its G7/K15 difference is below tol.
+    Otherwise the optical depth to each node comes from the spectral integration matrix (or
+    the paper's trapezoid rule over the nodes) and the panel's error adds T times the G7/K15
+    difference of its optical depth. Loops are not unrolled: the nodes' values go through a
+    local array, which keeps this kernel's registers down."""
     col = wp.vec3(state[0], state[1], state[2])
     T = state[3]
     nev = state[4]
@@ -228,6 +265,11 @@ def gauss_kronrod_smooth(
     top = int(1)
     hint_d = int(-1)  # the breakpoint segments of the last lookups (between breakpoints: all of them)
     hint_c = int(-1)
+    unweighted = int(0)  # f is the series (w = 1): its antiderivative gives exact optical depths
+    if c[cb + MAX_SAMPLES - 2] == 1.0 and c[cb + MAX_SAMPLES - 1] == 1.0:
+        unweighted = 1
+    half_seg = 0.5 * (b - a)
+    mid_seg = 0.5 * (a + b)
     while top > 0:
         top -= 1
         l = stack_l[top]
@@ -235,45 +277,72 @@ def gauss_kronrod_smooth(
         depth = stack_d[top]
         half = 0.5 * (r - l)
         mid = 0.5 * (r + l)
-        taus = vec15()
         svals = vec15()
         nev += 15.0
+        # the transfer function's pieces at the panel's middle value
+        fm = restriction_at(c, cb, deg, a, b, mid)
+        pd = linear_piece(tf.density_s, tf.density_tau, fm)
+        pr = piece_ends(tf.color_s, fm)
+        lin = unweighted
         for j in range(15):
-            svals[j] = restriction_at(c, cb, deg, a, b, mid + half * q.gk_x[j])
-            td = tf_density_at(tf, svals[j], hint_d)
-            taus[j] = td[0]
-            hint_d = int(td[1])
-        dk = float(0.0)
-        dg = float(0.0)
-        for j in range(15):
-            dk += q.gk_wk[j] * taus[j]
-            dg += q.gk_wg[j] * taus[j]
-        dk = dk * half
-        dg = dg * half
+            sv = restriction_at(c, cb, deg, a, b, mid + half * q.gk_x[j])
+            svals[j] = sv
+            if sv < wp.max(pd[2], pr[0]) or sv > wp.min(pd[3], pr[1]):
+                lin = 0
         ek = wp.vec3(0.0, 0.0, 0.0)
         eg = wp.vec3(0.0, 0.0, 0.0)
-        if emitting == 1:
-            run = float(0.0)
+        dk = float(0.0)
+        dg = float(0.0)
+        if lin == 1:
+            # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
+            f_l = half_seg * clenshaw_integral(c, cb, deg, (l - mid_seg) / half_seg)
+            f_r = half_seg * clenshaw_integral(c, cb, deg, (r - mid_seg) / half_seg)
+            dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
+            dg = dk
+            if emitting == 1:
+                for j in range(15):
+                    t = mid + half * q.gk_x[j]
+                    f_t = half_seg * clenshaw_integral(c, cb, deg, (t - mid_seg) / half_seg)
+                    sv = svals[j]
+                    inner = pd[0] * (t - l) + pd[1] * (f_t - f_l)
+                    tc = tf_color_at(tf, sv, hint_c)
+                    hint_c = int(tc[3])
+                    g = (pd[0] + pd[1] * sv) * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
+                    ek += q.gk_wk[j] * g
+                    eg += q.gk_wg[j] * g
+                nev += 15.0
+        else:
+            taus = vec15()
             for j in range(15):
-                inner = float(0.0)
-                if q.inner == 0:
-                    for i in range(15):
-                        inner += q.gk_s[j, i] * taus[i]
-                    inner = inner * half
-                else:
-                    # trapezoid over the nodes; first node from the panel start with tau_0
-                    if j == 0:
-                        run = taus[0] * half * (q.gk_x[0] + 1.0)
+                td = tf_density_at(tf, svals[j], hint_d)
+                taus[j] = td[0]
+                hint_d = int(td[1])
+                dk += q.gk_wk[j] * taus[j]
+                dg += q.gk_wg[j] * taus[j]
+            dk = dk * half
+            dg = dg * half
+            if emitting == 1:
+                run = float(0.0)
+                for j in range(15):
+                    inner = float(0.0)
+                    if q.inner == 0:
+                        for i in range(15):
+                            inner += q.gk_s[j, i] * taus[i]
+                        inner = inner * half
                     else:
-                        run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
-                    inner = run
-                tc = tf_color_at(tf, svals[j], hint_c)
-                hint_c = int(tc[3])
-                g = taus[j] * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
-                ek += q.gk_wk[j] * g
-                eg += q.gk_wg[j] * g
-            ek = ek * (T * half)
-            eg = eg * (T * half)
+                        # trapezoid over the nodes; first node from the panel start with tau_0
+                        if j == 0:
+                            run = taus[0] * half * (q.gk_x[0] + 1.0)
+                        else:
+                            run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
+                        inner = run
+                    tc = tf_color_at(tf, svals[j], hint_c)
+                    hint_c = int(tc[3])
+                    g = taus[j] * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
+                    ek += q.gk_wk[j] * g
+                    eg += q.gk_wg[j] * g
+        ek = ek * (T * half)
+        eg = eg * (T * half)
         diff = ek - eg
         err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
         if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK:
