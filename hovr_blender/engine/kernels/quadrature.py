@@ -18,7 +18,7 @@ import warp as wp
 
 from .args import MAX_SAMPLES, MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
-from .restriction import clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at
+from .restriction import clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at
 
 wp.set_module_options({"enable_backward": False})
 
@@ -32,7 +32,7 @@ INNER_TRAPEZOID = 1
 
 GK_STACK = 32  # adaptive Gauss-Kronrod depth-first stack
 GK_MAX_DEPTH = 24
-SCAN_PER_DEGREE = 4  # split: cells per degree of the restriction in the search for crossings
+SCAN_PER_DEGREE = 2  # split: cells per degree of the restriction in the search for crossings
 
 vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
 vecsi = wp.types.vector(length=GK_STACK, dtype=wp.int32)
@@ -278,16 +278,23 @@ def gauss_kronrod_smooth(
         half = 0.5 * (r - l)
         mid = 0.5 * (r + l)
         svals = vec15()
+        fvals = vec15()  # the series' antiderivative at the nodes (unweighted only)
         nev += 15.0
-        # the transfer function's pieces at the panel's middle value
-        fm = restriction_at(c, cb, deg, a, b, mid)
+        for j in range(15):
+            t = mid + half * q.gk_x[j]
+            if unweighted == 1:
+                vf = clenshaw_and_integral(c, cb, deg, wp.clamp((t - mid_seg) / half_seg, -1.0, 1.0))
+                svals[j] = vf[0]
+                fvals[j] = half_seg * vf[1]
+            else:
+                svals[j] = restriction_at(c, cb, deg, a, b, t)
+        # the transfer function's pieces at the panel's middle value (node 7 is the middle)
+        fm = svals[7]
         pd = linear_piece(tf.density_s, tf.density_tau, fm)
         pr = piece_ends(tf.color_s, fm)
         lin = unweighted
         for j in range(15):
-            sv = restriction_at(c, cb, deg, a, b, mid + half * q.gk_x[j])
-            svals[j] = sv
-            if sv < wp.max(pd[2], pr[0]) or sv > wp.min(pd[3], pr[1]):
+            if svals[j] < wp.max(pd[2], pr[0]) or svals[j] > wp.min(pd[3], pr[1]):
                 lin = 0
         ek = wp.vec3(0.0, 0.0, 0.0)
         eg = wp.vec3(0.0, 0.0, 0.0)
@@ -297,20 +304,19 @@ def gauss_kronrod_smooth(
             # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
             f_l = half_seg * clenshaw_integral(c, cb, deg, (l - mid_seg) / half_seg)
             f_r = half_seg * clenshaw_integral(c, cb, deg, (r - mid_seg) / half_seg)
+            nev += 2.0
             dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
             dg = dk
             if emitting == 1:
                 for j in range(15):
                     t = mid + half * q.gk_x[j]
-                    f_t = half_seg * clenshaw_integral(c, cb, deg, (t - mid_seg) / half_seg)
                     sv = svals[j]
-                    inner = pd[0] * (t - l) + pd[1] * (f_t - f_l)
+                    inner = pd[0] * (t - l) + pd[1] * (fvals[j] - f_l)
                     tc = tf_color_at(tf, sv, hint_c)
                     hint_c = int(tc[3])
                     g = (pd[0] + pd[1] * sv) * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
                     ek += q.gk_wk[j] * g
                     eg += q.gk_wg[j] * g
-                nev += 15.0
         else:
             taus = vec15()
             for j in range(15):

@@ -458,8 +458,10 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         trapezoid = 0
     elif q.method >= METHOD_CLASSIFIED:
         bnd = wp.vec2(0.0, 0.0)
-        if (flags & SEG_CURVED) != 0:
-            bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])  # the interpolant is no bound
+        if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
+            # the paper's classes bound the true field; a curved segment's interpolant is no bound
+            # of it (split integrates the interpolant itself, so its bounds decide there)
+            bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
         else:
             bnd = rs.segment_bounds(c, cb, deg, mesh.field_err[e])
         emitting = int(0)

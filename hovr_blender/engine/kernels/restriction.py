@@ -114,6 +114,36 @@ def clenshaw_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float
 
 
 @wp.func
+def clenshaw_and_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
+    """(the series at s, clenshaw_integral at s) in one pass: both recurrences share each
+    coefficient's load, which is what a Gauss-Kronrod node with exact optical depth needs."""
+    b1 = float(0.0)  # value recurrence
+    b2 = float(0.0)
+    i1 = float(0.0)  # antiderivative recurrence
+    i2 = float(0.0)
+    c_k = float(0.0)  # c[k] and c[k + 1] of the step before, loaded once
+    c_kp = float(0.0)
+    k = deg + 1
+    while k >= 1:
+        cm = c[cb + k - 1]
+        g = float(0.0)
+        if k == 1:
+            g = cm - 0.5 * c_kp
+        else:
+            g = (cm - c_kp) / (2.0 * float(k))
+        i0 = g + 2.0 * s * i1 - i2
+        i2 = i1
+        i1 = i0
+        b0 = c_k + 2.0 * s * b1 - b2
+        b2 = b1
+        b1 = b0
+        c_kp = c_k
+        c_k = cm
+        k -= 1
+    return wp.vec2(c_k + s * b1 - b2, s * i1 - i2)
+
+
+@wp.func
 def restriction_at(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t: float) -> float:
     """f(t) = g(s) / w(s)^2 (w = 1 but for pyramids), s the position of t in [a, b]; the
     series at c[cb ..], the weights w(a), w(b) in its last two slots."""
