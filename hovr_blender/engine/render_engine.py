@@ -23,7 +23,7 @@ from .blender_scene import (
 # thread: 256 pixels cost ~5 ms on the sphere and stay well under the 0.5 s cancel target
 # even at ~1 ms per pixel; a GPU needs big launches to fill it and finishes them in ms.
 TILE_PIXELS = {"cpu": 256}
-TILE_PIXELS_GPU = 1 << 16
+TILE_PIXELS_GPU = 1 << 20  # progress and cancel every 2^20 pixels: a tile ends in rounds of few rays, which leave a GPU idle
 # Viewport work per view_draw call (seconds): the UI stays responsive between calls.
 VIEW_BUDGET_SECONDS = 0.05
 

@@ -46,12 +46,18 @@ def resolve_device(device: str) -> str:
         raise RenderError(f"Warp device {device!r} is not available here (available: {avail})") from exc
 
 
-FLOAT32_LIMIT = 1.0e30
-MAX_ROUNDS_PER_TILE = 100000
+FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
+MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
 ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
-COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5  # every round takes each ray a step further; far more than any mesh needs  # beyond this, products in the kernel overflow float32 (max 3.4e38)
-
+COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5
+# launch tiles (Renderer._tile_limit): a GPU tile may take this share of the free device memory.
+# H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
+# few-ray tails of each tile, where a round costs the latency of its slowest ray
+TILE_MEMORY_FRACTION = 0.25
+MIN_TILE_RAYS = 1 << 16
+MAX_TILE_RAYS = 1 << 22
+CPU_TILE_RAYS = 1 << 18
 
 def _check_float32_range(mesh: VolumeMesh):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
@@ -88,9 +94,10 @@ def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
 class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
-    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int = 1 << 18):
+    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None):
         wp = _warp()
-        self.max_tile_rays = int(max_tile_rays)  # bounds the per-render buffers (~1.8 kB a ray)
+        # bounds the per-render buffers (about 4 kB a ray in float32); None: from the device's memory
+        self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
         self.device = resolve_device(device)
         self.mesh = mesh
         self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
@@ -120,42 +127,64 @@ class Renderer:
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
         a few hundred bytes per ray, plus SEGMENTS_PER_ROUND * MAX_SAMPLES samples)."""
         wp = _warp()
+        allocated = []
+
+        def zeros(n, dtype):
+            a = wp.zeros(n, dtype=dtype)
+            allocated.append(a)
+            return a
+
         rays = k.RayState()
-        rays.color_t = wp.zeros(tile, dtype=vec4)
-        rays.depth_err = wp.zeros(tile, dtype=vec2)
-        rays.t_cur = wp.zeros(tile, dtype=scalar)
-        rays.t_end = wp.zeros(tile, dtype=scalar)
-        rays.next_element = wp.zeros(tile, dtype=wp.int32)
-        rays.left_element = wp.zeros(tile, dtype=wp.int32)
-        rays.entry_r = wp.zeros(tile, dtype=vec4)
-        rays.entry_dv = wp.zeros(tile, dtype=vec4)
-        rays.phase = wp.zeros(tile, dtype=wp.int32)
+        rays.color_t = zeros(tile, vec4)
+        rays.depth_err = zeros(tile, vec2)
+        rays.t_cur = zeros(tile, scalar)
+        rays.t_end = zeros(tile, scalar)
+        rays.next_element = zeros(tile, wp.int32)
+        rays.left_element = zeros(tile, wp.int32)
+        rays.entry_r = zeros(tile, vec4)
+        rays.entry_dv = zeros(tile, vec4)
+        rays.phase = zeros(tile, wp.int32)
         rays.stats = stats
-        rays.active = wp.zeros(tile, dtype=wp.int32)
-        rays.active_next = wp.zeros(tile, dtype=wp.int32)
-        rays.active_count = wp.zeros(1, dtype=wp.int32)
+        rays.active = zeros(tile, wp.int32)
+        rays.active_next = zeros(tile, wp.int32)
+        rays.active_count = zeros(1, wp.int32)
         segs = k.Segments()
         slots = tile * k.SEGMENTS_PER_ROUND
-        segs.count = wp.zeros(tile, dtype=wp.int32)
-        segs.element = wp.zeros(slots, dtype=wp.int32)
-        segs.t0 = wp.zeros(slots, dtype=scalar)
-        segs.t1 = wp.zeros(slots, dtype=scalar)
-        segs.degree = wp.zeros(slots, dtype=wp.int32)
-        segs.flags = wp.zeros(slots, dtype=wp.int32)
-        segs.tail = wp.zeros(slots, dtype=scalar)
+        segs.count = zeros(tile, wp.int32)
+        segs.element = zeros(slots, wp.int32)
+        segs.t0 = zeros(slots, scalar)
+        segs.t1 = zeros(slots, scalar)
+        segs.degree = zeros(slots, wp.int32)
+        segs.flags = zeros(slots, wp.int32)
+        segs.tail = zeros(slots, scalar)
         vec3 = wp.vec3d if scalar == wp.float64 else wp.vec3
-        segs.xi0 = wp.zeros(slots, dtype=vec3)
-        segs.v0 = wp.zeros(slots, dtype=vec3)
-        segs.xi1 = wp.zeros(slots, dtype=vec3)
-        segs.v1 = wp.zeros(slots, dtype=vec3)
-        segs.samples = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
-        segs.coeffs = wp.zeros(slots * k.MAX_SAMPLES, dtype=scalar)
-        segs.list = wp.zeros(slots, dtype=wp.int32)
-        segs.list_count = wp.zeros(1, dtype=wp.int32)
+        segs.xi0 = zeros(slots, vec3)
+        segs.v0 = zeros(slots, vec3)
+        segs.xi1 = zeros(slots, vec3)
+        segs.v1 = zeros(slots, vec3)
+        segs.samples = zeros(slots * k.MAX_SAMPLES, scalar)
+        segs.coeffs = zeros(slots * k.MAX_SAMPLES, scalar)
+        segs.list = zeros(slots, wp.int32)
+        segs.list_count = zeros(1, wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
-        again = [wp.zeros(slots, dtype=wp.int32) for _ in range(2)]
-        again_count = [wp.zeros(1, dtype=wp.int32) for _ in range(2)]
-        return rays, segs, again, again_count
+        again = [zeros(slots, wp.int32) for _ in range(2)]
+        again_count = [zeros(1, wp.int32) for _ in range(2)]
+        return rays, segs, again, again_count, sum(a.capacity for a in allocated)
+
+    def _tile_limit(self, k, scalar, vec2, vec4) -> int:
+        """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
+        its free memory holds (one tile per frame where it fits: every tile ends in rounds of
+        few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
+        if self.max_tile_rays is not None:
+            return self.max_tile_rays
+        wp = _warp()
+        dev = wp.get_device(self.device)
+        if not dev.is_cuda:
+            return CPU_TILE_RAYS
+        probe = 1024
+        per_ray = self._tile_buffers(k, probe, scalar, vec2, vec4, wp.zeros((1, k.NUM_STATS), dtype=wp.int32))[-1] / probe
+        per_ray += 4 * (4 + 2 * (8 if scalar == wp.float64 else 4) + k.NUM_STATS)  # the image's own arrays
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / per_ray, MIN_TILE_RAYS, MAX_TILE_RAYS))
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
@@ -265,12 +294,12 @@ class Renderer:
             total = W * H
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = total if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self.max_tile_rays, total)
+            tile = min(tile, self._tile_limit(k, scalar, vec2, vec4), total)
             try:
                 rgba = wp.zeros(total, dtype=vec4)
                 aux = wp.zeros(total, dtype=vec2)
                 stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
-                rays, segs, again, again_count = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
+                rays, segs, again, again_count, _ = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region (coefficients: the module of integrate)
