@@ -372,7 +372,7 @@ def _make_walk_kernels(CURVED: bool):
                stride: wp.int32, odd: wp.int32):
         """One thread per sample point: slots[tid // stride]'s point tid % stride (odd = 1: its
         odd points, the ones a doubled degree adds). The threads of one slot run side by side,
-        so a warp evaluates one element."""
+        so a warp evaluates one element or the end of one and the start of the next."""
         tid = wp.tid()
         slot = slots[tid // stride]
         j = tid % stride
