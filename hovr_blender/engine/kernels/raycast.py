@@ -196,6 +196,19 @@ def _make_walk_kernels(CURVED: bool):
                                     win_e[k] = cand
                                     nwin = wp.min(nwin + 1, WINDOW)
             if wp.static(CURVED):
+                # first, is the ray inside one of the candidates just past t_from? (where a walk
+                # stopped at a face without a neighbour, e.g. a hexahedron's face against two
+                # tetrahedra, the element beyond holds the ray there.) One Newton solve each;
+                # elements do not overlap, so that element's stretch comes first
+                t_near = t_from + eps
+                if p == 0 and best[0] > t_near:
+                    for w in range(nwin):
+                        cand = win_e[w]
+                        if cand != left and win_key[w] <= t_near:
+                            nloc += 1
+                            r, dv = geo.curved_inside(mesh, cand, o, d, t_near, geo.start_guess(mesh, cand, o + t_near * d))
+                            if r[3] > 0.0:
+                                return cand, wp.vec3(t_near, t_near, -1.0), r, dv, nloc
                 for w in range(nwin):
                     if win_key[w] < best[0]:
                         cand = win_e[w]
