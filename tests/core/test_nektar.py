@@ -218,11 +218,11 @@ def test_nodal_tri_elec_faces_use_their_edges_and_say_so():
     assert m.warnings and all("NodalTriElec" in w and "edge curves only" in w for w in m.warnings)
 
 
-@pytest.mark.skipif(True, reason="scaleHO takes longer than the fast suite allows; "
-                    "bench/nektar_mutation.py --scaleho loads and measures it")
 def test_scaleho_loads():
+    """The largest real mesh (23,848 curved prisms and tetrahedra; ~7 s, bench/load.py)."""
     m = read_nektar(DATA / "scaleHO.xml")
     assert np.bincount(m.shape, minlength=4).tolist() == [0, 2020, 21828, 0]
+    assert np.isfinite(m.geom_coeffs).all()
 
 
 # ------------------------------------------------------------------------------ field features
