@@ -32,6 +32,7 @@ INNER_TRAPEZOID = 1
 
 GK_STACK = 32  # adaptive Gauss-Kronrod depth-first stack
 GK_MAX_DEPTH = 24
+GK_MAX_PANELS = 4096  # per segment piece: bounds a ray's work where the estimate never converges
 SCAN_PER_DEGREE = 2  # split: cells per degree of the restriction in the search for crossings
 
 vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
@@ -270,6 +271,7 @@ def gauss_kronrod_smooth(
         unweighted = 1
     half_seg = 0.5 * (b - a)
     mid_seg = 0.5 * (a + b)
+    panels = int(0)
     while top > 0:
         top -= 1
         l = stack_l[top]
@@ -351,7 +353,11 @@ def gauss_kronrod_smooth(
         eg = eg * (T * half)
         diff = ek - eg
         err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
-        if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK:
+        panels += 1
+        # a panel is accepted when converged, at the depth limit, or when the segment's panel
+        # budget is spent or the estimate is not a number (NaN never compares below tol, and
+        # 2^GK_MAX_DEPTH panels of one segment would hold the ray for minutes)
+        if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK or panels >= GK_MAX_PANELS or wp.isnan(err):
             col += ek
             T1 = T * wp.exp(-dk)
             depth_t = depth_update(depth_t, l, r, T, T1)
