@@ -43,6 +43,7 @@ if os.path.join(HERE, "..") not in sys.path:
 
 from hovr_blender.engine import expansions as ex  # noqa: E402
 from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.engine.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
 
 BYTES_PER_POINT = 4  # float32 value; NaN marks empty points
 
@@ -247,18 +248,6 @@ def resample(mesh: VolumeMesh, h_g: float, margin: float | None = None, pair_chu
 # ------------------------------------------------------------------------------ the ray march
 
 @wp.func
-def ramp(xs: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
-    n = xs.shape[0]
-    if n == 1 or s <= xs[0]:
-        return wp.vec2(0.0, 0.0)
-    if s >= xs[n - 1]:
-        return wp.vec2(float(n - 2), 1.0)
-    k = int(0)
-    while xs[k + 1] < s:
-        k += 1
-    return wp.vec2(float(k), (s - xs[k]) / (xs[k + 1] - xs[k]))
-
-@wp.func
 def slab(span: wp.vec2, o: float, d: float, lo: float, hi: float) -> wp.vec2:
     """The ray's t interval clipped to lo <= o + t d <= hi."""
     if wp.abs(d) < 1.0e-30:
@@ -329,12 +318,12 @@ def march_kernel(g: wp.array3d(dtype=wp.float32), lo: wp.vec3, hg: float,
                 sv = ((c000 * (1.0 - x) + c100 * x) * (1.0 - y) + (c010 * (1.0 - x) + c110 * x) * y) * (1.0 - z) \
                     + ((c001 * (1.0 - x) + c101 * x) * (1.0 - y) + (c011 * (1.0 - x) + c111 * x) * y) * z
                 if not wp.isnan(sv):
-                    kw = ramp(ds, sv)
+                    kw = ramp_segment(ds, sv, -1)
                     kd = int(kw[0])
                     tau = dtau[0]
                     if dtau.shape[0] > 1:
                         tau = dtau[kd] + kw[1] * (dtau[kd + 1] - dtau[kd])
-                    kc = ramp(cs, sv)
+                    kc = ramp_segment(cs, sv, -1)
                     kk2 = int(kc[0])
                     rgb = crgb[0]
                     if cs.shape[0] > 1:

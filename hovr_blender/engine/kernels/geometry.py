@@ -35,6 +35,14 @@ MAX_EXIT_STEPS = 32
 
 
 @wp.func
+def legendre_next(n: int, x: float, p: float, pm: float, dp: float, dpm: float) -> wp.vec2:
+    """(L_{n+1}(x), L'_{n+1}(x)) from L_n = p, L_{n-1} = pm and their derivatives dp, dpm:
+    Bonnet's recurrence and L'_{n+1} = L'_{n-1} + (2n + 1) L_n."""
+    fn = float(n)
+    return wp.vec2(((2.0 * fn + 1.0) * x * p - fn * pm) / (fn + 1.0), dpm + (2.0 * fn + 1.0) * p)
+
+
+@wp.func
 def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
     """x(xi) and dx/dxi (columns d/dxi_k) of curved element e, in one pass. The Legendre
     values run as recurrences inside the loops (no arrays: they would live in local memory)."""
@@ -72,34 +80,28 @@ def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
                 idx += 1
                 s += ai * cc
                 sd += dai * cc
-                fi = float(i)
-                an = ((2.0 * fi + 1.0) * xi[0] * ai - fi * aim) / (fi + 1.0)
-                dan = daim + (2.0 * fi + 1.0) * ai
+                an = legendre_next(i, xi[0], ai, aim, dai, daim)
                 aim = ai
-                ai = an
+                ai = an[0]
                 daim = dai
-                dai = dan
+                dai = an[1]
             p += bj * s
             p1 += bj * sd
             p2 += dbj * s
-            fj = float(j)
-            bn = ((2.0 * fj + 1.0) * xi[1] * bj - fj * bjm) / (fj + 1.0)
-            dbn = dbjm + (2.0 * fj + 1.0) * bj
+            bn = legendre_next(j, xi[1], bj, bjm, dbj, dbjm)
             bjm = bj
-            bj = bn
+            bj = bn[0]
             dbjm = dbj
-            dbj = dbn
+            dbj = bn[1]
         x += ck * p
         g1 += ck * p1
         g2 += ck * p2
         g3 += dck * p
-        fk = float(k)
-        cn = ((2.0 * fk + 1.0) * xi[2] * ck - fk * ckm) / (fk + 1.0)
-        dcn = dckm + (2.0 * fk + 1.0) * ck
+        cn = legendre_next(k, xi[2], ck, ckm, dck, dckm)
         ckm = ck
-        ck = cn
+        ck = cn[0]
         dckm = dck
-        dck = dcn
+        dck = cn[1]
     if sh == el_k.PYR:
         # stored G = (x - centre) w^2 with w = (1 - xi3) / 2: x - centre = G / w^2 and
         # d/dxi3 (G / w^2) = (G_3 + (x - centre) w) / w^2
@@ -391,23 +393,12 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
 @wp.func
 def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
     """(s_in, s_out): where the tangent line xi + s v (s in t units) enters and leaves the
-    reference element (Cyrus-Beck against its face planes); s_in > s_out where it misses."""
-    s_in = float(-1.0e30)
-    s_out = float(1.0e30)
-    for f in range(el_k.num_faces(shape)):
-        p = el_k.face_plane(shape, f)
-        rate = p[0] * v[0] + p[1] * v[1] + p[2] * v[2]
-        gap = p[3] - (p[0] * xi[0] + p[1] * xi[1] + p[2] * xi[2])
-        if wp.abs(rate) < 1.0e-30:
-            if gap < 0.0:
-                s_in = 1.0e30
-        else:
-            s = gap / rate
-            if rate > 0.0:
-                s_out = wp.min(s_out, s)
-            else:
-                s_in = wp.max(s_in, s)
-    return wp.vec2(s_in, s_out)
+    reference element (element.reference_clip, the affine elements' clip); s_in > s_out where
+    it misses."""
+    cl = el_k.reference_clip(shape, xi, v)
+    if cl[0] <= 0.0:
+        return wp.vec2(1.0e30, -1.0e30)
+    return wp.vec2(cl[1], cl[2])
 
 
 @wp.func

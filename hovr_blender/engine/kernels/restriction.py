@@ -89,31 +89,6 @@ def clenshaw_with_slope(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: flo
 
 
 @wp.func
-def clenshaw_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> float:
-    """An antiderivative in s of the series c[cb .. cb + deg]: sum_{k>=1} G_k T_k(s) with
-    G_1 = c_0 - c_2 / 2 and G_k = (c_k-1 - c_k+1) / (2 k) (c_0 already halved), by Clenshaw."""
-    b1 = float(0.0)
-    b2 = float(0.0)
-    k = deg + 1
-    while k >= 1:
-        cm = c[cb + k - 1]
-        cp = float(0.0)
-        if k + 1 <= deg:
-            cp = c[cb + k + 1]
-        g = float(0.0)
-        if k == 1:
-            g = cm - 0.5 * cp
-        else:
-            g = (cm - cp) / (2.0 * float(k))
-        b0 = g + 2.0 * s * b1 - b2
-        b2 = b1
-        b1 = b0
-        k -= 1
-    # sum_{k>=1} G_k T_k(s) = b1 T_1 - b2 T_0 + (what the k = 0 step would add, without G_0)
-    return s * b1 - b2
-
-
-@wp.func
 def clenshaw_and_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
     """(the series at s, clenshaw_integral at s) in one pass: both recurrences share each
     coefficient's load, which is what a Gauss-Kronrod node with exact optical depth needs."""
@@ -141,6 +116,13 @@ def clenshaw_and_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: f
         c_k = cm
         k -= 1
     return wp.vec2(c_k + s * b1 - b2, s * i1 - i2)
+
+
+@wp.func
+def clenshaw_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> float:
+    """An antiderivative in s of the series c[cb .. cb + deg]: sum_{k>=1} G_k T_k(s) with
+    G_1 = c_0 - c_2 / 2 and G_k = (c_k-1 - c_k+1) / (2 k) (c_0 already halved)."""
+    return clenshaw_and_integral(c, cb, deg, s)[1]
 
 
 @wp.func
