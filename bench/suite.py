@@ -262,6 +262,7 @@ class Suite:
         self.t_start = time.perf_counter()
         if args.max_minutes is None:
             args.max_minutes = self.cfg["max_minutes"]
+        self.cfg["max_minutes"] = args.max_minutes  # the JSON's config says what this run used
         self.deadline = self.t_start + 60.0 * args.max_minutes
         dev = wp.get_device(args.device)
         self.out = {

@@ -101,6 +101,7 @@ class Renderer:
         self.device = resolve_device(device)
         self.mesh = mesh
         self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
+        self._bytes_per_ray = {}  # scalar type -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             from .mesh import element_boxes
@@ -181,10 +182,11 @@ class Renderer:
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
             return CPU_TILE_RAYS
-        probe = 1024
-        per_ray = self._tile_buffers(k, probe, scalar, vec2, vec4, wp.zeros((1, k.NUM_STATS), dtype=wp.int32))[-1] / probe
-        per_ray += 4 * (4 + 2 * (8 if scalar == wp.float64 else 4) + k.NUM_STATS)  # the image's own arrays
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / per_ray, MIN_TILE_RAYS, MAX_TILE_RAYS))
+        if scalar not in self._bytes_per_ray:  # measured once per precision: a small tile's buffers
+            probe = 1024
+            per_ray = self._tile_buffers(k, probe, scalar, vec2, vec4, wp.zeros((1, k.NUM_STATS), dtype=wp.int32))[-1] / probe
+            self._bytes_per_ray[scalar] = per_ray + 4 * (4 + 2 * (8 if scalar == wp.float64 else 4) + k.NUM_STATS)  # the image's own arrays
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._bytes_per_ray[scalar], MIN_TILE_RAYS, MAX_TILE_RAYS))
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
