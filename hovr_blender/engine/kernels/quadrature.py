@@ -304,8 +304,11 @@ def gauss_kronrod_smooth(
         dg = float(0.0)
         if lin == 1:
             # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
-            f_l = half_seg * clenshaw_integral(c, cb, deg, (l - mid_seg) / half_seg)
-            f_r = half_seg * clenshaw_integral(c, cb, deg, (r - mid_seg) / half_seg)
+            # held to [-1, 1] like every evaluation of the series: on a segment a few ulps long,
+            # the rounded l and r can map to |s| = 2, where a degree-30 series' noise grows by
+            # 2^30 (H100: one pixel's optical depth of -inf, a NaN image)
+            f_l = half_seg * clenshaw_integral(c, cb, deg, wp.clamp((l - mid_seg) / half_seg, -1.0, 1.0))
+            f_r = half_seg * clenshaw_integral(c, cb, deg, wp.clamp((r - mid_seg) / half_seg, -1.0, 1.0))
             nev += 2.0
             dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
             dg = dk
