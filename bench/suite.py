@@ -13,9 +13,9 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
    integrator, engine/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
    and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
-   order 6). Curved datasets have no float64 reference: theirs is the Renderer with split,
-   tolerance 1e-7 and no early termination (on the sphere the suite records how far that is
-   from the float64 reference). Full: at 1900x950 and 1920x1080.
+   order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
+   (bench/resample_baseline.pixel_exact_reference: split, tolerance 1e-9, curved tails 1e-12, no
+   early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
 2. resample: what users do today (bench/resample_baseline.py): the field resampled onto a
    regular grid of spacing h_g and ray-marched trilinearly (step h_g / 2): error against the
    reference, grid build and render time, grid memory, for several h_g; on the sphere and
@@ -308,6 +308,7 @@ class Suite:
     # ------------------------------------------------------------------------------ section 1
 
     def methods(self):
+        import resample_baseline as rb
         from hovr_blender.engine.reference import reference_render
         from hovr_blender.engine.image_io import write_png
 
@@ -328,20 +329,20 @@ class Suite:
                         "build_seconds": build, "upload_seconds": r.upload_seconds, "first_render_seconds": first,
                         "transfer_function": tf.to_contract(), "runs": []}
                 t1 = time.perf_counter()
-                ref_res = r.render(cam, tf, BACKGROUND, self.opts(method="split", tolerance=1e-7, min_transmittance=0.0))
-                case["split_1e-7_seconds"] = ref_res.stats["render_seconds"]
+                ref, ref_stats = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                case["renderer_float64_seconds"] = ref_stats["render_seconds"]
                 if name == "sphere":
-                    ref, info = reference_render(mesh, cam, tf, BACKGROUND)
+                    exact, info = reference_render(mesh, cam, tf, BACKGROUND)
                     case["reference"] = "float64 integrator (engine/reference.py)"
                     case["reference_error_estimate"] = info.get("error_estimate")
-                    case["split_1e-7_vs_float64"] = rgb_error(ref_res.rgba, ref)
+                    case["renderer_float64_vs_integrator"] = rgb_error(ref, exact)
+                    ref = exact
                 else:
-                    ref = ref_res.rgba.astype(np.float64)
-                    case["reference"] = "Renderer split, tolerance 1e-7, min_transmittance 0"
+                    case["reference"] = "Renderer in float64, split, tolerance 1e-9, min_transmittance 0"
                 case["reference_seconds"] = time.perf_counter() - t1
                 self.log(f"  {W}x{H}: reference in {case['reference_seconds']:.1f} s")
                 if name == "paper_scale" and (W, H) == tuple(cfg["method_sizes"][-1]):
-                    write_png(os.path.join(self.args.out, "suite_paper_scale.png"), ref_res.rgba, alpha=False)
+                    write_png(os.path.join(self.args.out, "suite_paper_scale.png"), ref.astype(np.float32), alpha=False)
                 for method in METHODS:
                     if method == "split":
                         sweep = [dict(tolerance=t) for t in cfg["tolerances"]]

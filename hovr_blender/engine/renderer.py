@@ -50,6 +50,7 @@ FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (
 MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
 ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
+GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
 COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5
 # launch tiles (Renderer._tile_limit): a GPU tile may take this share of the free device memory.
 # H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
@@ -77,6 +78,18 @@ def polynomial_degree(shape, modes):
     d = np.maximum(np.asarray(modes) - 1, 1)
     return np.select([shape == 2, shape == 1, shape == 3], [d.max(axis=1), np.maximum(d[:, 0], d[:, 2]) + d[:, 1],
                                                             d.sum(axis=1) + 2], d.sum(axis=1))
+
+
+def geometry_rounding(geo_offset, geo_coeffs, geo_centre, dtype) -> np.ndarray:
+    """Per element, how far x(xi) can be off by rounding in `dtype` (kernels/args.py geo_err):
+    the Legendre values are at most 1 on the reference box, so each coordinate is a sum of terms
+    no larger than its coefficients, plus the centre added back (tensor_geometry's layout:
+    element e's coefficients run from its offset to the next element's)."""
+    offset = np.asarray(geo_offset, dtype=np.int64)
+    ends = np.append(offset[1:], len(geo_coeffs))
+    cs = np.concatenate([np.zeros((1, 3)), np.cumsum(np.abs(geo_coeffs), axis=0)])
+    absum = (cs[ends] - cs[offset]).max(axis=1) + np.abs(np.asarray(geo_centre)).max(axis=1)
+    return GEO_ERROR_FACTOR * float(np.finfo(dtype).eps) * absum
 
 
 def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
@@ -240,6 +253,7 @@ class Renderer:
             m.geo_offset = wp.array(goff.astype(np.int32), dtype=wp.int32)
             m.geo_coeffs = wp.array(gco.astype(fdt), dtype=v3)
             m.geo_centre = wp.array(gcen.astype(fdt), dtype=v3)
+            m.geo_err = wp.array(geometry_rounding(goff, gco, gcen, fdt).astype(fdt), dtype=scalar)
             m.box_lo = wp.array(self._box_lo.astype(fdt), dtype=v3)
             m.box_hi = wp.array(self._box_hi.astype(fdt), dtype=v3)
             x, wk, wg = quadrature_tables.gauss_kronrod_15()

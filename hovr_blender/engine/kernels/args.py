@@ -61,6 +61,9 @@ class MeshArgs:
     geo_offset: wp.array(dtype=wp.int32)
     geo_coeffs: wp.array(dtype=wp.vec3)
     geo_centre: wp.array(dtype=wp.vec3)
+    # how far an evaluation of x(xi) can be off by rounding (before the pyramid's 1 / w^2):
+    # GEO_ERROR_FACTOR eps (sum |coefficients| + |centre|); Newton stops at steps this makes
+    geo_err: wp.array(dtype=wp.float32)
     box_lo: wp.array(dtype=wp.vec3)
     box_hi: wp.array(dtype=wp.vec3)
 

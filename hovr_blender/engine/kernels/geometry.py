@@ -27,6 +27,7 @@ wp.set_module_options({"enable_backward": False})
 # Tolerances sized for float32; the float64 twin gets kernels/precision.FLOAT64_CONSTANTS.
 INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
 NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
+NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
 ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
 NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
 ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
@@ -152,8 +153,22 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
         held_count += held
         if held_count >= 2:
             break
-        # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence)
-        if wp.length(dxi) < NEWTON_STEP_TOL:
+        # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence).
+        # Where rounding in x(xi) moves xi by more than that (near a pyramid's apex x = G / w^2:
+        # float32 steps stalled at ~1e-4 and the walk left the element early), a step within
+        # that noise is as converged as it gets (up to NEWTON_NOISE_MAX: at the apex itself the
+        # floor is unbounded)
+        noise = mesh.geo_err[e]
+        if mesh.shape[e] == el_k.PYR:
+            if xi[2] < 0.9999:
+                w = 0.5 * (1.0 - xi[2])
+                noise = noise / (w * w)
+            else:
+                noise = 0.0  # beyond the apex geometry_with_jacobian held xi: no shortcut there
+        jn = float(0.0)
+        for r in range(3):
+            jn = wp.max(jn, wp.abs(Jinv[r, 0]) + wp.abs(Jinv[r, 1]) + wp.abs(Jinv[r, 2]))
+        if wp.length(dxi) < wp.max(NEWTON_STEP_TOL, wp.min(jn * noise, NEWTON_NOISE_MAX)):
             ok = 1.0
             break
     return wp.vec4(xi[0], xi[1], xi[2], ok), Jinv
