@@ -48,7 +48,6 @@ def resolve_device(device: str) -> str:
 
 FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
-ODD_STRIDE = 32  # threads per slot for the odd points of a doubled degree (<= (MAX_SAMPLES - 5) / 2 + 1)
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
 GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
 COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5
@@ -100,7 +99,9 @@ def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
     deg = polynomial_degree(mesh.shape, mesh.modes)
     if mesh.affine is not None:
         curved = ~mesh.affine
-        deg = np.where(curved, np.maximum(np.minimum(deg + geo_degree, k.MAX_SAMPLES - 5), 2), deg)
+        full = np.minimum(deg + geo_degree, k.MAX_SAMPLES - 5)  # restriction.curved_base_degree
+        half = (full + 1) // 2
+        deg = np.where(curved, np.maximum(np.where(2 * half > k.MAX_SAMPLES - 5, full, half), 2), deg)
     return int(deg.max()) + 1
 
 
@@ -277,6 +278,7 @@ class Renderer:
         k, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
         curved = not bool(self.mesh.affine is None or self.mesh.affine.all())
         stride = self._sample_stride
+        odd_stride = (k.MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         f64 = options.precision == "float64"
         vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
         scalar = wp.float64 if f64 else wp.float32
@@ -354,7 +356,7 @@ class Renderer:
                         n_slots = int(again_count[p].numpy()[0])
                         if n_slots == 0:
                             break
-                        launch("sample", sample, n_slots * ODD_STRIDE, [mesh_args, cam, start, segs, again[p], ODD_STRIDE, 1])
+                        launch("sample", sample, n_slots * odd_stride, [mesh_args, cam, start, segs, again[p], odd_stride, 1])
                         slots, count = again[p], again_count[p]
                     if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
                         launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
