@@ -4,6 +4,7 @@ compile, and report each kernel's registers, stack frame and spills.
     python scripts/kernel_report.py                              # sm_90, float32, report only
     python scripts/kernel_report.py --cache .gpu/kcache          # also fill a Warp kernel cache
     python scripts/kernel_report.py --precision float64 --arch 90
+    python scripts/kernel_report.py --modes 0,2,3,4,5,6,7,8,9,10,11   # every sample specialisation
 
 --cache writes the compiled modules (PTX and CUBIN) where Warp looks for them when
 WARP_CACHE_PATH points there, so a GPU machine given that folder loads the kernels instead of
@@ -30,6 +31,8 @@ def main(argv=None):
     ap.add_argument("--arch", type=int, default=90)
     ap.add_argument("--precision", default="float32", choices=["float32", "float64"])
     ap.add_argument("--cache", default=None, help="a Warp kernel cache folder to fill (WARP_CACHE_PATH)")
+    ap.add_argument("--modes", default="0,7", type=lambda v: [int(x) for x in v.split(",")],
+                    help="sample kernels to build: 0 generic, N unrolled for N modes (7: order 6, the paper's)")
     args = ap.parse_args(argv)
     if args.cache:
         os.environ["WARP_CACHE_PATH"] = os.path.abspath(args.cache)
@@ -40,8 +43,12 @@ def main(argv=None):
     from hovr_blender.engine.kernels import precision as kp
 
     k = kp.kernels(args.precision)
-    kernels = [(f"{name} ({kind})", kern) for kind in ("curved", "affine")
-               for name, kern in zip(("search", "traverse", "sample"), k.walk_kernels(kind == "curved"))]
+    kernels = []
+    for kind in ("curved", "affine"):
+        search, traverse, _ = k.walk_kernels(kind == "curved")
+        kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
+        kernels += [(f"sample ({kind}, modes {m or 'generic'})", k.walk_kernels(kind == "curved", m)[2])
+                    for m in args.modes]
     kernels.append(("integrate, init_rays, finalize", k.integrate))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()

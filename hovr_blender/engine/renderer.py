@@ -262,7 +262,8 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            kernel = raycast.walk_kernels(curved=not bool(affine.all()))
+            kernel = raycast.walk_kernels(curved=not bool(affine.all()),
+                                          modes=raycast.el_k.static_modes(mesh.shape, mesh.modes))
             self._sample_stride = sample_stride(mesh, gdeg, k=raycast)
         self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
         return self._uploads[precision]

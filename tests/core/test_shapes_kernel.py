@@ -131,3 +131,62 @@ def test_mesh_evaluate_and_samples_for_every_shape():
     v = mesh.field_samples(5)
     assert v.size > 5 * mesh.num_elements
     assert v.min() >= 1.0 - 2.0 - 1e-9 and v.max() <= 1.0 + 1.0 + 1e-9  # f's range on the unit cube
+
+
+_STATIC_KERNELS = {}
+
+
+def _static_eval_kernel(N):
+    """A kernel evaluating through element.static_evaluator(N), as the sample kernel does."""
+    from hovr_blender.engine.kernels import element
+
+    if N not in _STATIC_KERNELS:
+        evaluate = element.static_evaluator(N)
+
+        @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": N})
+        def eval_static(mesh: args.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3),
+                        out: wp.array(dtype=wp.float32)):
+            i = wp.tid()
+            e = elem[i]
+            out[i] = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi[i])
+
+        _STATIC_KERNELS[N] = eval_static
+    return _STATIC_KERNELS[N]
+
+
+@pytest.mark.parametrize("N", [2, 3, 7])
+def test_static_evaluator_matches_numpy(device, N):
+    """The unrolled evaluators (hexahedra and prisms of N modes) against the numpy oracle, in a
+    mesh that also holds every shape at other modes (those take the generic path)."""
+    rng = np.random.default_rng(N)
+    elems = [(ex.HEX, (N, N, N)), (ex.PRISM, (N, N, N)), (ex.HEX, (N + 1,) * 3), (ex.PRISM, (3, 4, 5)),
+             (ex.TET, (N, N, N)), (ex.PYR, (N, N, N))]
+    shapes = [s for s, _ in elems]
+    coeffs = [rng.uniform(-1, 1, ex.num_coeffs(s, m)) for s, m in elems]
+    geoms = [straight_geometry(s, ex.SHAPE_VERTICES[s]) for s in shapes]
+    mesh = VolumeMesh.from_elements(shapes, np.array([m for _, m in elems]), coeffs, (2, 2, 2), geoms)
+    r = Renderer(mesh, device)
+    npts = 40
+    elem = np.repeat(np.arange(len(elems), dtype=np.int32), npts)
+    xi = np.concatenate([random_inside(s, npts, rng) for s in shapes])
+    out = wp.zeros(elem.size, dtype=wp.float32, device=r.device)
+    wp.launch(_static_eval_kernel(N), dim=elem.size, device=r.device,
+              inputs=[r.mesh_args(), wp.array(elem, dtype=wp.int32, device=r.device),
+                      wp.array(xi.astype(np.float32), dtype=wp.vec3, device=r.device), out])
+    got = out.numpy()
+    for e, (s, m) in enumerate(elems):
+        sel = elem == e
+        want = ex.eval_modal(s, m, coeffs[e], xi[sel].astype(np.float32).astype(np.float64))
+        err = np.abs(got[sel] - want).max()
+        assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{ex.SHAPE_NAMES[s]} modes {m}: {err:.3g}"
+
+
+def test_static_modes_picks_one_order_or_none():
+    from hovr_blender.engine.kernels.element import static_modes
+
+    H, P, T = ex.HEX, ex.PRISM, ex.TET
+    assert static_modes([H, P, T], [(7, 7, 7), (7, 7, 7), (3, 3, 3)]) == 7  # tets go generic anyway
+    assert static_modes([H, P], [(7, 7, 7), (6, 6, 6)]) == 0  # two orders: no single specialisation
+    assert static_modes([H], [(3, 4, 5)]) == 0  # anisotropic
+    assert static_modes([T, T], [(4, 4, 4), (4, 4, 4)]) == 0  # no hexahedra or prisms
+    assert static_modes([H], [(16, 16, 16)]) == 0  # beyond STATIC_MODES

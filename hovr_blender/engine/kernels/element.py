@@ -213,6 +213,116 @@ def eval_element(shape: int, coeffs: wp.array(dtype=wp.float32), off: int, m: wp
     return eval_hex(coeffs, off, m, xi)
 
 
+# ------------------------------------------------------------------ specialised per order
+# The generic evaluators above loop to runtime mode counts and index their basis vectors with
+# runtime indices: on the GPU those vectors live in local memory and the loops' integer work
+# bounds the sample kernel (H100 ncu: issue-bound on integer ALU). A mesh whose hexahedra and
+# prisms all carry N modes per direction (the usual case: one order) gets evaluators with N
+# fixed at compile time: every loop unrolls (the module's max_unroll >= N) and every index is
+# a constant. Other elements of the same mesh still go through eval_element.
+
+STATIC_MODES = range(2, 12)  # N with a specialisation: orders 1..10
+_STATIC = {}
+
+
+def static_modes(shape, modes) -> int:
+    """N if every hexahedron and prism has modes (N, N, N) with N in STATIC_MODES (and there is at
+    least one), else 0 (eval_element for all)."""
+    import numpy as np
+
+    shape = np.asarray(shape)
+    modes = np.asarray(modes)
+    sel = (shape == HEX) | (shape == PRISM)
+    if not sel.any():
+        return 0
+    m = modes[sel]
+    n = int(m[0, 0])
+    if n not in STATIC_MODES or not (m == n).all():
+        return 0
+    return n
+
+
+def static_evaluator(N: int):
+    """eval_element with hexahedra and prisms of modes (N, N, N) unrolled (cached per N)."""
+    if N in _STATIC:
+        return _STATIC[N]
+
+    @wp.func
+    def modified_a_static(x: float) -> vecm:
+        """modified_a_values(N, x) with the loop unrolled."""
+        v = vecm()
+        v[0] = 0.5 * (1.0 - x)
+        v[1] = 0.5 * (1.0 + x)
+        bubble = 0.25 * (1.0 - x) * (1.0 + x)
+        pm2 = float(0.0)
+        pm1 = float(1.0)
+        for p in range(2, wp.static(N)):
+            pk = float(1.0)  # the loop is unrolled: p is a constant and these branches fold
+            if p == 3:
+                pk = 2.0 * x
+            elif p >= 4:
+                fk = float(p - 2)
+                pk = ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
+            v[p] = bubble * pk
+            pm2 = pm1
+            pm1 = pk
+        return v
+
+    @wp.func
+    def eval_hex_static(coeffs: wp.array(dtype=wp.float32), off: int, xi: wp.vec3) -> float:
+        a = modified_a_static(xi[0])
+        b = modified_a_static(xi[1])
+        g = modified_a_static(xi[2])
+        total = float(0.0)
+        for k in range(wp.static(N)):
+            plane = float(0.0)
+            for j in range(wp.static(N)):
+                row = float(0.0)
+                base = off + wp.static(N) * (j + wp.static(N) * k)
+                for i in range(wp.static(N)):
+                    row += a[i] * coeffs[base + i]
+                plane += b[j] * row
+            total += g[k] * plane
+        return total
+
+    @wp.func
+    def eval_prism_static(coeffs: wp.array(dtype=wp.float32), off: int, xi: wp.vec3) -> float:
+        """eval_prism with m = (N, N, N): row p of the collapsed direction has N - p modes."""
+        eta1 = collapse_ratio(1.0 + xi[0], 1.0 - xi[2])
+        a = modified_a_static(eta1)
+        b = modified_a_static(xi[1])
+        top = 0.5 * (1.0 + xi[2])
+        total = float(0.0)
+        idx = off
+        for p in range(wp.static(N)):
+            c3 = modified_b_row(p, wp.static(N) - p, xi[2])
+            s_p = float(0.0)
+            for q in range(wp.static(N)):
+                s = float(0.0)
+                for r in range(wp.static(N)):  # unrolled: r and p are constants, the test folds
+                    if r < wp.static(N) - p:
+                        s += c3[r] * coeffs[idx + r]
+                s_p += b[q] * s
+                if p == 0:
+                    # singular edge: mode (0, q, 1) also carries phi_1(eta1) phi_q(xi2) (1+xi3)/2
+                    total += coeffs[idx + 1] * a[1] * b[q] * top
+                idx += wp.static(N) - p
+            total += a[p] * s_p
+        return total
+
+    @wp.func
+    def evaluate(shape: int, coeffs: wp.array(dtype=wp.float32), off: int, m: wp.vec3i, xi: wp.vec3) -> float:
+        if m[0] == wp.static(N) and m[1] == wp.static(N) and m[2] == wp.static(N):
+            if shape == HEX:
+                return eval_hex_static(coeffs, off, xi)
+            if shape == PRISM:
+                return eval_prism_static(coeffs, off, xi)
+        return eval_element(shape, coeffs, off, m, xi)
+
+    _STATIC[N] = evaluate
+    return evaluate
+
+
 @wp.func
 def restriction_weight(shape: int, xi: wp.vec3) -> float:
     """w with f * w^2 polynomial along a straight line: pyramids are rational, 1/(1-xi3)^2."""

@@ -380,6 +380,15 @@ def _make_walk_kernels(CURVED: bool):
         rays.stats[pixel, STAT_EMPTY] += n_empty
         rays.stats[pixel, STAT_WALKS] += n_walk
 
+    return search, traverse
+
+
+def _make_sample_kernel(CURVED: bool, MODES: int):
+    # MODES > 0: hexahedra and prisms of (MODES,) * 3 modes evaluate through the unrolled
+    # element.static_evaluator (its loops need max_unroll >= MODES)
+    opts = {"max_unroll": max(4, MODES)} if CURVED or MODES else {}
+    evaluate = el_k.static_evaluator(MODES) if MODES else el_k.eval_element
+
     @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=SAMPLE_MAX_REGISTERS if CURVED else None)
     def sample(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, segs: Segments, slots: wp.array(dtype=wp.int32),
                stride: wp.int32, odd: wp.int32):
@@ -399,13 +408,16 @@ def _make_walk_kernels(CURVED: bool):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        segs.samples[slot * MAX_SAMPLES + j] = rs.sample_at(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w = rs.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        e = segs.element[slot]
+        f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
+        segs.samples[slot * MAX_SAMPLES + j] = f * w * w
         if j == 0:
-            w = rs.end_weights(mesh, o, d, segs, slot, curved)
-            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 2] = w[0]
-            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 1] = w[1]
+            ends = rs.end_weights(mesh, o, d, segs, slot, curved)
+            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 2] = ends[0]
+            segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 1] = ends[1]
 
-    return search, traverse, sample
+    return sample
 
 
 @wp.kernel(enable_backward=False)
@@ -443,15 +455,21 @@ def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.arr
 
 
 _WALK = {}
+_SAMPLE = {}
 
 
-def walk_kernels(curved: bool):
+def walk_kernels(curved: bool, modes: int = 0):
     """(search, traverse, sample), specialised at compile time: with `curved` False the Newton
-    location and curved sampling are compiled out (affine meshes pay only for what they use)."""
+    location and curved sampling are compiled out (affine meshes pay only for what they use);
+    with `modes` N > 0 (element.static_modes of the mesh) the sample kernel evaluates
+    hexahedra and prisms of N modes unrolled."""
     key = bool(curved)
     if key not in _WALK:
         _WALK[key] = _make_walk_kernels(key)
-    return _WALK[key]
+    skey = (key, int(modes))
+    if skey not in _SAMPLE:
+        _SAMPLE[skey] = _make_sample_kernel(*skey)
+    return _WALK[key] + (_SAMPLE[skey],)
 
 
 @wp.func

@@ -6,7 +6,7 @@ Chebyshev-Lobatto points of the segment give it exactly ("the restriction"); its
 bound it (|f - c_0| <= sum |c_k|) and every later sample is an O(D) Clenshaw evaluation. On a
 curved element the same samples give an interpolant, whose tail is the error estimate.
 
-The sample kernel writes the samples (sample_at), the coefficients kernel turns them into the
+The sample kernel writes the samples (sample_point, then the element's evaluator), the coefficients kernel turns them into the
 series (chebyshev_coefficient, one thread per coefficient) in Segments.coeffs, and the
 integrate kernel evaluates it there: a series is (array, base offset), never a local vector
 (a vector argument is copied at every call).
@@ -202,14 +202,15 @@ def hermite_start(segs: Segments, slot: int, t: float) -> wp.vec3:
 
 
 @wp.func
-def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
-              curved: int) -> float:
-    """The slot's sample j of deg + 1 (Chebyshev-Lobatto point t_j of [t0, t1]).
+def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
+                 curved: int):
+    """Where the slot's sample j of deg + 1 (Chebyshev-Lobatto point t_j of [t0, t1]) lies in its
+    element: (xi, w); the sample is f(xi) w^2.
 
-    Affine element: f w^2 at xi = A o + b + t A d (w = 1 but for pyramids): deg + 1 of these
-    are exact for the element's polynomial along the ray (restriction_degree).
-    Curved element: f at the point located by Newton from the Hermite start (from the vertex-
-    affine guess if that fails): an interpolant whose tail the refine kernel checks."""
+    Affine element: xi = A o + b + t A d (w = 1 but for pyramids): deg + 1 samples are exact for
+    the element's polynomial along the ray (restriction_degree).
+    Curved element: the point located by Newton from the Hermite start (from the vertex-affine
+    guess if that fails), w = 1: an interpolant whose tail the refine kernel checks."""
     e = segs.element[slot]
     t = lobatto_t(segs.t0[slot], segs.t1[slot], j, deg)
     w = float(1.0)
@@ -227,7 +228,15 @@ def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int,
         A = mesh.ref_a[e]
         xi = A * (o + t * d) + mesh.ref_b[e]
         w = el_k.restriction_weight(mesh.shape[e], xi)
-    return eval_field(mesh, e, xi) * w * w
+    return xi, w
+
+
+@wp.func
+def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
+              curved: int) -> float:
+    """The slot's sample j (sample_point) through the generic evaluator."""
+    xi, w = sample_point(mesh, o, d, segs, slot, j, deg, curved)
+    return eval_field(mesh, segs.element[slot], xi) * w * w
 
 
 @wp.func
