@@ -153,6 +153,7 @@ def _make_walk_kernels(CURVED: bool):
         another pass follows only if a curved candidate left out of the window could. `left`:
         the element the ray has just left (or -1)."""
         eps = STRETCH_RTOL * wp.abs(t_from)
+        q0 = t_from - eps
         best_e = int(-1)
         best = wp.vec3(t_end, t_end, -1.0)  # t0, t1, exit face
         best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
@@ -164,9 +165,11 @@ def _make_walk_kernels(CURVED: bool):
             win_e = vecwi()
             nwin = int(0)
             thresh = float(1.0e30)
-            query = wp.bvh_query_ray(mesh.bvh, o, d)
+            # the query starts at t_from (less eps): boxes wholly behind it are culled in the tree
+            # (from the camera, a ray leaving the mesh walked every box along its way again)
+            query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d)
             cand = int(0)
-            while wp.bvh_query_next(query, cand, best[0]):
+            while wp.bvh_query_next(query, cand, best[0] - q0):
                 if mesh.affine[cand] == 1:
                     if p == 0:
                         cl = affine_stretch(mesh, cand, o, d)
