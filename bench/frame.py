@@ -36,6 +36,9 @@ SETTINGS = {
     "split-1e-5": dict(method="split", tolerance=1e-5),
     "split-1e-3": dict(method="split", tolerance=1e-3),
     "classified-d400": dict(method="classified", h_div=400),
+    "classified-d800": dict(method="classified", h_div=800),
+    "classified-d1600": dict(method="classified", h_div=1600),
+    "classified-d2400": dict(method="classified", h_div=2400),
     "trapezoid-d400": dict(method="trapezoid", h_div=400),
     "trapezoid-d3200": dict(method="trapezoid", h_div=3200),
 }

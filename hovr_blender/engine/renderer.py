@@ -50,7 +50,6 @@ FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (
 MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
 GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
-COEF_STRIDE_CURVED = 64  # threads per slot for the coefficients where refinement may reach MAX_SAMPLES - 5
 # launch tiles (Renderer._tile_limit): a GPU tile may take this share of the free device memory.
 # H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
 # few-ray tails of each tile, where a round costs the latency of its slowest ray
@@ -362,8 +361,7 @@ class Renderer:
                     if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
                         launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
                     if listed > 0:
-                        coef_stride = COEF_STRIDE_CURVED if curved else stride
-                        launch("coefficients", k.coefficients, listed * coef_stride, [segs, segs.list, coef_stride])
+                        launch("coefficients", k.coefficients, listed * stride, [segs, segs.list, stride])
                     launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
                     rounds += 1
                     active = int(rays.active_count.numpy()[0])

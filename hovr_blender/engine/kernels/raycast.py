@@ -425,15 +425,19 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
 
 @wp.kernel(enable_backward=False)
 def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int32):
-    """One thread per Chebyshev coefficient: slots[tid // stride]'s c_(tid % stride)."""
+    """stride threads per slot (the sample kernel's: its first-pass points): thread j of
+    slots[tid // stride] writes c_j, c_(j + stride), ... up to the slot's degree, so a slot
+    whose degree was doubled needs no wider launch (with 64 threads a slot for the largest
+    refined degree, most idled)."""
     tid = wp.tid()
     slot = slots[tid // stride]
     k = tid % stride
     deg = segs.degree[slot]
-    if k > deg:
-        return
     base = slot * MAX_SAMPLES
-    segs.coeffs[base + k] = rs.chebyshev_coefficient(segs, slot, k, deg)
+    kk = k
+    while kk <= deg:
+        segs.coeffs[base + kk] = rs.chebyshev_coefficient(segs, slot, kk, deg)
+        kk += stride
     if k == 0:
         segs.coeffs[base + MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
         segs.coeffs[base + MAX_SAMPLES - 1] = segs.samples[base + MAX_SAMPLES - 1]
