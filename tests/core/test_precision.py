@@ -137,3 +137,29 @@ def test_float32_matches_float64_on_curved_pyramid_apexes(device):
     assert a64[..., 3].max() > 0.5
     err = np.abs(a32[..., :3] - a64[..., :3]).max()
     assert err < 1e-3, f"float32 off float64 by {err:.2e}"
+
+
+def test_search_past_a_vertex_of_many_elements_finds_element_zero(device):
+    """One ray of the suite's curved cube (full size, 1920x1080, row 807, column 516) leaves
+    element 64 where eight or more elements meet, so the entry search's window overflows into a
+    second pass. The Newton checks of the first pass were counted into the list of located
+    elements without being written to it, so its zero-initialised slots said element 0 had been
+    located: the search never tried it and the ray ended transparent (float64: alpha 0.705)."""
+    import os
+    import sys
+
+    from hovr_blender.engine.camera import RayCamera
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
+    import suite
+
+    mesh, tf, camera, _ = suite.dataset("curved_mixed", suite.CONFIG["full"])
+    O, D = camera(1920, 1080).rays()
+    z = np.zeros(3)
+    one = RayCamera(1, 1, O[807, 516], z, z, D[807, 516], z, z, projection="orthographic")
+    r = Renderer(mesh, device)
+    opts = RenderOptions(method="split", tolerance=1e-5, min_transmittance=0.0)
+    a32 = r.render(one, tf, suite.BACKGROUND, opts).rgba[0, 0]
+    a64 = r.render(one, tf, suite.BACKGROUND, opts.with_(precision="float64")).rgba[0, 0]
+    assert a64[3] > 0.7
+    assert abs(a32[3] - a64[3]) < 1e-4, f"float32 alpha {a32[3]:.4f}, float64 {a64[3]:.4f}"

@@ -158,8 +158,9 @@ def _make_walk_kernels(CURVED: bool):
         best = wp.vec3(t_end, t_end, -1.0)  # t0, t1, exit face
         best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
         best_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        located = vecli()
-        nloc = int(0)
+        located = vecli()  # the curved candidates already located (curved_entry), n_listed of them
+        n_listed = int(0)
+        nloc = int(0)  # Newton locations of any kind (the statistics' count)
         for p in range(SEARCH_PASSES):
             win_key = vecw()
             win_e = vecwi()
@@ -184,7 +185,7 @@ def _make_walk_kernels(CURVED: bool):
                         bx = geo.box_interval(mesh, cand, o, d)
                         key = wp.max(bx[0], t_from)
                         if bx[1] > t_from + eps and key < best[0]:
-                            if in_list(located, nloc, cand) == 0:
+                            if in_list(located, n_listed, cand) == 0:
                                 if nwin == WINDOW and key >= win_key[WINDOW - 1]:
                                     thresh = wp.min(thresh, key)
                                 else:
@@ -215,9 +216,10 @@ def _make_walk_kernels(CURVED: bool):
                 for w in range(nwin):
                     if win_key[w] < best[0]:
                         cand = win_e[w]
-                        if nloc < LOCATED:
-                            located[nloc] = cand
-                            nloc += 1
+                        nloc += 1
+                        if n_listed < LOCATED:
+                            located[n_listed] = cand
+                            n_listed += 1
                         bx = geo.box_interval(mesh, cand, o, d)
                         t_look = t_from + eps
                         if cand == left:
