@@ -1,5 +1,7 @@
 """float64 kernels: generated from the float32 source, and as exact as float64 allows."""
 import ast
+import os
+import sys
 
 import numpy as np
 import pytest
@@ -14,6 +16,9 @@ from hovr_blender.io.synthetic import mixed_cube
 
 from .test_curved_kernel import jittered_trilinear_brick
 from .test_shapes_kernel import CAM, chord
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
+import suite  # noqa: E402  (the benchmark's curved cube, the scene where these bugs showed)
 
 F32_NAMES = {"float32", "vec2", "vec3", "vec4", "mat33", "vec2f", "vec3f", "vec4f", "mat33f"}
 
@@ -122,12 +127,6 @@ def test_float32_matches_float64_on_curved_pyramid_apexes(device):
     stalled above its fixed tolerance, the point counted as outside and one ray left a pyramid
     early, off by 1.4e-2 (pixel row 16, column 47). Newton now stops at the rounding floor
     (args.geo_err)."""
-    import os
-    import sys
-
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
-    import suite
-
     mesh, tf, camera, _ = suite.dataset("curved_mixed", suite.CONFIG["small"])
     cam = camera(64, 48)
     r = Renderer(mesh, device)
@@ -145,14 +144,6 @@ def test_search_past_a_vertex_of_many_elements_finds_element_zero(device):
     second pass. The Newton checks of the first pass were counted into the list of located
     elements without being written to it, so its zero-initialised slots said element 0 had been
     located: the search never tried it and the ray ended transparent (float64: alpha 0.705)."""
-    import os
-    import sys
-
-    from hovr_blender.engine.camera import RayCamera
-
-    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
-    import suite
-
     mesh, tf, camera, _ = suite.dataset("curved_mixed", suite.CONFIG["full"])
     O, D = camera(1920, 1080).rays()
     z = np.zeros(3)

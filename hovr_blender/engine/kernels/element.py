@@ -42,6 +42,17 @@ def jacobi_p(n: int, alpha: float, x: float) -> float:
 
 
 @wp.func
+def jacobi11_next(k: int, x: float, pm1: float, pm2: float) -> float:
+    """P^(1,1)_k(x) from P_(k-1) = pm1 and P_(k-2) = pm2 (the Modified_A bubbles' recurrence)."""
+    if k == 0:
+        return 1.0
+    if k == 1:
+        return 2.0 * x
+    fk = float(k)
+    return ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
+
+
+@wp.func
 def modified_a_values(n: int, x: float) -> vecm:
     """Modified_A modes 0..n-1 at x: (1-x)/2, (1+x)/2, then bubbles (1-x)(1+x)/4 P^(1,1)_{p-2}."""
     v = vecm()
@@ -52,13 +63,7 @@ def modified_a_values(n: int, x: float) -> vecm:
     pm2 = float(0.0)
     pm1 = float(1.0)
     for p in range(2, n):
-        k = p - 2
-        pk = float(1.0)
-        if k == 1:
-            pk = 2.0 * x
-        elif k >= 2:
-            fk = float(k)
-            pk = ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
+        pk = jacobi11_next(p - 2, x, pm1, pm2)
         v[p] = bubble * pk
         pm2 = pm1
         pm1 = pk
@@ -257,12 +262,7 @@ def static_evaluator(N: int):
         pm2 = float(0.0)
         pm1 = float(1.0)
         for p in range(2, wp.static(N)):
-            pk = float(1.0)  # the loop is unrolled: p is a constant and these branches fold
-            if p == 3:
-                pk = 2.0 * x
-            elif p >= 4:
-                fk = float(p - 2)
-                pk = ((2.0 * fk + 1.0) * (fk + 1.0) * x * pm1 - fk * (fk + 1.0) * pm2) / (fk * (fk + 2.0))
+            pk = jacobi11_next(p - 2, x, pm1, pm2)  # unrolled: p is a constant, its branches fold
             v[p] = bubble * pk
             pm2 = pm1
             pm1 = pk

@@ -155,22 +155,27 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
             break
         # float32 reaches ~1e-7 in xi; the step before that is below 1e-5 (quadratic convergence).
         # Where rounding in x(xi) moves xi by more than that (near a pyramid's apex x = G / w^2:
-        # float32 steps stalled at ~1e-4 and the walk left the element early), a step within
+        # float32 steps stalled above 1e-4 and the walk left the element early), a step within
         # that noise is as converged as it gets (up to NEWTON_NOISE_MAX: at the apex itself the
         # floor is unbounded)
-        noise = mesh.geo_err[e]
-        if mesh.shape[e] == el_k.PYR:
-            if xi[2] < 0.9999:
-                w = 0.5 * (1.0 - xi[2])
-                noise = noise / (w * w)
-            else:
-                noise = 0.0  # beyond the apex geometry_with_jacobian held xi: no shortcut there
-        jn = float(0.0)
-        for r in range(3):
-            jn = wp.max(jn, wp.abs(Jinv[r, 0]) + wp.abs(Jinv[r, 1]) + wp.abs(Jinv[r, 2]))
-        if wp.length(dxi) < wp.max(NEWTON_STEP_TOL, wp.min(jn * noise, NEWTON_NOISE_MAX)):
+        step = wp.length(dxi)
+        if step < NEWTON_STEP_TOL:
             ok = 1.0
             break
+        if step < NEWTON_NOISE_MAX:  # the floor is only worth computing for a step this small
+            noise = mesh.geo_err[e]
+            if mesh.shape[e] == el_k.PYR:
+                if xi[2] < 0.9999:
+                    w = 0.5 * (1.0 - xi[2])
+                    noise = noise / (w * w)
+                else:
+                    noise = 0.0  # beyond the apex geometry_with_jacobian held xi: no shortcut there
+            jn = float(0.0)
+            for r in range(3):
+                jn = wp.max(jn, wp.abs(Jinv[r, 0]) + wp.abs(Jinv[r, 1]) + wp.abs(Jinv[r, 2]))
+            if step < jn * noise:
+                ok = 1.0
+                break
     return wp.vec4(xi[0], xi[1], xi[2], ok), Jinv
 
 
