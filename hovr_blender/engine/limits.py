@@ -1,0 +1,191 @@
+"""The resource policy: what a load or a render may open, read, inflate and allocate.
+
+Files come from colleagues, archives and downloads, and inside Blender a crash loses the
+user's unsaved scene, so every reader and the renderer go through this one module:
+
+- only regular files are opened (never a FIFO, a device such as /dev/zero, a socket or a
+  folder), and only the ones the user named or the format itself references;
+- compressed data is inflated with its output bounded in advance (`inflate`): a block may
+  never grow beyond what its header or the mesh says it holds;
+- every large allocation is checked first (`check_bytes`) against one overridable memory
+  limit, and a ray's march against a limit on samples per ray; the error names the limit
+  and how to raise it.
+
+Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY)
+and can be overridden for a block of code with `using(ResourceLimits(...))` (the CLI's
+--max-memory and --max-samples-per-ray do this).
+"""
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import lzma
+import os
+import re
+import stat
+import zlib
+from dataclasses import dataclass, replace
+
+DEFAULT_MAX_MEMORY = 4 << 30  # bytes of arrays one load or one render may allocate
+DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h at most
+
+
+class ResourceLimitError(ValueError):
+    """Input refused by the resource policy; the message names the limit and how to raise it."""
+
+
+class UnsafeFileError(ValueError):
+    """A path that is not a regular file (FIFO, device, socket, folder) or a reference the
+    policy refuses (HDF5 external storage, links to other files)."""
+
+
+def parse_size(text) -> int:
+    """'4G', '512M', '1.5G', '1000000' -> bytes."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([kKmMgGtT]?)(i?[bB])?\s*", str(text))
+    if m is None:
+        raise ValueError(f"size {text!r}: write a number of bytes, optionally with K, M, G or T")
+    scale = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}[m.group(2).lower()]
+    value = int(float(m.group(1)) * scale)
+    if value <= 0:
+        raise ValueError(f"size {text!r} must be positive")
+    return value
+
+
+def format_size(n: int) -> str:
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n} bytes"
+
+
+@dataclass(frozen=True)
+class ResourceLimits:
+    max_memory: int = DEFAULT_MAX_MEMORY
+    max_samples_per_ray: int = DEFAULT_MAX_SAMPLES_PER_RAY
+
+    def __post_init__(self):
+        if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0:
+            raise ValueError("resource limits must be positive")
+
+    @classmethod
+    def from_environment(cls) -> "ResourceLimits":
+        out = cls()
+        if os.environ.get("HOVR_MAX_MEMORY"):
+            out = replace(out, max_memory=parse_size(os.environ["HOVR_MAX_MEMORY"]))
+        if os.environ.get("HOVR_MAX_SAMPLES_PER_RAY"):
+            out = replace(out, max_samples_per_ray=int(float(os.environ["HOVR_MAX_SAMPLES_PER_RAY"])))
+        return out
+
+
+_CURRENT: contextvars.ContextVar = contextvars.ContextVar("hovr_limits", default=None)
+
+
+def current() -> ResourceLimits:
+    lim = _CURRENT.get()
+    return lim if lim is not None else ResourceLimits.from_environment()
+
+
+@contextlib.contextmanager
+def using(limits: ResourceLimits):
+    """Apply `limits` to every load and render inside the block."""
+    token = _CURRENT.set(limits)
+    try:
+        yield limits
+    finally:
+        _CURRENT.reset(token)
+
+
+def check_bytes(nbytes, what: str) -> int:
+    """Refuse an allocation of `nbytes` for `what` beyond the memory limit, before it is made."""
+    limit = current().max_memory
+    if not nbytes <= limit:  # also refuses NaN
+        raise ResourceLimitError(
+            f"{what} would need {format_size(int(nbytes)) if nbytes == nbytes else nbytes}, more than "
+            f"the memory limit of {format_size(limit)} (raise it with --max-memory or HOVR_MAX_MEMORY)")
+    return int(nbytes)
+
+
+# ------------------------------------------------------------------------------ files
+
+def _describe(mode: int) -> str:
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def check_regular(path, what: str = "data file") -> os.stat_result:
+    """stat of `path`, which must be an existing regular file (links are followed)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} not found: {path}") from None
+    except OSError as exc:
+        raise UnsafeFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise UnsafeFileError(f"{what} {path} is {_describe(st.st_mode)}, not a regular file; refused")
+    return st
+
+
+def open_regular(path, what: str = "data file"):
+    """A binary file object for a regular file. Opened without blocking and checked on the open
+    descriptor, so a FIFO swapped in after a check cannot hold the process."""
+    check_regular(path, what)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
+    except OSError as exc:
+        raise UnsafeFileError(f"{what} {path}: cannot be opened ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise UnsafeFileError(f"{what} {path} is {_describe(st.st_mode)}, not a regular file; refused")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_regular(path, what: str = "data file") -> bytes:
+    """The whole content of a regular file, its size checked against the memory limit first."""
+    with open_regular(path, what) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        check_bytes(size, f"reading {what} {path}")
+        data = fh.read(size + 1)
+    if len(data) > size:
+        raise UnsafeFileError(f"{what} {path} grew while it was read; refused")
+    return data
+
+
+# ------------------------------------------------------------------------------ inflating
+
+def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
+    """(output, unused input) of one compressed stream, never producing more than max_bytes
+    (checked against the memory limit first). exact: the output must be exactly max_bytes.
+    Raises ValueError naming `what` for a broken, truncated or oversized stream."""
+    check_bytes(max_bytes, f"inflating {what}")
+    if codec == "zlib":
+        d = zlib.decompressobj()
+        err = zlib.error
+    elif codec == "lzma":
+        d = lzma.LZMADecompressor()
+        err = lzma.LZMAError
+    else:
+        raise ValueError(f"{what}: unknown compression {codec!r}")
+    try:
+        out = d.decompress(data, max_bytes + 1)
+    except (err, EOFError) as exc:
+        raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
+    if len(out) > max_bytes:
+        raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+    if not d.eof:
+        raise ValueError(f"{what}: {codec} stream is truncated")
+    if exact and len(out) != max_bytes:
+        raise ValueError(f"{what}: inflates to {len(out)} bytes, its header says {max_bytes}")
+    return out, d.unused_data
