@@ -27,8 +27,6 @@ def transfer_function_from_ramp(interpolation: str, color_mode: str, positions, 
         raise TransferFunctionError(f"transfer function ramp must use Linear interpolation, not {interpolation.title()}")
     if color_mode != "RGB":
         raise TransferFunctionError(f"transfer function ramp must interpolate in RGB, not {color_mode}")
-    if not (np.isfinite(value_min) and np.isfinite(value_max) and value_max > value_min):
-        raise TransferFunctionError(f"value range must have Value Max > Value Min, got [{value_min}, {value_max}]")
     if not (np.isfinite(density_scale) and density_scale >= 0):
         raise TransferFunctionError(f"density scale must be >= 0, got {density_scale}")
     if len(positions) == 0:

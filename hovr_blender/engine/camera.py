@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .strict_json import as_number, as_object, as_string, as_vector3
+
 
 class CameraError(ValueError):
     """A camera the contract cannot describe (zero direction, bad size, unknown projection)."""
@@ -58,13 +60,14 @@ class RayCamera:
 
     @classmethod
     def from_contract(cls, camera: dict, width: int, height: int) -> "RayCamera":
-        try:
-            proj = camera.get("projection", "perspective")
-            eye = np.asarray(camera["eye"], dtype=np.float64)
-            target = np.asarray(camera["target"], dtype=np.float64)
-            up = np.asarray(camera["up"], dtype=np.float64)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise CameraError(f"camera needs eye, target and up: {exc}") from exc
+        camera = as_object(camera, "camera", CameraError)
+        for key in ("eye", "target", "up"):
+            if key not in camera:
+                raise CameraError(f"camera needs eye, target and up: '{key}' is missing")
+        proj = as_string(camera.get("projection", "perspective"), "camera.projection", CameraError)
+        eye = as_vector3(camera["eye"], "camera.eye", CameraError)
+        target = as_vector3(camera["target"], "camera.target", CameraError)
+        up = as_vector3(camera["up"], "camera.up", CameraError)
         forward = _unit(target - eye, "target - eye")
         right = np.cross(forward, up)
         if np.linalg.norm(right) < 1e-12:
@@ -73,19 +76,17 @@ class RayCamera:
         up2 = np.cross(right, forward)
         zero = np.zeros(3)
         if proj == "perspective":
-            try:
-                fov = float(camera["fov_y_deg"])
-            except (KeyError, TypeError, ValueError) as exc:
-                raise CameraError("perspective camera needs fov_y_deg") from exc
+            if "fov_y_deg" not in camera:
+                raise CameraError("perspective camera needs fov_y_deg")
+            fov = as_number(camera["fov_y_deg"], "camera.fov_y_deg", CameraError)
             if not 0.0 < fov < 180.0:
                 raise CameraError(f"fov_y_deg must be in (0, 180), got {fov}")
             t = np.tan(np.radians(fov) / 2.0)
             return cls(width, height, eye, zero, zero, forward, t * right, t * up2, projection=proj)
         if proj == "orthographic":
-            try:
-                h = float(camera["height"])
-            except (KeyError, TypeError, ValueError) as exc:
-                raise CameraError("orthographic camera needs height") from exc
+            if "height" not in camera:
+                raise CameraError("orthographic camera needs height")
+            h = as_number(camera["height"], "camera.height", CameraError)
             if not h > 0.0:
                 raise CameraError(f"orthographic height must be > 0, got {h}")
             return cls(width, height, eye, 0.5 * h * right, 0.5 * h * up2, forward, zero, zero, projection=proj)

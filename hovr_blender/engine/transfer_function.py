@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .strict_json import as_numbers, as_object
+
 
 class TransferFunctionError(ValueError):
     """A transfer function that breaks the contract (unsorted, NaN, negative density)."""
@@ -45,15 +47,13 @@ class TransferFunction:
     @classmethod
     def from_contract(cls, tf: dict) -> "TransferFunction":
         """From the view file's ``transfer_function`` object."""
-        try:
-            color = np.asarray(tf["color"], dtype=np.float64)
-            density = np.asarray(tf["density"], dtype=np.float64)
-        except (KeyError, TypeError, ValueError) as exc:
-            raise TransferFunctionError(f"transfer_function needs 'color' [[s,r,g,b],...] and 'density' [[s,tau],...]: {exc}") from exc
-        if color.ndim != 2 or color.shape[1] != 4:
-            raise TransferFunctionError("transfer_function.color: rows of [s, r, g, b]")
-        if density.ndim != 2 or density.shape[1] != 2:
-            raise TransferFunctionError("transfer_function.density: rows of [s, tau]")
+        tf = as_object(tf, "transfer_function", TransferFunctionError)
+        for key in ("color", "density"):
+            if key not in tf:
+                raise TransferFunctionError(f"transfer_function needs 'color' [[s,r,g,b],...] and "
+                                            f"'density' [[s,tau],...]: '{key}' is missing")
+        color = as_numbers(tf["color"], "transfer_function.color (rows of [s, r, g, b])", TransferFunctionError, 4)
+        density = as_numbers(tf["density"], "transfer_function.density (rows of [s, tau])", TransferFunctionError, 2)
         return cls(color[:, 0], color[:, 1:4], density[:, 0], density[:, 1])
 
     @classmethod
@@ -63,6 +63,9 @@ class TransferFunction:
         Ramp positions in [0, 1] map linearly onto [value_min, value_max]. Coincident positions
         (a step) are separated by a relative 1e-9 so breakpoints stay strictly increasing.
         """
+        if not (np.isfinite(value_min) and np.isfinite(value_max) and value_max > value_min):
+            raise TransferFunctionError(f"value range must have Value Max > Value Min, got "
+                                        f"[{value_min:.6g}, {value_max:.6g}]")
         pos = np.asarray(positions, dtype=np.float64)
         rgba = np.asarray(rgba, dtype=np.float64).reshape(-1, 4)
         order = np.argsort(pos, kind="stable")

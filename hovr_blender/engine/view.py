@@ -2,20 +2,40 @@
 from __future__ import annotations
 
 import json
+import numbers
 import os
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .camera import RayCamera
+from .limits import read_regular
 from .mesh import VolumeMesh
+from .strict_json import as_integer, as_object, as_string, as_vector3
 from .transfer_function import TransferFunction
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
 
 
+MAX_IMAGE_SIDE = 32768
+MAX_VIEW_BYTES = 1 << 20
+
+
 class ViewError(ValueError):
     """A view file that cannot be rendered; the message names the key."""
+
+
+def data_spec(data) -> dict:
+    """The view's ``data`` object, its keys type-checked: {"builtin": name} or {"path": ...,
+    "solution": ..., "field": ..., "component": index or "magnitude"}."""
+    data = as_object(data, "data", ViewError)
+    for key in ("builtin", "path", "solution", "field"):
+        if key in data and data[key] is not None:
+            as_string(data[key], f"data.{key}", ViewError)
+    comp = data.get("component")
+    if comp is not None and comp != "magnitude":
+        as_integer(comp, "data.component (an index or \"magnitude\")", ViewError, 0)
+    return dict(data)
 
 
 @dataclass(frozen=True)
@@ -31,6 +51,13 @@ class RenderOptions:
     precision: str = "float32"  # kernel arithmetic: "float32" or "float64" (same kernel source)
 
     def __post_init__(self):
+        for name in ("method", "inner", "device", "precision"):
+            if not isinstance(getattr(self, name), str):
+                raise ViewError(f"render option {name} must be a string, got {getattr(self, name)!r}")
+        for name in ("h", "tolerance", "min_transmittance"):
+            v = getattr(self, name)
+            if not isinstance(v, numbers.Real) or isinstance(v, bool):
+                raise ViewError(f"render option {name} must be a number, got {v!r}")
         if self.method not in METHODS:
             raise ViewError(f"unknown method {self.method!r}; one of {', '.join(METHODS)}")
         if not (np.isfinite(self.h) and self.h > 0):
@@ -62,22 +89,17 @@ class View:
 
     @classmethod
     def from_dict(cls, d: dict, base_dir: str = ".") -> "View":
-        if not isinstance(d, dict):
-            raise ViewError("a view is a JSON object")
-        try:
-            img = d["image"]
-            w, h = int(img["width"]), int(img["height"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ViewError(f"view needs image.width and image.height: {exc}") from exc
-        if not (1 <= w <= 32768 and 1 <= h <= 32768):
-            raise ViewError(f"image size {w}x{h} out of range 1..32768")
-        for key in ("camera", "transfer_function", "data"):
+        d = as_object(d, "a view", ViewError)
+        for key in ("image", "camera", "transfer_function", "data"):
             if key not in d:
                 raise ViewError(f"view needs '{key}'")
-        bg = np.asarray(d.get("background", [0.0, 0.0, 0.0]), dtype=np.float64)
-        if bg.shape != (3,) or not np.all(np.isfinite(bg)):
-            raise ViewError("background must be [r, g, b]")
-        opts = d.get("render", {})
+        img = as_object(d["image"], "image", ViewError)
+        if "width" not in img or "height" not in img:
+            raise ViewError("view needs image.width and image.height")
+        w = as_integer(img["width"], "image size: width", ViewError, 1, MAX_IMAGE_SIDE)
+        h = as_integer(img["height"], "image size: height", ViewError, 1, MAX_IMAGE_SIDE)
+        bg = as_vector3(d.get("background", [0.0, 0.0, 0.0]), "background [r, g, b]", ViewError)
+        opts = as_object(d.get("render", {}), "render", ViewError)
         try:
             options = RenderOptions(**opts)
         except TypeError as exc:
@@ -86,19 +108,20 @@ class View:
             camera=RayCamera.from_contract(d["camera"], w, h),
             transfer_function=TransferFunction.from_contract(d["transfer_function"]),
             background=bg,
-            data=dict(d["data"]),
+            data=data_spec(d["data"]),
             options=options,
             base_dir=base_dir,
         )
 
     @classmethod
     def load(cls, path: str) -> "View":
+        raw = read_regular(path, "view file")
+        if len(raw) > MAX_VIEW_BYTES:
+            raise ViewError(f"view file {path} is {len(raw)} bytes; a view is a small JSON object "
+                            f"(at most {MAX_VIEW_BYTES} bytes)")
         try:
-            with open(path, encoding="utf-8") as fh:
-                d = json.load(fh)
-        except OSError as exc:
-            raise ViewError(f"cannot read view file {path}: {exc.strerror}") from exc
-        except json.JSONDecodeError as exc:
+            d = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
             raise ViewError(f"{path}: not valid JSON ({exc})") from exc
         return cls.from_dict(d, base_dir=os.path.dirname(os.path.abspath(path)))
 

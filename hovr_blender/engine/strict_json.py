@@ -1,0 +1,64 @@
+"""Strict reading of JSON values from a view file, which may come from anywhere.
+
+json.load gives bools where numbers are expected, strings for numbers, floats of 1e400 (inf)
+for integers; numpy would coerce all of them silently. Each helper here accepts exactly the
+JSON type the render contract means and raises `exc` with a message naming the key.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def as_object(v, what: str, exc=ValueError) -> dict:
+    if not isinstance(v, dict):
+        raise exc(f"{what} must be a JSON object, not {type(v).__name__}")
+    return v
+
+
+def as_string(v, what: str, exc=ValueError) -> str:
+    if not isinstance(v, str):
+        raise exc(f"{what} must be a string, not {type(v).__name__}")
+    return v
+
+
+def as_number(v, what: str, exc=ValueError) -> float:
+    """A finite JSON number (int or float, not a bool)."""
+    if not _is_number(v) or not math.isfinite(v):
+        raise exc(f"{what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def as_integer(v, what: str, exc=ValueError, lo: int | None = None, hi: int | None = None) -> int:
+    """A JSON integer (not a bool, not 1.9, not "32") within [lo, hi]."""
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise exc(f"{what} must be a whole number, got {v!r}")
+    if (lo is not None and v < lo) or (hi is not None and v > hi):
+        raise exc(f"{what} = {v} is out of range {lo}..{hi}")
+    return v
+
+
+def as_numbers(v, what: str, exc=ValueError, columns: int | None = None) -> np.ndarray:
+    """A list of finite numbers (columns None: shape (n,)) or of rows of `columns` numbers."""
+    if not isinstance(v, list) or not v:
+        raise exc(f"{what} must be a non-empty list, got {type(v).__name__}")
+    rows = v if columns is not None else [v]
+    for r in rows:
+        if not isinstance(r, list) or (columns is not None and len(r) != columns):
+            raise exc(f"{what}: each entry must be a list of {columns} numbers, got {r!r}"[:200])
+        for x in r:
+            if not _is_number(x) or not math.isfinite(x):
+                raise exc(f"{what}: {x!r} is not a finite number")
+    return np.asarray(v, dtype=np.float64)
+
+
+def as_vector3(v, what: str, exc=ValueError) -> np.ndarray:
+    a = as_numbers(v, what, exc)
+    if a.shape != (3,):
+        raise exc(f"{what} must be [x, y, z], got {len(v)} numbers")
+    return a
