@@ -1,11 +1,14 @@
 """Host side of a render: upload a VolumeMesh once per device, launch the ray kernel, gather stats."""
 from __future__ import annotations
 
+import os
+import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import limits
 from .camera import RayCamera
 from .mesh import VolumeMesh
 from .transfer_function import TransferFunction
@@ -28,12 +31,34 @@ class RenderResult:
     cancelled: bool = False
 
 
+_WARP_READY = False
+
+
 def _warp():
-    """Import and initialise Warp on first use (device probing deferred until a render needs it)."""
+    """Import and initialise Warp on first use (device probing deferred until a render needs it).
+    Warp's greeting, module-load lines and its native "no CUDA driver" line are shown only with
+    HOVR_DEBUG=1: on a machine without a GPU they are noise on every render."""
     import warp as wp
 
-    wp.config.quiet = True
-    wp.init()
+    global _WARP_READY
+    if _WARP_READY:
+        return wp
+    _WARP_READY = True
+    debug = bool(os.environ.get("HOVR_DEBUG"))
+    wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
+    if debug:
+        wp.init()
+        return wp
+    # the driver probe prints from C to the process's stderr: hold fd 2 on /dev/null meanwhile
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
     return wp
 
 
@@ -123,6 +148,8 @@ class Renderer:
             pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
             self._box_lo = lowers - pad
             self._box_hi = uppers + pad
+            # no ray is longer inside the data than this (the fixed-step methods' samples per ray)
+            self.data_diagonal = float(np.linalg.norm(self._box_hi.max(axis=0) - self._box_lo.min(axis=0)))
             # Warp's BVH is float32 in both precisions (padded boxes: conservative either way)
             self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
@@ -195,11 +222,42 @@ class Renderer:
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
             return CPU_TILE_RAYS
-        if scalar not in self._bytes_per_ray:  # measured once per precision: a small tile's buffers
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(k, scalar, vec2, vec4),
+                           MIN_TILE_RAYS, MAX_TILE_RAYS))
+
+    def _ray_bytes(self, k, scalar, vec2, vec4) -> float:
+        """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
+        wp = _warp()
+        if scalar not in self._bytes_per_ray:
             probe = 1024
-            per_ray = self._tile_buffers(k, probe, scalar, vec2, vec4, wp.zeros((1, k.NUM_STATS), dtype=wp.int32))[-1] / probe
-            self._bytes_per_ray[scalar] = per_ray + 4 * (4 + 2 * (8 if scalar == wp.float64 else 4) + k.NUM_STATS)  # the image's own arrays
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._bytes_per_ray[scalar], MIN_TILE_RAYS, MAX_TILE_RAYS))
+            with wp.ScopedDevice(self.device):
+                stats = wp.zeros((1, k.NUM_STATS), dtype=wp.int32)
+                self._bytes_per_ray[scalar] = self._tile_buffers(k, probe, scalar, vec2, vec4, stats)[-1] / probe
+        return self._bytes_per_ray[scalar]
+
+    def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None):
+        """Refuse a render the resource policy does not allow (engine/limits.py), before
+        anything is allocated: the image's buffers against the memory limit, and for the
+        fixed-step methods the samples a ray may take across the data (its box diagonal / h)."""
+        lim = limits.current()
+        if options.method != "split":
+            steps = self.data_diagonal / float(options.h)
+            if not steps <= lim.max_samples_per_ray:
+                raise limits.ResourceLimitError(
+                    f"step h = {options.h:g} would take up to {steps:.3g} samples per ray across the data "
+                    f"(its bounding box diagonal is {self.data_diagonal:.4g}); the limit is "
+                    f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
+                    f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
+        f64 = options.precision == "float64"
+        k = self._upload(options.precision)[0]
+        wp = _warp()
+        scalar, vec2, vec4 = (wp.float64, wp.vec2d, wp.vec4d) if f64 else (wp.float32, wp.vec2, wp.vec4)
+        total = int(width) * int(height)
+        # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
+        per_pixel = (4 + 2) * (8 if f64 else 4) * 2 + 4 * k.NUM_STATS + 8 * k.NUM_STATS + 16
+        rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
+        limits.check_bytes(total * per_pixel + rays * self._ray_bytes(k, scalar, vec2, vec4),
+                           f"a {width}x{height} image in {options.precision}")
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
@@ -304,6 +362,7 @@ class Renderer:
             q.method = _METHOD_IDS[options.method]
             q.inner = _INNER_IDS[options.inner]
             q.h = float(options.h)
+            q.max_steps = int(limits.current().max_samples_per_ray) + 1
             q.tol = float(options.tolerance)
             q.min_transmittance = float(options.min_transmittance)
             q.background = vec3(*map(float, bg))
@@ -313,6 +372,7 @@ class Renderer:
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = total if progress is None else max(1, int(tile_pixels or 65536))
             tile = min(tile, self._tile_limit(k, scalar, vec2, vec4), total)
+            self.check_limits(W, H, options, tile)
             try:
                 rgba = wp.zeros(total, dtype=vec4)
                 aux = wp.zeros(total, dtype=vec2)

@@ -100,6 +100,7 @@ class QuadArgs:
     method: wp.int32
     inner: wp.int32
     h: wp.float32
+    max_steps: wp.int32  # steps of h per segment at most (the samples-per-ray limit; the host refuses more)
     tol: wp.float32
     min_transmittance: wp.float32
     background: wp.vec3

@@ -151,12 +151,13 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
           evaluate: int, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, state_in: vecst):
-    """The baselines on [a, b] with n = ceil((b - a) / h) equal steps: left Riemann sum
+    """The baselines on [a, b] with n = ceil((b - a) / h) equal steps (at most q.max_steps): left Riemann sum
     (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
     samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
     restriction c. Returns the new state and (element evaluations, restriction evaluations)."""
     state = state_in
-    n = wp.max(1, int(wp.ceil((b - a) / q.h)))
+    # in floating point and capped: (b - a) / h of a tiny h overflows a 32-bit int
+    n = int(wp.clamp(wp.ceil((b - a) / q.h), 1.0, float(q.max_steps)))
     w = (b - a) / float(n)
     col = wp.vec3(state[0], state[1], state[2])
     T = state[3]
