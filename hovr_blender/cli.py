@@ -3,24 +3,45 @@
     hovr render VIEW.json -o out.npy [--png out.png] [--stats stats.json]
                 [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cuda:0]
     hovr reference VIEW.json -o ref.npy [--png ref.png]    (float64 certifying reference)
+
+Every failure ends with `hovr: error: ...` and exit code 2 (--debug adds the traceback).
+Outputs are written to temporary files in their folders and renamed into place only when
+all of them succeeded: a failed run leaves no partial result.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import tempfile
 import time
+import traceback
 
 from .engine.view import METHODS
+
+EXIT_ERROR = 2
+
+
+class OutputError(ValueError):
+    """An output path the command will not write to."""
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hovr", description=__doc__.split("\n\n")[0])
+    p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = p.add_subparsers(dest="command", required=True)
+
+    def common(q):
+        q.add_argument("view", help="view JSON (docs/spec/render-contract.md)")
+        q.add_argument("-o", "--output", required=True, help="float32 (H, W, 4) RGBA .npy (its folder must exist)")
+        q.add_argument("--png", help="also write an sRGB 8-bit .png")
+        q.add_argument("--stats", help="write render statistics as .json")
+        q.add_argument("--max-memory", help="memory limit of the load and the render, e.g. 8G (default 4G, "
+                       "or HOVR_MAX_MEMORY)")
+        q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
     r = sub.add_parser("render", help="render a view file with the Warp kernels")
-    r.add_argument("view", help="view JSON (render contract §1)")
-    r.add_argument("-o", "--output", required=True, help="float32 (H, W, 4) RGBA .npy")
-    r.add_argument("--png", help="also write an sRGB 8-bit PNG")
-    r.add_argument("--stats", help="write render statistics JSON")
+    common(r)
     r.add_argument("--method", choices=METHODS, help="quadrature (default: the view's, else classified)")
     r.add_argument("--h", type=float, help="step in world units for Riemann/trapezoid/piecewise-smooth segments")
     r.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
@@ -28,20 +49,61 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--inner", choices=("spectral", "trapezoid"), help="inner integral on smooth segments")
     r.add_argument("--device", help="Warp device: cpu or cuda:0")
     r.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic (default float32)")
+    r.add_argument("--max-samples-per-ray", type=int, help="fixed-step methods: refuse a step h that takes more "
+                   "samples across the data (default 100000, or HOVR_MAX_SAMPLES_PER_RAY)")
     f = sub.add_parser("reference", help="render the float64 reference (affine hexahedra)")
-    f.add_argument("view")
-    f.add_argument("-o", "--output", required=True)
-    f.add_argument("--png")
-    f.add_argument("--stats")
+    common(f)
     return p
 
 
-def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+def _output_path(path: str, suffix: str, what: str) -> str:
+    """The absolute path to write `what` to: it ends with `suffix`, its folder exists, and if it
+    exists already it is a regular file (never a folder, FIFO or device)."""
+    if not path.lower().endswith(suffix):
+        raise OutputError(f"{what} {path!r} must end with {suffix}")
+    path = os.path.abspath(path)
+    folder = os.path.dirname(path)
+    if not os.path.isdir(folder):
+        raise OutputError(f"{what} {path}: folder {folder} does not exist")
+    if os.path.lexists(path) and not os.path.isfile(path):
+        raise OutputError(f"{what} {path} exists and is not a regular file")
+    return path
+
+
+def _write_all(outputs):
+    """Write each (path, writer) to a temporary file beside its target; rename all into place
+    only when every one was written (a failure removes the temporaries)."""
+    done = []
+    try:
+        for path, writer in outputs:
+            fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), prefix="." + os.path.basename(path) + ".",
+                                       suffix=".tmp")
+            done.append((tmp, path))
+            with os.fdopen(fd, "wb") as fh:
+                writer(fh)
+        for tmp, path in done:
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp, _ in done:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        raise
+
+
+def _run(args) -> str:
+    from .engine import limits
     from .engine.image_io import write_json, write_npy, write_png
     from .engine.view import View
 
-    try:
+    out = _output_path(args.output, ".npy", "-o")
+    png = _output_path(args.png, ".png", "--png") if args.png else None
+    st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
+    lim = limits.current()
+    if args.max_memory:
+        lim = limits.ResourceLimits(limits.parse_size(args.max_memory), lim.max_samples_per_ray)
+    if getattr(args, "max_samples_per_ray", None) is not None:
+        lim = limits.ResourceLimits(lim.max_memory, args.max_samples_per_ray)
+    with limits.using(lim):
         view = View.load(args.view)
         t0 = time.perf_counter()
         mesh = view.load_mesh()
@@ -63,17 +125,42 @@ def main(argv=None) -> int:
             rgba, info = reference_render(mesh, view.camera, view.transfer_function, view.background)
             stats = {"device": "cpu (numpy float64)", "render_seconds": time.perf_counter() - t0,
                      "method": "reference", "parameters": {}, **info}
-        stats["load_seconds"] = load_s
-        write_npy(args.output, rgba)
-        if args.png:
-            write_png(args.png, rgba)
-        if args.stats:
-            write_json(args.stats, stats)
-    except (ValueError, RuntimeError, OSError) as exc:
+    stats["load_seconds"] = load_s
+    outputs = [(out, lambda fh: write_npy(fh, rgba))]
+    if png:
+        outputs.append((png, lambda fh: write_png(fh, rgba)))
+    if st_path:
+        outputs.append((st_path, lambda fh: write_json(fh, stats)))
+    _write_all(outputs)
+    return (f"hovr: {view.camera.width}x{view.camera.height} {stats['method']} in {stats['render_seconds']:.3f} s "
+            f"on {stats['device']} -> {out}")
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        message = _run(args)
+    except KeyboardInterrupt:
+        print("hovr: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        if args.debug:
+            traceback.print_exc()
+        print("hovr: error: out of memory (lower the image size, or set --max-memory below what this "
+              "machine has so that the run is refused before it starts)", file=sys.stderr)
+        return EXIT_ERROR
+    except (ValueError, RuntimeError, OSError) as exc:  # the readers' and renderer's clear errors
+        if args.debug:
+            traceback.print_exc()
         print(f"hovr: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"hovr: {view.camera.width}x{view.camera.height} {stats['method']} in {stats['render_seconds']:.3f} s "
-          f"on {stats['device']} -> {args.output}")
+        return EXIT_ERROR
+    except Exception as exc:  # a bug: still one line, the traceback only when asked for
+        if args.debug:
+            traceback.print_exc()
+        print(f"hovr: error: unexpected {type(exc).__name__}: {exc} (a bug: please report it; "
+              "--debug shows the traceback)", file=sys.stderr)
+        return EXIT_ERROR
+    print(message)
     return 0
 
 

@@ -19,18 +19,28 @@ def to_png_bytes_rgba(rgba: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_png(path: str, rgba: np.ndarray, alpha: bool = True) -> None:
+def write_png(target, rgba: np.ndarray, alpha: bool = True) -> None:
+    """target: a path or a binary file object."""
     from PIL import Image
 
     px = to_png_bytes_rgba(np.asarray(rgba, dtype=np.float64))
-    Image.fromarray(px if alpha else px[..., :3], "RGBA" if alpha else "RGB").save(path)
+    Image.fromarray(px if alpha else px[..., :3], "RGBA" if alpha else "RGB").save(target, format="PNG")
 
 
-def write_npy(path: str, rgba: np.ndarray) -> None:
-    np.save(path, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
+def write_npy(target, rgba: np.ndarray) -> None:
+    """target: a binary file object, or a path, which is written as given (np.save would add
+    .npy to a path without it)."""
+    if isinstance(target, (str, bytes)) or hasattr(target, "__fspath__"):
+        with open(target, "wb") as fh:
+            return write_npy(fh, rgba)
+    np.save(target, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
 
 
-def write_json(path: str, obj: dict) -> None:
-    with open(path, "w", encoding="utf-8") as fh:
-        json.dump(obj, fh, indent=2, sort_keys=True)
-        fh.write("\n")
+def write_json(target, obj: dict) -> None:
+    """target: a path or a binary file object."""
+    text = json.dumps(obj, indent=2, sort_keys=True) + "\n"
+    if isinstance(target, (str, bytes)) or hasattr(target, "__fspath__"):
+        with open(target, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    else:
+        target.write(text.encode("utf-8"))
