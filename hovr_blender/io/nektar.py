@@ -488,7 +488,7 @@ def _check_npoints(npts, tag, path, what):
         raise NektarError(f"{path}: {what}: NUMPOINTS={npts}; 1..{cap} are supported")
 
 
-def _parse_ranges(text, path, what, cap=None):
+def _parse_ranges(text, path, what):
     """List of (a, b) inclusive ranges of a Nektar++ ID list '0-7,12' (no expansion: sizes untrusted)."""
     out = []
     for tok in (text or "").replace(" ", "").replace("\t", "").replace("\n", "").split(","):
@@ -499,10 +499,9 @@ def _parse_ranges(text, path, what, cap=None):
         b = int(m.group(2)) if m.group(2) else a
         if b < a:
             raise NektarError(f"{path}: {what}: bad ID range {tok!r}")
+        if b >= 1 << 62:
+            raise NektarError(f"{path}: {what}: ID {b} is out of range")
         out.append((a, b))
-    total = sum(b - a + 1 for a, b in out)
-    if cap is not None and total > cap:
-        raise NektarError(f"{path}: {what}: {total} IDs, more than the {cap} it can hold")
     return out
 
 
@@ -510,40 +509,78 @@ def _expand_ranges(ranges):
     return np.concatenate([np.arange(a, b + 1, dtype=np.int64) for a, b in ranges]) if ranges else np.zeros(0, np.int64)
 
 
+def _select(ids, ranges):
+    """(positions in the sorted array `ids` of the IDs any range holds, (lo, hi) position bounds
+    of each range, and whether each range's IDs all exist). Work is bounded by the number of
+    ranges plus len(ids), never by the ranges' declared sizes."""
+    r = np.array(ranges, dtype=np.int64).reshape(-1, 2)
+    lo = np.searchsorted(ids, r[:, 0], "left")
+    hi = np.searchsorted(ids, r[:, 1], "right")
+    complete = hi - lo - 1 == r[:, 1] - r[:, 0]
+    depth = np.zeros(len(ids) + 1, np.int64)  # how many ranges cover each position
+    np.add.at(depth, lo, 1)
+    np.add.at(depth, hi, -1)
+    return np.flatnonzero(np.cumsum(depth[:-1]) > 0), lo, hi, complete
+
+
+def _first_missing(ids, a, lo, hi):
+    """The first ID from a on that `ids` (sorted) lacks, given ids[lo:hi] are those in the range."""
+    run = ids[lo:hi] - a - np.arange(hi - lo)
+    gap = np.flatnonzero(run)
+    return int(a + (gap[0] if len(gap) else hi - lo))
+
+
 def _domain_elements(geom, path, elements):
-    """Element IDs of the DOMAIN (all elements when there is no DOMAIN) (§2.2)."""
+    """Element IDs of the DOMAIN (all elements when there is no DOMAIN) (§2.2). Each composite is
+    read once, however often it is named."""
     dom = geom.find("DOMAIN")
     if dom is None:
         return sorted(elements)
     texts = [dom.text or ""] + [d.text or "" for d in dom if d.tag == "D"]
-    comp_ids = []
+    ranges = []
     for t in texts:
         for m in re.finditer(r"C\s*\[([^\]]*)\]", t):
-            comp_ids.extend(_expand_ranges(_parse_ranges(m.group(1), path, "DOMAIN", cap=1 << 20)).tolist())
-    if not comp_ids:
+            ranges.extend(_parse_ranges(m.group(1), path, "DOMAIN"))
+    if not ranges:
         raise NektarError(f"{path}: DOMAIN names no composite")
     comps = {}
     sec = geom.find("COMPOSITE")
     for c in (sec if sec is not None else []):
         comps[_entity_id(c, path, "COMPOSITE")] = c.text or ""
-    ids = set()
-    for cid in comp_ids:
-        if cid not in comps:
-            raise NektarError(f"{path}: DOMAIN refers to missing composite C[{cid}]")
+    comp_ids = np.array(sorted(comps), dtype=np.int64)
+    pos, lo, hi, complete = _select(comp_ids, ranges)
+    if not complete.all():
+        i = int(np.argmin(complete))
+        raise NektarError(f"{path}: DOMAIN refers to missing composite C[{_first_missing(comp_ids, ranges[i][0], lo[i], hi[i])}]")
+    elem_ids = np.array(sorted(elements), dtype=np.int64)
+    elem_shapes = np.array([elements[e][0] for e in elem_ids.tolist()], dtype=np.int64)
+    # count[s][k]: elements of shape s among the first k, to check a range's shapes without expanding it
+    count = np.concatenate([np.zeros((4, 1), np.int64), np.cumsum(elem_shapes == np.arange(4)[:, None], axis=1)], axis=1)
+    ranges, owners = [], []  # element ranges, and (composite, letter) of each
+    for cid in comp_ids[pos].tolist():
         for m in re.finditer(r"([A-Z])\s*\[([^\]]*)\]", comps[cid]):
             letter = m.group(1)
             if letter not in ELEMENT_TAGS:
                 raise NektarError(f"{path}: composite C[{cid}] in the DOMAIN holds {letter}[...], not 3-D elements")
-            for e in _expand_ranges(_parse_ranges(m.group(2), path, f"composite C[{cid}]", cap=len(elements))).tolist():
-                if e not in elements:
-                    raise NektarError(f"{path}: composite C[{cid}] refers to missing element {e}")
-                if elements[e][0] != ELEMENT_TAGS[letter]:
-                    raise NektarError(f"{path}: composite C[{cid}] lists {letter}[{e}] but element {e} is a "
-                                      f"{SHAPE_WORD[elements[e][0]]}")
-                ids.add(e)
-    if not ids:
+            rs = _parse_ranges(m.group(2), path, f"composite C[{cid}]")
+            ranges.extend(rs)
+            owners.extend([(cid, letter)] * len(rs))
+    if not ranges:
         raise NektarError(f"{path}: the DOMAIN holds no elements")
-    return sorted(ids)
+    pos, lo, hi, complete = _select(elem_ids, ranges)
+    shapes = np.array([ELEMENT_TAGS[letter] for _, letter in owners])
+    same_shape = count[shapes, hi] - count[shapes, lo] == hi - lo
+    bad = np.flatnonzero(~(complete & same_shape))
+    if len(bad):
+        i = int(bad[0])
+        cid, letter = owners[i]
+        if not complete[i]:
+            e = _first_missing(elem_ids, ranges[i][0], lo[i], hi[i])
+            raise NektarError(f"{path}: composite C[{cid}] refers to missing element {e}")
+        k = lo[i] + int(np.argmax(elem_shapes[lo[i] : hi[i]] != shapes[i]))
+        raise NektarError(f"{path}: composite C[{cid}] lists {letter}[{elem_ids[k]}] but element {elem_ids[k]} is a "
+                          f"{SHAPE_WORD[int(elem_shapes[k])]}")
+    return elem_ids[pos].tolist()
 
 
 def _read_mesh(path: Path) -> _Mesh:

@@ -2,9 +2,12 @@
 from __future__ import annotations
 
 import base64
+import contextlib
 import importlib.util
 import re
+import signal
 import xml.etree.ElementTree as ET
+import time
 import zlib
 from pathlib import Path
 
@@ -562,3 +565,85 @@ def test_mutations_of_real_files_load_or_raise_a_named_nektar_error():
     assert s["crashes"] == [] and s["unexpected"] == [] and s["timeouts"] == [] and s["unnamed"] == []
     assert s["nektar_error"] > s["cases"] // 2  # most corruptions are caught, not silently loaded
     assert s["max_case_seconds"] < mod.CASE_SECONDS
+
+
+# ------------------------------------------------------------------------------ hostile input
+# Each generator writes a hostile case into a folder and returns read_nektar's arguments
+# (mesh, solution, field); nothing hostile is stored. Every case must be refused with a
+# NektarError naming the file, well within HOSTILE_SECONDS.
+
+HOSTILE_SECONDS = 5.0
+
+
+@contextlib.contextmanager
+def no_hang(seconds=30):
+    """A blocking open or read becomes a failure instead of a hung suite."""
+    def stop(*_):
+        raise TimeoutError(f"no answer in {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def xml_case(xml=lambda x: x, fld=lambda f: f):
+    """Case: the one-hexahedron mesh and field (STEM), edited by xml() and fld()."""
+    def case(tmp):
+        x, f = original()
+        return write(tmp, xml(x), fld(f)), tmp / "m.fld", "p"
+    return case
+
+
+HOSTILE = {
+    # amplification in XML
+    "DOMAIN range x2000": (xml_case(xml=lambda x: x.replace("<DOMAIN>C[0]</DOMAIN>", "<DOMAIN>" + "C[0-1048575] " * 2000 + "</DOMAIN>")),
+                           "DOMAIN refers to missing composite C[1]"),
+    "composite range x2000": (xml_case(xml=lambda x: x.replace('<C ID="0">H[0]</C>', '<C ID="0">' + "H[0-1048575] " * 2000 + "</C>")),
+                              "composite C[0] refers to missing element 1"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_hostile_input_is_refused_quickly_naming_file_and_record(tmp_path, case):
+    make, phrase = HOSTILE[case]
+    mesh, solution, name = make(tmp_path)
+    start = time.perf_counter()
+    with no_hang(), pytest.raises(NektarError, match=re.escape(phrase)) as info:
+        read_nektar(mesh, solution, field=name)
+    assert time.perf_counter() - start < HOSTILE_SECONDS
+    assert "unexpected" not in str(info.value) and str(tmp_path) in str(info.value)
+
+
+def test_repeated_composites_are_read_once(tmp_path):
+    """C[0,0,...] naming a composite of H[0] x2000: legitimate, loads at once (work is bounded by the text)."""
+    x, _ = original()
+    x = x.replace("<DOMAIN>C[0]</DOMAIN>", "<DOMAIN>C[" + ",".join(["0"] * 2000) + "]</DOMAIN>")
+    x = x.replace('<C ID="0">H[0]</C>', '<C ID="0">' + "H[0] " * 2000 + "</C>")
+    start = time.perf_counter()
+    m = read_nektar(write(tmp_path, x), field="p")
+    assert time.perf_counter() - start < HOSTILE_SECONDS
+    np.testing.assert_array_equal(m.coeffs, original_values())
+
+
+def test_composites_select_elements_by_intersecting_ranges(tmp_path):
+    """Overlapping ranges and repeated composites: the DOMAIN is their union, checked shape by shape."""
+    xml = (DATA / "CubeAllElements.xml").read_text()
+    whole = read_nektar(DATA / "CubeAllElements.xml")
+
+    def load(edit):
+        (tmp_path / "m.xml").write_text(edit(xml))
+        return read_nektar(tmp_path / "m.xml")
+
+    overlapping = load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[9,0-0,7-9,8] C[7] </DOMAIN>")
+                       .replace("H[66-75]", "H[66-70,68-75,66,75]"))
+    np.testing.assert_array_equal(overlapping.element_ids, whole.element_ids)
+    with pytest.raises(NektarError, match=r"composite C\[7\] lists H\[76\] but element 76 is a prism"):
+        load(lambda x: x.replace("H[66-75]", "H[66-76]"))
+    with pytest.raises(NektarError, match=r"DOMAIN refers to missing composite C\[10\]"):
+        load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[7-999] </DOMAIN>".replace("7-", "0-")))
+    with pytest.raises(NektarError, match=r"composite C\[1\] in the DOMAIN holds F\[...\]"):
+        load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[0-9] </DOMAIN>"))
