@@ -100,6 +100,8 @@ MAX_CURVE_POINTS = MAX_MODES
 MAX_DECODED_BYTES = 1 << 31
 # Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
 MESH_INFLATE_RATIO = 200
+# Jacobians are cubes of lengths: beyond this, double precision overflows while checking them.
+MAX_COORDINATE = 1e100
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
@@ -320,7 +322,7 @@ def _read_vertices(sec, path):
         for i, x in zip(rec["id"].tolist(), xyz):
             if i in verts:
                 raise NektarError(f"{path}: vertex {i} is defined twice")
-            verts[i] = x
+            verts[i] = _coordinates(x, path, f"vertex {i}")
     else:
         for v in sec:
             i = _entity_id(v, path, "VERTEX")
@@ -328,10 +330,19 @@ def _read_vertices(sec, path):
                 raise NektarError(f"{path}: unexpected <{v.tag} ID={i}> in VERTEX")
             if i in verts:
                 raise NektarError(f"{path}: vertex {i} is defined twice")
-            verts[i] = _floats(v.text, 3, path, f"vertex {i}") * scale + move
+            verts[i] = _coordinates(_floats(v.text, 3, path, f"vertex {i}") * scale + move, path, f"vertex {i}")
     if not verts:
         raise NektarError(f"{path}: VERTEX section is empty")
     return verts, scale, move
+
+
+def _coordinates(x, path, what):
+    """x, the (3,) or (n, 3) coordinates of `what`, unless one is beyond MAX_COORDINATE."""
+    ok = np.all(np.abs(np.reshape(x, (-1, 3))) <= MAX_COORDINATE, axis=1)  # NaN, from an overflow, too
+    if not ok.all():
+        raise NektarError(f"{path}: {what}: coordinates {np.reshape(x, (-1, 3))[~ok][0].tolist()} are too large "
+                          f"for double precision (|x| up to {MAX_COORDINATE:g} is supported)")
+    return x
 
 
 def _read_edges(sec, path, verts):
@@ -468,6 +479,7 @@ def _read_curved(geom, path, mesh: _Mesh, scale, move):
             entries.append((node.tag, cid, ent, npts, ptype, xyz))
     for tag, cid, ent, npts, ptype, xyz in entries:
         what = f"curved {'edge' if tag == 'E' else 'face'} {cid}"
+        _coordinates(xyz, path, what)
         if tag == "E":
             if ent not in mesh.edges:
                 raise NektarError(f"{path}: {what} refers to missing edge {ent}")

@@ -598,12 +598,22 @@ def xml_case(xml=lambda x: x, fld=lambda f: f):
     return case
 
 
+CURVED_1E200 = ('<CURVED><E ID="7" EDGEID="0" NUMPOINTS="3" TYPE="PolyEvenlySpaced">'
+                '-1 -1 -4  1e200 -1 -4  1 -1 -4</E></CURVED></GEOMETRY>')
+
 HOSTILE = {
     # amplification in XML
     "DOMAIN range x2000": (xml_case(xml=lambda x: x.replace("<DOMAIN>C[0]</DOMAIN>", "<DOMAIN>" + "C[0-1048575] " * 2000 + "</DOMAIN>")),
                            "DOMAIN refers to missing composite C[1]"),
     "composite range x2000": (xml_case(xml=lambda x: x.replace('<C ID="0">H[0]</C>', '<C ID="0">' + "H[0-1048575] " * 2000 + "</C>")),
                               "composite C[0] refers to missing element 1"),
+    # coordinates
+    "vertex at 1e200": (xml_case(xml=lambda x: x.replace('<V ID="6">1 1 -2</V>', '<V ID="6">1e200 1 -2</V>')),
+                        "vertex 6: coordinates [1e+200, 1.0, -2.0] are too large for double precision"),
+    "XSCALE 1e200": (xml_case(xml=lambda x: x.replace("<VERTEX>", '<VERTEX XSCALE="1e200">')),
+                     "vertex 0: coordinates [-1e+200, -1.0, -4.0] are too large for double precision"),
+    "curve point at 1e200": (xml_case(xml=lambda x: x.replace("</GEOMETRY>", CURVED_1E200)),
+                             "curved edge 7: coordinates [1e+200, -1.0, -4.0] are too large for double precision"),
 }
 
 
