@@ -11,9 +11,9 @@ storage order (engine/expansions.py):
   vertices); each face with F points adds its bubble (the interior-mode part of the face
   interpolant); interior modes stay zero. For hexes this is the Gordon-Hall blend of §2.12.
 
-Untrusted input: every size is checked against the bytes actually present before anything is
-allocated from it, zlib output is bounded, and every failure is a NektarError naming the file
-and the record or element.
+Untrusted input (engine/limits.py is the policy): only regular files are opened; every size is
+checked against the bytes actually present before anything is allocated from it; zlib output is
+bounded. Every failure is a NektarError naming the file and the record or element.
 """
 from __future__ import annotations
 
@@ -21,13 +21,13 @@ import base64
 import binascii
 import re
 import xml.etree.ElementTree as ET
-import zlib
 from dataclasses import dataclass, field as dc_field
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from ..engine import limits
 from ..engine.basis import MAX_MODES, gll_points
 from ..engine.mesh import MeshError, VolumeMesh
 
@@ -107,9 +107,9 @@ _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 # ----------------------------------------------------------------------------- low level
 
-def _parse_xml(path: Path) -> ET.Element:
+def _parse_xml(path: Path, what: str) -> ET.Element:
     try:
-        raw = path.read_bytes()
+        raw = limits.read_regular(path, what)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     low = raw.lower()
@@ -195,25 +195,22 @@ def _inflate(text, path, what, max_bytes):
         packed = base64.b64decode(s + "=" * (-len(s) % 4), validate=True)
     except (binascii.Error, ValueError) as exc:
         raise NektarError(f"{path}: {what}: data is not valid base64 ({exc})") from exc
-    d = zlib.decompressobj()
-    limit = int(min(max_bytes, MAX_DECODED_BYTES))
     try:
-        raw = d.decompress(packed, limit + 1)  # bounded: never more than limit + 1 bytes
-    except zlib.error as exc:
-        raise NektarError(f"{path}: {what}: data is not a valid zlib stream ({exc})") from exc
-    if len(raw) > limit:
-        raise NektarError(f"{path}: {what}: decompresses to more than {limit} bytes, more than it can hold")
-    if not d.eof:
-        raise NektarError(f"{path}: {what}: zlib stream is truncated")
-    if d.unused_data.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
-        raise NektarError(f"{path}: {what}: {len(d.unused_data)} unexpected bytes after the zlib stream")
+        raw, rest = limits.inflate(packed, max_bytes, f"{path}: {what}")
+    except ValueError as exc:
+        raise NektarError(str(exc)) from exc
+    if rest.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
+        raise NektarError(f"{path}: {what}: {len(rest)} unexpected bytes after the zlib stream")
     return raw
 
 
 def _records(node, path, what, fields, endian):
     """Structured array of the fixed-size records of a compressed mesh block (§2.3 table)."""
     text = node.text or ""
-    raw = _inflate(text, path, what, MESH_INFLATE_RATIO * len(text) + 4096)
+    # the ratio bounds a bomb; the memory limit caps the bound so that a low limit refuses only
+    # sections that really inflate beyond it
+    bound = min(MESH_INFLATE_RATIO * len(text) + 4096, limits.current().max_memory)
+    raw = _inflate(text, path, what, bound)
     dt = np.dtype([(name, endian + kind, shape) if shape else (name, endian + kind) for name, kind, shape in fields])
     if len(raw) % dt.itemsize:
         raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of {dt.itemsize}-byte records")
@@ -596,7 +593,7 @@ def _domain_elements(geom, path, elements):
 
 
 def _read_mesh(path: Path) -> _Mesh:
-    root = _parse_xml(path)
+    root = _parse_xml(path, "mesh file")
     geom = _geometry(root, path)
     secs = {}
     for name in ("VERTEX", "EDGE", "FACE", "ELEMENT"):
@@ -1093,12 +1090,13 @@ def _hdf5_blocks_open(path, h5):
 
 def _file_blocks(path: Path):
     try:
-        head = path.open("rb").read(8)
+        with limits.open_regular(path, "field file") as fh:
+            head = fh.read(8)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     if head == _HDF5_MAGIC:
         return _hdf5_blocks(path)
-    return _xml_blocks(path, _parse_xml(path))
+    return _xml_blocks(path, _parse_xml(path, "field file"))
 
 
 def _field_blocks(path: Path):
@@ -1110,7 +1108,7 @@ def _field_blocks(path: Path):
     info = path / "Info.xml"
     if not info.exists():
         raise NektarError(f"{path}: a field directory needs an Info.xml listing its parts")
-    root = _parse_xml(info)
+    root = _parse_xml(info, "field directory index")
     parts = list(root.iter("Partition"))
     if not parts:
         raise NektarError(f"{info}: no <Partition> entries")
@@ -1196,6 +1194,8 @@ def _guard(path, fn):
         raise
     except MeshError as exc:
         raise NektarError(f"{path}: {exc}") from exc
+    except (limits.ResourceLimitError, limits.UnsafeFileError) as exc:  # their messages name the file
+        raise NektarError(str(exc)) from exc
     except (ValueError, IndexError, KeyError, TypeError, OverflowError, ZeroDivisionError,
             ArithmeticError, np.linalg.LinAlgError, RecursionError, UnicodeError) as exc:
         raise NektarError(f"{path}: unexpected {type(exc).__name__} while reading ({exc})") from exc

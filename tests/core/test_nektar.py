@@ -4,6 +4,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import importlib.util
+import os
 import re
 import signal
 import xml.etree.ElementTree as ET
@@ -523,7 +524,7 @@ def malformed_cases():
         "corrupted zlib": (None, f.replace(body, body[:30] + ("A" if body[30] != "A" else "B") + body[31:]), "zlib", "m.fld"),
         "truncated zlib": (None, with_body(vals).replace(encode(vals), encode(vals)[:-12]), "zlib", "m.fld"),
         "wrong coefficient count": (None, with_body(vals[:-1]), "26 values, expected 27", "m.fld"),
-        "too many values": (None, with_body(np.concatenate([vals, vals])), "more than 216 bytes", "m.fld"),
+        "too many values": (None, with_body(np.concatenate([vals, vals])), "more than the 216 bytes", "m.fld"),
         "NaN coefficient": (None, with_body(nan), "element 0, field 'p'.*NaN", "m.fld"),
         "missing face": (re.sub(r'<Q ID="5">[^<]*</Q>', "", x), None, "hexahedron 0 refers to missing face 5", "m.xml"),
         "missing vertex": (re.sub(r'<V ID="6">[^<]*</V>', "", x), None, "edge 6 refers to missing vertex 6", "m.xml"),
@@ -598,6 +599,29 @@ def xml_case(xml=lambda x: x, fld=lambda f: f):
     return case
 
 
+def special(mesh=None, solution=None):
+    """Case: the one-hexahedron mesh and field, with m.xml and/or m.fld made by the given function."""
+    def case(tmp):
+        path = write(tmp)
+        for name, make in (("m.xml", mesh), ("m.fld", solution)):
+            if make is not None:
+                (tmp / name).unlink()
+                make(tmp / name)
+        return path, tmp / "m.fld", "p"
+    return case
+
+
+def _part_fifo(folder):
+    folder.mkdir()
+    (folder / "Info.xml").write_text('<NEKTAR><Metadata><Partition FileName="P0.fld">0</Partition></Metadata></NEKTAR>')
+    os.mkfifo(folder / "P0.fld")
+
+
+def _info_fifo(folder):
+    folder.mkdir()
+    os.mkfifo(folder / "Info.xml")
+
+
 CURVED_1E200 = ('<CURVED><E ID="7" EDGEID="0" NUMPOINTS="3" TYPE="PolyEvenlySpaced">'
                 '-1 -1 -4  1e200 -1 -4  1 -1 -4</E></CURVED></GEOMETRY>')
 
@@ -614,6 +638,13 @@ HOSTILE = {
                      "vertex 0: coordinates [-1e+200, -1.0, -4.0] are too large for double precision"),
     "curve point at 1e200": (xml_case(xml=lambda x: x.replace("</GEOMETRY>", CURVED_1E200)),
                              "curved edge 7: coordinates [1e+200, -1.0, -4.0] are too large for double precision"),
+    # special files
+    "mesh is a FIFO": (special(mesh=os.mkfifo), "m.xml is a FIFO (named pipe), not a regular file"),
+    "mesh is a folder": (special(mesh=Path.mkdir), "m.xml is a folder, not a regular file"),
+    "solution is a FIFO": (special(solution=os.mkfifo), "m.fld is a FIFO (named pipe), not a regular file"),
+    "solution is /dev/zero": (special(solution=lambda p: p.symlink_to("/dev/zero")), "m.fld is a device, not a regular file"),
+    "a part of a .fld/ is a FIFO": (special(solution=_part_fifo), "P0.fld is a FIFO (named pipe), not a regular file"),
+    "Info.xml is a FIFO": (special(solution=_info_fifo), "Info.xml is a FIFO (named pipe), not a regular file"),
 }
 
 
@@ -626,6 +657,14 @@ def test_hostile_input_is_refused_quickly_naming_file_and_record(tmp_path, case)
         read_nektar(mesh, solution, field=name)
     assert time.perf_counter() - start < HOSTILE_SECONDS
     assert "unexpected" not in str(info.value) and str(tmp_path) in str(info.value)
+
+
+@pytest.mark.parametrize("case", ["solution is a FIFO", "solution is /dev/zero", "a part of a .fld/ is a FIFO"])
+def test_list_fields_refuses_special_files_and_links(tmp_path, case):
+    make, phrase = HOSTILE[case]
+    _, solution, _ = make(tmp_path)
+    with no_hang(), pytest.raises(NektarError, match=re.escape(phrase)):
+        list_fields(solution)
 
 
 def test_repeated_composites_are_read_once(tmp_path):
