@@ -11,9 +11,11 @@ storage order (engine/expansions.py):
   vertices); each face with F points adds its bubble (the interior-mode part of the face
   interpolant); interior modes stay zero. For hexes this is the Gordon-Hall blend of §2.12.
 
-Untrusted input (engine/limits.py is the policy): only regular files are opened; every size is
-checked against the bytes actually present before anything is allocated from it; zlib output is
-bounded. Every failure is a NektarError naming the file and the record or element.
+Untrusted input (engine/limits.py is the policy): only regular files are opened; the mesh is
+read first and every size a field file declares is checked against it before anything is
+inflated or allocated; zlib output is bounded; HDF5 objects are followed through hard links
+only and their data must lie in the file itself. Every failure is a NektarError naming the file
+and the record or element.
 """
 from __future__ import annotations
 
@@ -96,10 +98,10 @@ NO_FIELD = "(none)"
 _FORBIDDEN = (b"<!doctype", b"<!entity")
 # The renderer's limit on modes per direction also bounds curve points (one mode per point).
 MAX_CURVE_POINTS = MAX_MODES
-# Decoded bytes of one compressed block: a sanity cap so a small file cannot demand gigabytes.
-MAX_DECODED_BYTES = 1 << 31
 # Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
 MESH_INFLATE_RATIO = 200
+# Entries of one attribute of an HDF5 field definition (FIELDS, BASIS, ...): real ones hold a few.
+MAX_ATTRIBUTE_VALUES = 4096
 # Jacobians are cubes of lengths: beyond this, double precision overflows while checking them.
 MAX_COORDINATE = 1e100
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
@@ -512,6 +514,10 @@ def _parse_ranges(text, path, what):
             raise NektarError(f"{path}: {what}: ID {b} is out of range")
         out.append((a, b))
     return out
+
+
+def _range_count(ranges):
+    return sum(b - a + 1 for a, b in ranges)
 
 
 def _expand_ranges(ranges):
@@ -950,26 +956,44 @@ def _modes_array(path, what, kind, nums, nel):
     return modes
 
 
-def _finish_block(path, what, shape, basis, fields, kind, nums, ranges_or_ids, get_data):
-    """Check a block's declared sizes against its data; nothing is allocated from a declared
-    count before the decoded data has been seen to hold that many values."""
-    ranged = isinstance(ranges_or_ids, list)
-    nel = sum(b - a + 1 for a, b in ranges_or_ids) if ranged else len(ranges_or_ids)
+def _block_ncoeffs(path, what, shape, modes):
+    try:
+        return _ncoeffs(shape, modes)
+    except ValueError as exc:  # e.g. a prism with more modes in direction 0 than in direction 2
+        raise NektarError(f"{path}: {what}: mode counts invalid for {SHAPE_WORD[shape]}s ({exc})") from None
+
+
+class _Budget:
+    """What the mesh lets a field file declare: each field once per mesh element. Claimed from
+    the headers before any data is inflated or read, so the data is bounded by elements x
+    fields x the coefficients of the declared modes."""
+
+    def __init__(self, n_elements):
+        self.n = n_elements
+        self.claimed = {}
+
+    def claim(self, path, what, nel, fields):
+        if nel > self.n:
+            raise NektarError(f"{path}: {what}: declares {nel:,} elements; the mesh has {self.n:,}")
+        for f in fields:
+            self.claimed[f] = self.claimed.get(f, 0) + nel
+            if self.claimed[f] > self.n:
+                raise NektarError(f"{path}: {what}: gives field {f!r} for {self.claimed[f]:,} elements in all; "
+                                  f"the mesh has {self.n:,}")
+
+
+def _finish_block(path, what, shape, basis, fields, kind, nums, ids, get_data):
+    """Check a block's modes and data against its element IDs (already bounded by _Budget)."""
+    nel = len(ids)
     if nel == 0:
         raise NektarError(f"{path}: {what}: no element IDs")
     modes = _modes_array(path, what, kind, nums, nel)
-    try:
-        per = _ncoeffs(shape, modes)
-    except ValueError as exc:  # e.g. a prism with more modes in direction 0 than in direction 2
-        raise NektarError(f"{path}: {what}: mode counts invalid for {SHAPE_WORD[shape]}s ({exc})") from None
+    per = _block_ncoeffs(path, what, shape, modes)
     want = len(fields) * (nel * int(per[0]) if kind == "UNIORDER" else int(per.sum()))
-    if 8 * want > MAX_DECODED_BYTES:
-        raise NektarError(f"{path}: {what}: declares {want} values, more than the reader accepts")
     data = get_data(want)
     if data.size != want:
         raise NektarError(f"{path}: {what}: {data.size} values, expected {want} "
                           f"({len(fields)} fields x {nel} elements, {SHAPE_WORD[shape]} modes)")
-    ids = _expand_ranges(ranges_or_ids) if ranged else np.asarray(ranges_or_ids, dtype=np.int64)
     if len(np.unique(ids)) != nel:
         raise NektarError(f"{path}: {what}: an element ID appears twice")
     if kind == "UNIORDER":
@@ -977,7 +1001,8 @@ def _finish_block(path, what, shape, basis, fields, kind, nums, ranges_or_ids, g
     return _Block(shape, basis, fields, ids, modes, data, what)
 
 
-def _xml_blocks(path: Path, root, allowed_ids=None):
+def _xml_blocks(path: Path, root, budget):
+    """The ELEMENTS blocks of an XML field file; with budget None their headers only."""
     blocks = []
     for k, b in enumerate(root.iter("ELEMENTS")):
         what = f"ELEMENTS block {k} (ID={b.attrib.get('ID', '?')[:40]})"
@@ -985,16 +1010,19 @@ def _xml_blocks(path: Path, root, allowed_ids=None):
             path, what, b.attrib.get("SHAPE", ""), [s.strip() for s in b.attrib.get("BASIS", "").split(",")],
             b.attrib.get("FIELDS", "").split(","), b.attrib.get("NUMMODESPERDIR", ""), b.attrib)
         endian = _endianness(b, path, what, default="B64Z-LittleEndian") or "<"  # bodies are always B64Z (§2.6)
-        text = b.text or ""
+        if budget is None:
+            blocks.append(_Block(shape, basis, fields, None, None, None, what))
+            continue
         ranges = _parse_ranges(b.attrib.get("ID"), path, what)
+        budget.claim(path, what, _range_count(ranges), fields)
 
-        def get(want, text=text, what=what, endian=endian):
+        def get(want, text=b.text or "", what=what, endian=endian):
             raw = _inflate(text, path, what, 8 * want)
             if len(raw) % 8:
                 raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of float64 values")
             return np.frombuffer(raw, dtype=endian + "f8")
 
-        blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, ranges, get))
+        blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, _expand_ranges(ranges), get))
     if not blocks:
         raise NektarError(f"{path}: no <ELEMENTS> blocks")
     return blocks
@@ -1014,97 +1042,154 @@ def _attr_list(v):
     return [_attr_str(x).strip() for x in np.asarray(v).ravel().tolist()]
 
 
-def _hdf5_blocks(path: Path):
+def _hdf5_blocks(path: Path, fh, budget):
     try:
         import h5py
     except ImportError:
         raise NektarError(f"{path}: is an HDF5 field file; reading it needs the h5py package (pip install h5py)") from None
     try:
-        with h5py.File(path, "r") as h5:
-            return _hdf5_blocks_open(path, h5)
-    except NektarError:
+        with h5py.File(fh, "r") as h5:  # the checked descriptor: HDF5 never opens the path itself
+            return _hdf5_blocks_open(path, h5, budget)
+    except (NektarError, limits.ResourceLimitError, limits.UnsafeFileError):
         raise
     except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise NektarError(f"{path}: unreadable HDF5 field file ({type(exc).__name__}: {exc})") from exc
 
 
-def _hdf5_dataset(path, grp, name, dtype, required=True):
-    if name not in grp:
+def _hdf5_dataset(path, grp, name, kinds, required=True):
+    """The 1-D dataset /NEKTAR/name (None if absent and not required), reached by a hard link and
+    stored in the file; kinds "f": real floating point, "iu": integer."""
+    import h5py
+
+    what = f"{path}: /NEKTAR/{name}"
+    ds = limits.hdf5_child(grp, name, what)
+    if ds is None:
         if required:
             raise NektarError(f"{path}: HDF5 field file lacks /NEKTAR/{name}")
-        return np.zeros(0, dtype)
-    ds = grp[name]
-    if ds.ndim != 1 or ds.size * np.dtype(dtype).itemsize > MAX_DECODED_BYTES:
-        raise NektarError(f"{path}: /NEKTAR/{name}: shape {ds.shape} is not a bounded 1-D array")
-    return np.asarray(ds[()], dtype=dtype)
+        return None
+    if not isinstance(ds, h5py.Dataset) or ds.ndim != 1:
+        raise NektarError(f"{what}: not a 1-D dataset")
+    if ds.dtype.kind == "c":
+        raise NektarError(f"{what}: holds complex values ({ds.dtype}); only real values can be rendered")
+    if ds.dtype.kind not in kinds:
+        raise NektarError(f"{what}: values of type {ds.dtype}, expected {'real floating point' if kinds == 'f' else 'integers'}")
+    return ds
 
 
-def _hdf5_blocks_open(path, h5):
-    if "NEKTAR" not in h5:
+def _hdf5_values(path, ds, name, count):
+    """The values of a dataset from _hdf5_dataset, which must hold exactly `count` of them."""
+    size = 0 if ds is None else ds.size
+    if size != count:
+        raise NektarError(f"{path}: DECOMPOSITION accounts for {count:,} values of /NEKTAR/{name}, which holds {size:,}")
+    if ds is None:
+        return np.zeros(0)
+    v = limits.hdf5_read(ds, count, f"{path}: /NEKTAR/{name}")
+    if ds.dtype.kind == "i" and np.any(v < 0):
+        raise NektarError(f"{path}: /NEKTAR/{name}: negative entries")
+    return v
+
+
+def _hdf5_attr(path, at, key, what):
+    if key not in at:
+        raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
+    if int(np.prod(at.get_id(key).shape or ())) > MAX_ATTRIBUTE_VALUES:
+        raise NektarError(f"{path}: {what}: attribute {key} holds more than {MAX_ATTRIBUTE_VALUES} values")
+    return at[key]
+
+
+def _hdf5_header(path, g, h, what):
+    """(shape, basis, fields, kind, nums) of field definition group /NEKTAR/<h> (§2.7)."""
+    import h5py
+
+    grp = limits.hdf5_child(g, str(h), f"{path}: /NEKTAR/{h}")
+    if not isinstance(grp, h5py.Group):
+        raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{h}")
+    at = grp.attrs
+    try:
+        basis = [BASIS_ENUM[int(b)] for b in np.asarray(_hdf5_attr(path, at, "BASIS", what)).ravel()]
+    except (IndexError, ValueError, TypeError):
+        raise NektarError(f"{path}: {what}: unknown BASIS attribute") from None
+    fields, shape, nummodes = (_hdf5_attr(path, at, k, what) for k in ("FIELDS", "SHAPE", "NUMMODESPERDIR"))
+    return _block_header(path, what, _attr_str(shape).strip(), basis, _attr_list(fields), _attr_str(nummodes),
+                         set(at.keys()))
+
+
+def _hdf5_blocks_open(path, h5, budget):
+    import h5py
+
+    g = limits.hdf5_child(h5, "NEKTAR", f"{path}: /NEKTAR")
+    if not isinstance(g, h5py.Group):
         raise NektarError(f"{path}: HDF5 file without a /NEKTAR group (not a Nektar++ field file)")
-    g = h5["NEKTAR"]
-    dec = _hdf5_dataset(path, g, "DECOMPOSITION", np.uint64)
-    ids_all = _hdf5_dataset(path, g, "ELEMENTIDS", np.uint64)
-    data_all = _hdf5_dataset(path, g, "DATA", np.float64)
-    poly_all = _hdf5_dataset(path, g, "POLYORDERS", np.uint64, required=False)
+    ds = _hdf5_dataset(path, g, "DECOMPOSITION", "iu")
+    # the index of the data, read for headers too: bounded by the file (it is far smaller than the data)
+    dec = limits.hdf5_read(ds, h5.id.get_filesize() // ds.dtype.itemsize, f"{path}: /NEKTAR/DECOMPOSITION")
     if dec.size % 7:
         raise NektarError(f"{path}: DECOMPOSITION has {dec.size} entries, not a multiple of 7")
-    blocks = []
-    oi = od = op = 0
-    for r, row in enumerate(dec.reshape(-1, 7).tolist()):
-        nel, nd, npoly, ny, nz, ns, h = row
+    if ds.dtype.kind == "i" and np.any(dec < 0):
+        raise NektarError(f"{path}: DECOMPOSITION has negative entries")
+    rows = dec.reshape(-1, 7).tolist()
+    heads = {}  # definition hash -> header, in the order of first use
+    for r, (nel, nd, npoly, ny, nz, ns, h) in enumerate(rows):
         what = f"DECOMPOSITION row {r} (definition {h})"
         if ny or nz or ns:
             raise NektarError(f"{path}: {what}: homogeneous (Fourier-extruded) fields are not supported")
-        if oi + nel > ids_all.size or od + nd > data_all.size or op + npoly > poly_all.size:
-            raise NektarError(f"{path}: {what}: counts run past the end of ELEMENTIDS/DATA/POLYORDERS")
-        name = str(h)
-        if name not in g or not hasattr(g[name], "attrs"):
-            raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{name}")
-        at = g[name].attrs
-        try:
-            basis = [BASIS_ENUM[int(b)] for b in np.asarray(at["BASIS"]).ravel()]
-        except (KeyError, IndexError, ValueError, TypeError):
-            raise NektarError(f"{path}: {what}: missing or unknown BASIS attribute") from None
-        for key in ("FIELDS", "SHAPE", "NUMMODESPERDIR"):
-            if key not in at:
-                raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
-        shape, basis, fields, kind, nums = _block_header(
-            path, what, _attr_str(at["SHAPE"]).strip(), basis, _attr_list(at["FIELDS"]),
-            _attr_str(at["NUMMODESPERDIR"]), set(at.keys()))
-        ids = ids_all[oi : oi + nel].astype(np.int64)
+        if h not in heads:
+            heads[h] = _hdf5_header(path, g, h, what)
+    if not heads:
+        raise NektarError(f"{path}: HDF5 field file holds no field definitions")
+    if budget is None:
+        return [_Block(shape, basis, fields, None, None, None, f"definition {h}")
+                for h, (shape, basis, fields, _, _) in heads.items()]
+    for r, (nel, nd, npoly, _, _, _, h) in enumerate(rows):
+        what = f"DECOMPOSITION row {r} (definition {h})"
+        shape, _, fields, kind, nums = heads[h]
+        budget.claim(path, what, nel, fields)
+        largest = _modes_array(path, what, kind, nums, 1) if kind == "UNIORDER" else [[MAX_MODES] * 3]
+        most = len(fields) * nel * int(_block_ncoeffs(path, what, shape, largest)[0])
+        if nd > most:
+            raise NektarError(f"{path}: {what}: declares {nd:,} values; {len(fields)} fields on {nel:,} "
+                              f"{SHAPE_WORD[shape]}s hold at most {most:,}")
+        if npoly > 3 * nel:
+            raise NektarError(f"{path}: {what}: {npoly:,} POLYORDERS entries for {nel:,} elements")
+    ids_all = _hdf5_values(path, _hdf5_dataset(path, g, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(r[0] for r in rows))
+    data_all = _hdf5_values(path, _hdf5_dataset(path, g, "DATA", "f"), "DATA", sum(r[1] for r in rows))
+    poly_all = _hdf5_values(path, _hdf5_dataset(path, g, "POLYORDERS", "iu", required=False), "POLYORDERS",
+                            sum(r[2] for r in rows))
+    blocks = []
+    oi = od = op = 0
+    for r, (nel, nd, npoly, _, _, _, h) in enumerate(rows):
+        what = f"DECOMPOSITION row {r} (definition {h})"
+        shape, basis, fields, kind, nums = heads[h]
         if kind == "MIXORDER":
             if npoly != 3 * nel:
                 raise NektarError(f"{path}: {what}: {npoly} POLYORDERS entries for {nel} elements (3 each expected)")
             nums = poly_all[op : op + npoly].astype(np.int64).tolist()
-        chunk = data_all[od : od + nd]
+        ids = ids_all[oi : oi + nel].astype(np.int64)
+        chunk = data_all[od : od + nd].astype(np.float64)
         blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, ids, lambda want, c=chunk: c))
         oi, od, op = oi + nel, od + nd, op + npoly
-    if oi != ids_all.size or od != data_all.size:
-        raise NektarError(f"{path}: DECOMPOSITION accounts for {oi} of {ids_all.size} element IDs and "
-                          f"{od} of {data_all.size} values")
-    if not blocks:
-        raise NektarError(f"{path}: HDF5 field file holds no field definitions")
     return blocks
 
 
-def _file_blocks(path: Path):
+def _file_blocks(path: Path, budget):
     try:
         with limits.open_regular(path, "field file") as fh:
-            head = fh.read(8)
+            if fh.read(8) == _HDF5_MAGIC:
+                return _hdf5_blocks(path, fh, budget)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    if head == _HDF5_MAGIC:
-        return _hdf5_blocks(path)
-    return _xml_blocks(path, _parse_xml(path, "field file"))
+    return _xml_blocks(path, _parse_xml(path, "field file"), budget)
 
 
-def _field_blocks(path: Path):
-    """All ELEMENTS blocks of a field file or of a multi-part .fld/ directory (§2.1)."""
+def _field_blocks(path: Path, n_elements=None):
+    """All ELEMENTS blocks of a field file or of a multi-part .fld/ directory (§2.1). Given the
+    mesh's element count, every size the file declares is checked against it before data is
+    inflated or read; without it (None) only headers are read (names, shapes, bases; no data)."""
+    budget = None if n_elements is None else _Budget(n_elements)
     if not path.is_dir():
         if not path.exists():
             raise NektarError(f"{path}: no such field file")
-        return _file_blocks(path)
+        return _file_blocks(path, budget)
     info = path / "Info.xml"
     if not info.exists():
         raise NektarError(f"{path}: a field directory needs an Info.xml listing its parts")
@@ -1118,15 +1203,16 @@ def _field_blocks(path: Path):
         if not re.fullmatch(r"[A-Za-z0-9_.\-]+", name) or name in (".", ".."):
             raise NektarError(f"{info}: Partition FileName={name!r} is not a plain file name in the directory")
         ranges = _parse_ranges(p.text, info, f"Partition {name}")
-        part_blocks = _file_blocks(path / name)
-        got = set()
-        for b in part_blocks:
-            got.update(b.ids.tolist())
-        # compare counts before expanding the (untrusted) list
-        listed = set(_expand_ranges(ranges).tolist()) if sum(b - a + 1 for a, b in ranges) == len(got) else set()
-        if got != listed:
-            raise NektarError(f"{info}: Partition {name} lists {sum(b - a + 1 for a, b in ranges)} elements but the file holds "
-                              f"{len(got)} (other IDs or counts)")
+        part_blocks = _file_blocks(path / name, budget)
+        if budget is not None:
+            got = set()
+            for b in part_blocks:
+                got.update(b.ids.tolist())
+            # compare counts before expanding the (untrusted) list
+            listed = set(_expand_ranges(ranges).tolist()) if _range_count(ranges) == len(got) else set()
+            if got != listed:
+                raise NektarError(f"{info}: Partition {name} lists {_range_count(ranges)} elements but the file holds "
+                                  f"{len(got)} (other IDs or counts)")
         blocks.extend(part_blocks)
     return blocks
 
@@ -1221,7 +1307,7 @@ def _read(mesh_path, sol, field):
     warnings: list[str] = []
     mesh = _read_mesh(mesh_path)
     if sol is not None:
-        blocks = _guard(sol, lambda: _field_blocks(sol))
+        blocks = _guard(sol, lambda: _field_blocks(sol, len(mesh.elements)))
         names = _field_names(blocks)
         if field is None:
             if len(names) != 1:
