@@ -189,3 +189,73 @@ def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: 
     if exact and len(out) != max_bytes:
         raise ValueError(f"{what}: inflates to {len(out)} bytes, its header says {max_bytes}")
     return out, d.unused_data
+
+
+# ------------------------------------------------------------------------------ HDF5
+
+def hdf5_child(group, name: str, what: str):
+    """Member `name` of an open h5py group, or None when there is none. Only a hard link to an
+    object whose data lies in this file is followed: soft and external links, external raw
+    storage and virtual datasets can each make HDF5 open or read another path."""
+    import h5py
+
+    link = group.get(name, getlink=True)  # the link itself: nothing is traversed yet
+    if link is None:
+        return None
+    if isinstance(link, h5py.ExternalLink):
+        raise UnsafeFileError(f"{what} is an external link to {link.filename}:{link.path}; refused")
+    if not isinstance(link, h5py.HardLink):
+        raise UnsafeFileError(f"{what} is a soft link; only hard links are followed")
+    obj = group[name]
+    if isinstance(obj, h5py.Dataset):
+        if obj.is_virtual:
+            raise UnsafeFileError(f"{what} is a virtual dataset (its data lies in other files); refused")
+        if obj.external:
+            raise UnsafeFileError(f"{what} keeps its data in external file {obj.external[0][0]}; refused")
+    return obj
+
+
+def hdf5_read(ds, max_values: int, what: str):
+    """All values of an h5py dataset (reached through hdf5_child), in its own dtype, read only
+    after its declared size (at most max_values), its storage in the file and its compression
+    have been checked. Compressed chunks are inflated here, each bounded by its declared size:
+    HDF5's own deflate filter grows its buffer until the stream ends."""
+    import h5py
+    import numpy as np
+
+    n = int(ds.size)
+    if n > max_values:
+        raise ResourceLimitError(f"{what} declares {n:,} values, more than the {max_values:,} it can need")
+    itemsize = ds.dtype.itemsize
+    check_bytes(n * itemsize, f"reading {what}")
+    stored = ds.id.get_storage_size()
+    if n and not stored:
+        raise ResourceLimitError(f"{what} declares {n:,} values but stores none (only a fill value); refused")
+    if stored > ds.file.id.get_filesize():
+        raise ResourceLimitError(f"{what} claims {stored:,} stored bytes, more than the whole file holds")
+    plist = ds.id.get_create_plist()
+    filters = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
+    if not filters:
+        return ds[()]
+    deflate, shuffle = h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE
+    if filters not in ([deflate], [shuffle, deflate]):
+        raise ValueError(f"{what}: HDF5 filter pipeline {filters} is not read; only gzip (deflate) "
+                         "compression, optionally after shuffle")
+    chunk = ds.chunks
+    per_chunk = int(np.prod(chunk))
+    if per_chunk > max(n, 1 << 16):
+        raise ResourceLimitError(f"{what}: chunks of {per_chunk:,} values for {n:,} values; refused")
+    out = np.full(ds.shape, ds.fillvalue, dtype=ds.dtype)
+    for i in range(ds.id.get_num_chunks()):
+        offset = ds.id.get_chunk_info(i).chunk_offset
+        mask, raw = ds.id.read_direct_chunk(offset)  # bit k of mask: filter k was skipped
+        if not mask & (1 << filters.index(deflate)):
+            raw, _ = inflate(raw, per_chunk * itemsize, f"{what} chunk {offset}", exact=True)
+        elif len(raw) != per_chunk * itemsize:
+            raise ValueError(f"{what} chunk {offset}: {len(raw)} bytes, expected {per_chunk * itemsize}")
+        if filters[0] == shuffle and not mask & 1:
+            raw = np.frombuffer(raw, np.uint8).reshape(itemsize, per_chunk).T.tobytes()
+        sel = tuple(slice(o, max(o, min(o + c, s))) for o, c, s in zip(offset, chunk, ds.shape))
+        block = np.frombuffer(raw, ds.dtype).reshape(chunk)
+        out[sel] = block[tuple(slice(0, s.stop - s.start) for s in sel)]
+    return out

@@ -11,8 +11,10 @@ storage order (engine/expansions.py):
   vertices); each face with F points adds its bubble (the interior-mode part of the face
   interpolant); interior modes stay zero. For hexes this is the Gordon-Hall blend of §2.12.
 
-Untrusted input: every size is checked against the bytes actually present before anything is
-allocated from it, zlib output is bounded, and every failure is a NektarError naming the file
+Untrusted input (engine/limits.py is the policy): only regular files are opened; the mesh is
+read first and every size a field file declares is checked against it before anything is
+inflated or allocated; zlib output is bounded; HDF5 objects are followed through hard links
+only and their data must lie in the file itself. Every failure is a NektarError naming the file
 and the record or element.
 """
 from __future__ import annotations
@@ -21,13 +23,13 @@ import base64
 import binascii
 import re
 import xml.etree.ElementTree as ET
-import zlib
 from dataclasses import dataclass, field as dc_field
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from ..engine import limits
 from ..engine.basis import MAX_MODES, gll_points
 from ..engine.mesh import MeshError, VolumeMesh
 
@@ -96,18 +98,20 @@ NO_FIELD = "(none)"
 _FORBIDDEN = (b"<!doctype", b"<!entity")
 # The renderer's limit on modes per direction also bounds curve points (one mode per point).
 MAX_CURVE_POINTS = MAX_MODES
-# Decoded bytes of one compressed block: a sanity cap so a small file cannot demand gigabytes.
-MAX_DECODED_BYTES = 1 << 31
 # Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
 MESH_INFLATE_RATIO = 200
+# Entries of one attribute of an HDF5 field definition (FIELDS, BASIS, ...): real ones hold a few.
+MAX_ATTRIBUTE_VALUES = 4096
+# Jacobians are cubes of lengths: beyond this, double precision overflows while checking them.
+MAX_COORDINATE = 1e100
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
 # ----------------------------------------------------------------------------- low level
 
-def _parse_xml(path: Path) -> ET.Element:
+def _parse_xml(path: Path, what: str) -> ET.Element:
     try:
-        raw = path.read_bytes()
+        raw = limits.read_regular(path, what)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     low = raw.lower()
@@ -193,25 +197,22 @@ def _inflate(text, path, what, max_bytes):
         packed = base64.b64decode(s + "=" * (-len(s) % 4), validate=True)
     except (binascii.Error, ValueError) as exc:
         raise NektarError(f"{path}: {what}: data is not valid base64 ({exc})") from exc
-    d = zlib.decompressobj()
-    limit = int(min(max_bytes, MAX_DECODED_BYTES))
     try:
-        raw = d.decompress(packed, limit + 1)  # bounded: never more than limit + 1 bytes
-    except zlib.error as exc:
-        raise NektarError(f"{path}: {what}: data is not a valid zlib stream ({exc})") from exc
-    if len(raw) > limit:
-        raise NektarError(f"{path}: {what}: decompresses to more than {limit} bytes, more than it can hold")
-    if not d.eof:
-        raise NektarError(f"{path}: {what}: zlib stream is truncated")
-    if d.unused_data.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
-        raise NektarError(f"{path}: {what}: {len(d.unused_data)} unexpected bytes after the zlib stream")
+        raw, rest = limits.inflate(packed, max_bytes, f"{path}: {what}")
+    except ValueError as exc:
+        raise NektarError(str(exc)) from exc
+    if rest.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
+        raise NektarError(f"{path}: {what}: {len(rest)} unexpected bytes after the zlib stream")
     return raw
 
 
 def _records(node, path, what, fields, endian):
     """Structured array of the fixed-size records of a compressed mesh block (§2.3 table)."""
     text = node.text or ""
-    raw = _inflate(text, path, what, MESH_INFLATE_RATIO * len(text) + 4096)
+    # the ratio bounds a bomb; the memory limit caps the bound so that a low limit refuses only
+    # sections that really inflate beyond it
+    bound = min(MESH_INFLATE_RATIO * len(text) + 4096, limits.current().max_memory)
+    raw = _inflate(text, path, what, bound)
     dt = np.dtype([(name, endian + kind, shape) if shape else (name, endian + kind) for name, kind, shape in fields])
     if len(raw) % dt.itemsize:
         raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of {dt.itemsize}-byte records")
@@ -320,7 +321,7 @@ def _read_vertices(sec, path):
         for i, x in zip(rec["id"].tolist(), xyz):
             if i in verts:
                 raise NektarError(f"{path}: vertex {i} is defined twice")
-            verts[i] = x
+            verts[i] = _coordinates(x, path, f"vertex {i}")
     else:
         for v in sec:
             i = _entity_id(v, path, "VERTEX")
@@ -328,10 +329,19 @@ def _read_vertices(sec, path):
                 raise NektarError(f"{path}: unexpected <{v.tag} ID={i}> in VERTEX")
             if i in verts:
                 raise NektarError(f"{path}: vertex {i} is defined twice")
-            verts[i] = _floats(v.text, 3, path, f"vertex {i}") * scale + move
+            verts[i] = _coordinates(_floats(v.text, 3, path, f"vertex {i}") * scale + move, path, f"vertex {i}")
     if not verts:
         raise NektarError(f"{path}: VERTEX section is empty")
     return verts, scale, move
+
+
+def _coordinates(x, path, what):
+    """x, the (3,) or (n, 3) coordinates of `what`, unless one is beyond MAX_COORDINATE."""
+    ok = np.all(np.abs(np.reshape(x, (-1, 3))) <= MAX_COORDINATE, axis=1)  # NaN, from an overflow, too
+    if not ok.all():
+        raise NektarError(f"{path}: {what}: coordinates {np.reshape(x, (-1, 3))[~ok][0].tolist()} are too large "
+                          f"for double precision (|x| up to {MAX_COORDINATE:g} is supported)")
+    return x
 
 
 def _read_edges(sec, path, verts):
@@ -468,6 +478,7 @@ def _read_curved(geom, path, mesh: _Mesh, scale, move):
             entries.append((node.tag, cid, ent, npts, ptype, xyz))
     for tag, cid, ent, npts, ptype, xyz in entries:
         what = f"curved {'edge' if tag == 'E' else 'face'} {cid}"
+        _coordinates(xyz, path, what)
         if tag == "E":
             if ent not in mesh.edges:
                 raise NektarError(f"{path}: {what} refers to missing edge {ent}")
@@ -488,7 +499,7 @@ def _check_npoints(npts, tag, path, what):
         raise NektarError(f"{path}: {what}: NUMPOINTS={npts}; 1..{cap} are supported")
 
 
-def _parse_ranges(text, path, what, cap=None):
+def _parse_ranges(text, path, what):
     """List of (a, b) inclusive ranges of a Nektar++ ID list '0-7,12' (no expansion: sizes untrusted)."""
     out = []
     for tok in (text or "").replace(" ", "").replace("\t", "").replace("\n", "").split(","):
@@ -499,55 +510,96 @@ def _parse_ranges(text, path, what, cap=None):
         b = int(m.group(2)) if m.group(2) else a
         if b < a:
             raise NektarError(f"{path}: {what}: bad ID range {tok!r}")
+        if b >= 1 << 62:
+            raise NektarError(f"{path}: {what}: ID {b} is out of range")
         out.append((a, b))
-    total = sum(b - a + 1 for a, b in out)
-    if cap is not None and total > cap:
-        raise NektarError(f"{path}: {what}: {total} IDs, more than the {cap} it can hold")
     return out
+
+
+def _range_count(ranges):
+    return sum(b - a + 1 for a, b in ranges)
 
 
 def _expand_ranges(ranges):
     return np.concatenate([np.arange(a, b + 1, dtype=np.int64) for a, b in ranges]) if ranges else np.zeros(0, np.int64)
 
 
+def _select(ids, ranges):
+    """(positions in the sorted array `ids` of the IDs any range holds, (lo, hi) position bounds
+    of each range, and whether each range's IDs all exist). Work is bounded by the number of
+    ranges plus len(ids), never by the ranges' declared sizes."""
+    r = np.array(ranges, dtype=np.int64).reshape(-1, 2)
+    lo = np.searchsorted(ids, r[:, 0], "left")
+    hi = np.searchsorted(ids, r[:, 1], "right")
+    complete = hi - lo - 1 == r[:, 1] - r[:, 0]
+    depth = np.zeros(len(ids) + 1, np.int64)  # how many ranges cover each position
+    np.add.at(depth, lo, 1)
+    np.add.at(depth, hi, -1)
+    return np.flatnonzero(np.cumsum(depth[:-1]) > 0), lo, hi, complete
+
+
+def _first_missing(ids, a, lo, hi):
+    """The first ID from a on that `ids` (sorted) lacks, given ids[lo:hi] are those in the range."""
+    run = ids[lo:hi] - a - np.arange(hi - lo)
+    gap = np.flatnonzero(run)
+    return int(a + (gap[0] if len(gap) else hi - lo))
+
+
 def _domain_elements(geom, path, elements):
-    """Element IDs of the DOMAIN (all elements when there is no DOMAIN) (§2.2)."""
+    """Element IDs of the DOMAIN (all elements when there is no DOMAIN) (§2.2). Each composite is
+    read once, however often it is named."""
     dom = geom.find("DOMAIN")
     if dom is None:
         return sorted(elements)
     texts = [dom.text or ""] + [d.text or "" for d in dom if d.tag == "D"]
-    comp_ids = []
+    ranges = []
     for t in texts:
         for m in re.finditer(r"C\s*\[([^\]]*)\]", t):
-            comp_ids.extend(_expand_ranges(_parse_ranges(m.group(1), path, "DOMAIN", cap=1 << 20)).tolist())
-    if not comp_ids:
+            ranges.extend(_parse_ranges(m.group(1), path, "DOMAIN"))
+    if not ranges:
         raise NektarError(f"{path}: DOMAIN names no composite")
     comps = {}
     sec = geom.find("COMPOSITE")
     for c in (sec if sec is not None else []):
         comps[_entity_id(c, path, "COMPOSITE")] = c.text or ""
-    ids = set()
-    for cid in comp_ids:
-        if cid not in comps:
-            raise NektarError(f"{path}: DOMAIN refers to missing composite C[{cid}]")
+    comp_ids = np.array(sorted(comps), dtype=np.int64)
+    pos, lo, hi, complete = _select(comp_ids, ranges)
+    if not complete.all():
+        i = int(np.argmin(complete))
+        raise NektarError(f"{path}: DOMAIN refers to missing composite C[{_first_missing(comp_ids, ranges[i][0], lo[i], hi[i])}]")
+    elem_ids = np.array(sorted(elements), dtype=np.int64)
+    elem_shapes = np.array([elements[e][0] for e in elem_ids.tolist()], dtype=np.int64)
+    # count[s][k]: elements of shape s among the first k, to check a range's shapes without expanding it
+    count = np.concatenate([np.zeros((4, 1), np.int64), np.cumsum(elem_shapes == np.arange(4)[:, None], axis=1)], axis=1)
+    ranges, owners = [], []  # element ranges, and (composite, letter) of each
+    for cid in comp_ids[pos].tolist():
         for m in re.finditer(r"([A-Z])\s*\[([^\]]*)\]", comps[cid]):
             letter = m.group(1)
             if letter not in ELEMENT_TAGS:
                 raise NektarError(f"{path}: composite C[{cid}] in the DOMAIN holds {letter}[...], not 3-D elements")
-            for e in _expand_ranges(_parse_ranges(m.group(2), path, f"composite C[{cid}]", cap=len(elements))).tolist():
-                if e not in elements:
-                    raise NektarError(f"{path}: composite C[{cid}] refers to missing element {e}")
-                if elements[e][0] != ELEMENT_TAGS[letter]:
-                    raise NektarError(f"{path}: composite C[{cid}] lists {letter}[{e}] but element {e} is a "
-                                      f"{SHAPE_WORD[elements[e][0]]}")
-                ids.add(e)
-    if not ids:
+            rs = _parse_ranges(m.group(2), path, f"composite C[{cid}]")
+            ranges.extend(rs)
+            owners.extend([(cid, letter)] * len(rs))
+    if not ranges:
         raise NektarError(f"{path}: the DOMAIN holds no elements")
-    return sorted(ids)
+    pos, lo, hi, complete = _select(elem_ids, ranges)
+    shapes = np.array([ELEMENT_TAGS[letter] for _, letter in owners])
+    same_shape = count[shapes, hi] - count[shapes, lo] == hi - lo
+    bad = np.flatnonzero(~(complete & same_shape))
+    if len(bad):
+        i = int(bad[0])
+        cid, letter = owners[i]
+        if not complete[i]:
+            e = _first_missing(elem_ids, ranges[i][0], lo[i], hi[i])
+            raise NektarError(f"{path}: composite C[{cid}] refers to missing element {e}")
+        k = lo[i] + int(np.argmax(elem_shapes[lo[i] : hi[i]] != shapes[i]))
+        raise NektarError(f"{path}: composite C[{cid}] lists {letter}[{elem_ids[k]}] but element {elem_ids[k]} is a "
+                          f"{SHAPE_WORD[int(elem_shapes[k])]}")
+    return elem_ids[pos].tolist()
 
 
 def _read_mesh(path: Path) -> _Mesh:
-    root = _parse_xml(path)
+    root = _parse_xml(path, "mesh file")
     geom = _geometry(root, path)
     secs = {}
     for name in ("VERTEX", "EDGE", "FACE", "ELEMENT"):
@@ -904,26 +956,44 @@ def _modes_array(path, what, kind, nums, nel):
     return modes
 
 
-def _finish_block(path, what, shape, basis, fields, kind, nums, ranges_or_ids, get_data):
-    """Check a block's declared sizes against its data; nothing is allocated from a declared
-    count before the decoded data has been seen to hold that many values."""
-    ranged = isinstance(ranges_or_ids, list)
-    nel = sum(b - a + 1 for a, b in ranges_or_ids) if ranged else len(ranges_or_ids)
+def _block_ncoeffs(path, what, shape, modes):
+    try:
+        return _ncoeffs(shape, modes)
+    except ValueError as exc:  # e.g. a prism with more modes in direction 0 than in direction 2
+        raise NektarError(f"{path}: {what}: mode counts invalid for {SHAPE_WORD[shape]}s ({exc})") from None
+
+
+class _Budget:
+    """What the mesh lets a field file declare: each field once per mesh element. Claimed from
+    the headers before any data is inflated or read, so the data is bounded by elements x
+    fields x the coefficients of the declared modes."""
+
+    def __init__(self, n_elements):
+        self.n = n_elements
+        self.claimed = {}
+
+    def claim(self, path, what, nel, fields):
+        if nel > self.n:
+            raise NektarError(f"{path}: {what}: declares {nel:,} elements; the mesh has {self.n:,}")
+        for f in fields:
+            self.claimed[f] = self.claimed.get(f, 0) + nel
+            if self.claimed[f] > self.n:
+                raise NektarError(f"{path}: {what}: gives field {f!r} for {self.claimed[f]:,} elements in all; "
+                                  f"the mesh has {self.n:,}")
+
+
+def _finish_block(path, what, shape, basis, fields, kind, nums, ids, get_data):
+    """Check a block's modes and data against its element IDs (already bounded by _Budget)."""
+    nel = len(ids)
     if nel == 0:
         raise NektarError(f"{path}: {what}: no element IDs")
     modes = _modes_array(path, what, kind, nums, nel)
-    try:
-        per = _ncoeffs(shape, modes)
-    except ValueError as exc:  # e.g. a prism with more modes in direction 0 than in direction 2
-        raise NektarError(f"{path}: {what}: mode counts invalid for {SHAPE_WORD[shape]}s ({exc})") from None
+    per = _block_ncoeffs(path, what, shape, modes)
     want = len(fields) * (nel * int(per[0]) if kind == "UNIORDER" else int(per.sum()))
-    if 8 * want > MAX_DECODED_BYTES:
-        raise NektarError(f"{path}: {what}: declares {want} values, more than the reader accepts")
     data = get_data(want)
     if data.size != want:
         raise NektarError(f"{path}: {what}: {data.size} values, expected {want} "
                           f"({len(fields)} fields x {nel} elements, {SHAPE_WORD[shape]} modes)")
-    ids = _expand_ranges(ranges_or_ids) if ranged else np.asarray(ranges_or_ids, dtype=np.int64)
     if len(np.unique(ids)) != nel:
         raise NektarError(f"{path}: {what}: an element ID appears twice")
     if kind == "UNIORDER":
@@ -931,7 +1001,8 @@ def _finish_block(path, what, shape, basis, fields, kind, nums, ranges_or_ids, g
     return _Block(shape, basis, fields, ids, modes, data, what)
 
 
-def _xml_blocks(path: Path, root, allowed_ids=None):
+def _xml_blocks(path: Path, root, budget):
+    """The ELEMENTS blocks of an XML field file; with budget None their headers only."""
     blocks = []
     for k, b in enumerate(root.iter("ELEMENTS")):
         what = f"ELEMENTS block {k} (ID={b.attrib.get('ID', '?')[:40]})"
@@ -939,16 +1010,19 @@ def _xml_blocks(path: Path, root, allowed_ids=None):
             path, what, b.attrib.get("SHAPE", ""), [s.strip() for s in b.attrib.get("BASIS", "").split(",")],
             b.attrib.get("FIELDS", "").split(","), b.attrib.get("NUMMODESPERDIR", ""), b.attrib)
         endian = _endianness(b, path, what, default="B64Z-LittleEndian") or "<"  # bodies are always B64Z (§2.6)
-        text = b.text or ""
+        if budget is None:
+            blocks.append(_Block(shape, basis, fields, None, None, None, what))
+            continue
         ranges = _parse_ranges(b.attrib.get("ID"), path, what)
+        budget.claim(path, what, _range_count(ranges), fields)
 
-        def get(want, text=text, what=what, endian=endian):
+        def get(want, text=b.text or "", what=what, endian=endian):
             raw = _inflate(text, path, what, 8 * want)
             if len(raw) % 8:
                 raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of float64 values")
             return np.frombuffer(raw, dtype=endian + "f8")
 
-        blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, ranges, get))
+        blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, _expand_ranges(ranges), get))
     if not blocks:
         raise NektarError(f"{path}: no <ELEMENTS> blocks")
     return blocks
@@ -968,100 +1042,158 @@ def _attr_list(v):
     return [_attr_str(x).strip() for x in np.asarray(v).ravel().tolist()]
 
 
-def _hdf5_blocks(path: Path):
+def _hdf5_blocks(path: Path, fh, budget):
     try:
         import h5py
     except ImportError:
         raise NektarError(f"{path}: is an HDF5 field file; reading it needs the h5py package (pip install h5py)") from None
     try:
-        with h5py.File(path, "r") as h5:
-            return _hdf5_blocks_open(path, h5)
-    except NektarError:
+        with h5py.File(fh, "r") as h5:  # the checked descriptor: HDF5 never opens the path itself
+            return _hdf5_blocks_open(path, h5, budget)
+    except (NektarError, limits.ResourceLimitError, limits.UnsafeFileError):
         raise
     except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise NektarError(f"{path}: unreadable HDF5 field file ({type(exc).__name__}: {exc})") from exc
 
 
-def _hdf5_dataset(path, grp, name, dtype, required=True):
-    if name not in grp:
+def _hdf5_dataset(path, grp, name, kinds, required=True):
+    """The 1-D dataset /NEKTAR/name (None if absent and not required), reached by a hard link and
+    stored in the file; kinds "f": real floating point, "iu": integer."""
+    import h5py
+
+    what = f"{path}: /NEKTAR/{name}"
+    ds = limits.hdf5_child(grp, name, what)
+    if ds is None:
         if required:
             raise NektarError(f"{path}: HDF5 field file lacks /NEKTAR/{name}")
-        return np.zeros(0, dtype)
-    ds = grp[name]
-    if ds.ndim != 1 or ds.size * np.dtype(dtype).itemsize > MAX_DECODED_BYTES:
-        raise NektarError(f"{path}: /NEKTAR/{name}: shape {ds.shape} is not a bounded 1-D array")
-    return np.asarray(ds[()], dtype=dtype)
+        return None
+    if not isinstance(ds, h5py.Dataset) or ds.ndim != 1:
+        raise NektarError(f"{what}: not a 1-D dataset")
+    if ds.dtype.kind == "c":
+        raise NektarError(f"{what}: holds complex values ({ds.dtype}); only real values can be rendered")
+    if ds.dtype.kind not in kinds:
+        raise NektarError(f"{what}: values of type {ds.dtype}, expected {'real floating point' if kinds == 'f' else 'integers'}")
+    return ds
 
 
-def _hdf5_blocks_open(path, h5):
-    if "NEKTAR" not in h5:
+def _hdf5_values(path, ds, name, count):
+    """The values of a dataset from _hdf5_dataset, which must hold exactly `count` of them."""
+    size = 0 if ds is None else ds.size
+    if size != count:
+        raise NektarError(f"{path}: DECOMPOSITION accounts for {count:,} values of /NEKTAR/{name}, which holds {size:,}")
+    if ds is None:
+        return np.zeros(0)
+    v = limits.hdf5_read(ds, count, f"{path}: /NEKTAR/{name}")
+    if ds.dtype.kind == "i" and np.any(v < 0):
+        raise NektarError(f"{path}: /NEKTAR/{name}: negative entries")
+    return v
+
+
+def _hdf5_attr(path, at, key, what):
+    if key not in at:
+        raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
+    if int(np.prod(at.get_id(key).shape or ())) > MAX_ATTRIBUTE_VALUES:
+        raise NektarError(f"{path}: {what}: attribute {key} holds more than {MAX_ATTRIBUTE_VALUES} values")
+    return at[key]
+
+
+def _hdf5_header(path, g, h, what):
+    """(shape, basis, fields, kind, nums) of field definition group /NEKTAR/<h> (§2.7)."""
+    import h5py
+
+    grp = limits.hdf5_child(g, str(h), f"{path}: /NEKTAR/{h}")
+    if not isinstance(grp, h5py.Group):
+        raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{h}")
+    at = grp.attrs
+    try:
+        basis = [BASIS_ENUM[int(b)] for b in np.asarray(_hdf5_attr(path, at, "BASIS", what)).ravel()]
+    except (IndexError, ValueError, TypeError):
+        raise NektarError(f"{path}: {what}: unknown BASIS attribute") from None
+    fields, shape, nummodes = (_hdf5_attr(path, at, k, what) for k in ("FIELDS", "SHAPE", "NUMMODESPERDIR"))
+    return _block_header(path, what, _attr_str(shape).strip(), basis, _attr_list(fields), _attr_str(nummodes),
+                         set(at.keys()))
+
+
+def _hdf5_blocks_open(path, h5, budget):
+    import h5py
+
+    g = limits.hdf5_child(h5, "NEKTAR", f"{path}: /NEKTAR")
+    if not isinstance(g, h5py.Group):
         raise NektarError(f"{path}: HDF5 file without a /NEKTAR group (not a Nektar++ field file)")
-    g = h5["NEKTAR"]
-    dec = _hdf5_dataset(path, g, "DECOMPOSITION", np.uint64)
-    ids_all = _hdf5_dataset(path, g, "ELEMENTIDS", np.uint64)
-    data_all = _hdf5_dataset(path, g, "DATA", np.float64)
-    poly_all = _hdf5_dataset(path, g, "POLYORDERS", np.uint64, required=False)
+    ds = _hdf5_dataset(path, g, "DECOMPOSITION", "iu")
+    # the index of the data, read for headers too: bounded by the file (it is far smaller than the data)
+    dec = limits.hdf5_read(ds, h5.id.get_filesize() // ds.dtype.itemsize, f"{path}: /NEKTAR/DECOMPOSITION")
     if dec.size % 7:
         raise NektarError(f"{path}: DECOMPOSITION has {dec.size} entries, not a multiple of 7")
-    blocks = []
-    oi = od = op = 0
-    for r, row in enumerate(dec.reshape(-1, 7).tolist()):
-        nel, nd, npoly, ny, nz, ns, h = row
+    if ds.dtype.kind == "i" and np.any(dec < 0):
+        raise NektarError(f"{path}: DECOMPOSITION has negative entries")
+    rows = dec.reshape(-1, 7).tolist()
+    heads = {}  # definition hash -> header, in the order of first use
+    for r, (nel, nd, npoly, ny, nz, ns, h) in enumerate(rows):
         what = f"DECOMPOSITION row {r} (definition {h})"
         if ny or nz or ns:
             raise NektarError(f"{path}: {what}: homogeneous (Fourier-extruded) fields are not supported")
-        if oi + nel > ids_all.size or od + nd > data_all.size or op + npoly > poly_all.size:
-            raise NektarError(f"{path}: {what}: counts run past the end of ELEMENTIDS/DATA/POLYORDERS")
-        name = str(h)
-        if name not in g or not hasattr(g[name], "attrs"):
-            raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{name}")
-        at = g[name].attrs
-        try:
-            basis = [BASIS_ENUM[int(b)] for b in np.asarray(at["BASIS"]).ravel()]
-        except (KeyError, IndexError, ValueError, TypeError):
-            raise NektarError(f"{path}: {what}: missing or unknown BASIS attribute") from None
-        for key in ("FIELDS", "SHAPE", "NUMMODESPERDIR"):
-            if key not in at:
-                raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
-        shape, basis, fields, kind, nums = _block_header(
-            path, what, _attr_str(at["SHAPE"]).strip(), basis, _attr_list(at["FIELDS"]),
-            _attr_str(at["NUMMODESPERDIR"]), set(at.keys()))
-        ids = ids_all[oi : oi + nel].astype(np.int64)
+        if h not in heads:
+            heads[h] = _hdf5_header(path, g, h, what)
+    if not heads:
+        raise NektarError(f"{path}: HDF5 field file holds no field definitions")
+    if budget is None:
+        return [_Block(shape, basis, fields, None, None, None, f"definition {h}")
+                for h, (shape, basis, fields, _, _) in heads.items()]
+    for r, (nel, nd, npoly, _, _, _, h) in enumerate(rows):
+        what = f"DECOMPOSITION row {r} (definition {h})"
+        shape, _, fields, kind, nums = heads[h]
+        budget.claim(path, what, nel, fields)
+        largest = _modes_array(path, what, kind, nums, 1) if kind == "UNIORDER" else [[MAX_MODES] * 3]
+        most = len(fields) * nel * int(_block_ncoeffs(path, what, shape, largest)[0])
+        if nd > most:
+            raise NektarError(f"{path}: {what}: declares {nd:,} values; {len(fields)} fields on {nel:,} "
+                              f"{SHAPE_WORD[shape]}s hold at most {most:,}")
+        if npoly > 3 * nel:
+            raise NektarError(f"{path}: {what}: {npoly:,} POLYORDERS entries for {nel:,} elements")
+    ids_all = _hdf5_values(path, _hdf5_dataset(path, g, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(r[0] for r in rows))
+    data_all = _hdf5_values(path, _hdf5_dataset(path, g, "DATA", "f"), "DATA", sum(r[1] for r in rows))
+    poly_all = _hdf5_values(path, _hdf5_dataset(path, g, "POLYORDERS", "iu", required=False), "POLYORDERS",
+                            sum(r[2] for r in rows))
+    blocks = []
+    oi = od = op = 0
+    for r, (nel, nd, npoly, _, _, _, h) in enumerate(rows):
+        what = f"DECOMPOSITION row {r} (definition {h})"
+        shape, basis, fields, kind, nums = heads[h]
         if kind == "MIXORDER":
             if npoly != 3 * nel:
                 raise NektarError(f"{path}: {what}: {npoly} POLYORDERS entries for {nel} elements (3 each expected)")
             nums = poly_all[op : op + npoly].astype(np.int64).tolist()
-        chunk = data_all[od : od + nd]
+        ids = ids_all[oi : oi + nel].astype(np.int64)
+        chunk = data_all[od : od + nd].astype(np.float64)
         blocks.append(_finish_block(path, what, shape, basis, fields, kind, nums, ids, lambda want, c=chunk: c))
         oi, od, op = oi + nel, od + nd, op + npoly
-    if oi != ids_all.size or od != data_all.size:
-        raise NektarError(f"{path}: DECOMPOSITION accounts for {oi} of {ids_all.size} element IDs and "
-                          f"{od} of {data_all.size} values")
-    if not blocks:
-        raise NektarError(f"{path}: HDF5 field file holds no field definitions")
     return blocks
 
 
-def _file_blocks(path: Path):
+def _file_blocks(path: Path, budget):
     try:
-        head = path.open("rb").read(8)
+        with limits.open_regular(path, "field file") as fh:
+            if fh.read(8) == _HDF5_MAGIC:
+                return _hdf5_blocks(path, fh, budget)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    if head == _HDF5_MAGIC:
-        return _hdf5_blocks(path)
-    return _xml_blocks(path, _parse_xml(path))
+    return _xml_blocks(path, _parse_xml(path, "field file"), budget)
 
 
-def _field_blocks(path: Path):
-    """All ELEMENTS blocks of a field file or of a multi-part .fld/ directory (§2.1)."""
+def _field_blocks(path: Path, n_elements=None):
+    """All ELEMENTS blocks of a field file or of a multi-part .fld/ directory (§2.1). Given the
+    mesh's element count, every size the file declares is checked against it before data is
+    inflated or read; without it (None) only headers are read (names, shapes, bases; no data)."""
+    budget = None if n_elements is None else _Budget(n_elements)
     if not path.is_dir():
         if not path.exists():
             raise NektarError(f"{path}: no such field file")
-        return _file_blocks(path)
+        return _file_blocks(path, budget)
     info = path / "Info.xml"
     if not info.exists():
         raise NektarError(f"{path}: a field directory needs an Info.xml listing its parts")
-    root = _parse_xml(info)
+    root = _parse_xml(info, "field directory index")
     parts = list(root.iter("Partition"))
     if not parts:
         raise NektarError(f"{info}: no <Partition> entries")
@@ -1071,15 +1203,16 @@ def _field_blocks(path: Path):
         if not re.fullmatch(r"[A-Za-z0-9_.\-]+", name) or name in (".", ".."):
             raise NektarError(f"{info}: Partition FileName={name!r} is not a plain file name in the directory")
         ranges = _parse_ranges(p.text, info, f"Partition {name}")
-        part_blocks = _file_blocks(path / name)
-        got = set()
-        for b in part_blocks:
-            got.update(b.ids.tolist())
-        # compare counts before expanding the (untrusted) list
-        listed = set(_expand_ranges(ranges).tolist()) if sum(b - a + 1 for a, b in ranges) == len(got) else set()
-        if got != listed:
-            raise NektarError(f"{info}: Partition {name} lists {sum(b - a + 1 for a, b in ranges)} elements but the file holds "
-                              f"{len(got)} (other IDs or counts)")
+        part_blocks = _file_blocks(path / name, budget)
+        if budget is not None:
+            got = set()
+            for b in part_blocks:
+                got.update(b.ids.tolist())
+            # compare counts before expanding the (untrusted) list
+            listed = set(_expand_ranges(ranges).tolist()) if _range_count(ranges) == len(got) else set()
+            if got != listed:
+                raise NektarError(f"{info}: Partition {name} lists {_range_count(ranges)} elements but the file holds "
+                                  f"{len(got)} (other IDs or counts)")
         blocks.extend(part_blocks)
     return blocks
 
@@ -1147,6 +1280,8 @@ def _guard(path, fn):
         raise
     except MeshError as exc:
         raise NektarError(f"{path}: {exc}") from exc
+    except (limits.ResourceLimitError, limits.UnsafeFileError) as exc:  # their messages name the file
+        raise NektarError(str(exc)) from exc
     except (ValueError, IndexError, KeyError, TypeError, OverflowError, ZeroDivisionError,
             ArithmeticError, np.linalg.LinAlgError, RecursionError, UnicodeError) as exc:
         raise NektarError(f"{path}: unexpected {type(exc).__name__} while reading ({exc})") from exc
@@ -1172,7 +1307,7 @@ def _read(mesh_path, sol, field):
     warnings: list[str] = []
     mesh = _read_mesh(mesh_path)
     if sol is not None:
-        blocks = _guard(sol, lambda: _field_blocks(sol))
+        blocks = _guard(sol, lambda: _field_blocks(sol, len(mesh.elements)))
         names = _field_names(blocks)
         if field is None:
             if len(names) != 1:

@@ -2,9 +2,13 @@
 from __future__ import annotations
 
 import base64
+import contextlib
 import importlib.util
+import os
 import re
+import signal
 import xml.etree.ElementTree as ET
+import time
 import zlib
 from pathlib import Path
 
@@ -307,11 +311,12 @@ def test_multi_part_field_directory(tmp_path):
         read_nektar(tmp_path / "m.xml", field="w")
 
 
-def test_hdf5_field_file(tmp_path):
+def hdf5_field(f, make_data=None):
+    """Tet_channel_m3.fld as an HDF5 field file (§2.7) in two definitions of 30 and 18 elements;
+    make_data(group, values) writes /NEKTAR/DATA in its own way (the hostile cases)."""
     h5py = pytest.importorskip("h5py", reason="h5py is not installed: the HDF5 field path is untested here")
     head, vals, m = block_parts(tet_fld())
     per = vals.reshape(4, 48, 10)
-    f = tmp_path / "m.fld"
     halves = [list(range(0, 30)), list(range(30, 48))]
     with h5py.File(f, "w") as h5:
         g = h5.create_group("NEKTAR")
@@ -330,7 +335,16 @@ def test_hdf5_field_file(tmp_path):
             data.append(d)
         g.create_dataset("DECOMPOSITION", data=np.array(dec, np.uint64))
         g.create_dataset("ELEMENTIDS", data=np.array(ids, np.uint64))
-        g.create_dataset("DATA", data=np.concatenate(data))
+        if make_data is None:
+            g.create_dataset("DATA", data=np.concatenate(data))
+        else:
+            make_data(g, np.concatenate(data))
+    return f
+
+
+def test_hdf5_field_file(tmp_path):
+    h5py = pytest.importorskip("h5py", reason="h5py is not installed: the HDF5 field path is untested here")
+    f = hdf5_field(tmp_path / "m.fld")
     assert list_fields(f) == ["u", "v", "w", "p"]
     got = read_nektar(copy_mesh(tmp_path), f, field="w")
     np.testing.assert_array_equal(got.coeffs, reference_w().coeffs)
@@ -520,7 +534,7 @@ def malformed_cases():
         "corrupted zlib": (None, f.replace(body, body[:30] + ("A" if body[30] != "A" else "B") + body[31:]), "zlib", "m.fld"),
         "truncated zlib": (None, with_body(vals).replace(encode(vals), encode(vals)[:-12]), "zlib", "m.fld"),
         "wrong coefficient count": (None, with_body(vals[:-1]), "26 values, expected 27", "m.fld"),
-        "too many values": (None, with_body(np.concatenate([vals, vals])), "more than 216 bytes", "m.fld"),
+        "too many values": (None, with_body(np.concatenate([vals, vals])), "more than the 216 bytes", "m.fld"),
         "NaN coefficient": (None, with_body(nan), "element 0, field 'p'.*NaN", "m.fld"),
         "missing face": (re.sub(r'<Q ID="5">[^<]*</Q>', "", x), None, "hexahedron 0 refers to missing face 5", "m.xml"),
         "missing vertex": (re.sub(r'<V ID="6">[^<]*</V>', "", x), None, "edge 6 refers to missing vertex 6", "m.xml"),
@@ -562,3 +576,289 @@ def test_mutations_of_real_files_load_or_raise_a_named_nektar_error():
     assert s["crashes"] == [] and s["unexpected"] == [] and s["timeouts"] == [] and s["unnamed"] == []
     assert s["nektar_error"] > s["cases"] // 2  # most corruptions are caught, not silently loaded
     assert s["max_case_seconds"] < mod.CASE_SECONDS
+
+
+# ------------------------------------------------------------------------------ hostile input
+# Each generator writes a hostile case into a folder and returns read_nektar's arguments
+# (mesh, solution, field); nothing hostile is stored. Every case must be refused with a
+# NektarError naming the file, well within HOSTILE_SECONDS.
+
+HOSTILE_SECONDS = 5.0
+
+
+@contextlib.contextmanager
+def no_hang(seconds=30):
+    """A blocking open or read becomes a failure instead of a hung suite (POSIX; elsewhere a no-op)."""
+    if not hasattr(signal, "SIGALRM"):
+        yield
+        return
+
+    def stop(*_):
+        raise TimeoutError(f"no answer in {seconds} s")
+
+    old = signal.signal(signal.SIGALRM, stop)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def zlib_zeros(nbytes):
+    """A zlib stream of nbytes zero bytes (about nbytes / 1000 compressed)."""
+    z = zlib.compressobj(9)
+    step = 1 << 22
+    return b"".join(z.compress(bytes(min(step, nbytes - k))) for k in range(0, nbytes, step)) + z.flush()
+
+
+def h5(make_data):
+    """Case: the Tet_channel_m3 mesh and its field as HDF5, DATA written by make_data(group, values)."""
+    def case(tmp):
+        return copy_mesh(tmp), hdf5_field(tmp / "m.fld", make_data), "w"
+    return case
+
+
+def _external_storage(target):
+    def make(g, v):
+        g.create_dataset("DATA", shape=v.shape, dtype="<f8", external=[(str(target(Path(g.file.filename).parent, v)), 0, v.nbytes)])
+    return make
+
+
+def _secret(folder, v):
+    (folder / "secret.bin").write_bytes(v.tobytes())  # would load as a correct field if followed
+    return folder / "secret.bin"
+
+
+def _pipe(folder, v):
+    os.mkfifo(folder / "pipe")
+    return folder / "pipe"
+
+
+def _external_link(g, v):
+    import h5py
+
+    other = Path(g.file.filename).parent / "other.h5"
+    with h5py.File(other, "w") as o:
+        o["DATA"] = v
+    g["DATA"] = h5py.ExternalLink(str(other), "/DATA")
+
+
+def _soft_link(g, v):
+    import h5py
+
+    g["REAL"] = v
+    g["DATA"] = h5py.SoftLink("/NEKTAR/REAL")
+
+
+def _virtual(g, v):
+    import h5py
+
+    other = Path(g.file.filename).parent / "other.h5"
+    with h5py.File(other, "w") as o:
+        o["DATA"] = v
+    layout = h5py.VirtualLayout(shape=v.shape, dtype="<f8")
+    layout[:] = h5py.VirtualSource(str(other), "DATA", shape=v.shape)
+    g.create_virtual_dataset("DATA", layout)
+
+
+def _chunk_bomb(g, v):
+    ds = g.create_dataset("DATA", shape=v.shape, chunks=v.shape, dtype="<f8", compression="gzip")
+    ds.id.write_direct_chunk((0,), zlib_zeros(64 << 20))  # HDF5's own filter would inflate all 64 MiB
+
+
+def h5_declaring(values):
+    """Case: DATA of `values` unwritten (fill-value) entries, DECOMPOSITION's first row agreeing."""
+    def case(tmp):
+        mesh, f, field = h5(lambda g, v: g.create_dataset("DATA", shape=(values,), dtype="<f8"))(tmp)
+        import h5py
+
+        with h5py.File(f, "r+") as h:
+            h["NEKTAR/DECOMPOSITION"][1] = values - 18 * 40  # row 1 keeps its 18 elements x 40 values
+        return mesh, f, field
+    return case
+
+
+def _nektar_external_link(tmp):
+    import h5py
+
+    f = hdf5_field(tmp / "real.fld")
+    with h5py.File(tmp / "m.fld", "w") as h:
+        h["NEKTAR"] = h5py.ExternalLink(str(f), "/NEKTAR")
+    return copy_mesh(tmp), tmp / "m.fld", "w"
+
+
+def _float_ids(tmp):
+    import h5py
+
+    mesh, f, field = h5(None)(tmp)
+    with h5py.File(f, "r+") as h:
+        ids = h["NEKTAR/ELEMENTIDS"][()]
+        del h["NEKTAR/ELEMENTIDS"]
+        h["NEKTAR/ELEMENTIDS"] = ids.astype(np.float64)
+    return mesh, f, field
+
+
+def xml_case(xml=lambda x: x, fld=lambda f: f):
+    """Case: the one-hexahedron mesh and field (STEM), edited by xml() and fld()."""
+    def case(tmp):
+        x, f = original()
+        return write(tmp, xml(x), fld(f)), tmp / "m.fld", "p"
+    return case
+
+
+def special(mesh=None, solution=None):
+    """Case: the one-hexahedron mesh and field, with m.xml and/or m.fld made by the given function."""
+    def case(tmp):
+        path = write(tmp)
+        for name, make in (("m.xml", mesh), ("m.fld", solution)):
+            if make is not None:
+                (tmp / name).unlink()
+                make(tmp / name)
+        return path, tmp / "m.fld", "p"
+    return case
+
+
+def _part_fifo(folder):
+    folder.mkdir()
+    (folder / "Info.xml").write_text('<NEKTAR><Metadata><Partition FileName="P0.fld">0</Partition></Metadata></NEKTAR>')
+    os.mkfifo(folder / "P0.fld")
+
+
+def _info_fifo(folder):
+    folder.mkdir()
+    os.mkfifo(folder / "Info.xml")
+
+
+CURVED_1E200 = ('<CURVED><E ID="7" EDGEID="0" NUMPOINTS="3" TYPE="PolyEvenlySpaced">'
+                '-1 -1 -4  1e200 -1 -4  1 -1 -4</E></CURVED></GEOMETRY>')
+
+HOSTILE = {
+    # HDF5 references to other files and objects
+    "HDF5 external storage: a private file": (h5(_external_storage(_secret)), "keeps its data in external file"),
+    "HDF5 external storage: /etc/passwd": (h5(_external_storage(lambda d, v: "/etc/passwd")), "external file /etc/passwd"),
+    "HDF5 external storage: a FIFO": (h5(_external_storage(_pipe)), "keeps its data in external file"),
+    "HDF5 external link (DATA)": (h5(_external_link), "/NEKTAR/DATA is an external link"),
+    "HDF5 external link (NEKTAR)": (_nektar_external_link, "/NEKTAR is an external link"),
+    "HDF5 soft link": (h5(_soft_link), "/NEKTAR/DATA is a soft link"),
+    "HDF5 virtual dataset": (h5(_virtual), "/NEKTAR/DATA is a virtual dataset"),
+    # HDF5 declared sizes and types
+    "HDF5 fill value only": (h5(lambda g, v: g.create_dataset("DATA", shape=v.shape, dtype="<f8")),
+                             "declares 1,920 values but stores none (only a fill value)"),
+    "HDF5 268M unwritten values": (h5(lambda g, v: g.create_dataset("DATA", shape=(268_435_456,), dtype="<f8")),
+                                   "DECOMPOSITION accounts for 1,920 values of /NEKTAR/DATA, which holds 268,435,456"),
+    "HDF5 100M declared values": (h5_declaring(100_000_000), "declares 99,999,280 values; 4 fields on 30 tetrahedrons hold at most 1,200"),
+    "HDF5 chunk bomb": (h5(_chunk_bomb), "inflates to more than the 15360 bytes"),
+    "HDF5 complex DATA": (h5(lambda g, v: g.create_dataset("DATA", data=v.astype(np.complex128))),
+                          "/NEKTAR/DATA: holds complex values (complex128)"),
+    "HDF5 float ELEMENTIDS": (_float_ids, "/NEKTAR/ELEMENTIDS: values of type float64, expected integers"),
+    # amplification in XML
+    "DOMAIN range x2000": (xml_case(xml=lambda x: x.replace("<DOMAIN>C[0]</DOMAIN>", "<DOMAIN>" + "C[0-1048575] " * 2000 + "</DOMAIN>")),
+                           "DOMAIN refers to missing composite C[1]"),
+    "composite range x2000": (xml_case(xml=lambda x: x.replace('<C ID="0">H[0]</C>', '<C ID="0">' + "H[0-1048575] " * 2000 + "</C>")),
+                              "composite C[0] refers to missing element 1"),
+    "field ID range": (xml_case(fld=lambda f: f.replace('ID="0"', 'ID="0-9999999"')),
+                       "ELEMENTS block 0 (ID=0-9999999): declares 10,000,000 elements; the mesh has 1"),
+    "field element twice": (xml_case(fld=lambda f: f.replace("</NEKTAR>", re.search(r"<ELEMENTS.*</ELEMENTS>", f).group(0) + "</NEKTAR>")),
+                            "ELEMENTS block 1 (ID=0): gives field 'p' for 2 elements in all; the mesh has 1"),
+    # coordinates
+    "vertex at 1e200": (xml_case(xml=lambda x: x.replace('<V ID="6">1 1 -2</V>', '<V ID="6">1e200 1 -2</V>')),
+                        "vertex 6: coordinates [1e+200, 1.0, -2.0] are too large for double precision"),
+    "XSCALE 1e200": (xml_case(xml=lambda x: x.replace("<VERTEX>", '<VERTEX XSCALE="1e200">')),
+                     "vertex 0: coordinates [-1e+200, -1.0, -4.0] are too large for double precision"),
+    "curve point at 1e200": (xml_case(xml=lambda x: x.replace("</GEOMETRY>", CURVED_1E200)),
+                             "curved edge 7: coordinates [1e+200, -1.0, -4.0] are too large for double precision"),
+    # special files
+    "mesh is a FIFO": (special(mesh=lambda p: os.mkfifo(p)), "m.xml is a FIFO (named pipe), not a regular file"),
+    "mesh is a folder": (special(mesh=Path.mkdir), "m.xml is a folder, not a regular file"),
+    "solution is a FIFO": (special(solution=lambda p: os.mkfifo(p)), "m.fld is a FIFO (named pipe), not a regular file"),
+    "solution is /dev/zero": (special(solution=lambda p: p.symlink_to("/dev/zero")), "m.fld is a device, not a regular file"),
+    "a part of a .fld/ is a FIFO": (special(solution=_part_fifo), "P0.fld is a FIFO (named pipe), not a regular file"),
+    "Info.xml is a FIFO": (special(solution=_info_fifo), "Info.xml is a FIFO (named pipe), not a regular file"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_hostile_input_is_refused_quickly_naming_file_and_record(tmp_path, case):
+    make, phrase = HOSTILE[case]
+    if ("FIFO" in case and not hasattr(os, "mkfifo")) or ("/dev/zero" in case and not os.path.exists("/dev/zero")):
+        pytest.skip("no FIFOs or /dev/zero on this system")
+    if case.startswith("HDF5"):
+        pytest.importorskip("h5py", reason="h5py is not installed: the HDF5 field path is untested here")
+    mesh, solution, name = make(tmp_path)
+    start = time.perf_counter()
+    with no_hang(), pytest.raises(NektarError, match=re.escape(phrase)) as info:
+        read_nektar(mesh, solution, field=name)
+    assert time.perf_counter() - start < HOSTILE_SECONDS
+    assert "unexpected" not in str(info.value) and str(tmp_path) in str(info.value)
+
+
+@pytest.mark.parametrize("case", ["solution is a FIFO", "solution is /dev/zero", "a part of a .fld/ is a FIFO",
+                                  "HDF5 external link (NEKTAR)"])
+def test_list_fields_refuses_special_files_and_links(tmp_path, case):
+    make, phrase = HOSTILE[case]
+    if not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"):
+        pytest.skip("no FIFOs or /dev/zero on this system")
+    _, solution, _ = make(tmp_path)
+    with no_hang(), pytest.raises(NektarError, match=re.escape(phrase)):
+        list_fields(solution)
+
+
+def test_list_fields_reads_headers_only(tmp_path):
+    """Without a mesh nothing is inflated or read beyond headers: a broken body or a DATA of 268M
+    unwritten values does not matter to the field list."""
+    x, f = original()
+    broken = re.sub(r">[^<]+</ELEMENTS>", ">" + "A" * 64 + "</ELEMENTS>", f.replace('ID="0"', 'ID="0-9999999"'))
+    (tmp_path / "x.fld").write_text(broken)
+    assert list_fields(tmp_path / "x.fld") == ["p"]
+    _, h5file, _ = HOSTILE["HDF5 268M unwritten values"][0](tmp_path)
+    start = time.perf_counter()
+    assert list_fields(h5file) == ["u", "v", "w", "p"]
+    assert time.perf_counter() - start < 1.0
+
+
+def test_repeated_composites_are_read_once(tmp_path):
+    """C[0,0,...] naming a composite of H[0] x2000: legitimate, loads at once (work is bounded by the text)."""
+    x, _ = original()
+    x = x.replace("<DOMAIN>C[0]</DOMAIN>", "<DOMAIN>C[" + ",".join(["0"] * 2000) + "]</DOMAIN>")
+    x = x.replace('<C ID="0">H[0]</C>', '<C ID="0">' + "H[0] " * 2000 + "</C>")
+    start = time.perf_counter()
+    m = read_nektar(write(tmp_path, x), field="p")
+    assert time.perf_counter() - start < HOSTILE_SECONDS
+    np.testing.assert_array_equal(m.coeffs, original_values())
+
+
+def test_composites_select_elements_by_intersecting_ranges(tmp_path):
+    """Overlapping ranges and repeated composites: the DOMAIN is their union, checked shape by shape."""
+    xml = (DATA / "CubeAllElements.xml").read_text()
+    whole = read_nektar(DATA / "CubeAllElements.xml")
+
+    def load(edit):
+        (tmp_path / "m.xml").write_text(edit(xml))
+        return read_nektar(tmp_path / "m.xml")
+
+    overlapping = load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[9,0-0,7-9,8] C[7] </DOMAIN>")
+                       .replace("H[66-75]", "H[66-70,68-75,66,75]"))
+    np.testing.assert_array_equal(overlapping.element_ids, whole.element_ids)
+    with pytest.raises(NektarError, match=r"composite C\[7\] lists H\[76\] but element 76 is a prism"):
+        load(lambda x: x.replace("H[66-75]", "H[66-76]"))
+    with pytest.raises(NektarError, match=r"DOMAIN refers to missing composite C\[10\]"):
+        load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[7-999] </DOMAIN>".replace("7-", "0-")))
+    with pytest.raises(NektarError, match=r"composite C\[1\] in the DOMAIN holds F\[...\]"):
+        load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[0-9] </DOMAIN>"))
+
+
+def test_compressed_hdf5_data_is_read_chunk_by_chunk(tmp_path):
+    def gzip(g, v):
+        g.create_dataset("DATA", data=v, chunks=(333,), compression="gzip", shuffle=True)
+
+    got = read_nektar(copy_mesh(tmp_path), hdf5_field(tmp_path / "m.fld", gzip), field="w")
+    np.testing.assert_array_equal(got.coeffs, reference_w().coeffs)
+
+
+def test_magnitude_reader_refuses_hostile_solution(tmp_path):
+    from hovr_blender.io.derived import read_nektar_field
+
+    mesh, solution, _ = HOSTILE["HDF5 external storage: a private file"][0](tmp_path)
+    with pytest.raises(NektarError, match="keeps its data in external file"):
+        read_nektar_field(mesh, solution, "|u,v,w|")
