@@ -1,6 +1,6 @@
 """The .vtu importer: VTK node orders and bases against vtk's own cells, files written by vtk's
 writer (Lagrange and Bézier tetrahedra, hexahedra, wedges, both hexahedron numberings, every
-encoding) reproducing analytic fields, the three real solver exports, and malformed input."""
+encoding) reproducing analytic fields, the four real solver exports, and malformed input."""
 from __future__ import annotations
 
 import json
@@ -15,8 +15,11 @@ from hovr_blender.engine import expansions as ex
 from hovr_blender.io import vtu
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 
+from ..conftest import shared_file
+
 VTU_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtu"
-REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4"]
+REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4",
+        "ngsolve_post_heat_tetprism_p4"]
 SHAPE_OF_TYPE = {71: ex.TET, 72: ex.HEX, 73: ex.PRISM}
 LAGRANGE = {ex.HEX: 72, ex.TET: 71, ex.PRISM: 73}
 BEZIER = {ex.HEX: 79, ex.TET: 78, ex.PRISM: 80}
@@ -341,7 +344,8 @@ def real(name):
 
 # one field per file, each file read once (reading is dominated by VolumeMesh.from_elements)
 REAL_FIELD = {"mfem_fichera_poisson_mixed_p4": ("u", None), "ngsolve_ball_poisson_hex_p6": ("u", None),
-              "pyfr_tgv_hexprism_p4_t4": ("Velocity", "magnitude")}
+              "pyfr_tgv_hexprism_p4_t4": ("Velocity", "magnitude"),
+              "ngsolve_post_heat_tetprism_p4": ("temperature", None)}
 
 
 @lru_cache(maxsize=None)
@@ -455,6 +459,51 @@ def test_pyfr_straight_cells_are_affine_and_components_checked():
     assert mesh.field_name == "|Velocity|"
     with pytest.raises(VtuError, match="component must be 0..2"):
         read_vtu(path, "Velocity", 3)
+
+
+def test_ngsolve_post_file_agrees_with_vtk_at_every_node():
+    """The NGSolve post file (raw appended, UInt32 headers, Int32 connectivity, Float32 points and
+    values; meshio's raw-appended parser misread it) loads, and at every node of every cell the
+    converted geometry and temperature are what vtk's own reader reads there."""
+    vtk = need_vtk()
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    path = shared_file("vtu", "ngsolve_post_heat_tetprism_p4.vtu")
+    mesh = read_vtu(path, "temperature")
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    ug = reader.GetOutput()
+    P = vtk_to_numpy(ug.GetPoints().GetData()).astype(np.float64)
+    T = vtk_to_numpy(ug.GetPointData().GetArray("temperature")).astype(np.float64)
+    conn = vtk_to_numpy(ug.GetCells().GetConnectivityArray())
+    offs = vtk_to_numpy(ug.GetCells().GetOffsetsArray())
+    types = vtk_to_numpy(ug.GetCellTypes())
+    assert mesh.num_elements == ug.GetNumberOfCells() == 3884
+    assert [int(s) for s in mesh.shape] == [SHAPE_OF_TYPE[int(t)] for t in types]
+    worst_x = worst_t = 0.0
+    for shape in (ex.TET, ex.PRISM):
+        members = np.flatnonzero(mesh.shape == shape)
+        n = int(offs[members[0] + 1] - offs[members[0]])
+        ids = np.stack([conn[offs[e]:offs[e + 1]] for e in members])  # (cells, nodes)
+        gm, fm = tuple(mesh.geom_modes[members[0]]), tuple(mesh.modes[members[0]])
+        kg, kf = ex.num_coeffs(shape, gm), ex.num_coeffs(shape, fm)
+        G = np.stack([mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] + kg] for e in members])
+        C = np.stack([mesh.coeffs[mesh.coeff_offset[e]:mesh.coeff_offset[e] + kf] for e in members])
+        params = vtu.vtk_node_params(shape, vtu._infer_degs(shape, n))
+        # each cell is read directly or mirrored (whichever is right-handed): take the variant whose
+        # geometry lands on the nodes, then its field must be the node values
+        err_x, err_t = [], []
+        for xi in node_xi(shape, params):
+            Bg = np.asarray(ex.eval_modal(shape, gm, np.eye(kg), xi))  # (nodes, kg)
+            Bf = np.asarray(ex.eval_modal(shape, fm, np.eye(kf), xi))
+            err_x.append(np.abs(np.einsum("pk,ekc->epc", Bg, G) - P[ids]).max(axis=(1, 2)))
+            err_t.append(np.abs(C @ Bf.T - T[ids]).max(axis=1))
+        pick = np.argmin(np.stack(err_x), axis=0)
+        worst_x = max(worst_x, float(np.choose(pick, err_x).max()))
+        worst_t = max(worst_t, float(np.choose(pick, err_t).max()))
+    print(f"NGSolve post file: nodes {worst_x:.2e} (geometry), {worst_t:.2e} (temperature)")
+    assert worst_x < 1e-12 and worst_t < 1e-12, (worst_x, worst_t)
 
 
 # ---------------------------------------------------------------------------------------------
