@@ -5,26 +5,14 @@ VtuError that names the file and is not read_vtu's catch-all; the mutator itself
 are pinned with the diagnosis they must get."""
 from __future__ import annotations
 
-import importlib.util
 import re
-import sys
 
 import numpy as np
 import pytest
 
 from hovr_blender.io.vtu import VtuError, read_vtu
 
-from ..conftest import REPO, shared_file
-
-
-@pytest.fixture(scope="module")
-def vm():
-    pytest.importorskip("vtk", reason="the vtk package (writer of the mutated sources) is not installed")
-    spec = importlib.util.spec_from_file_location("vtu_mutation", REPO / "bench" / "vtu_mutation.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["vtu_mutation"] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+from ..conftest import shared_file
 
 
 @pytest.fixture(scope="module")
