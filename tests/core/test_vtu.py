@@ -1,10 +1,17 @@
 """The .vtu importer: VTK node orders and bases against vtk's own cells, files written by vtk's
 writer (Lagrange and Bézier tetrahedra, hexahedra, wedges, both hexahedron numberings, every
-encoding) reproducing analytic fields, the four real solver exports, and malformed input."""
+encoding) reproducing analytic fields, the four real solver exports, malformed input and hostile
+input (decompression bombs, lying block headers, huge counts, FIFOs and devices)."""
 from __future__ import annotations
 
 import json
+import lzma
 import math
+import os
+import re
+import threading
+import time
+import zlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -12,6 +19,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine import expansions as ex
+from hovr_blender.engine import limits
 from hovr_blender.io import vtu
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 
@@ -206,8 +214,6 @@ def write_vtk(vtk, path, cells, mode="appended", vtk8=False, hod=False):
 def set_version(path, version):
     raw = path.read_bytes()
     head, sep, rest = raw.partition(b"<UnstructuredGrid")
-    import re
-
     head = re.sub(rb'version="[0-9.]+"', f'version="{version}"'.encode(), head.replace(b'<?xml version="1.0"?>', b"<?xml?>"))
     path.write_bytes(head.replace(b"<?xml?>", b'<?xml version="1.0"?>') + sep + rest)
 
@@ -601,8 +607,6 @@ def test_malformed_inputs_raise_vtu_error(tmp_path):
     expect_error(variant("dtd.vtu", '<!DOCTYPE x [<!ENTITY a "b">]>' + text), "DOCTYPE")
     expect_error(variant("polydata.vtu", text.replace('type="UnstructuredGrid"', 'type="PolyData"')), "PolyData")
     expect_error(variant("garbage.vtu", text.replace("1.00000000000e+00", "1.0zz", 1)), "points")
-    import re
-
     conn = re.search(r'(Name="connectivity"[^>]*>)([^<]*)<', text)
     expect_error(variant("range.vtu", text.replace(conn.group(0), conn.group(1) + conn.group(2).replace("11", "99") + "<")),
                  "cell 1: point index out of range")
@@ -635,3 +639,156 @@ def test_malformed_inputs_raise_vtu_error(tmp_path):
     expect_error(meshio_file(tmp_path, "tangled.vtu", points=tangled), "cell 1: inverted or tangled")
     hexes = [("VTK_LAGRANGE_HEXAHEDRON", np.arange(12)[None, :12] % 12)]
     expect_error(meshio_file(tmp_path, "count.vtu", cells=hexes), "cell 0: VTK_LAGRANGE_HEXAHEDRON with 12 nodes")
+
+
+# ---------------------------------------------------------------------------------------------
+# Hostile input: every refusal a VtuError naming the file, made before the harm (the time and
+# memory a bomb or a lying header would take)
+
+HOSTILE = {"raw-zlib-uint32": dict(mode="raw", compressor="zlib", header=32),
+           "appended-zlib-uint64": dict(mode="appended", compressor="zlib", header=64),
+           "binary-zlib-uint32": dict(mode="binary", compressor="zlib", header=32),
+           "raw-lzma-uint64": dict(mode="raw", compressor="lzma", header=64),
+           "binary-lzma-uint64": dict(mode="binary", compressor="lzma", header=64)}
+
+
+@pytest.fixture(scope="module")
+def hostile_docs(vm, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("hostile_sources")
+    return {k: vm.Doc(vm.write_vtk_lagrange(tmp / f"{k}.vtu", **kw).read_bytes()) for k, kw in HOSTILE.items()}
+
+
+def zlib_zeros(mib):
+    """A valid zlib stream of mib MiB of zeros, made in milliseconds: after a full flush every
+    MiB compresses to the same bytes, so the middle is one piece repeated."""
+    z = bytes(1 << 20)
+    c = zlib.compressobj(9)
+    first = c.compress(z) + c.flush(zlib.Z_FULL_FLUSH)
+    middle = c.compress(z) + c.flush(zlib.Z_FULL_FLUSH)
+    end = c.flush()[:-4]  # the final block without its checksum; Adler-32 of n zeros is (n % 65521) << 16 | 1
+    return first + middle * (mib - 1) + end + ((((mib << 20) % 65521) << 16) | 1).to_bytes(4, "big")
+
+
+@pytest.fixture(scope="module")
+def bombs():
+    out = {"zlib": zlib_zeros(3 << 10), "lzma": lzma.compress(bytes(256 << 20), preset=0)}
+    assert 3e6 < len(out["zlib"]) < 3.3e6 and len(out["lzma"]) < 50_000
+    assert zlib.decompress(zlib_zeros(3)) == bytes(3 << 20)
+    return out
+
+
+def points_block(doc, header, payload):
+    """The file with piece 0's points replaced by a block of this header and payload, in the
+    file's own encoding."""
+    pts = doc.find(0, "Points")
+    blk = doc.block(pts)
+    blk.header, blk.payload = header, payload
+    return doc.build((), {pts.index: doc.encode_block(blk)})
+
+
+def refused(path, data, pattern, seconds=2.0):
+    """data, written to path, is refused by read_vtu within `seconds` with a VtuError that names
+    the file and matches pattern."""
+    path.write_bytes(data)
+    t0 = time.perf_counter()
+    with pytest.raises(VtuError) as info:
+        read_vtu(path, "g")
+    elapsed = time.perf_counter() - t0
+    msg = str(info.value)
+    assert type(info.value) is VtuError and msg.startswith(f"{path}: ") and ": unreadable (" not in msg, msg
+    assert re.search(pattern, msg), msg
+    assert elapsed < seconds, (elapsed, msg)
+    return info.value
+
+
+@pytest.mark.parametrize("enc", ["raw-zlib-uint32", "appended-zlib-uint64", "binary-zlib-uint32"])
+def test_block_flood_is_refused_before_inflating(hostile_docs, tmp_path, enc):
+    """800 blocks of 1 MiB of zeros (meshio inflated them in quadratic time, past 120 s): the
+    header declares 800 MiB where the piece's points take a few KiB."""
+    doc = hostile_docs[enc]
+    block = zlib.compress(bytes(1 << 20), 9)
+    data = points_block(doc, [800, 1 << 20, 0] + [len(block)] * 800, block * 800)
+    assert len(data) < 2 << 20
+    need = doc.piece_attr(0, "NumberOfPoints") * 24
+    refused(tmp_path / "flood.vtu", data, rf"piece 0 points: its data header declares {800 << 20} bytes, the "
+            rf"piece needs {need} \(\d+ points x 3: \d+ x Float64\)", seconds=0.5)
+
+
+def test_huge_point_count_is_refused_by_the_memory_limit(hostile_docs, tmp_path):
+    """10^9 points and a block header that agrees (24 GB in one block): the memory limit refuses
+    the array before its header is even read."""
+    doc = hostile_docs["raw-lzma-uint64"]
+    pts = doc.find(0, "Points")
+    blk = doc.block(pts)
+    blk.header = [1, 24 * 10**9, 24 * 10**9, len(blk.payload)]
+    data = doc.build([doc.attr_edit(doc.pieces[0], "NumberOfPoints", 10**9)], {pts.index: doc.encode_block(blk)})
+    with limits.using(limits.ResourceLimits(max_memory=4 << 30)):
+        err = refused(tmp_path / "huge.vtu", data, r"piece 0 points would need 22.4 GiB, more than the memory "
+                      r"limit of 4 GiB \(raise it with --max-memory or HOVR_MAX_MEMORY\)", seconds=0.5)
+    assert isinstance(err.__cause__, limits.ResourceLimitError)
+
+
+@pytest.mark.parametrize("enc", list(HOSTILE))
+def test_bomb_in_one_block_stops_at_the_declared_size(hostile_docs, bombs, tmp_path, enc):
+    """The header tells the piece's truth (one block of the points' size) but the block inflates
+    to 3 GiB (zlib, 3 MB) or 256 MiB (lzma, 39 KB): inflation stops one byte past the size."""
+    doc = hostile_docs[enc]
+    bomb = bombs[doc.compressor]
+    need = doc.piece_attr(0, "NumberOfPoints") * 24
+    refused(tmp_path / "bomb.vtu", points_block(doc, [1, need, need, len(bomb)], bomb),
+            rf"piece 0 points block 0: inflates to more than the {need} bytes it declares or needs")
+
+
+def test_damaged_compressed_data_is_diagnosed(hostile_docs, tmp_path):
+    p = tmp_path / "damaged.vtu"
+    doc = hostile_docs["raw-zlib-uint32"]
+    pts = doc.find(0, "Points")
+    head, payload = doc.block(pts).header, doc.block(pts).payload
+    assert head[0] == 1  # one block: [1, block size, its size, compressed size]
+    refused(p, points_block(doc, head[:3] + [head[3] // 2], payload[:head[3] // 2]),
+            r"piece 0 points block 0: zlib stream is truncated")
+    refused(p, points_block(doc, head[:3] + [10**9], payload), r"piece 0 points: its compressed blocks "
+            r"\(1000000000 bytes\) run past the end of the appended data \(\d+ bytes left\)")
+    # two blocks adding up to the points' size, the first inflating to less than its header says
+    raw = doc.values(pts).tobytes()
+    first, second = zlib.compress(raw[:4000]), zlib.compress(raw[4096:])
+    refused(p, points_block(doc, [2, 4096, len(raw) - 4096, len(first), len(second)], first + second),
+            r"piece 0 points block 0: inflates to 4000 bytes, its header says 4096")
+    refused(p, doc.build([doc.attr_edit(doc.vtkfile_tag, "compressor", "vtkLZ4DataCompressor")]),
+            r"compressor 'vtkLZ4DataCompressor' is not supported")
+    for offset in (-1, 10**15):
+        refused(p, doc.build([doc.attr_edit(pts.tag, "offset", offset)]),
+                rf"piece 0 points: offset {offset} is outside the appended data \(\d+ bytes\)")
+    refused(p, doc.raw[:doc.app_start + 100], r"truncated \(<AppendedData> has no closing tag\)")
+    inline = hostile_docs["binary-zlib-uint32"]
+    head, payload = inline.block(inline.find(0, "Points")).header, inline.block(inline.find(0, "Points")).payload
+    refused(p, points_block(inline, head[:3] + [head[3] + 3000], payload),
+            r"piece 0 points: its compressed blocks \(\d+ bytes\) run past the end of its inline data")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"),
+                    reason="needs POSIX FIFOs and /dev/zero")
+def test_fifo_device_and_folder_paths_are_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "pipe.vtu"
+    os.mkfifo(fifo)
+    folder = tmp_path / "folder.vtu"
+    folder.mkdir()
+    paths = {fifo: "a FIFO (named pipe)", Path("/dev/zero"): "a device", folder: "a folder"}
+    got = {}
+
+    def attempt():  # in a thread: a reader that opened the FIFO for reading would block here
+        for path in paths:
+            for fn in (list_fields, read_vtu):
+                try:
+                    fn(path)
+                    got[path, fn.__name__] = "loaded"
+                except VtuError as exc:
+                    got[path, fn.__name__] = str(exc)
+
+    t = threading.Thread(target=attempt, daemon=True)
+    t.start()
+    t.join(10)
+    assert not t.is_alive(), "reading a FIFO or /dev/zero blocked"
+    for path, what in paths.items():
+        for fn in ("list_fields", "read_vtu"):
+            assert got[path, fn] == f"{path}: VTU file {path} is {what}, not a regular file; refused", got
