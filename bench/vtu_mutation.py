@@ -68,7 +68,7 @@ NP_TYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "<i2", "UInt16": "<u2", "Int32
 # ---------------------------------------------------------------------------------------------
 # The vtk-written source
 
-def write_vtk_lagrange(path, mode="ascii", header=32, compressor=None, hod=False):
+def write_vtk_lagrange(path, mode="ascii", header=32, compressor=None, hod=False, big_endian=False):
     """A small vtk-written file: Lagrange hexahedra, tetrahedra and wedges of degrees 2 and 3
     (plus an anisotropic hex and wedge when HigherOrderDegrees are written), mildly curved,
     nodes not shared, a scalar 'g' and a vector 'gvec'."""
@@ -115,6 +115,8 @@ def write_vtk_lagrange(path, mode="ascii", header=32, compressor=None, hod=False
         w.SetEncodeAppendedData(False)
     if header == 64:
         w.SetHeaderTypeToUInt64()
+    if big_endian:
+        w.SetByteOrderToBigEndian()
     {None: w.SetCompressorTypeToNone, "zlib": w.SetCompressorTypeToZLib,
      "lzma": w.SetCompressorTypeToLZMA}[compressor]()
     if w.Write() != 1:

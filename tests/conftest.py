@@ -1,4 +1,6 @@
+import importlib.util
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -33,3 +35,14 @@ def warp_devices():
 @pytest.fixture(params=warp_devices())
 def device(request):
     return request.param
+
+
+@pytest.fixture(scope="session")
+def vm():
+    """bench/vtu_mutation.py as a module: its vtk-written sources and its .vtu block editor."""
+    pytest.importorskip("vtk", reason="the vtk package (writer of the .vtu sources) is not installed")
+    spec = importlib.util.spec_from_file_location("vtu_mutation", REPO / "bench" / "vtu_mutation.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["vtu_mutation"] = mod  # its dataclasses look their module up
+    spec.loader.exec_module(mod)
+    return mod

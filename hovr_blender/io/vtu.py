@@ -17,23 +17,31 @@ vtk's own cells in tests/core/test_vtu.py. Hexahedra in files older than version
 VTK 8 order (last two vertical edges swapped), as vtkXMLUnstructuredDataReader converts them
 (it renumbers only when the file version is < 2.1; 2.1 and 2.2 are both the VTK 9 order).
 
-Reading goes through meshio's VTU machinery (XML loading, raw-appended handling, DataArray
-decoding: ascii, base64, appended, zlib/lzma). meshio 5.3.5's own VtuReader cannot be used
-whole: it refuses every VTKFile version but 0.1/1.0 (all real high-order files are 2.1/2.2),
-keeps only the last <Piece>'s cells (PyFR writes one piece per cell type) and skips unknown cell
-types with a warning; so the Pieces are walked here and every count is checked.
+Reading is done here, not by meshio: its VtuReader refuses VTKFile versions other than 0.1/1.0
+and keeps only the last <Piece>, and its decoders trust the block headers (unbounded, quadratic
+inflation of zlib/lzma blocks; raw appended data re-encoded as base64). The file is opened
+through engine.limits (regular files only, size within the memory limit); ElementTree reads the
+XML, and every DataArray is decoded with numpy (ascii; inline or appended base64; raw appended;
+zlib or lzma blocks; UInt32/UInt64 headers; either byte order) to the size the piece's counts
+give it: a block header that declares another size is refused before anything is allocated or
+inflated, and each block is inflated, bounded, to exactly its declared size.
 """
 from __future__ import annotations
 
+import base64
+import binascii
 import math
 import re
+import warnings
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from ..engine import expansions as ex
+from ..engine import limits
 from ..engine.basis import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh
 
@@ -253,12 +261,45 @@ def _jacobian_probe(shape, modes):
 
 
 # ---------------------------------------------------------------------------------------------
-# File access (meshio does the XML loading and the data decoding)
+# File access. ElementTree reads the XML (up to <AppendedData>); every DataArray the reader
+# needs is decoded here, its size fixed in advance by the piece's counts: a block header must
+# declare exactly that size before anything is allocated or inflated, and compressed blocks are
+# inflated one by one, bounded, into one preallocated buffer (linear time).
 
-def _load(path: Path, header_only=False):
-    """(root element, data decoder or None); header_only skips the (possibly raw) appended data."""
+_NP_TYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "i4", "UInt32": "u4",
+             "Int64": "i8", "UInt64": "u8", "Float32": "f4", "Float64": "f8"}
+_CODECS = {"vtkZLibDataCompressor": "zlib", "vtkLZMADataCompressor": "lzma"}
+_WHITESPACE = b" \t\n\r\f\v"
+_APPENDED_TAG = re.compile(rb"<AppendedData\b[^>]*>")
+_APPENDED_MARK = re.compile(rb"\s*_")
+
+
+@dataclass(frozen=True)
+class _Source:
+    """A loaded file: what decoding its DataArrays needs."""
+    path: Path
+    order: str  # "<", ">" or "=": byte_order
+    header: np.dtype  # block header words (header_type) in that byte order
+    codec: str | None  # "zlib", "lzma" or None
+    appended: memoryview | None  # after <AppendedData>'s '_', up to its closing tag
+    appended_base64: bool
+
+
+def _tag_attrs(path, tag: bytes, name):
     try:
-        raw = path.read_bytes()
+        return ET.fromstring(tag[:-1].rstrip(b"/") + b"/>").attrib
+    except ET.ParseError as exc:
+        raise VtuError(f"{path}: malformed <{name}> element ({exc})") from None
+
+
+def _load(path: Path):
+    """(root element, without the appended data; _Source)."""
+    try:
+        raw = limits.read_regular(path, "VTU file")
+    except FileNotFoundError:
+        raise VtuError(f"{path}: cannot read (no such file)") from None
+    except (limits.UnsafeFileError, limits.ResourceLimitError) as exc:
+        raise VtuError(f"{path}: {exc}") from exc
     except OSError as exc:
         raise VtuError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     cut = raw.find(b"<AppendedData")
@@ -270,67 +311,206 @@ def _load(path: Path, header_only=False):
     m = re.search(rb"<VTKFile\b[^>]*>", head)
     if m is None:
         raise VtuError(f"{path}: not a VTK XML file (no <VTKFile> element)")
-    try:
-        attrs = ET.fromstring(m.group(0)[:-1] + b"/>").attrib
-    except ET.ParseError as exc:
-        raise VtuError(f"{path}: malformed <VTKFile> element ({exc})") from None
+    attrs = _tag_attrs(path, m.group(0), "VTKFile")
     if attrs.get("type") != "UnstructuredGrid":
         raise VtuError(f"{path}: VTKFile type {attrs.get('type')!r}; only UnstructuredGrid (.vtu) is read")
-    # meshio sizes raw-appended blocks with this header; a signed type could walk backwards
-    if attrs.get("header_type", "UInt32") not in ("UInt32", "UInt64"):
-        raise VtuError(f"{path}: header_type {attrs.get('header_type')!r} (VTK writes UInt32 or UInt64)")
-    if attrs.get("compressor") not in (None, "vtkZLibDataCompressor", "vtkLZMADataCompressor"):
-        raise VtuError(f"{path}: compressor {attrs.get('compressor')!r} is not supported")
-    if header_only:
-        try:
-            return ET.fromstring(head + (b"</VTKFile>" if cut >= 0 else b"")), None
-        except ET.ParseError as exc:
-            raise VtuError(f"{path}: not well-formed XML ({exc})") from None
-
+    header_type = attrs.get("header_type", "UInt32")
+    if header_type not in ("UInt32", "UInt64"):
+        raise VtuError(f"{path}: header_type {header_type!r} (VTK writes UInt32 or UInt64)")
+    compressor = attrs.get("compressor")
+    if compressor is not None and compressor not in _CODECS:
+        raise VtuError(f"{path}: compressor {compressor!r} is not supported (vtkZLibDataCompressor and "
+                       "vtkLZMADataCompressor are)")
+    byte_order = attrs.get("byte_order")
+    if byte_order not in (None, "LittleEndian", "BigEndian"):
+        raise VtuError(f"{path}: byte_order {byte_order!r}")
     try:
-        from meshio.vtu import _vtu
-    except ImportError:
-        raise VtuError(f"{path}: reading .vtu needs the meshio package (pip install meshio)") from None
+        root = ET.fromstring(head + (b"</VTKFile>" if cut >= 0 else b""))
+    except ET.ParseError as exc:
+        raise VtuError(f"{path}: not well-formed XML ({exc})") from None
 
-    raw_appended = False
+    appended, base64_appended = None, False
     if cut >= 0:
-        m = re.match(rb'<AppendedData\b[^>]*?\bencoding="([^"]*)"', raw[cut:cut + 200])
-        if m is None or m.group(1) not in (b"raw", b"base64"):
-            enc = m.group(1).decode(errors="replace") if m else None
+        tag = _APPENDED_TAG.match(raw, cut)
+        if tag is None:
+            raise VtuError(f"{path}: truncated (unterminated <AppendedData> tag)")
+        enc = _tag_attrs(path, tag.group(0), "AppendedData").get("encoding")
+        if enc not in ("raw", "base64"):
             raise VtuError(f"{path}: <AppendedData> encoding {enc!r} (VTK writes raw or base64)")
-        raw_appended = m.group(1) == b"raw"
-    if raw_appended:
-        if raw.rfind(b"</AppendedData>") < cut:
-            raise VtuError(f"{path}: truncated (raw <AppendedData> has no closing tag)")
-        try:
-            root = _vtu._parse_raw_binary(str(path))  # re-encodes raw blocks as base64, inflated
-        except ET.ParseError as exc:
-            raise VtuError(f"{path}: not well-formed XML ({exc})") from None
-        except Exception as exc:  # truncation, block sizes that miss the offsets, broken zlib/lzma, ...
-            detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-            raise VtuError(f"{path}: raw <AppendedData> cannot be decoded (truncated, or block headers, "
-                           f"offsets and compressed data do not agree: {detail})") from exc
-    else:
-        try:
-            root = ET.fromstring(raw)
-        except ET.ParseError as exc:
-            raise VtuError(f"{path}: not well-formed XML ({exc})") from None
-    # as meshio's own reader does: empty NumberOfComponents (PyFR, Firedrake) means 1
-    for da in root.iter("DataArray"):
-        if da.attrib.get("NumberOfComponents", None) == "":
-            da.attrib.pop("NumberOfComponents")
+        mark = _APPENDED_MARK.match(raw, tag.end())
+        if mark is None:
+            raise VtuError(f"{path}: no '_' marks the start of the appended data")
+        end = raw.rfind(b"</AppendedData>")
+        if end < mark.end():
+            raise VtuError(f"{path}: truncated (<AppendedData> has no closing tag)")
+        appended, base64_appended = memoryview(raw)[mark.end():end], enc == "base64"
+    order = {"LittleEndian": "<", "BigEndian": ">", None: "="}[byte_order]  # none: this machine's, as in VTK
+    return root, _Source(path, order, np.dtype(order + _NP_TYPES[header_type]), _CODECS.get(compressor),
+                         appended, base64_appended)
+
+
+def _decode(src: _Source, arr, what, count, why):
+    """The array's values, flat and in native byte order: exactly `count` of them, which `why`
+    explains (for the error). Ascii arrays come as int64/uint64/float64 (no wrap-around)."""
+    path = src.path
+    tname = arr.attrib.get("type")
+    if tname not in _NP_TYPES:
+        raise VtuError(f"{path}: {what}: data type {tname!r} is not supported")
+    dtype = np.dtype(src.order + _NP_TYPES[tname])
+    need = (count * dtype.itemsize, f"{why}: {count} x {tname}")
+    fmt = arr.attrib.get("format", "ascii")
     try:
-        grid, appended = _vtu.get_grid(root)
-    except Exception as exc:  # meshio's ReadError: extra top-level tags, no '_' before appended data, ...
-        raise VtuError(f"{path}: malformed <VTKFile> contents ({type(exc).__name__}: {exc or 'bad <AppendedData>'})") from exc
-    dec = _vtu.VtuReader.__new__(_vtu.VtuReader)  # only its decoders are used (see module doc)
-    dec.compression = root.attrib.get("compressor")
-    dec.header_type = root.attrib.get("header_type", "UInt32")
-    dec.byte_order = root.attrib.get("byte_order")
-    if dec.byte_order not in (None, "LittleEndian", "BigEndian"):
-        raise VtuError(f"{path}: byte_order {dec.byte_order!r}")
-    dec.appended_data = appended
-    return root, dec
+        limits.check_bytes(need[0], what)
+        if fmt == "ascii":
+            return _ascii(src, arr.text or "", tname, count, what, why)
+        if fmt == "binary":
+            text = (arr.text or "").encode("ascii", "replace").translate(None, _WHITESPACE)
+            data = _base64_array(src, text, 0, need, what, "its inline data")
+        elif fmt == "appended":
+            if src.appended is None:
+                raise VtuError(f"{path}: {what}: format=\"appended\" but the file has no <AppendedData>")
+            try:
+                offset = int(arr.attrib["offset"])
+            except (KeyError, ValueError):
+                raise VtuError(f"{path}: {what}: missing or bad offset") from None
+            if not 0 <= offset < len(src.appended):
+                raise VtuError(f"{path}: {what}: offset {offset} is outside the appended data "
+                               f"({len(src.appended)} bytes)")
+            block = _base64_array if src.appended_base64 else _raw_array
+            data = block(src, src.appended, offset, need, what, "the appended data")
+        else:
+            raise VtuError(f"{path}: {what}: format {fmt!r} (ascii, binary or appended)")
+    except VtuError:
+        raise
+    except ValueError as exc:  # limits: the memory limit, a bomb, a broken or truncated zlib/lzma stream
+        raise VtuError(f"{path}: {exc}") from exc
+    return np.frombuffer(data, dtype).astype(dtype.newbyteorder("="), copy=False)
+
+
+def _ascii(src, text, tname, count, what, why):
+    """An ascii array's `count` numbers, parsed wide (int64, uint64 or float64)."""
+    b = np.frombuffer(text.encode(), np.uint8)
+    space = np.isin(b, np.frombuffer(_WHITESPACE, np.uint8))
+    n = int(np.count_nonzero(space[:-1] & ~space[1:])) + int(b.size > 0 and not space[0])
+    if n != count:  # counted first: the parse below is bounded by the piece's count
+        raise VtuError(f"{src.path}: {what}: {n} values, the piece needs {count} ({why})")
+    wide = np.float64 if tname.startswith("Float") else np.uint64 if tname == "UInt64" else np.int64
+    if n == 0:
+        return np.empty(0, wide)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)  # numpy's "could not be read to its end"
+        try:
+            data = np.fromstring(text, wide, sep=" ")
+        except (DeprecationWarning, ValueError):
+            data = None
+    if data is None or data.size != n:
+        raise VtuError(f"{src.path}: {what}: not a list of {tname} numbers")
+    return data
+
+
+def _b64len(nbytes):
+    return 4 * -(-nbytes // 3)
+
+
+def _b64(src, text, pos, nbytes, what, where, exact=True):
+    """Bytes of the base64 run encoding `nbytes` at text[pos:] (exact=False: a run's first
+    nbytes; no padding expected there)."""
+    nchars = _b64len(nbytes)
+    if pos + nchars > len(text):
+        raise VtuError(f"{src.path}: {what}: needs {nchars} base64 characters at {pos}, past the end of "
+                       f"{where} ({len(text)} characters)")
+    try:
+        out = base64.b64decode(text[pos:pos + nchars], validate=True)
+    except binascii.Error as exc:
+        raise VtuError(f"{src.path}: {what}: not valid base64 ({exc})") from None
+    if len(out) < nbytes or exact and len(out) != nbytes:
+        raise VtuError(f"{src.path}: {what}: base64 run of {nchars} characters decodes to {len(out)} "
+                       f"bytes, not {nbytes}")
+    return out
+
+
+def _check_declared(src, declared, need, what):
+    if declared != need[0]:
+        raise VtuError(f"{src.path}: {what}: its data header declares {declared} bytes, the piece needs "
+                       f"{need[0]} ({need[1]})")
+
+
+def _check_blocks(src, head, need, what):
+    """The compression header [blocks, block size, last block size] against the piece's size."""
+    nblocks, size, last = head
+    _check_declared(src, 0 if nblocks == 0 else (nblocks - 1) * size + (last or size), need, what)
+    if nblocks and (size == 0 or last > size):
+        raise VtuError(f"{src.path}: {what}: compression header [{nblocks}, {size}, {last}, ...] is inconsistent")
+
+
+def _block_ends(src, sizes, room, what, where):
+    """End offsets of the compressed blocks, all inside `room` bytes."""
+    ends = np.cumsum(sizes, dtype=np.uint64)
+    wrapped = bool(np.any(ends[1:] < ends[:-1]))  # every size is below 2**64: a wrap-around shows as a decrease
+    if ends.size and (wrapped or int(ends[-1]) > room):
+        total = "more than 2**64" if wrapped else int(ends[-1])
+        raise VtuError(f"{src.path}: {what}: its compressed blocks ({total} bytes) run past the end of {where} "
+                       f"({room} bytes left)")
+    return ends
+
+
+def _inflate(src, comp, ends, head, need, what):
+    """The compressed blocks comp[0:ends[0]], comp[ends[0]:ends[1]], ... inflated, each to
+    exactly its declared size, into one buffer."""
+    nblocks, size, last = head
+    out = bytearray(need[0])
+    view = memoryview(out)
+    start = pos = 0
+    for k in range(nblocks):
+        end = int(ends[k])
+        n = last if k == nblocks - 1 and last else size
+        block, _ = limits.inflate(comp[start:end], n, f"{what} block {k}", src.codec, exact=True)
+        view[pos:pos + n] = block
+        start, pos = end, pos + n
+    return out
+
+
+def _raw_array(src, data, offset, need, what, where):
+    """A raw appended block at data[offset:]: header words, then the (compressed) data."""
+    h = src.header.itemsize
+
+    def words(pos, n):
+        if pos + n * h > len(data):
+            raise VtuError(f"{src.path}: {what}: its {n}-word block header at {pos} runs past the end of "
+                           f"{where} ({len(data)} bytes)")
+        return np.frombuffer(data, src.header, n, pos)
+
+    if src.codec is None:
+        _check_declared(src, int(words(offset, 1)[0]), need, what)
+        if offset + h + need[0] > len(data):
+            raise VtuError(f"{src.path}: {what}: {need[0]} bytes at {offset + h} run past the end of {where} "
+                           f"({len(data)} bytes)")
+        return data[offset + h:offset + h + need[0]]
+    head = [int(v) for v in words(offset, 3)]
+    _check_blocks(src, head, need, what)
+    start = offset + (3 + head[0]) * h
+    ends = _block_ends(src, words(offset + 3 * h, head[0]), len(data) - start, what, where)
+    return _inflate(src, data[start:], ends, head, need, what)
+
+
+def _base64_array(src, text, pos, need, what, where):
+    """A base64 block at text[pos:]: uncompressed, [nbytes][data] in one run (VTK) or in two
+    (MFEM); compressed, the header and the blocks in two runs."""
+    h = src.header.itemsize
+    if src.codec is None:
+        first = _b64(src, text, pos, h, what, where, exact=False)
+        _check_declared(src, int(np.frombuffer(first, src.header, 1)[0]), need, what)
+        if len(first) == h:  # the header is a run of its own, not the start of one with the data
+            return _b64(src, text, pos + _b64len(h), need[0], what, where)
+        return _b64(src, text, pos, h + need[0], what, where)[h:]
+    head = [int(v) for v in np.frombuffer(_b64(src, text, pos, 3 * h, what, where, False), src.header, 3)]
+    _check_blocks(src, head, need, what)
+    nhead = (3 + head[0]) * h
+    sizes = np.frombuffer(_b64(src, text, pos, nhead, what, where), src.header)[3:]
+    start = pos + _b64len(nhead)
+    ends = _block_ends(src, sizes, (len(text) - start) * 3 // 4, what, where)
+    comp = _b64(src, text, start, int(ends[-1]) if ends.size else 0, what, where)
+    return _inflate(src, memoryview(comp), ends, head, need, what)
 
 
 def _version(path, root):
@@ -369,36 +549,30 @@ def _ncomp(path, arr, where):
     return n
 
 
-def list_fields(path) -> dict[str, int]:
+def _fields(path, pieces):
     """Point-data arrays present in every piece: {name: number of components}, file order."""
+    found = None
+    for pi, piece in enumerate(pieces):
+        here = {}
+        for a in _point_arrays(piece):
+            name = a.attrib.get("Name")
+            if name:
+                here[name] = _ncomp(path, a, f"piece {pi} point array {name!r}")
+        found = here if found is None else {k: v for k, v in found.items() if here.get(k) == v}
+    return found or {}
+
+
+def list_fields(path) -> dict[str, int]:
+    """Point-data arrays present in every piece: {name: number of components}, file order.
+    Reads the XML only (no array is decoded)."""
     path = Path(path)
     try:
-        root, _ = _load(path, header_only=True)
-        pieces = _grid(path, root)
-        found = None
-        for pi, piece in enumerate(pieces):
-            here = {}
-            for a in _point_arrays(piece):
-                name = a.attrib.get("Name")
-                if name:
-                    here[name] = _ncomp(path, a, f"piece {pi} point array {name!r}")
-            found = here if found is None else {k: v for k, v in found.items() if here.get(k) == v}
-        return found or {}
+        root, _ = _load(path)
+        return _fields(path, _grid(path, root))
     except VtuError:
         raise
     except Exception as exc:  # anything a malformed file provokes in the XML layer
         raise VtuError(f"{path}: unreadable ({type(exc).__name__}: {exc})") from exc
-
-
-def _decode(path, dec, arr, what, dtype=None):
-    try:
-        data = dec.read_data(arr)
-    except Exception as exc:  # meshio raises ReadError, binascii/zlib errors, KeyError, ...
-        raise VtuError(f"{path}: {what}: cannot decode ({type(exc).__name__}: {exc})") from exc
-    data = np.asarray(data)
-    if dtype is not None:
-        data = data.astype(dtype, copy=False)
-    return data.reshape(-1)
 
 
 def _int_attr(path, el, key, where):
@@ -446,6 +620,8 @@ def read_vtu(path, field=None, component=None) -> VolumeMesh:
         return _read(path, field, component)
     except VtuError:
         raise
+    except limits.ResourceLimitError as exc:
+        raise VtuError(f"{path}: {exc}") from exc
     except MeshError as exc:
         raise VtuError(f"{path}: {exc}".replace("element ", "cell ", 1)) from exc
     except Exception as exc:  # a malformed file must never surface as anything but VtuError
@@ -467,21 +643,19 @@ def _select_component(path, values, name, ncomp, component):
 
 
 def _read(path, field, component):
-    available = list_fields(path)
+    root, src = _load(path)
+    pieces = _grid(path, root)
+    available = _fields(path, pieces)
     if field is None:
         if not available:
             raise VtuError(f"{path}: no point-data array to render")
         field = next(iter(available))
     elif field not in available:
-        root_h, _ = _load(path, header_only=True)
-        cell_names = {a.attrib.get("Name") for p in _grid(path, root_h) for cd in p.findall("CellData") for a in cd}
+        cell_names = {a.attrib.get("Name") for p in pieces for cd in p.findall("CellData") for a in cd}
         hint = " (it is cell data: only point data is a polynomial field)" if field in cell_names else ""
         raise VtuError(f"{path}: no point-data field {field!r}{hint}; available: {sorted(available) or 'none'}")
     ncomp = available[field]
-
-    root, dec = _load(path)
     vtk8 = _version(path, root) < (2, 1)
-    pieces = _grid(path, root)
 
     cell_shape, cell_family, cell_degs, cell_nodes, cell_vals = [], [], [], [], []
     base = 0  # global cell index of the piece's first cell (error messages)
@@ -494,10 +668,8 @@ def _read(path, field, component):
         pel = piece.find("Points")
         if pel is None or len(pel) != 1:
             raise VtuError(f"{path}: {where}: <Points> must hold one DataArray")
-        pts = _decode(path, dec, pel[0], f"{where} points", np.float64)
-        if pts.size != 3 * npts:
-            raise VtuError(f"{path}: {where}: {pts.size} point coordinates for {npts} points of 3 components")
-        pts = pts.reshape(npts, 3)
+        pts = _decode(src, pel[0], f"{where} points", 3 * npts, f"{npts} points x 3")
+        pts = pts.astype(np.float64, copy=False).reshape(npts, 3)
 
         cel = piece.find("Cells")
         if cel is None:
@@ -508,21 +680,22 @@ def _read(path, field, component):
         for key in ("connectivity", "offsets", "types"):
             if key not in carr:
                 raise VtuError(f"{path}: {where}: <Cells> lacks the {key} array")
-        conn = _decode(path, dec, carr["connectivity"], f"{where} connectivity")
-        offs = _decode(path, dec, carr["offsets"], f"{where} offsets")
-        types = _decode(path, dec, carr["types"], f"{where} types")
-        for name, a in (("connectivity", conn), ("offsets", offs), ("types", types)):
+        offs = _decode(src, carr["offsets"], f"{where} offsets", ncells, f"{ncells} cells")
+        types = _decode(src, carr["types"], f"{where} types", ncells, f"{ncells} cells")
+        for name, a in (("offsets", offs), ("types", types)):
             if a.dtype.kind not in "iu":
                 raise VtuError(f"{path}: {where}: {name} array is {a.dtype}, not integer")
-        if offs.size != ncells or types.size != ncells:
-            raise VtuError(f"{path}: {where}: {offs.size} offsets and {types.size} types for {ncells} cells")
         offs = offs.astype(np.int64)
         starts = np.concatenate([[0], offs[:-1]])
         bad = np.flatnonzero(offs <= starts)
         if bad.size:
             raise VtuError(f"{path}: cell {base + bad[0]}: offsets are not increasing")
-        if offs[-1] != conn.size:
-            raise VtuError(f"{path}: {where}: offsets end at {offs[-1]} but connectivity has {conn.size} entries")
+        conn = _decode(src, carr["connectivity"], f"{where} connectivity", int(offs[-1]),
+                       f"offsets end at {offs[-1]}")
+        if conn.dtype.kind not in "iu":
+            raise VtuError(f"{path}: {where}: connectivity array is {conn.dtype}, not integer")
+        # each connectivity entry becomes a node's coordinates and value, copied twice below
+        limits.check_bytes(conn.size * 64, f"{where}: the cells' node coordinates and values")
         conn = conn.astype(np.int64)
         if conn.size and (conn.min() < 0 or conn.max() >= npts):
             c = int(np.searchsorted(offs, int(np.flatnonzero((conn < 0) | (conn >= npts))[0]), side="right"))
@@ -530,17 +703,15 @@ def _read(path, field, component):
 
         pdel = piece.find("PointData")
         farr = [a for a in _point_arrays(piece) if a.attrib.get("Name") == field]
-        vals = _decode(path, dec, farr[0], f"{where} field {field!r}", np.float64)
-        if vals.size != npts * ncomp:
-            raise VtuError(f"{path}: {where}: field {field!r} has {vals.size} values for {npts} points x {ncomp}")
-        vals, field_name = _select_component(path, vals, field, ncomp, component)
+        vals = _decode(src, farr[0], f"{where} field {field!r}", npts * ncomp, f"{npts} points x {ncomp}")
+        vals, field_name = _select_component(path, vals.astype(np.float64, copy=False), field, ncomp, component)
 
         rw_name = pdel.attrib.get("RationalWeights") if pdel is not None else None
         weights = None
         if rw_name:
             w = [a for a in _point_arrays(piece) if a.attrib.get("Name") == rw_name]
             if w:
-                weights = _decode(path, dec, w[0], f"{where} rational weights", np.float64)
+                weights = _decode(src, w[0], f"{where} rational weights", npts, f"{npts} points")
 
         degs_all = None
         cdel = piece.find("CellData")
@@ -548,9 +719,7 @@ def _read(path, field, component):
             hod_name = cdel.attrib.get("HigherOrderDegrees", "HigherOrderDegrees")
             hod = [a for a in cdel if a.attrib.get("Name") == hod_name]
             if hod:
-                d = _decode(path, dec, hod[0], f"{where} HigherOrderDegrees", np.float64)
-                if d.size != 3 * ncells:
-                    raise VtuError(f"{path}: {where}: HigherOrderDegrees has {d.size} values for {ncells} cells x 3")
+                d = _decode(src, hod[0], f"{where} HigherOrderDegrees", 3 * ncells, f"{ncells} cells x 3")
                 if not np.all(np.isfinite(d)) or np.any(d != np.round(d)):
                     raise VtuError(f"{path}: {where}: HigherOrderDegrees are not all integers")
                 degs_all = d.reshape(ncells, 3).astype(np.int64)
@@ -589,8 +758,7 @@ def _read(path, field, component):
                 raise VtuError(f"{path}: cell {gc}: node coordinates are NaN or Inf")
             if not np.all(np.isfinite(v)):
                 raise VtuError(f"{path}: cell {gc}: field {field_name!r} is NaN or Inf at a node")
-            if family == "bezier" and weights is not None and weights.size == npts \
-                    and np.any(weights[nodes] != 1.0):
+            if family == "bezier" and weights is not None and np.any(weights[nodes] != 1.0):
                 raise VtuError(f"{path}: cell {gc}: rational Bézier cells (RationalWeights != 1) are not polynomial")
             cell_shape.append(shape)
             cell_family.append("lagrange" if family == "linear" else family)

@@ -1,10 +1,17 @@
 """The .vtu importer: VTK node orders and bases against vtk's own cells, files written by vtk's
 writer (Lagrange and Bézier tetrahedra, hexahedra, wedges, both hexahedron numberings, every
-encoding) reproducing analytic fields, the three real solver exports, and malformed input."""
+encoding) reproducing analytic fields, the four real solver exports, malformed input and hostile
+input (decompression bombs, lying block headers, huge counts, FIFOs and devices)."""
 from __future__ import annotations
 
 import json
+import lzma
 import math
+import os
+import re
+import threading
+import time
+import zlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -12,11 +19,15 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine import expansions as ex
+from hovr_blender.engine import limits
 from hovr_blender.io import vtu
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 
+from ..conftest import shared_file
+
 VTU_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtu"
-REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4"]
+REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4",
+        "ngsolve_post_heat_tetprism_p4"]
 SHAPE_OF_TYPE = {71: ex.TET, 72: ex.HEX, 73: ex.PRISM}
 LAGRANGE = {ex.HEX: 72, ex.TET: 71, ex.PRISM: 73}
 BEZIER = {ex.HEX: 79, ex.TET: 78, ex.PRISM: 80}
@@ -203,8 +214,6 @@ def write_vtk(vtk, path, cells, mode="appended", vtk8=False, hod=False):
 def set_version(path, version):
     raw = path.read_bytes()
     head, sep, rest = raw.partition(b"<UnstructuredGrid")
-    import re
-
     head = re.sub(rb'version="[0-9.]+"', f'version="{version}"'.encode(), head.replace(b'<?xml version="1.0"?>', b"<?xml?>"))
     path.write_bytes(head.replace(b"<?xml?>", b'<?xml version="1.0"?>') + sep + rest)
 
@@ -251,6 +260,50 @@ def test_vtk_written_lagrange_cells_reproduce_analytic_fields(tmp_path, mode):
     err = check_analytic(mesh, cells, rng)
     print(f"lagrange {mode}: max error {err:.2e}")
     assert err < 1e-10
+
+
+def encodings():
+    """(label, write_vtk_lagrange settings) of every encoding vtk writes: ascii; inline base64,
+    appended base64 and appended raw, each uncompressed, zlib and lzma, with UInt32 and UInt64
+    headers, in both byte orders."""
+    yield "ascii", dict(mode="ascii")
+    for mode in ("binary", "appended", "raw"):
+        for comp in (None, "zlib", "lzma"):
+            for header in (32, 64):
+                for big in (False, True):
+                    yield (f"{mode}-{comp}-uint{header}-{'big' if big else 'little'}",
+                           dict(mode=mode, compressor=comp, header=header, big_endian=big))
+
+
+def test_every_encoding_decodes_what_vtk_wrote(vm, tmp_path):
+    """Each array of each encoding decodes to exactly what vtk's reader reads from the same file
+    (so what vtk wrote), and every encoding gives the same mesh."""
+    vtk = need_vtk()
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    first = None
+    for label, kw in encodings():
+        path = vm.write_vtk_lagrange(tmp_path / f"{label}.vtu", hod=True, **kw)
+        reader = vtk.vtkXMLUnstructuredGridReader()
+        reader.SetFileName(str(path))
+        reader.Update()
+        ug = reader.GetOutput()
+        want = {"Points": vtk_to_numpy(ug.GetPoints().GetData()),
+                "connectivity": vtk_to_numpy(ug.GetCells().GetConnectivityArray()),
+                "offsets": vtk_to_numpy(ug.GetCells().GetOffsetsArray())[1:],  # vtk keeps a leading 0
+                "types": vtk_to_numpy(ug.GetCellTypes()),
+                "g": vtk_to_numpy(ug.GetPointData().GetArray("g")),
+                "gvec": vtk_to_numpy(ug.GetPointData().GetArray("gvec")),
+                "HigherOrderDegrees": vtk_to_numpy(ug.GetCellData().GetArray("HigherOrderDegrees"))}
+        root, src = vtu._load(path)
+        piece = vtu._grid(path, root)[0]
+        for el in piece.iter("DataArray"):
+            name = el.attrib.get("Name") or "Points"
+            got = vtu._decode(src, el, name, want[name].size, "vtk's count")
+            assert np.array_equal(got, want[name].ravel()), (label, name)
+        mesh = read_vtu(path, "g")
+        first = first or mesh
+        assert np.array_equal(mesh.coeffs, first.coeffs) and np.array_equal(mesh.geom_coeffs, first.geom_coeffs), label
 
 
 @pytest.mark.parametrize("version,old", [("2.2", False), ("2.1", False), ("2.0", True), ("1.0", True), ("0.1", True)])
@@ -341,7 +394,8 @@ def real(name):
 
 # one field per file, each file read once (reading is dominated by VolumeMesh.from_elements)
 REAL_FIELD = {"mfem_fichera_poisson_mixed_p4": ("u", None), "ngsolve_ball_poisson_hex_p6": ("u", None),
-              "pyfr_tgv_hexprism_p4_t4": ("Velocity", "magnitude")}
+              "pyfr_tgv_hexprism_p4_t4": ("Velocity", "magnitude"),
+              "ngsolve_post_heat_tetprism_p4": ("temperature", None)}
 
 
 @lru_cache(maxsize=None)
@@ -457,6 +511,51 @@ def test_pyfr_straight_cells_are_affine_and_components_checked():
         read_vtu(path, "Velocity", 3)
 
 
+def test_ngsolve_post_file_agrees_with_vtk_at_every_node():
+    """The NGSolve post file (raw appended, UInt32 headers, Int32 connectivity, Float32 points and
+    values; meshio's raw-appended parser misread it) loads, and at every node of every cell the
+    converted geometry and temperature are what vtk's own reader reads there."""
+    vtk = need_vtk()
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    path = shared_file("vtu", "ngsolve_post_heat_tetprism_p4.vtu")
+    mesh = read_vtu(path, "temperature")
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    ug = reader.GetOutput()
+    P = vtk_to_numpy(ug.GetPoints().GetData()).astype(np.float64)
+    T = vtk_to_numpy(ug.GetPointData().GetArray("temperature")).astype(np.float64)
+    conn = vtk_to_numpy(ug.GetCells().GetConnectivityArray())
+    offs = vtk_to_numpy(ug.GetCells().GetOffsetsArray())
+    types = vtk_to_numpy(ug.GetCellTypes())
+    assert mesh.num_elements == ug.GetNumberOfCells() == 3884
+    assert [int(s) for s in mesh.shape] == [SHAPE_OF_TYPE[int(t)] for t in types]
+    worst_x = worst_t = 0.0
+    for shape in (ex.TET, ex.PRISM):
+        members = np.flatnonzero(mesh.shape == shape)
+        n = int(offs[members[0] + 1] - offs[members[0]])
+        ids = np.stack([conn[offs[e]:offs[e + 1]] for e in members])  # (cells, nodes)
+        gm, fm = tuple(mesh.geom_modes[members[0]]), tuple(mesh.modes[members[0]])
+        kg, kf = ex.num_coeffs(shape, gm), ex.num_coeffs(shape, fm)
+        G = np.stack([mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] + kg] for e in members])
+        C = np.stack([mesh.coeffs[mesh.coeff_offset[e]:mesh.coeff_offset[e] + kf] for e in members])
+        params = vtu.vtk_node_params(shape, vtu._infer_degs(shape, n))
+        # each cell is read directly or mirrored (whichever is right-handed): take the variant whose
+        # geometry lands on the nodes, then its field must be the node values
+        err_x, err_t = [], []
+        for xi in node_xi(shape, params):
+            Bg = np.asarray(ex.eval_modal(shape, gm, np.eye(kg), xi))  # (nodes, kg)
+            Bf = np.asarray(ex.eval_modal(shape, fm, np.eye(kf), xi))
+            err_x.append(np.abs(np.einsum("pk,ekc->epc", Bg, G) - P[ids]).max(axis=(1, 2)))
+            err_t.append(np.abs(C @ Bf.T - T[ids]).max(axis=1))
+        pick = np.argmin(np.stack(err_x), axis=0)
+        worst_x = max(worst_x, float(np.choose(pick, err_x).max()))
+        worst_t = max(worst_t, float(np.choose(pick, err_t).max()))
+    print(f"NGSolve post file: nodes {worst_x:.2e} (geometry), {worst_t:.2e} (temperature)")
+    assert worst_x < 1e-12 and worst_t < 1e-12, (worst_x, worst_t)
+
+
 # ---------------------------------------------------------------------------------------------
 # Malformed input: every failure a VtuError naming the file (and the cell where there is one)
 
@@ -508,8 +607,6 @@ def test_malformed_inputs_raise_vtu_error(tmp_path):
     expect_error(variant("dtd.vtu", '<!DOCTYPE x [<!ENTITY a "b">]>' + text), "DOCTYPE")
     expect_error(variant("polydata.vtu", text.replace('type="UnstructuredGrid"', 'type="PolyData"')), "PolyData")
     expect_error(variant("garbage.vtu", text.replace("1.00000000000e+00", "1.0zz", 1)), "points")
-    import re
-
     conn = re.search(r'(Name="connectivity"[^>]*>)([^<]*)<', text)
     expect_error(variant("range.vtu", text.replace(conn.group(0), conn.group(1) + conn.group(2).replace("11", "99") + "<")),
                  "cell 1: point index out of range")
@@ -542,3 +639,156 @@ def test_malformed_inputs_raise_vtu_error(tmp_path):
     expect_error(meshio_file(tmp_path, "tangled.vtu", points=tangled), "cell 1: inverted or tangled")
     hexes = [("VTK_LAGRANGE_HEXAHEDRON", np.arange(12)[None, :12] % 12)]
     expect_error(meshio_file(tmp_path, "count.vtu", cells=hexes), "cell 0: VTK_LAGRANGE_HEXAHEDRON with 12 nodes")
+
+
+# ---------------------------------------------------------------------------------------------
+# Hostile input: every refusal a VtuError naming the file, made before the harm (the time and
+# memory a bomb or a lying header would take)
+
+HOSTILE = {"raw-zlib-uint32": dict(mode="raw", compressor="zlib", header=32),
+           "appended-zlib-uint64": dict(mode="appended", compressor="zlib", header=64),
+           "binary-zlib-uint32": dict(mode="binary", compressor="zlib", header=32),
+           "raw-lzma-uint64": dict(mode="raw", compressor="lzma", header=64),
+           "binary-lzma-uint64": dict(mode="binary", compressor="lzma", header=64)}
+
+
+@pytest.fixture(scope="module")
+def hostile_docs(vm, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("hostile_sources")
+    return {k: vm.Doc(vm.write_vtk_lagrange(tmp / f"{k}.vtu", **kw).read_bytes()) for k, kw in HOSTILE.items()}
+
+
+def zlib_zeros(mib):
+    """A valid zlib stream of mib MiB of zeros, made in milliseconds: after a full flush every
+    MiB compresses to the same bytes, so the middle is one piece repeated."""
+    z = bytes(1 << 20)
+    c = zlib.compressobj(9)
+    first = c.compress(z) + c.flush(zlib.Z_FULL_FLUSH)
+    middle = c.compress(z) + c.flush(zlib.Z_FULL_FLUSH)
+    end = c.flush()[:-4]  # the final block without its checksum; Adler-32 of n zeros is (n % 65521) << 16 | 1
+    return first + middle * (mib - 1) + end + ((((mib << 20) % 65521) << 16) | 1).to_bytes(4, "big")
+
+
+@pytest.fixture(scope="module")
+def bombs():
+    out = {"zlib": zlib_zeros(3 << 10), "lzma": lzma.compress(bytes(256 << 20), preset=0)}
+    assert 3e6 < len(out["zlib"]) < 3.3e6 and len(out["lzma"]) < 50_000
+    assert zlib.decompress(zlib_zeros(3)) == bytes(3 << 20)
+    return out
+
+
+def points_block(doc, header, payload):
+    """The file with piece 0's points replaced by a block of this header and payload, in the
+    file's own encoding."""
+    pts = doc.find(0, "Points")
+    blk = doc.block(pts)
+    blk.header, blk.payload = header, payload
+    return doc.build((), {pts.index: doc.encode_block(blk)})
+
+
+def refused(path, data, pattern, seconds=2.0):
+    """data, written to path, is refused by read_vtu within `seconds` with a VtuError that names
+    the file and matches pattern."""
+    path.write_bytes(data)
+    t0 = time.perf_counter()
+    with pytest.raises(VtuError) as info:
+        read_vtu(path, "g")
+    elapsed = time.perf_counter() - t0
+    msg = str(info.value)
+    assert type(info.value) is VtuError and msg.startswith(f"{path}: ") and ": unreadable (" not in msg, msg
+    assert re.search(pattern, msg), msg
+    assert elapsed < seconds, (elapsed, msg)
+    return info.value
+
+
+@pytest.mark.parametrize("enc", ["raw-zlib-uint32", "appended-zlib-uint64", "binary-zlib-uint32"])
+def test_block_flood_is_refused_before_inflating(hostile_docs, tmp_path, enc):
+    """800 blocks of 1 MiB of zeros (meshio inflated them in quadratic time, past 120 s): the
+    header declares 800 MiB where the piece's points take a few KiB."""
+    doc = hostile_docs[enc]
+    block = zlib.compress(bytes(1 << 20), 9)
+    data = points_block(doc, [800, 1 << 20, 0] + [len(block)] * 800, block * 800)
+    assert len(data) < 2 << 20
+    need = doc.piece_attr(0, "NumberOfPoints") * 24
+    refused(tmp_path / "flood.vtu", data, rf"piece 0 points: its data header declares {800 << 20} bytes, the "
+            rf"piece needs {need} \(\d+ points x 3: \d+ x Float64\)", seconds=0.5)
+
+
+def test_huge_point_count_is_refused_by_the_memory_limit(hostile_docs, tmp_path):
+    """10^9 points and a block header that agrees (24 GB in one block): the memory limit refuses
+    the array before its header is even read."""
+    doc = hostile_docs["raw-lzma-uint64"]
+    pts = doc.find(0, "Points")
+    blk = doc.block(pts)
+    blk.header = [1, 24 * 10**9, 24 * 10**9, len(blk.payload)]
+    data = doc.build([doc.attr_edit(doc.pieces[0], "NumberOfPoints", 10**9)], {pts.index: doc.encode_block(blk)})
+    with limits.using(limits.ResourceLimits(max_memory=4 << 30)):
+        err = refused(tmp_path / "huge.vtu", data, r"piece 0 points would need 22.4 GiB, more than the memory "
+                      r"limit of 4 GiB \(raise it with --max-memory or HOVR_MAX_MEMORY\)", seconds=0.5)
+    assert isinstance(err.__cause__, limits.ResourceLimitError)
+
+
+@pytest.mark.parametrize("enc", list(HOSTILE))
+def test_bomb_in_one_block_stops_at_the_declared_size(hostile_docs, bombs, tmp_path, enc):
+    """The header tells the piece's truth (one block of the points' size) but the block inflates
+    to 3 GiB (zlib, 3 MB) or 256 MiB (lzma, 39 KB): inflation stops one byte past the size."""
+    doc = hostile_docs[enc]
+    bomb = bombs[doc.compressor]
+    need = doc.piece_attr(0, "NumberOfPoints") * 24
+    refused(tmp_path / "bomb.vtu", points_block(doc, [1, need, need, len(bomb)], bomb),
+            rf"piece 0 points block 0: inflates to more than the {need} bytes it declares or needs")
+
+
+def test_damaged_compressed_data_is_diagnosed(hostile_docs, tmp_path):
+    p = tmp_path / "damaged.vtu"
+    doc = hostile_docs["raw-zlib-uint32"]
+    pts = doc.find(0, "Points")
+    head, payload = doc.block(pts).header, doc.block(pts).payload
+    assert head[0] == 1  # one block: [1, block size, its size, compressed size]
+    refused(p, points_block(doc, head[:3] + [head[3] // 2], payload[:head[3] // 2]),
+            r"piece 0 points block 0: zlib stream is truncated")
+    refused(p, points_block(doc, head[:3] + [10**9], payload), r"piece 0 points: its compressed blocks "
+            r"\(1000000000 bytes\) run past the end of the appended data \(\d+ bytes left\)")
+    # two blocks adding up to the points' size, the first inflating to less than its header says
+    raw = doc.values(pts).tobytes()
+    first, second = zlib.compress(raw[:4000]), zlib.compress(raw[4096:])
+    refused(p, points_block(doc, [2, 4096, len(raw) - 4096, len(first), len(second)], first + second),
+            r"piece 0 points block 0: inflates to 4000 bytes, its header says 4096")
+    refused(p, doc.build([doc.attr_edit(doc.vtkfile_tag, "compressor", "vtkLZ4DataCompressor")]),
+            r"compressor 'vtkLZ4DataCompressor' is not supported")
+    for offset in (-1, 10**15):
+        refused(p, doc.build([doc.attr_edit(pts.tag, "offset", offset)]),
+                rf"piece 0 points: offset {offset} is outside the appended data \(\d+ bytes\)")
+    refused(p, doc.raw[:doc.app_start + 100], r"truncated \(<AppendedData> has no closing tag\)")
+    inline = hostile_docs["binary-zlib-uint32"]
+    head, payload = inline.block(inline.find(0, "Points")).header, inline.block(inline.find(0, "Points")).payload
+    refused(p, points_block(inline, head[:3] + [head[3] + 3000], payload),
+            r"piece 0 points: its compressed blocks \(\d+ bytes\) run past the end of its inline data")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"),
+                    reason="needs POSIX FIFOs and /dev/zero")
+def test_fifo_device_and_folder_paths_are_refused_without_blocking(tmp_path):
+    fifo = tmp_path / "pipe.vtu"
+    os.mkfifo(fifo)
+    folder = tmp_path / "folder.vtu"
+    folder.mkdir()
+    paths = {fifo: "a FIFO (named pipe)", Path("/dev/zero"): "a device", folder: "a folder"}
+    got = {}
+
+    def attempt():  # in a thread: a reader that opened the FIFO for reading would block here
+        for path in paths:
+            for fn in (list_fields, read_vtu):
+                try:
+                    fn(path)
+                    got[path, fn.__name__] = "loaded"
+                except VtuError as exc:
+                    got[path, fn.__name__] = str(exc)
+
+    t = threading.Thread(target=attempt, daemon=True)
+    t.start()
+    t.join(10)
+    assert not t.is_alive(), "reading a FIFO or /dev/zero blocked"
+    for path, what in paths.items():
+        for fn in ("list_fields", "read_vtu"):
+            assert got[path, fn] == f"{path}: VTU file {path} is {what}, not a regular file; refused", got

@@ -5,26 +5,14 @@ VtuError that names the file and is not read_vtu's catch-all; the mutator itself
 are pinned with the diagnosis they must get."""
 from __future__ import annotations
 
-import importlib.util
 import re
-import sys
 
 import numpy as np
 import pytest
 
 from hovr_blender.io.vtu import VtuError, read_vtu
 
-from ..conftest import REPO, shared_file
-
-
-@pytest.fixture(scope="module")
-def vm():
-    pytest.importorskip("vtk", reason="the vtk package (writer of the mutated sources) is not installed")
-    spec = importlib.util.spec_from_file_location("vtu_mutation", REPO / "bench" / "vtu_mutation.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["vtu_mutation"] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+from ..conftest import shared_file
 
 
 @pytest.fixture(scope="module")
@@ -114,29 +102,32 @@ def test_cell_level_corruptions_get_their_diagnosis(vm, vtk_files, tmp_path):
 def test_raw_appended_damage_is_diagnosed(vm, vtk_files, tmp_path):
     """Found by the mutation test: meshio's raw-appended parser raised AssertionError,
     RuntimeError, LZMAError, UnicodeDecodeError or ParseError on truncated files, block sizes
-    that miss the next offset and broken compressed blocks; read_vtu only reported them through
-    its catch-all ('unreadable (AssertionError: )')."""
+    that miss the next offset and broken compressed blocks; the reader's own decoding names each."""
     p = tmp_path / "bad.vtu"
     for enc in ("raw-lzma-uint64", "raw-none"):
         doc = vm.Doc(vtk_files[enc].read_bytes())
         raw = doc.raw
-        expect(p, raw[: doc.app_start + 100], r"truncated")
+        expect(p, raw[: doc.app_start + 100], r"truncated \(<AppendedData> has no closing tag\)")
         pts = doc.find(0, "Points")
         blk = doc.block(pts)
         if doc.compressor is None:
             blk.header[0] += 8  # nbytes larger than the block: the next offset is missed
+            want = r"piece 0 points: its data header declares \d+ bytes, the piece needs \d+ \(\d+ points x 3"
         else:
             payload = bytearray(blk.payload)
             payload[len(payload) // 2] ^= 0x40
             blk.payload = bytes(payload)
-        expect(p, doc.build((), {pts.index: doc.encode_block(blk)}), r"raw <AppendedData> cannot be decoded")
-        expect(p, doc.build([doc.attr_edit(pts.tag, "offset", "-1")]), r"raw <AppendedData> cannot be decoded")
+            want = r"piece 0 points block 0: not a valid lzma stream"
+        expect(p, doc.build((), {pts.index: doc.encode_block(blk)}), want)
+        expect(p, doc.build([doc.attr_edit(pts.tag, "offset", "-1")]),
+               r"piece 0 points: offset -1 is outside the appended data \(\d+ bytes\)")
         expect(p, doc.build([doc.attr_edit(doc.app_tag, "encoding", "Float128")]),
                r"<AppendedData> encoding 'Float128'")
     doc = vm.Doc(vtk_files["raw-lzma-uint64"].read_bytes())
     s, e = doc.vtkfile_tag
     m = re.search(rb'\scompressor="[^"]*"', doc.raw[s:e])
-    expect(p, doc.build([(s + m.start(), s + m.end(), b"")]), r"raw <AppendedData> cannot be decoded")
+    # the compression header's block count read as an uncompressed size
+    expect(p, doc.build([(s + m.start(), s + m.end(), b"")]), r"piece 0 points: its data header declares 1 bytes")
 
 
 def test_overflowing_coordinates_are_named(vm, vtk_files, tmp_path):
