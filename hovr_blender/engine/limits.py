@@ -28,6 +28,11 @@ from dataclasses import dataclass, replace
 
 DEFAULT_MAX_MEMORY = 4 << 30  # bytes of arrays one load or one render may allocate
 DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h at most
+# Compressed data may inflate to this many times the file's size (real solver output compresses
+# by < 10x; a zlib bomb by ~1000x), and always to INFLATE_FLOOR: a small file whose declared
+# sizes agree with each other is still refused when they are far beyond what its bytes can hold.
+DEFAULT_MAX_INFLATE_RATIO = 100
+INFLATE_FLOOR = 64 << 20
 
 
 class ResourceLimitError(ValueError):
@@ -62,9 +67,10 @@ def format_size(n: int) -> str:
 class ResourceLimits:
     max_memory: int = DEFAULT_MAX_MEMORY
     max_samples_per_ray: int = DEFAULT_MAX_SAMPLES_PER_RAY
+    max_inflate_ratio: int = DEFAULT_MAX_INFLATE_RATIO
 
     def __post_init__(self):
-        if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0:
+        if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0 or int(self.max_inflate_ratio) <= 0:
             raise ValueError("resource limits must be positive")
 
     @classmethod
@@ -74,6 +80,8 @@ class ResourceLimits:
             out = replace(out, max_memory=parse_size(os.environ["HOVR_MAX_MEMORY"]))
         if os.environ.get("HOVR_MAX_SAMPLES_PER_RAY"):
             out = replace(out, max_samples_per_ray=int(float(os.environ["HOVR_MAX_SAMPLES_PER_RAY"])))
+        if os.environ.get("HOVR_MAX_INFLATE_RATIO"):
+            out = replace(out, max_inflate_ratio=int(float(os.environ["HOVR_MAX_INFLATE_RATIO"])))
         return out
 
 
@@ -164,6 +172,26 @@ def read_regular(path, what: str = "data file") -> bytes:
 
 
 # ------------------------------------------------------------------------------ inflating
+
+class InflationBudget:
+    """How much one file's compressed data may inflate to, in all: max(INFLATE_FLOOR, the
+    inflate-ratio limit x the file's size). Each compressed array spends its declared size
+    before it is inflated."""
+
+    def __init__(self, file_bytes: int, what: str):
+        self.what = what
+        self.file_bytes = int(file_bytes)
+        self.allowed = max(INFLATE_FLOOR, current().max_inflate_ratio * self.file_bytes)
+        self.spent = 0
+
+    def spend(self, nbytes: int, part: str):
+        self.spent += int(nbytes)
+        if self.spent > self.allowed:
+            raise ResourceLimitError(
+                f"{part}: the compressed data of {self.what} ({format_size(self.file_bytes)}) would inflate to "
+                f"{format_size(self.spent)} or more, over {current().max_inflate_ratio}x the file's size "
+                f"(real data compress far less; raise HOVR_MAX_INFLATE_RATIO if this file is genuine)")
+
 
 def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
     """(output, unused input) of one compressed stream, never producing more than max_bytes

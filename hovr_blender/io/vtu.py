@@ -283,6 +283,7 @@ class _Source:
     codec: str | None  # "zlib", "lzma" or None
     appended: memoryview | None  # after <AppendedData>'s '_', up to its closing tag
     appended_base64: bool
+    budget: limits.InflationBudget  # what all compressed arrays together may inflate to
 
 
 def _tag_attrs(path, tag: bytes, name):
@@ -346,7 +347,7 @@ def _load(path: Path):
         appended, base64_appended = memoryview(raw)[mark.end():end], enc == "base64"
     order = {"LittleEndian": "<", "BigEndian": ">", None: "="}[byte_order]  # none: this machine's, as in VTK
     return root, _Source(path, order, np.dtype(order + _NP_TYPES[header_type]), _CODECS.get(compressor),
-                         appended, base64_appended)
+                         appended, base64_appended, limits.InflationBudget(len(raw), f"VTU file {path.name}"))
 
 
 def _decode(src: _Source, arr, what, count, why):
@@ -441,6 +442,7 @@ def _check_blocks(src, head, need, what):
     _check_declared(src, 0 if nblocks == 0 else (nblocks - 1) * size + (last or size), need, what)
     if nblocks and (size == 0 or last > size):
         raise VtuError(f"{src.path}: {what}: compression header [{nblocks}, {size}, {last}, ...] is inconsistent")
+    src.budget.spend(need[0], what)
 
 
 def _block_ends(src, sizes, room, what, where):
