@@ -12,7 +12,7 @@ import numpy as np
 
 
 def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
 def as_object(v, what: str, exc=ValueError) -> dict:
@@ -44,12 +44,17 @@ def as_integer(v, what: str, exc=ValueError, lo: int | None = None, hi: int | No
 
 
 def as_numbers(v, what: str, exc=ValueError, columns: int | None = None) -> np.ndarray:
-    """A list of finite numbers (columns None: shape (n,)) or of rows of `columns` numbers."""
-    if not isinstance(v, list) or not v:
+    """A list of finite numbers (columns None: shape (n,)) or of rows of `columns` numbers
+    (tuples and numpy arrays too, for callers in Python)."""
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or not v:
         raise exc(f"{what} must be a non-empty list, got {type(v).__name__}")
     rows = v if columns is not None else [v]
     for r in rows:
-        if not isinstance(r, list) or (columns is not None and len(r) != columns):
+        if isinstance(r, np.ndarray):
+            r = r.tolist()
+        if not isinstance(r, (list, tuple)) or (columns is not None and len(r) != columns):
             raise exc(f"{what}: each entry must be a list of {columns} numbers, got {r!r}"[:200])
         for x in r:
             if not _is_number(x) or not math.isfinite(x):
