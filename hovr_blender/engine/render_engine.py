@@ -186,6 +186,17 @@ def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
     return RenderJob(width=w, height=h, camera=camera, inputs=inputs, region=(x0, y0, w, h))
 
 
+def failure_text(exc: BaseException) -> str:
+    """One line for the user: the message of an error the code raises on purpose (the readers'
+    and the resource policy's ValueErrors, a device failure), the type as well otherwise."""
+    if isinstance(exc, MemoryError):
+        return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
+               "what this machine has so that such a render is refused before it starts)"
+    if isinstance(exc, (ValueError, OSError)):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}"
+
+
 def tile_pixels(device: str) -> int:
     return TILE_PIXELS.get(device, TILE_PIXELS_GPU)
 
@@ -301,6 +312,9 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
             self._fail(api, str(exc))
             return
+        except Exception as exc:  # a bug must still end as a report, never as a traceback mid-render
+            self._fail(api, f"HOVR render failed: unexpected {type(exc).__name__}: {exc}")
+            return
         for w in job.warnings:
             api.report({'WARNING'}, w)
 
@@ -309,9 +323,8 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         t0 = time.perf_counter()
         try:
             renderer, n_elements = _renderer(job.inputs.source, job.inputs.object_matrix, device)
-        except (ValueError, RuntimeError, MemoryError, ImportError, OSError) as exc:
-            # ImportError: warp-lang missing from Blender's Python.
-            self._fail(api, f"HOVR render failed: {type(exc).__name__}: {exc}")
+        except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
+            self._fail(api, f"HOVR render failed: {failure_text(exc)}")
             return
         if api.test_break():
             return
@@ -326,8 +339,8 @@ class HovrRenderEngine(bpy.types.RenderEngine):
             result = renderer.render(job.camera, job.transfer_function, job.background, job.options,
                                      progress=progress, tile_pixels=tile_pixels(device))
             pixels = combined_pass(result.rgba, job.film_transparent)
-        except (ValueError, RuntimeError, MemoryError) as exc:
-            self._fail(api, f"HOVR render failed: {type(exc).__name__}: {exc}")
+        except Exception as exc:
+            self._fail(api, f"HOVR render failed: {failure_text(exc)}")
             return
         if result.cancelled or api.test_break():
             api.update_stats("", "HOVR | cancelled")
@@ -360,7 +373,7 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         try:
             inputs = scene_inputs(depsgraph, original=True)
             _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
-        except (ValueError, RuntimeError, MemoryError, ImportError, OSError):
+        except Exception:
             pass  # view_draw shows the message
         self.tag_redraw()
 
@@ -368,8 +381,8 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         try:
             frame = viewport_step(self._viewport, context, depsgraph)
             self._viewport_error = None
-        except (ValueError, RuntimeError, MemoryError, ImportError, OSError) as exc:
-            message = f"HOVR: {exc}"
+        except Exception as exc:
+            message = f"HOVR: {failure_text(exc)}"
             if message != self._viewport_error:
                 self._viewport_error = message
                 self.report({'WARNING'}, message)
