@@ -1,0 +1,458 @@
+"""The hostile inputs, one generator each: every class an attacker's probe found (issue 13), built
+fresh in a folder (no stored bombs), with the exit code and the words the error must carry.
+
+Each case's `build(folder)` writes its files and returns the `hovr` arguments; the harness runs
+them in a subprocess and judges exit code, message, wall time and peak memory.
+"""
+from __future__ import annotations
+
+import base64
+import functools
+import json
+import lzma
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .harness import Case, write_view
+
+# -------------------------------------------------------------------------------- base data
+
+# One affine hexahedron [-1, 1]^2 x [-4, -2] with 3 modes per direction (the layout of Nektar++'s
+# Hex_01_01_01 regression mesh); f = x^2 + y^2 + z^2 exactly.
+HEX_VERTICES = [(-1, -1, -4), (1, -1, -4), (1, 1, -4), (-1, 1, -4), (-1, -1, -2), (1, -1, -2), (1, 1, -2), (-1, 1, -2)]
+HEX_EDGES = [(0, 1), (1, 2), (2, 3), (0, 3), (0, 4), (1, 5), (2, 6), (3, 7), (4, 5), (5, 6), (7, 6), (4, 7)]
+HEX_FACES = [(0, 1, 2, 3), (0, 5, 8, 4), (1, 6, 9, 5), (2, 6, 10, 7), (3, 7, 11, 4), (8, 9, 10, 11)]
+
+
+def nektar_mesh(composite="H[0]", domain="C[0]", vertex_scale=1.0, extra_composites="") -> str:
+    verts = "".join(f'<V ID="{i}">{x * vertex_scale} {y * vertex_scale} {z * vertex_scale}</V>'
+                    for i, (x, y, z) in enumerate(HEX_VERTICES))
+    edges = "".join(f'<E ID="{i}">{a} {b}</E>' for i, (a, b) in enumerate(HEX_EDGES))
+    faces = "".join(f'<Q ID="{i}">{" ".join(map(str, f))}</Q>' for i, f in enumerate(HEX_FACES))
+    return (f'<?xml version="1.0"?>\n<NEKTAR><GEOMETRY DIM="3" SPACE="3"><VERTEX>{verts}</VERTEX>'
+            f'<EDGE>{edges}</EDGE><FACE>{faces}</FACE><ELEMENT><H ID="0">0 1 2 3 4 5</H></ELEMENT>'
+            f'<COMPOSITE><C ID="0">{composite}</C>{extra_composites}</COMPOSITE><DOMAIN>{domain}</DOMAIN>'
+            f'</GEOMETRY></NEKTAR>\n')
+
+
+def hex_coefficients() -> np.ndarray:
+    """Modified_A coefficients (3 modes per direction) of x^2 + y^2 + z^2 on the hexahedron."""
+    from hovr_blender.engine.basis import fit_tensor_coefficients
+
+    return fit_tensor_coefficients(lambda a, b, c: a * a + b * b + (c - 3.0) ** 2, (3, 3, 3))
+
+
+def b64z(raw: bytes) -> str:
+    z = zlib.compress(raw)
+    z += b"\0" * (-len(z) % 3)
+    return base64.b64encode(z).decode()
+
+
+def nektar_field(values=None, ids="0", body=None) -> str:
+    if body is None:
+        body = b64z(np.asarray(hex_coefficients() if values is None else values, "<f8").tobytes())
+    return (f'<?xml version="1.0"?>\n<NEKTAR><ELEMENTS FIELDS="p" SHAPE="Hexahedron" '
+            f'BASIS="Modified_A,Modified_A,Modified_A" NUMMODESPERDIR="UNIORDER:3,3,3" ID="{ids}">'
+            f'{body}</ELEMENTS></NEKTAR>\n')
+
+
+def base_view(data: dict, width=32, height=24) -> dict:
+    return {
+        "data": data,
+        "camera": {"projection": "perspective", "eye": [0.0, 0.0, 0.0], "target": [0.0, 0.0, -2.0],
+                   "up": [0.0, 1.0, 0.0], "fov_y_deg": 60.0},
+        "image": {"width": width, "height": height},
+        "transfer_function": {"color": [[4.0, 1, 1, 1], [6.2, 1, 0, 0]],
+                              "density": [[4.0, 0], [5.1, 10], [6.2, 0]]},
+        "background": [1.0, 1.0, 1.0],
+        "render": {"method": "split"},
+    }
+
+
+def render_args(folder: Path, view: dict, *extra) -> list[str]:
+    return ["render", str(write_view(folder, view)), "-o", str(folder / "out.npy"), *extra]
+
+
+def nektar_case(folder: Path, mesh=None, fld=None, view_extra=None, args=()):
+    (folder / "m.xml").write_text(nektar_mesh() if mesh is None else mesh)
+    data = {"path": "m.xml", "field": "p"}
+    if fld is not None:
+        if isinstance(fld, bytes):
+            (folder / "m.fld").write_bytes(fld)
+        elif isinstance(fld, str):
+            (folder / "m.fld").write_text(fld)
+        else:
+            fld(folder / "m.fld")
+        data["solution"] = "m.fld"
+    view = base_view(data)
+    view.update(view_extra or {})
+    return render_args(folder, view, *args)
+
+
+# -------------------------------------------------------------------------------- VTU bytes
+
+VTK_TYPES = {np.dtype("<f4"): "Float32", np.dtype("<f8"): "Float64", np.dtype("<i4"): "Int32",
+             np.dtype("<i8"): "Int64", np.dtype("u1"): "UInt8"}
+
+
+def vtu_hex(blocks_for=None, compressor="vtkZLibDataCompressor", npoints=8) -> bytes:
+    """A one-cell .vtu (a linear hexahedron, field f = z), appended raw, UInt32 headers, every
+    array compressed in one block; `blocks_for` {array name: raw appended bytes} replaces an
+    array's encoded data (the hostile part)."""
+    pts = np.array(HEX_VERTICES, "<f4")
+    arrays = [("Points", pts, 3, "Points"), ("connectivity", np.arange(8, dtype="<i4"), 1, "Cells"),
+              ("offsets", np.array([8], "<i4"), 1, "Cells"), ("types", np.array([12], "u1"), 1, "Cells"),
+              ("f", pts[:, 2].copy(), 1, "PointData")]
+    codec = lzma.compress if compressor == "vtkLZMADataCompressor" else zlib.compress
+    blob, tags = b"", {"Points": [], "Cells": [], "PointData": []}
+    for name, a, nc, group in arrays:
+        if blocks_for and name in blocks_for:
+            enc = blocks_for[name]
+        else:
+            raw = a.tobytes()
+            c = codec(raw)
+            enc = struct.pack("<4I", 1, len(raw), len(raw), len(c)) + c
+        tags[group].append(f'<DataArray type="{VTK_TYPES[a.dtype]}" Name="{name}" NumberOfComponents="{nc}" '
+                           f'format="appended" offset="{len(blob)}"/>')
+        blob += enc
+    head = (f'<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="2.1" byte_order="LittleEndian" '
+            f'header_type="UInt32" compressor="{compressor}"><UnstructuredGrid>'
+            f'<Piece NumberOfPoints="{npoints}" NumberOfCells="1"><Points>{"".join(tags["Points"])}</Points>'
+            f'<Cells>{"".join(tags["Cells"])}</Cells><PointData>{"".join(tags["PointData"])}</PointData>'
+            f'</Piece></UnstructuredGrid><AppendedData encoding="raw">_')
+    return head.encode() + blob + b"</AppendedData></VTKFile>\n"
+
+
+@functools.lru_cache(maxsize=None)
+def zlib_zeros(nbytes: int, level=6) -> bytes:
+    """zlib stream of nbytes zeros, made in 1 MiB pieces (never holds nbytes in memory; cached:
+    a GiB takes ~3 s)."""
+    c = zlib.compressobj(level)
+    piece = bytes(1 << 20)
+    out = []
+    for _ in range(nbytes >> 20):
+        out.append(c.compress(piece))
+    out.append(c.compress(bytes(nbytes & ((1 << 20) - 1))))
+    out.append(c.flush())
+    return b"".join(out)
+
+
+@functools.lru_cache(maxsize=None)
+def lzma_zeros(nbytes: int) -> bytes:
+    c = lzma.LZMACompressor(preset=0)
+    piece = bytes(1 << 20)
+    out = [c.compress(piece) for _ in range(nbytes >> 20)]
+    out.append(c.flush())
+    return b"".join(out)
+
+
+def vtu_case(folder: Path, data: bytes, view_data=None):
+    (folder / "m.vtu").write_bytes(data)
+    return render_args(folder, base_view(view_data or {"path": "m.vtu", "field": "f"}))
+
+
+def many_blocks_of_zeros(folder: Path):
+    """800 zlib blocks of 1 MiB zeros as the 96-byte Points array."""
+    block = zlib.compress(bytes(1 << 20), 9)
+    header = struct.pack(f"<{3 + 800}I", 800, 1 << 20, 1 << 20, *([len(block)] * 800))
+    return vtu_case(folder, vtu_hex({"Points": header + block * 800}))
+
+
+def one_block_bomb(folder: Path, codec="zlib"):
+    """The Points header declares 96 bytes; its one block inflates to 3 GiB (zlib) or 512 MiB (LZMA)."""
+    c = zlib_zeros(3 << 30) if codec == "zlib" else lzma_zeros(512 << 20)
+    header = struct.pack("<4I", 1, 96, 96, len(c))
+    comp = "vtkZLibDataCompressor" if codec == "zlib" else "vtkLZMADataCompressor"
+    return vtu_case(folder, vtu_hex({"Points": header + c}, compressor=comp))
+
+
+def consistent_huge_vtu(folder: Path):
+    """NumberOfPoints 10^8 and a Points header that agrees (1.2 GB of zeros in 1 MiB blocks): a
+    small file whose declared size is consistent but far beyond what its bytes can hold."""
+    n = 100_000_000
+    total = 12 * n
+    block = zlib.compress(bytes(1 << 20), 9)
+    nb = -(-total // (1 << 20))
+    last = total - (nb - 1) * (1 << 20)
+    lastblock = zlib.compress(bytes(last), 9)
+    header = struct.pack(f"<{3 + nb}I", nb, 1 << 20, last, *([len(block)] * (nb - 1) + [len(lastblock)]))
+    return vtu_case(folder, vtu_hex({"Points": header + block * (nb - 1) + lastblock}, npoints=n))
+
+
+# -------------------------------------------------------------------------------- HDF5 fields
+
+def hdf5_field(path: Path, data=None, data_kwargs=None, mutate=None):
+    """A Nektar++ HDF5 field file of the hexahedron: /NEKTAR/{DECOMPOSITION, ELEMENTIDS, DATA,
+    <hash> definition group}. `mutate(h5)` changes it after it is written."""
+    import h5py
+
+    coeffs = hex_coefficients()
+    with h5py.File(path, "w") as h5:
+        g = h5.create_group("NEKTAR")
+        g.attrs["FORMAT_VERSION"] = 1
+        sub = g.create_group("1000")
+        sub.attrs["FIELDS"] = np.array([b"p"])
+        sub.attrs["BASIS"] = np.array([4, 4, 4], dtype=np.int64)
+        sub.attrs["SHAPE"] = b"Hexahedron"
+        sub.attrs["NUMMODESPERDIR"] = b"UNIORDER:3,3,3"
+        g.create_dataset("DECOMPOSITION", data=np.array([1, coeffs.size, 0, 0, 0, 0, 1000], np.uint64))
+        g.create_dataset("ELEMENTIDS", data=np.array([0], np.uint64))
+        if data_kwargs is not None:
+            g.create_dataset("DATA", **data_kwargs)
+        else:
+            g.create_dataset("DATA", data=coeffs if data is None else data)
+        if mutate is not None:
+            mutate(h5, folder=path.parent)
+
+
+def _external_data(target):
+    def build(path):
+        hdf5_field(path, data_kwargs=dict(shape=(27,), dtype="<f8", external=[(str(target), 0, 27 * 8)]))
+    return build
+
+
+def _external_fifo(path):
+    fifo = path.parent / "pipe"
+    os.mkfifo(fifo)
+    hdf5_field(path, data_kwargs=dict(shape=(27,), dtype="<f8", external=[(str(fifo), 0, 27 * 8)]))
+
+
+def _private_file(path):
+    secret = path.parent / "secret.bin"
+    secret.write_bytes(np.arange(27, dtype="<f8").tobytes())
+    os.chmod(secret, 0o600)
+    _external_data(secret)(path)
+
+
+def _external_link(path):
+    import h5py
+
+    other = path.parent / "other.h5"
+    with h5py.File(other, "w") as h5:
+        h5.create_dataset("DATA", data=hex_coefficients())
+
+    def link(h5, folder):
+        del h5["NEKTAR/DATA"]
+        h5["NEKTAR/DATA"] = h5py.ExternalLink(str(other), "/DATA")
+    hdf5_field(path, mutate=link)
+
+
+def _soft_link(path):
+    import h5py
+
+    def link(h5, folder):
+        h5.create_dataset("ELSEWHERE", data=hex_coefficients())
+        del h5["NEKTAR/DATA"]
+        h5["NEKTAR/DATA"] = h5py.SoftLink("/ELSEWHERE")
+    hdf5_field(path, mutate=link)
+
+
+def _virtual(path):
+    import h5py
+
+    src = path.parent / "src.h5"
+    with h5py.File(src, "w") as h5:
+        h5.create_dataset("D", data=hex_coefficients())
+
+    def virt(h5, folder):
+        layout = h5py.VirtualLayout(shape=(27,), dtype="<f8")
+        layout[:] = h5py.VirtualSource(str(src), "D", shape=(27,))
+        del h5["NEKTAR/DATA"]
+        h5["NEKTAR"].create_virtual_dataset("DATA", layout)
+    hdf5_field(path, mutate=virt)
+
+
+def _fill_value(n):
+    def build(path):
+        def declare(h5, folder):
+            g = h5["NEKTAR"]
+            del g["DATA"], g["DECOMPOSITION"]
+            g.create_dataset("DATA", shape=(n,), dtype="<f8")  # never written: no storage
+            g.create_dataset("DECOMPOSITION", data=np.array([1, n, 0, 0, 0, 0, 1000], np.uint64))
+        hdf5_field(path, mutate=declare)
+    return build
+
+
+def _chunk_bomb(path):
+    """gzip-compressed DATA whose one chunk is a 64 MiB zlib stream of zeros (HDF5's own filter
+    would inflate all of it)."""
+    def bomb(h5, folder):
+        g = h5["NEKTAR"]
+        del g["DATA"]
+        ds = g.create_dataset("DATA", shape=(27,), chunks=(27,), dtype="<f8", compression="gzip")
+        ds.id.write_direct_chunk((0,), zlib_zeros(64 << 20))
+    hdf5_field(path, mutate=bomb)
+
+
+# -------------------------------------------------------------------------------- the cases
+
+def _view_mutation(mutate):
+    def build(folder):
+        v = base_view({"builtin": "sphere"})
+        mutate(v)
+        p = folder / "view.json"
+        p.write_text(json.dumps(v, allow_nan=True).replace("Infinity", "1e400"))
+        return ["render", str(p), "-o", str(folder / "out.npy")]
+    return build
+
+
+def _symlink(target, name):
+    def place(folder):
+        os.symlink(target, folder / name)
+    return place
+
+
+def _fifo(name):
+    def place(folder):
+        os.mkfifo(folder / name)
+    return place
+
+
+def _special_mesh(place, name, data):
+    def build(folder):
+        place(folder)
+        return render_args(folder, base_view(data))
+    return build
+
+
+def _special_solution(place):
+    def build(folder):
+        (folder / "m.xml").write_text(nektar_mesh())
+        place(folder)
+        return render_args(folder, base_view({"path": "m.xml", "solution": "m.fld", "field": "p"}))
+    return build
+
+
+def _special_view(place):
+    def build(folder):
+        place(folder)
+        return ["render", str(folder / "view.json"), "-o", str(folder / "out.npy")]
+    return build
+
+
+def _output(out, *extra):
+    def build(folder):
+        (folder / "m.xml").write_text(nektar_mesh())
+        (folder / "m.fld").write_text(nektar_field())
+        args = render_args(folder, base_view({"path": "m.xml", "solution": "m.fld", "field": "p"}))
+        args[args.index("-o") + 1] = out.format(d=folder)
+        return args + [a.format(d=folder) for a in extra]
+    return build
+
+
+def _fifo_output(folder):
+    os.mkfifo(folder / "out.npy")
+    return _output("{d}/out.npy")(folder)
+
+
+def _step(method, h):
+    def build(folder):
+        return nektar_case(folder, fld=nektar_field(), args=("--method", method, "--h", str(h)))
+    return build
+
+
+def _domain_repeat(folder):
+    return nektar_case(folder, mesh=nektar_mesh(domain=",".join(["C[0-1048575]"] * 2000)), fld=nektar_field())
+
+
+def _composite_repeat(folder):
+    return nektar_case(folder, mesh=nektar_mesh(composite=" ".join(["H[0]"] * 2000),
+                                                domain="C[" + ",".join(["0"] * 2000) + "]"), fld=nektar_field())
+
+
+def _field_id_range(folder):
+    """ID="0-9999999" with a zlib stream that holds exactly 10^7 x 27 values (zeros)."""
+    body = zlib_zeros(10_000_000 * 27 * 8)
+    body += b"\0" * (-len(body) % 3)
+    return nektar_case(folder, fld=nektar_field(ids="0-9999999", body=base64.b64encode(body).decode()))
+
+
+def _hdf5(builder):
+    def build(folder):
+        return nektar_case(folder, fld=builder)
+    return build
+
+
+def _huge_image(folder):
+    v = base_view({"builtin": "sphere"}, 32768, 32768)
+    return render_args(folder, v)
+
+
+CASES = [
+    # view files: values the contract does not mean
+    Case("camera is a list", "view values", _view_mutation(lambda v: v.update(camera=[1, 2, 3])), expect=("camera",)),
+    Case("data is a number", "view values", _view_mutation(lambda v: v.update(data=5)), expect=("data",)),
+    Case("path is a number", "view values", _view_mutation(lambda v: v.update(data={"path": 5})), expect=("data.path",)),
+    Case("builtin is a list", "view values", _view_mutation(lambda v: v.update(data={"builtin": [1]})),
+         expect=("data.builtin",)),
+    Case("width 1e400", "view values", _view_mutation(lambda v: v["image"].update(width=float("inf"))), expect=("width",)),
+    Case("width true", "view values", _view_mutation(lambda v: v["image"].update(width=True)), expect=("width",)),
+    Case("width 1.9", "view values", _view_mutation(lambda v: v["image"].update(width=1.9)), expect=("width",)),
+    Case('width "32"', "view values", _view_mutation(lambda v: v["image"].update(width="32")), expect=("width",)),
+    Case("background NaN", "view values", _view_mutation(lambda v: v.update(background=[0, float("nan"), 0])),
+         expect=("background",)),
+    Case("32768 x 32768 image", "view values", _huge_image, expect=("memory limit",)),
+    # small steps
+    Case("classified h = 1e-12", "small step", _step("classified", 1e-12), expect=("h = 1e-12", "samples per ray")),
+    Case("riemann h = 1e-6", "small step", _step("riemann", 1e-6), expect=("h = 1e-06", "samples per ray")),
+    Case("trapezoid h = 1e-9", "small step", _step("trapezoid", 1e-9), expect=("h = 1e-09", "samples per ray")),
+    Case("riemann h = 0.05 renders", "small step", _step("riemann", 0.05), expect_rc=0),
+    # amplification: small files declaring huge work
+    Case("DOMAIN C[0-1048575] x 2000", "amplification", _domain_repeat, expect=("m.xml",)),
+    Case("composite H[0] x 2000, DOMAIN C[0,0,...]", "amplification", _composite_repeat, expect_rc=0),
+    Case('field ID="0-9999999", matching zlib stream', "amplification", _field_id_range, expect=("m.fld",)),
+    Case("HDF5 DATA of 10^8 unwritten values", "amplification", _hdf5(_fill_value(100_000_000)), expect=("m.fld",)),
+    Case("HDF5 DATA of 2.68e8 unwritten values", "amplification", _hdf5(_fill_value(268_000_000)), expect=("m.fld",)),
+    Case("HDF5 gzip chunk inflating to 64 MiB", "amplification", _hdf5(_chunk_bomb), expect=("m.fld", "inflates")),
+    # HDF5 references to other files
+    Case("HDF5 external storage -> /etc/passwd", "HDF5 references", _hdf5(_external_data("/etc/passwd")),
+         expect=("m.fld", "external")),
+    Case("HDF5 external storage -> a FIFO", "HDF5 references", _hdf5(_external_fifo), expect=("m.fld", "external")),
+    Case("HDF5 external storage -> a private file", "HDF5 references", _hdf5(_private_file),
+         expect=("m.fld", "external")),
+    Case("HDF5 ExternalLink", "HDF5 references", _hdf5(_external_link), expect=("m.fld", "link")),
+    Case("HDF5 SoftLink", "HDF5 references", _hdf5(_soft_link), expect=("m.fld", "link")),
+    Case("HDF5 virtual dataset", "HDF5 references", _hdf5(_virtual), expect=("m.fld", "virtual")),
+    # HDF5 values
+    Case("HDF5 complex DATA", "HDF5 values", _hdf5(lambda p: hdf5_field(p, data=hex_coefficients() * (1 + 1j))),
+         expect=("m.fld", "complex")),
+    Case("HDF5 integer DATA", "HDF5 values", _hdf5(lambda p: hdf5_field(p, data=np.arange(27))), expect=("m.fld",)),
+    Case("HDF5 string DATA", "HDF5 values", _hdf5(lambda p: hdf5_field(p, data=np.array([b"x"] * 27))),
+         expect=("m.fld",)),
+    # numbers a mesh cannot hold
+    Case("vertex at 1e200", "mesh values", lambda f: nektar_case(f, mesh=nektar_mesh(vertex_scale=1e200), fld=nektar_field()),
+         expect=("m.xml", "too large")),
+    # VTU compressed blocks
+    Case("VTU 800 blocks of 1 MiB zeros", "VTU compressed blocks", many_blocks_of_zeros, expect=("m.vtu",)),
+    Case("VTU 3 GiB zlib bomb in one block", "VTU compressed blocks", one_block_bomb, expect=("m.vtu",)),
+    Case("VTU 512 MiB LZMA bomb in one block", "VTU compressed blocks", lambda f: one_block_bomb(f, "lzma"),
+         expect=("m.vtu",)),
+    Case("VTU 10^8 points, consistent header", "VTU compressed blocks", consistent_huge_vtu, expect=("m.vtu",)),
+    # special files
+    Case("mesh is /dev/zero", "special files", _special_mesh(_symlink("/dev/zero", "m.xml"), "m.xml",
+                                                             {"path": "m.xml"}), expect=("device",)),
+    Case("mesh is a FIFO", "special files", _special_mesh(_fifo("m.xml"), "m.xml", {"path": "m.xml"}),
+         expect=("FIFO",)),
+    Case("VTU is /dev/zero", "special files", _special_mesh(_symlink("/dev/zero", "m.vtu"), "m.vtu",
+                                                            {"path": "m.vtu"}), expect=("device",)),
+    Case("VTU is a FIFO", "special files", _special_mesh(_fifo("m.vtu"), "m.vtu", {"path": "m.vtu"}),
+         expect=("FIFO",)),
+    Case("solution is /dev/zero", "special files", _special_solution(_symlink("/dev/zero", "m.fld")),
+         expect=("device",)),
+    Case("solution is a FIFO", "special files", _special_solution(_fifo("m.fld")), expect=("FIFO",)),
+    Case("view file is /dev/zero", "special files", _special_view(_symlink("/dev/zero", "view.json")),
+         expect=("device",)),
+    Case("view file is a FIFO", "special files", _special_view(_fifo("view.json")), expect=("FIFO",)),
+    # output paths
+    Case("-o an existing folder", "output paths", _output("{d}"), expect=(".npy",)),
+    Case("-o /dev/full", "output paths", _output("/dev/full"), expect=(".npy",)),
+    Case("-o without .npy", "output paths", _output("{d}/name"), expect=(".npy",)),
+    Case("-o a FIFO", "output paths", _fifo_output, expect=("not a regular file",)),
+    Case("--png in a missing folder", "output paths", _output("{d}/out.npy", "--png", "{d}/no/x.png"),
+         expect=("does not exist",)),
+    Case("-o .npy in an existing folder renders", "output paths", _output("{d}/out.npy"), expect_rc=0),
+]
