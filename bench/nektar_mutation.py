@@ -182,6 +182,16 @@ def _alarm(signum, frame):
     raise _Timeout()
 
 
+def _chain(exc):
+    """exc and everything it was raised from or during (a MemoryError wrapped in a NektarError
+    is still no diagnosis)."""
+    out = []
+    while exc is not None and len(out) < 16:
+        out.append(exc)
+        exc = exc.__cause__ or exc.__context__
+    return out
+
+
 def run_cases(n_cases=600, seed=4, memory=False, case_seconds=CASE_SECONDS):
     """Run n_cases mutations; returns the summary dict (failures listed with their messages)."""
     from hovr_blender.io.nektar import NektarError, read_nektar
@@ -220,7 +230,9 @@ def run_cases(n_cases=600, seed=4, memory=False, case_seconds=CASE_SECONDS):
                 except NektarError as exc:
                     msg = str(exc)
                     outcome = "nektar_error"
-                    if "unexpected " in msg:
+                    if any(isinstance(e, MemoryError) for e in _chain(exc)):
+                        summary["unexpected"].append(f"{name} {kind}: out of memory: {msg[:300]}")
+                    elif "unexpected " in msg:
                         summary["unexpected"].append(f"{name} {kind}: {msg[:300]}")
                     if "m.xml" not in msg and "m.fld" not in msg:
                         summary["unnamed"].append(f"{name} {kind}: {msg[:300]}")

@@ -755,9 +755,13 @@ try:
     ok = bool(np.isfinite(m.coeffs).all() and np.isfinite(m.geom_coeffs).all())
     out = {"outcome": "loaded" if ok else "loaded_nonfinite", "elements": m.num_elements}
 except VtuError as exc:
-    cause = exc.__cause__
+    cause, chain = exc.__cause__, []
+    e = exc
+    while e is not None and len(chain) < 16:
+        chain.append(type(e).__name__)
+        e = e.__cause__ or e.__context__
     out = {"outcome": "vtu_error", "type": type(exc).__name__, "message": str(exc),
-           "cause": None if cause is None else type(cause).__name__}
+           "cause": None if cause is None else type(cause).__name__, "chain": chain}
 except BaseException as exc:
     out = {"outcome": "other_exception", "type": type(exc).__name__, "message": str(exc)[:500]}
 sys.stdout.write("\n@@RESULT@@" + json.dumps(out) + "\n")
@@ -796,7 +800,7 @@ def read_in_process(path, fld, comp):
     except VtuError as exc:
         cause = exc.__cause__
         return {"outcome": "vtu_error", "type": type(exc).__name__, "message": str(exc),
-                "cause": None if cause is None else type(cause).__name__}
+                "cause": None if cause is None else type(cause).__name__, "chain": exception_chain(exc)}
     except Exception as exc:
         return {"outcome": "other_exception", "type": type(exc).__name__, "message": str(exc)[:500]}
 
@@ -811,9 +815,21 @@ def classify(res, path):
     msg = res["message"]
     if str(path) not in msg:
         return "unnamed"
+    # running out of memory under the worker's cap is no diagnosis, whatever the wrapping says
+    if any("MemoryError" in t for t in res.get("chain", [])):
+        return "unexpected"
     if ": unreadable (" in msg or "MemoryError" in msg or "RecursionError" in msg:
         return "unexpected"
     return "vtu_error"
+
+
+def exception_chain(exc) -> list[str]:
+    """Type names of exc and everything it was raised from or during."""
+    chain = []
+    while exc is not None and len(chain) < 16:
+        chain.append(type(exc).__name__)
+        exc = exc.__cause__ or exc.__context__
+    return chain
 
 
 GOOD = ("loaded", "vtu_error")
