@@ -1,5 +1,5 @@
 """Evaluation error of the device expansions (float32 Warp, kernels/element.py) against the
-float64 numpy oracle (engine/expansions.py), every shape x order 1..14.
+float64 numpy oracle (core/expansions.py), every shape x order 1..14.
 
 For each (family, shape, order) a few random fields are drawn, evaluated by a small Warp
 kernel that calls element.eval_element (the renderer's own evaluator) at random reference
@@ -42,9 +42,9 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import warp as wp  # noqa: E402
 
-from hovr_blender.engine import expansions as ex  # noqa: E402
-from hovr_blender.engine.basis import gll_points  # noqa: E402
-from hovr_blender.engine.kernels import element as el_k  # noqa: E402
+from hovr_blender.core import expansions as ex  # noqa: E402
+from hovr_blender.core.basis import gll_points  # noqa: E402
+from hovr_blender.core.kernels import element as el_k  # noqa: E402
 
 SHAPES = [ex.HEX, ex.PRISM, ex.TET, ex.PYR]
 FAMILIES = {"modified": SHAPES, "gll_lagrange": [ex.HEX], "vtk_lagrange": [ex.HEX, ex.PRISM, ex.TET]}

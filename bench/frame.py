@@ -30,7 +30,7 @@ sys.path.insert(0, HERE)
 import resample_baseline as rb  # noqa: E402  (its pixel_exact_reference is every benchmark's reference)
 import suite  # noqa: E402  (datasets, framing and transfer functions are the suite's own)
 
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from hovr_blender.core.view import RenderOptions  # noqa: E402
 
 SETTINGS = {
     "split-1e-5": dict(method="split", tolerance=1e-5),

@@ -23,7 +23,7 @@ sys.path.insert(0, HERE)
 import resample_baseline as rb  # noqa: E402
 import suite  # noqa: E402
 
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from hovr_blender.core.view import RenderOptions  # noqa: E402
 
 
 def main(argv=None):

@@ -41,9 +41,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 if os.path.join(HERE, "..") not in sys.path:
     sys.path.insert(0, os.path.join(HERE, ".."))
 
-from hovr_blender.engine import expansions as ex  # noqa: E402
-from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
-from hovr_blender.engine.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
+from hovr_blender.core import expansions as ex  # noqa: E402
+from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.core.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
 
 BYTES_PER_POINT = 4  # float32 value; NaN marks empty points
 
@@ -375,8 +375,8 @@ def pixel_exact_reference(mesh, camera, tf, background, device="cpu", renderer=N
     """The Renderer in float64 (curved interpolants to a tail of 1e-12, Gauss-Kronrod to 1e-9,
     no early termination): independent of the float32 kernels' rounding and of their tail
     tolerance, so an error measured against it includes both."""
-    from hovr_blender.engine.renderer import Renderer
-    from hovr_blender.engine.view import RenderOptions
+    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.view import RenderOptions
 
     r = renderer or Renderer(mesh, device)
     res = r.render(camera, tf, background, RenderOptions(device=device, **REFERENCE_OPTIONS))
@@ -423,9 +423,9 @@ def compare(mesh, camera, tf, background, h_values, reference, device="cpu", ste
 
 
 def main(argv=None):
-    from hovr_blender.engine.camera import RayCamera
-    from hovr_blender.engine.reference import reference_render
-    from hovr_blender.engine.transfer_function import TransferFunction
+    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.core.reference import reference_render
+    from hovr_blender.core.transfer_function import TransferFunction
     from hovr_blender.io.builtin import sphere
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -10,7 +10,7 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
 
 1. methods: time against max error of riemann / trapezoid / classified (a sweep of h) and
    split (a sweep of tolerance) on three datasets: the paper's sphere (reference: the float64
-   integrator, engine/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
+   integrator, core/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
    and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
    order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
@@ -47,11 +47,11 @@ ROOT = os.path.join(HERE, "..")
 sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
-from hovr_blender.engine import expansions as ex  # noqa: E402
-from hovr_blender.engine.basis import MODIFIED_A  # noqa: E402
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.core import expansions as ex  # noqa: E402
+from hovr_blender.core.basis import MODIFIED_A  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
+from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
 BACKGROUND = [0.02, 0.02, 0.03]
@@ -99,7 +99,7 @@ def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 
     """cells^3 axis-aligned affine hexahedra, func interpolated at the tensor GLL points with
     `modes` per direction: io/synthetic.brick's mesh, built vectorised (a million elements in
     seconds, where brick's per-element loop takes many minutes)."""
-    from hovr_blender.engine.basis import basis_values, gll_points
+    from hovr_blender.core.basis import basis_values, gll_points
 
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     h = (upper - lower) / cells
@@ -235,8 +235,8 @@ def row_of(res, **extra):
 def compiled_renderer(mesh, device):
     """(Renderer, seconds of its first render): the first render compiles the kernel (or loads
     it from Warp's cache), so timed renders after it measure the kernel alone."""
-    from hovr_blender.engine.renderer import Renderer
-    from hovr_blender.engine.view import RenderOptions
+    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.view import RenderOptions
 
     r = Renderer(mesh, device)
     t0 = time.perf_counter()
@@ -301,7 +301,7 @@ class Suite:
         return compiled_renderer(mesh, self.args.device)
 
     def opts(self, **kw):
-        from hovr_blender.engine.view import RenderOptions
+        from hovr_blender.core.view import RenderOptions
 
         return RenderOptions(device=self.args.device, **kw)
 
@@ -309,8 +309,8 @@ class Suite:
 
     def methods(self):
         import resample_baseline as rb
-        from hovr_blender.engine.reference import reference_render
-        from hovr_blender.engine.image_io import write_png
+        from hovr_blender.core.reference import reference_render
+        from hovr_blender.core.image_io import write_png
 
         sec = self.out["sections"].setdefault("methods", {})
         cfg = self.cfg
@@ -333,7 +333,7 @@ class Suite:
                 case["renderer_float64_seconds"] = ref_stats["render_seconds"]
                 if name == "sphere":
                     exact, info = reference_render(mesh, cam, tf, BACKGROUND)
-                    case["reference"] = "float64 integrator (engine/reference.py)"
+                    case["reference"] = "float64 integrator (core/reference.py)"
                     case["reference_error_estimate"] = info.get("error_estimate")
                     case["renderer_float64_vs_integrator"] = rgb_error(ref, exact)
                     ref = exact
@@ -374,7 +374,7 @@ class Suite:
 
     def resample(self):
         import resample_baseline as rb
-        from hovr_blender.engine.reference import reference_render
+        from hovr_blender.core.reference import reference_render
 
         sec = self.out["sections"].setdefault("resample", {})
         cfg = self.cfg

@@ -1,6 +1,6 @@
 """HOVR: volume rendering of high-order finite-element fields (Blender add-on and core).
 
-Importing this package, or ``hovr_blender.engine``/``hovr_blender.io``, never imports bpy:
+Importing this package, or ``hovr_blender.core``/``hovr_blender.io``, never imports bpy:
 the numerical core runs on machines without Blender. The Blender side is imported only
 inside register()/unregister(). Installed as an extension the package is
 ``bl_ext.<repo>.hovr_blender``, so everything below uses relative imports.
@@ -20,8 +20,8 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .ui import properties, operators, import_operators, panels
-    from .engine import render_engine
+    from .blender import properties, operators, import_operators, panels
+    from .blender import engine as render_engine
 
     return (properties, render_engine, operators, import_operators, panels)
 

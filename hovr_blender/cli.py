@@ -17,7 +17,7 @@ import tempfile
 import time
 import traceback
 
-from .engine.view import METHODS
+from .core.view import METHODS
 
 EXIT_ERROR = 2
 
@@ -91,9 +91,9 @@ def _write_all(outputs):
 
 
 def _run(args) -> str:
-    from .engine import limits
-    from .engine.image_io import write_json, write_npy, write_png
-    from .engine.view import View
+    from .core import limits
+    from .core.image_io import write_json, write_npy, write_png
+    from .core.view import View
 
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
@@ -109,7 +109,7 @@ def _run(args) -> str:
         mesh = view.load_mesh()
         load_s = time.perf_counter() - t0
         if args.command == "render":
-            from .engine.renderer import render_view
+            from .core.renderer import render_view
 
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
@@ -119,7 +119,7 @@ def _run(args) -> str:
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats
         else:
-            from .engine.reference import reference_render
+            from .core.reference import reference_render
 
             t0 = time.perf_counter()
             rgba, info = reference_render(mesh, view.camera, view.transfer_function, view.background)

@@ -40,7 +40,7 @@ def main(argv=None):
 
     wp.config.quiet = True
     wp.init()
-    from hovr_blender.engine.kernels import precision as kp
+    from hovr_blender.core.kernels import precision as kp
 
     k = kp.kernels(args.precision)
     kernels = []

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.basis import fit_tensor_coefficients
-from ..engine.mesh import HEX_REF_VERTICES, VolumeMesh
+from ..core.basis import fit_tensor_coefficients
+from ..core.mesh import HEX_REF_VERTICES, VolumeMesh
 
 # The paper's sphere (Nelson, Kirby, Haimes 2014, §6): one hexahedron, f = x^2 + y^2 + z^2.
 SPHERE_LOWER = np.array([-1.0, -1.0, -2.0])

@@ -1,7 +1,7 @@
 """Derived scalar fields: the magnitude |u| = sqrt(u0^2 + u1^2 + ...) of a vector given as
 component fields (Nektar++ velocity u, v, w or momentum rhou, rhov, rhow; a VTU vector array).
 
-The renderer handles per-element polynomial fields (modal expansions, engine/expansions.py),
+The renderer handles per-element polynomial fields (modal expansions, core/expansions.py),
 and |u| is not a polynomial (it has a kink wherever u = 0). Each element's magnitude is
 therefore represented by a least-squares fit at an elevated order: Q = min(2P + 1, 15) modes
 per direction, P the largest component mode count of the element, to the exact pointwise
@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import expansions as ex
-from ..engine.basis import MAX_MODES
-from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
+from ..core import expansions as ex
+from ..core.basis import MAX_MODES
+from ..core.mesh import MeshError, VolumeMesh, element_field_ranges
 
 SAMPLES_PER_ELEMENT = 64
 MAX_SAMPLE_POINTS = 400_000

@@ -3,7 +3,7 @@ shapes) and field files (.fld/.chk/.rst in XML or HDF5, multi-part .fld/ directo
 
 Everything follows ../shared/spec/formats.md §2 (cited as §2.x). The result is a VolumeMesh
 whose field and geometry are both modal expansions of Nektar++'s MODIFIED family in Nektar++'s
-storage order (engine/expansions.py):
+storage order (core/expansions.py):
 - field: Modified bases are copied as stored (local coefficients, §2.6); GLL_Lagrange hexes are
   converted to the same polynomial in Modified_A; any other basis is refused by name;
 - geometry (§2.12): vertex modes = vertex coordinates; each curved edge's modes are fitted to
@@ -11,7 +11,7 @@ storage order (engine/expansions.py):
   vertices); each face with F points adds its bubble (the interior-mode part of the face
   interpolant); interior modes stay zero. For hexes this is the Gordon-Hall blend of §2.12.
 
-Untrusted input (engine/limits.py is the policy): only regular files are opened; the mesh is
+Untrusted input (core/limits.py is the policy): only regular files are opened; the mesh is
 read first and every size a field file declares is checked against it before anything is
 inflated or allocated; zlib output is bounded; HDF5 objects are followed through hard links
 only and their data must lie in the file itself. Every failure is a NektarError naming the file
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import limits
-from ..engine.basis import MAX_MODES, gll_points
-from ..engine.mesh import MeshError, VolumeMesh
+from ..core import limits
+from ..core.basis import MAX_MODES, gll_points
+from ..core.mesh import MeshError, VolumeMesh
 
 
 class NektarError(ValueError):
@@ -685,7 +685,7 @@ class _Space:
     """Mode classification and fit matrices of one (shape, P) geometry space."""
 
     def __init__(self, shape, P):
-        from ..engine import expansions as ex
+        from ..core import expansions as ex
 
         self.ex, self.shape, self.P = ex, shape, P
         self.modes = np.array([P, P, P])
@@ -875,7 +875,7 @@ def _straight_coeffs(shape, X):
 
 def _check_jacobians(path, shape, P, ids, coeffs):
     """NektarError for the first inverted or degenerate element (det dx/dxi <= 0 somewhere sampled)."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     if not len(ids):
         return
@@ -912,7 +912,7 @@ class _Block:
 
 
 def _ncoeffs(shape, modes):
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     uniq, inv = np.unique(np.asarray(modes).reshape(-1, 3), axis=0, return_inverse=True)
     per = np.array([ex.num_coeffs(shape, m) for m in uniq.tolist()], dtype=np.int64)
@@ -1234,7 +1234,7 @@ def list_fields(solution_path) -> list[str]:
 
 def _field_coeffs(path, blocks, field):
     """{element ID: (shape, modes, Modified coefficients)} of one field."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     out = {}
     for b in blocks:
@@ -1263,7 +1263,7 @@ def _field_coeffs(path, blocks, field):
 @lru_cache(maxsize=None)
 def _gll_to_modal(modes):
     """The (K, K) matrix taking GLL_Lagrange nodal values of a hex to Modified_A coefficients."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     K = int(np.prod(modes))
     return np.asarray(ex.gll_lagrange_hex_to_modal(modes, np.eye(K)), dtype=np.float64).reshape(K, K)
@@ -1355,7 +1355,7 @@ def _read(mesh_path, sol, field):
     for (shape, P), ks in curved.items():
         _check_jacobians(mesh_path, shape, P, [mesh.elements[k][0] for k in ks], np.stack([gco[k] for k in ks]))
     if sol is None:
-        from ..engine import expansions as ex
+        from ..core import expansions as ex
 
         modes = np.full((n, 3), 2, dtype=np.int32)
         fco = [np.zeros(ex.num_coeffs(int(s), (2, 2, 2))) for s in shapes]

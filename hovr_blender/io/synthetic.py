@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.basis import fit_tensor_coefficients
-from ..engine.mesh import VolumeMesh
+from ..core.basis import fit_tensor_coefficients
+from ..core.mesh import VolumeMesh
 from .builtin import box_vertices
 
 
@@ -32,7 +32,7 @@ def brick(lower, upper, cells, modes, func, field_name="f") -> VolumeMesh:
 def straight_geometry(shape: int, vertices) -> np.ndarray:
     """2-mode geometry coefficients (K, 3) of the straight element through `vertices`
     (the shape's vertex order, spec §2.8): with two modes every mode is a vertex mode."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     vertices = np.asarray(vertices, dtype=np.float64)
     k = ex.num_coeffs(shape, (2, 2, 2))
@@ -53,7 +53,7 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
     """A cube of n^3 cells, each cell cut into one shape in turn: a hexahedron, two prisms,
     six tetrahedra (Kuhn) or six pyramids (apex at the cell centre). Straight elements of all
     four shapes sharing faces across shapes; the field `func` is fitted with `modes`."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     lower = np.asarray(lower, float)
     h = size / n
@@ -107,7 +107,7 @@ def with_field(mesh: VolumeMesh, func, modes: int, field_name="f") -> VolumeMesh
     """The same geometry carrying func(x, y, z) fitted with `modes` per direction in every
     element (exact for polynomials the element's space holds); for meshes that come without
     a field, such as scaleHO."""
-    from ..engine import expansions as ex
+    from ..core import expansions as ex
 
     n = mesh.num_elements
     coeffs = [None] * n

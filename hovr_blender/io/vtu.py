@@ -40,10 +40,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import expansions as ex
-from ..engine import limits
-from ..engine.basis import MAX_MODES
-from ..engine.mesh import MeshError, VolumeMesh
+from ..core import expansions as ex
+from ..core import limits
+from ..core.basis import MAX_MODES
+from ..core.mesh import MeshError, VolumeMesh
 
 HEX, PRISM, TET = ex.HEX, ex.PRISM, ex.TET
 

@@ -7,7 +7,7 @@ pytestmark = pytest.mark.blender
 
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
-from hovr_blender.ui import operators, panels  # noqa: E402
+from hovr_blender.blender import operators, panels  # noqa: E402
 
 
 def _operator_registered(name):
@@ -69,7 +69,7 @@ def test_properties_defaults_and_enum_indices(scene):
     for name in ("h", "tolerance", "min_transmittance", "density_scale", "value_min", "value_max"):
         assert props[name].type == 'FLOAT'
     # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI.
-    from hovr_blender.engine.view import RenderOptions
+    from hovr_blender.core.view import RenderOptions
 
     core = RenderOptions()
     assert (settings.method, settings.device) == (core.method, core.device)

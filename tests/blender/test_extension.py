@@ -30,7 +30,7 @@ def build_zip(out_dir: Path) -> Path:
 def test_zip_layout(tmp_path):
     names = zipfile.ZipFile(build_zip(tmp_path)).namelist()
     assert "blender_manifest.toml" in names and "__init__.py" in names  # side by side at the root
-    assert "engine/render_engine.py" in names and "ui/panels.py" in names and "io/builtin.py" in names
+    assert "blender/engine.py" in names and "blender/panels.py" in names and "io/builtin.py" in names
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
 
 

@@ -8,11 +8,11 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.engine import render_engine  # noqa: E402
-from hovr_blender.engine.blender_camera import ray_camera_from_blender  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from hovr_blender.blender import engine as render_engine  # noqa: E402
+from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.core.renderer import Renderer  # noqa: E402
+from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 
 import test_render as tr  # noqa: E402

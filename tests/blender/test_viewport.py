@@ -12,8 +12,8 @@ pytestmark = pytest.mark.blender
 from bpy_extras import view3d_utils  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
-from hovr_blender.engine import render_engine  # noqa: E402
-from hovr_blender.engine.viewport import ProgressiveViewport  # noqa: E402
+from hovr_blender.blender import engine as render_engine  # noqa: E402
+from hovr_blender.blender.viewport import ProgressiveViewport  # noqa: E402
 
 import test_render as tr  # noqa: E402
 from blender_helpers import look_at, render_to_exr  # noqa: E402

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.reference import reference_render
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions, View
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.reference import reference_render
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions, View
 from hovr_blender.io.builtin import sphere
 
 from ..conftest import REPO, shared_file

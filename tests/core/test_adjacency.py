@@ -1,15 +1,15 @@
-"""Face adjacency (engine/adjacency.py) and the kernels' face numbering agree, and the traversal
+"""Face adjacency (core/adjacency.py) and the kernels' face numbering agree, and the traversal
 walks through shared faces instead of searching the BVH."""
 import numpy as np
 import warp as wp
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.adjacency import FACE_PLANES, face_neighbours, face_vertices, vertex_affine_guess
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.kernels import element as el_k
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.adjacency import FACE_PLANES, face_neighbours, face_vertices, vertex_affine_guess
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.kernels import element as el_k
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.synthetic import brick, mixed_cube
 
 

@@ -5,10 +5,10 @@ import sys
 import numpy as np
 import pytest
 
-from hovr_blender.engine.blender_scene import (
+from hovr_blender.blender.scene import (
     SourceError, combined_pass, load_volume_source, render_background, transfer_function_from_ramp,
 )
-from hovr_blender.engine.transfer_function import TransferFunctionError
+from hovr_blender.core.transfer_function import TransferFunctionError
 from hovr_blender.io import builtin
 
 POS = [0.0, 0.25, 1.0]
@@ -68,8 +68,8 @@ def test_volume_sources():
 
 def test_core_and_addon_package_import_without_bpy():
     code = (
-        "import sys, hovr_blender, hovr_blender.engine.blender_camera, hovr_blender.engine.blender_scene, "
-        "hovr_blender.engine.renderer, hovr_blender.io.builtin, hovr_blender.ui; "
+        "import sys, hovr_blender, hovr_blender.blender.camera, hovr_blender.blender.scene, "
+        "hovr_blender.core.renderer, hovr_blender.io.builtin, hovr_blender.blender; "
         "assert 'bpy' not in sys.modules, 'bpy imported'; "
         "assert callable(hovr_blender.register) and hovr_blender.bl_info['name'] == 'HOVR'"
     )
@@ -78,10 +78,10 @@ def test_core_and_addon_package_import_without_bpy():
 
 # --- numbered series, passes, presets, histogram ------------------------------------------
 
-from hovr_blender.engine.blender_scene import (  # noqa: E402
+from hovr_blender.blender.scene import (  # noqa: E402
     TF_PRESETS, depth_pass, field_samples, flip_rows, frame_path, value_histogram, volume_source,
 )
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
 
 
 @pytest.mark.parametrize("path,frame,want", [
@@ -110,7 +110,7 @@ def test_volume_source_key_follows_the_frames_file(tmp_path):
 
 
 def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():
-    from hovr_blender.engine.blender_camera import clipped
+    from hovr_blender.blender.camera import clipped
 
     cam = clipped(RayCamera.from_contract({"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0],
                                            "fov_y_deg": 60}, 4, 3, ), 0.1, 20.0)

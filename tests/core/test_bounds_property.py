@@ -1,6 +1,6 @@
 """Property tests of the bounds the renderer relies on, every shape, orders 1..14.
 
-(a) element_field_ranges(mesh) (engine/mesh.py) must enclose the field everywhere in the
+(a) element_field_ranges(mesh) (core/mesh.py) must enclose the field everywhere in the
     element: checked against the float64 numpy oracle at random points inside it.
 (b) the per-segment bound of the classified/split methods on affine elements (Chebyshev
     restriction of f w^2 along the segment, |g - c0| <= sum |c_k|, then the pyramid's w^2
@@ -24,11 +24,11 @@ import warp as wp
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.kernels import args
-from hovr_blender.engine.kernels import restriction as rs
-from hovr_blender.engine.mesh import VolumeMesh, element_field_ranges
-from hovr_blender.engine.renderer import Renderer
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.kernels import args
+from hovr_blender.core.kernels import restriction as rs
+from hovr_blender.core.mesh import VolumeMesh, element_field_ranges
+from hovr_blender.core.renderer import Renderer
 from hovr_blender.io.synthetic import straight_geometry
 
 SHAPES = [ex.HEX, ex.PRISM, ex.TET, ex.PYR]

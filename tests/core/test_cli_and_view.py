@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from hovr_blender import cli
-from hovr_blender.engine.camera import CameraError, RayCamera
-from hovr_blender.engine.transfer_function import TransferFunction, TransferFunctionError
-from hovr_blender.engine.view import View, ViewError
+from hovr_blender.core.camera import CameraError, RayCamera
+from hovr_blender.core.transfer_function import TransferFunction, TransferFunctionError
+from hovr_blender.core.view import View, ViewError
 
 VIEW = {
     "data": {"builtin": "sphere"},
@@ -168,7 +168,7 @@ def test_fifo_output_is_refused(tmp_path, capsys):
 
 def test_outputs_written_together_or_not_at_all(tmp_path, capsys, monkeypatch):
     """A failing PNG leaves neither the .npy nor a temporary file behind."""
-    from hovr_blender.engine import image_io
+    from hovr_blender.core import image_io
 
     def broken(fh, rgba, alpha=True):
         raise OSError("disk full")
@@ -217,7 +217,7 @@ def test_memory_limit_refuses_a_huge_image_before_allocating(tmp_path, capsys):
 
 
 def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, capsys, monkeypatch):
-    from hovr_blender.engine import view as view_mod
+    from hovr_blender.core import view as view_mod
 
     def bug(self):
         raise KeyError("boom")

@@ -2,15 +2,15 @@
 import numpy as np
 import pytest
 
-ex = pytest.importorskip("hovr_blender.engine.expansions")
+ex = pytest.importorskip("hovr_blender.core.expansions")
 if not hasattr(ex, "invert_map"):
-    pytest.skip("engine/expansions.py not implemented yet", allow_module_level=True)
+    pytest.skip("core/expansions.py not implemented yet", allow_module_level=True)
 
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.mesh import VolumeMesh  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
+from hovr_blender.core.mesh import VolumeMesh  # noqa: E402
+from hovr_blender.core.renderer import Renderer  # noqa: E402
+from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.synthetic import straight_geometry  # noqa: E402
 
 CAM = {"eye": [2.6, 1.9, 2.2], "target": [0.5, 0.5, 0.5], "up": [0, 0, 1], "fov_y_deg": 40}

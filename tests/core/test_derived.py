@@ -7,8 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.mesh import element_field_ranges
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.mesh import element_field_ranges
 from hovr_blender.io import derived, nektar, synthetic
 from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude, read_nektar_field, read_vtu_field
 from tests.conftest import shared_file
@@ -222,7 +222,7 @@ def test_main_prints_the_error_line(capsys):
 def test_view_files_accept_the_magnitude_syntax(tmp_path):
     """The CLI's data.field takes "|u,v,w|" too (Nektar++), and a VTU vector's magnitude is the
     same derived fit as in Blender (only the low-level read_vtu keeps VTK's nodal magnitude)."""
-    from hovr_blender.engine.view import load_data
+    from hovr_blender.core.view import load_data
 
     vec = _vector_vtu(tmp_path)
     np.testing.assert_array_equal(load_data({"path": str(vec), "field": "vel"}).coeffs,

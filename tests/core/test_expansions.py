@@ -1,4 +1,4 @@
-"""engine/expansions.py: Nektar++'s MODIFIED expansions of all four shapes (numpy oracle).
+"""core/expansions.py: Nektar++'s MODIFIED expansions of all four shapes (numpy oracle).
 
 Properties of the bases, exact reproduction of the spaces, fitting, gradients, the inverse map,
 and real Nektar++ data (spec/formats.md §2.15) that only the corrected tet/prism bases reproduce.
@@ -13,8 +13,8 @@ from xml.etree import ElementTree
 import numpy as np
 import pytest
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.basis import gll_points
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.basis import gll_points
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nektar"
 SHAPES = [ex.HEX, ex.PRISM, ex.TET, ex.PYR]
@@ -362,7 +362,7 @@ def test_affine_fit():
 
 
 def test_mesh_from_elements_uses_the_contract():
-    from hovr_blender.engine.mesh import VolumeMesh
+    from hovr_blender.core.mesh import VolumeMesh
 
     rng = np.random.default_rng(95)
     shapes, coeffs, geoms = [], [], []

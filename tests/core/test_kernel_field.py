@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 import warp as wp
 
-from hovr_blender.engine.basis import eval_tensor
-from hovr_blender.engine.kernels import args, restriction
-from hovr_blender.engine.renderer import Renderer
+from hovr_blender.core.basis import eval_tensor
+from hovr_blender.core.kernels import args, restriction
+from hovr_blender.core.renderer import Renderer
 from hovr_blender.io.builtin import box_vertices
-from hovr_blender.engine.mesh import VolumeMesh
+from hovr_blender.core.mesh import VolumeMesh
 
 
 @wp.kernel

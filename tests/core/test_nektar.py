@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hovr_blender.engine import expansions as ex
+from hovr_blender.core import expansions as ex
 from hovr_blender.io import nektar as nk
 from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
 

@@ -3,8 +3,8 @@ elements, and a field that is its analytic source up to the stated interpolation
 import numpy as np
 import pytest
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.mesh import MeshError
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.mesh import MeshError
 from hovr_blender.io import paper_scale as ps
 from hovr_blender.io.synthetic import mixed_cube
 

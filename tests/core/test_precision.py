@@ -6,12 +6,12 @@ import sys
 import numpy as np
 import pytest
 
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.kernels import precision
-from hovr_blender.engine.reference import reference_render
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions, View, ViewError
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.kernels import precision
+from hovr_blender.core.reference import reference_render
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions, View, ViewError
 from hovr_blender.io.synthetic import mixed_cube
 
 from .test_curved_kernel import jittered_trilinear_brick
@@ -28,7 +28,7 @@ def test_generated_source_has_no_float32_arithmetic():
     float32 left is the BVH query's ray and its max_dist (Warp's BVH is float32)."""
     from pathlib import Path
 
-    import hovr_blender.engine.kernels as kdir
+    import hovr_blender.core.kernels as kdir
 
     for name in precision._MODULES:
         src = precision.float64_source(Path(kdir.__file__).parent / f"{name}.py")
@@ -106,7 +106,7 @@ def test_float64_watertight_curved_brick(device):
 def test_float32_overflow_is_named_and_float64_renders(device):
     """A field beyond float32's range: float32 renders stop with a clear error naming the
     element (not inf pixels); the float64 kernels render the same data."""
-    from hovr_blender.engine.renderer import RenderError
+    from hovr_blender.core.renderer import RenderError
 
     mesh = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0e300)
     tf = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from hovr_blender.engine.basis import fit_tensor_coefficients
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.mesh import HEX_REF_VERTICES, VolumeMesh
-from hovr_blender.engine.reference import cheb_eval, cheb_integral, reference_render
-from hovr_blender.engine.transfer_function import TransferFunction
+from hovr_blender.core.basis import fit_tensor_coefficients
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.mesh import HEX_REF_VERTICES, VolumeMesh
+from hovr_blender.core.reference import cheb_eval, cheb_integral, reference_render
+from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, box_vertices, sphere
 
 FAST = settings(max_examples=25, deadline=None)

@@ -10,9 +10,9 @@ import pytest
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
 
 import resample_baseline as rb  # noqa: E402
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.reference import reference_render  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
+from hovr_blender.core.reference import reference_render  # noqa: E402
+from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.io import paper_scale as ps  # noqa: E402
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field  # noqa: E402
 

@@ -5,9 +5,9 @@ import numpy as np
 import numpy.polynomial.chebyshev as C
 import warp as wp
 
-from hovr_blender.engine.kernels import quadrature, restriction
-from hovr_blender.engine.kernels.args import MAX_SAMPLES, QuadArgs, TransferArgs
-from hovr_blender.engine.kernels.quadrature_tables import gauss_kronrod_15, integration_matrix
+from hovr_blender.core.kernels import quadrature, restriction
+from hovr_blender.core.kernels.args import MAX_SAMPLES, QuadArgs, TransferArgs
+from hovr_blender.core.kernels.quadrature_tables import gauss_kronrod_15, integration_matrix
 
 
 @wp.kernel

@@ -3,17 +3,17 @@ import numpy as np
 import pytest
 import warp as wp
 
-ex = pytest.importorskip("hovr_blender.engine.expansions")
+ex = pytest.importorskip("hovr_blender.core.expansions")
 if not hasattr(ex, "eval_modal"):
-    pytest.skip("engine/expansions.py not implemented yet", allow_module_level=True)
+    pytest.skip("core/expansions.py not implemented yet", allow_module_level=True)
 
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.kernels import args, restriction  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
+from hovr_blender.core.kernels import args, restriction  # noqa: E402
+from hovr_blender.core.renderer import Renderer  # noqa: E402
+from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.synthetic import brick, mixed_cube, straight_geometry  # noqa: E402
-from hovr_blender.engine.mesh import VolumeMesh  # noqa: E402
+from hovr_blender.core.mesh import VolumeMesh  # noqa: E402
 
 
 @wp.kernel
@@ -138,7 +138,7 @@ _STATIC_KERNELS = {}
 
 def _static_eval_kernel(N):
     """A kernel evaluating through element.static_evaluator(N), as the sample kernel does."""
-    from hovr_blender.engine.kernels import element
+    from hovr_blender.core.kernels import element
 
     if N not in _STATIC_KERNELS:
         evaluate = element.static_evaluator(N)
@@ -182,7 +182,7 @@ def test_static_evaluator_matches_numpy(device, N):
 
 
 def test_static_modes_picks_one_order_or_none():
-    from hovr_blender.engine.kernels.element import static_modes
+    from hovr_blender.core.kernels.element import static_modes
 
     H, P, T = ex.HEX, ex.PRISM, ex.TET
     assert static_modes([H, P, T], [(7, 7, 7), (7, 7, 7), (3, 3, 3)]) == 7  # tets go generic anyway

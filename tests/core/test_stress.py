@@ -3,7 +3,7 @@ fields, grazing rays along faces and edges and through vertices (collapsed ones 
 the float32 evaluation of every shape against the float64 oracle (bench/eval_table.py).
 
 Every image is small (at most 24 x 16 pixels; the one non-affine case 7 x 7) and is checked for
-finite pixels and against an independent answer: the float64 reference (engine/reference.py,
+finite pixels and against an independent answer: the float64 reference (core/reference.py,
 hexahedra) or, for constant density, T = exp(-tau L) with the chord L computed here from the
 element vertices (half-spaces from vertex triplets, no engine code).
 """
@@ -14,13 +14,13 @@ import pytest
 from numpy.polynomial import chebyshev
 
 from bench import eval_table
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.mesh import VolumeMesh
-from hovr_blender.engine.reference import reference_render
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.mesh import VolumeMesh
+from hovr_blender.core.reference import reference_render
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.synthetic import brick, mixed_cube, straight_geometry, with_field
 
 EPS32 = float(np.finfo(np.float32).eps)

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field
 from hovr_blender.io.synthetic import brick
 

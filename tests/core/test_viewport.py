@@ -1,4 +1,4 @@
-"""The progressive viewport scheduler (engine/viewport.py) without Blender: its frames,
+"""The progressive viewport scheduler (core/viewport.py) without Blender: its frames,
 resolutions, time per call, restarts, and that it ends at the F12 image of the same view."""
 import time
 from types import SimpleNamespace
@@ -6,11 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions
-from hovr_blender.engine.viewport import (
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions
+from hovr_blender.blender.viewport import (
     MAX_PREVIEW_SCALE, ProgressiveViewport, ViewportRequest, preview_camera, preview_options,
 )
 from hovr_blender.io import builtin

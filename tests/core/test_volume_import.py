@@ -1,12 +1,12 @@
 """bpy-free parts of File > Import: the domain outline, the mesh cache keyed by file stamps,
-the component setting (engine/blender_scene.py)."""
+the component setting (blender/scene.py)."""
 import os
 import shutil
 
 import numpy as np
 import pytest
 
-from hovr_blender.engine import blender_scene as bs
+from hovr_blender.blender import scene as bs
 from hovr_blender.io import synthetic
 from tests.conftest import shared_file
 

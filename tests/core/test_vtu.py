@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine import limits
+from hovr_blender.core import expansions as ex
+from hovr_blender.core import limits
 from hovr_blender.io import vtu
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hovr_blender.engine import expansions as ex
-from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.renderer import Renderer
-from hovr_blender.engine.transfer_function import TransferFunction
-from hovr_blender.engine.view import RenderOptions
+from hovr_blender.core import expansions as ex
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.nektar import read_nektar
 from hovr_blender.io.synthetic import with_field
 

@@ -86,7 +86,7 @@ class VolumeMesh:
     coeffs: np.ndarray  # (M,) float64
     field_name: str = "f"
     source: str = ""
-    # geometry map x(xi) as a modal expansion of the element's shape (engine/expansions.py);
+    # geometry map x(xi) as a modal expansion of the element's shape (core/expansions.py);
     # None for meshes built by from_affine_hexes before the general path existed
     geom_modes: np.ndarray | None = None  # (N, 3) int32
     geom_offset: np.ndarray | None = None  # (N,) int64
@@ -111,7 +111,7 @@ class VolumeMesh:
     def from_elements(cls, shapes, modes, coeffs_per_element, geom_modes, geom_coeffs_per_element,
                       field_name="f", source="") -> "VolumeMesh":
         """General constructor: any shape, field and geometry as modal expansions
-        (engine/expansions.py). Elements whose geometry is affine get the exact
+        (core/expansions.py). Elements whose geometry is affine get the exact
         world->reference map (the traversal's fast path); MeshError names a bad element."""
         from . import expansions as ex
 

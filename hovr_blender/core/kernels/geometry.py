@@ -1,7 +1,7 @@
 """Curved (non-affine) elements on the device: the map x(xi), its inversion, and where a ray
 enters and leaves an element.
 
-The map comes as a tensor Legendre polynomial of (x - centre) w^2 (engine/tensor_geometry.py),
+The map comes as a tensor Legendre polynomial of (x - centre) w^2 (core/tensor_geometry.py),
 so x and its exact Jacobian cost one pass over the coefficients with no collapse to avoid.
 Inversion is Newton with the exact Jacobian, started from the element's vertex-affine map
 (or a neighbour's solution), steps held inside an enlarged reference box. Inside/outside is

@@ -236,7 +236,7 @@ class Renderer:
         return self._bytes_per_ray[scalar]
 
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None):
-        """Refuse a render the resource policy does not allow (engine/limits.py), before
+        """Refuse a render the resource policy does not allow (core/limits.py), before
         anything is allocated: the image's buffers against the memory limit, and for the
         fixed-step methods the samples a ray may take across the data (its box diagonal / h)."""
         lim = limits.current()

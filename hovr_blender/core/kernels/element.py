@@ -1,6 +1,6 @@
 """Element expansions on the device: Nektar++'s MODIFIED family for all four shapes.
 
-Independent of the numpy oracle (engine/expansions.py); tests compare the two. Conventions:
+Independent of the numpy oracle (core/expansions.py); tests compare the two. Conventions:
 spec/formats.md §2.8-2.10 (collapsed coordinates, mode storage order, and the collapsed-
 vertex corrections without which tets are off by 0.17 and prisms jump across faces).
 """
@@ -360,7 +360,7 @@ def face_plane(shape: int, f: int) -> wp.vec4:
     """Face f of the reference element as (n, c), inside where n . xi <= c. Faces 0..2 are
     xi_k = -1; then hexahedra xi_0, xi_1, xi_2 = 1; prisms xi_1 = 1, xi_0 + xi_2 = 0;
     tetrahedra xi_0 + xi_1 + xi_2 = -1; pyramids xi_0 + xi_2 = 0, xi_1 + xi_2 = 0. The host's
-    face adjacency (engine/adjacency.py) numbers faces the same way."""
+    face adjacency (core/adjacency.py) numbers faces the same way."""
     n = wp.vec3(0.0, 0.0, 0.0)
     c = float(1.0)
     if f < 3:

@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .camera import CameraError, RayCamera
+from ..core.camera import CameraError, RayCamera
 
 
 def _as_matrix(m, what):

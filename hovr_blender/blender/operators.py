@@ -3,7 +3,7 @@ fit the value range to the data (which also gives the panel its histogram)."""
 import bpy
 import numpy as np
 
-from ..engine.blender_scene import (
+from .scene import (
     TF_PRESETS, cached_volume, field_samples, load_volume_source, value_histogram, volume_source,
 )
 

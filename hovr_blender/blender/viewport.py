@@ -24,10 +24,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .blender_camera import sub_camera
-from .camera import RayCamera
-from .transfer_function import TransferFunction
-from .view import RenderOptions
+from .camera import sub_camera
+from ..core.camera import RayCamera
+from ..core.transfer_function import TransferFunction
+from ..core.view import RenderOptions
 
 # Seconds per pixel assumed before anything was measured (a CPU on a small scene).
 _DEFAULT_COST = 2e-5

@@ -1,6 +1,6 @@
 """The ray kernels: render contract §3-4, one thread per pixel of a tile, in rounds.
 
-A render of a tile (engine/renderer.py) runs init_rays once, then rounds of
+A render of a tile (core/renderer.py) runs init_rays once, then rounds of
 1. search: rays that are not inside a known element find, in the BVH over element boxes,
    the element they enter next (search_entry);
 2. traverse: each ray walks front to back through the mesh and writes up to

@@ -14,7 +14,7 @@ from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from ..engine.blender_scene import cached_volume, field_samples, outline_edges, parse_component, volume_source
+from .scene import cached_volume, field_samples, outline_edges, parse_component, volume_source
 from . import operators
 
 SOLUTION_EXTS = (".fld", ".chk", ".rst")

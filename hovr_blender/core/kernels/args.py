@@ -55,7 +55,7 @@ class MeshArgs:
     # -1 on the boundary or where no element shares the face exactly
     neighbour: wp.array(dtype=wp.int32)
     # curved / non-affine elements: (x - centre) w^2 as tensor Legendre coefficients of
-    # degree geo_degree per direction (engine/tensor_geometry.py), and boxes
+    # degree geo_degree per direction (core/tensor_geometry.py), and boxes
     affine: wp.array(dtype=wp.int32)
     geo_degree: wp.array(dtype=wp.int32)
     geo_offset: wp.array(dtype=wp.int32)

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from .blender_camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
-from .blender_scene import (
+from .camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
+from .scene import (
     VolumeSource, cached_volume, combined_pass, depth_pass, flip_rows, render_background,
     transfer_function_from_ramp, volume_source,
 )
@@ -98,7 +98,7 @@ def _renderer(source: VolumeSource, matrix: tuple, device: str):
     key = (source.key, matrix, device)
     entry = _RENDERERS.pop(key, None)
     if entry is None:
-        from .renderer import Renderer
+        from ..core.renderer import Renderer
 
         mesh = cached_volume(source).transformed(np.array(matrix).reshape(4, 4))
         entry = (Renderer(mesh, device=device), mesh.num_elements)
@@ -109,7 +109,7 @@ def _renderer(source: VolumeSource, matrix: tuple, device: str):
 
 
 def clear_cache():
-    from .blender_scene import clear_mesh_cache
+    from .scene import clear_mesh_cache
 
     _RENDERERS.clear()
     clear_mesh_cache()
@@ -126,7 +126,7 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
     it reads those from the original datablocks (`original=True`); object matrices always
     come from the evaluated objects."""
-    from .view import RenderOptions
+    from ..core.view import RenderOptions
 
     scene = depsgraph.scene if original else depsgraph.scene_eval
     render = scene.render

@@ -1,1 +1,0 @@
-"""Blender-side user interface: properties, operators, panels. Imported only by register()."""
