@@ -24,6 +24,7 @@ from hovr_blender.core.image_io import to_png_bytes_rgba, write_png  # noqa: E40
 from hovr_blender.core.reference import reference_render  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
 from hovr_blender.core.view import View  # noqa: E402
+from hovr_blender.io import load_view_data  # noqa: E402
 
 VIEW = os.path.join(HERE, "..", "examples", "elvis_sphere.json")
 DATA = os.path.join(HERE, "..", "..", "shared", "data", "nektar")
@@ -39,7 +40,7 @@ def main(argv=None):
     os.makedirs(args.out, exist_ok=True)
     view = View.load(VIEW)
     view.camera = type(view.camera)(**{**view.camera.__dict__, "width": args.size, "height": args.size})
-    mesh = view.load_mesh()
+    mesh = load_view_data(view)
     r = Renderer(mesh, args.device)
     summary = {"device": r.device, "size": args.size, "date": time.strftime("%Y-%m-%d"), "runs": {}}
     images = {}

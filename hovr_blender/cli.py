@@ -94,6 +94,7 @@ def _run(args) -> str:
     from .core import limits
     from .core.image_io import write_json, write_npy, write_png
     from .core.view import View
+    from .io import load_view_data
 
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
@@ -106,7 +107,7 @@ def _run(args) -> str:
     with limits.using(lim):
         view = View.load(args.view)
         t0 = time.perf_counter()
-        mesh = view.load_mesh()
+        mesh = load_view_data(view)
         load_s = time.perf_counter() - t0
         if args.command == "render":
             from .core.renderer import render_view

@@ -1,261 +1,15 @@
-"""The HOVR render engine: snapshot the depsgraph into plain records, call the core, write pixels.
-
-Thin glue only (notes §1): no bpy.context and no operators during render(), and nothing in
-the user's data is written. The numerical core is imported lazily so that registering the
-add-on does not import Warp. The viewport's scheduling lives in viewport.py (no bpy).
-"""
+"""The HOVR RenderEngine: each method is one call into render.py, where the work is written as
+plain functions (the shape of Cycles' add-on)."""
 from __future__ import annotations
 
-import time
-import weakref
-from dataclasses import dataclass, field
-
 import bpy
-import numpy as np
 
-from .camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
-from .scene import (
-    VolumeSource, cached_volume, combined_pass, depth_pass, flip_rows, render_background,
-    transfer_function_from_ramp, volume_source,
-)
-
-# Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
-# thread: 256 pixels cost ~5 ms on the sphere and stay well under the 0.5 s cancel target
-# even at ~1 ms per pixel; a GPU needs big launches to fill it and finishes them in ms.
-TILE_PIXELS = {"cpu": 256}
-TILE_PIXELS_GPU = 1 << 20  # progress and cancel every 2^20 pixels: a tile ends in rounds of few rays, which leave a GPU idle
-# Viewport work per view_draw call (seconds): the UI stays responsive between calls.
-VIEW_BUDGET_SECONDS = 0.05
-
-
-# Viewport states of the live engines, for diagnostics and the windowed test (weak: they go
-# with their engine when the user leaves Rendered shading).
-VIEWPORTS = weakref.WeakSet()
-
-
-class SceneError(ValueError):
-    """The scene cannot be rendered by HOVR; the message tells the user what to fix."""
-
-
-@dataclass
-class SceneInputs:
-    """What a final render and the viewport share: data, transfer function, settings."""
-
-    transfer_function: object  # TransferFunction
-    background: np.ndarray
-    film_transparent: bool
-    options: object  # RenderOptions
-    source: VolumeSource
-    object_matrix: tuple
-    warnings: list = field(default_factory=list)
-
-    @property
-    def data_key(self) -> tuple:
-        return (self.source.key, self.object_matrix, self.options.device)
-
-
-@dataclass
-class RenderJob:
-    width: int  # of the rendered region (the border's size under a render border)
-    height: int
-    camera: object  # RayCamera of the region
-    inputs: SceneInputs
-    region: tuple = (0, 0, 0, 0)  # (x0, y0 from the bottom, w, h) in the full frame
-
-    @property
-    def transfer_function(self):
-        return self.inputs.transfer_function
-
-    @property
-    def background(self):
-        return self.inputs.background
-
-    @property
-    def film_transparent(self):
-        return self.inputs.film_transparent
-
-    @property
-    def options(self):
-        return self.inputs.options
-
-    @property
-    def warnings(self):
-        return self.inputs.warnings
-
-
-# A new engine instance is created for every render, so uploaded meshes live here, keyed by
-# what determines them; two entries cover toggling an object transform, the device, or the
-# previous and current frame of an animation.
-_RENDERERS: dict = {}
-_MAX_RENDERERS = 2
-
-
-def _renderer(source: VolumeSource, matrix: tuple, device: str):
-    """(Renderer, number of elements) for a volume source placed by an object matrix.
-    A file is re-read only when its path (the frame's file), size or mtime changes: the
-    object-space mesh comes from blender_scene.cached_volume, so a moved object or another
-    device uploads again without reading the file."""
-    key = (source.key, matrix, device)
-    entry = _RENDERERS.pop(key, None)
-    if entry is None:
-        from ..core.renderer import Renderer
-
-        mesh = cached_volume(source).transformed(np.array(matrix).reshape(4, 4))
-        entry = (Renderer(mesh, device=device), mesh.num_elements)
-    _RENDERERS[key] = entry  # re-insert: most recently used last
-    while len(_RENDERERS) > _MAX_RENDERERS:
-        _RENDERERS.pop(next(iter(_RENDERERS)))
-    return entry
-
-
-def clear_cache():
-    from .scene import clear_mesh_cache
-
-    _RENDERERS.clear()
-    clear_mesh_cache()
-
-
-def _matrix_tuple(m) -> tuple:
-    return tuple(float(x) for row in m for x in row)
-
-
-def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
-    """The data, transfer function and settings of the scene, as plain records.
-
-    F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
-    depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
-    it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects."""
-    from ..core.view import RenderOptions
-
-    scene = depsgraph.scene if original else depsgraph.scene_eval
-    render = scene.render
-    settings = scene.hovr
-    warnings = []
-
-    def hovr_of(o):
-        return o.original.hovr if original else o.hovr
-
-    volumes = sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
-    if not volumes:
-        raise SceneError("no HOVR volume in the scene: add one with Add > HOVR Sphere Volume")
-    if len(volumes) > 1:
-        warnings.append(f"{len(volumes)} HOVR volumes; rendering only {volumes[0].name!r}")
-    volume = volumes[0]
-    library = volume.original.library if volume.original is not None else None
-    vh = hovr_of(volume)
-    source = volume_source(vh.source, vh.solution, vh.field, scene.frame_current,
-                           abspath=lambda p: bpy.path.abspath(p, library=library), component=vh.component)
-
-    texture = settings.transfer_function
-    if texture is None:
-        raise SceneError("no transfer function: pick or create one in Render Properties > Transfer Function")
-    if not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"transfer function texture {texture.name!r} has no colour ramp enabled")
-    ramp = texture.color_ramp
-    tf = transfer_function_from_ramp(
-        ramp.interpolation, ramp.color_mode,
-        [e.position for e in ramp.elements], [tuple(e.color) for e in ramp.elements],
-        settings.density_scale, settings.value_min, settings.value_max,
-    )
-    world_color = tuple(scene.world.color) if scene.world is not None else None
-    options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
-                            min_transmittance=settings.min_transmittance, device=settings.device,
-                            precision=settings.precision)
-    return SceneInputs(
-        transfer_function=tf, background=render_background(world_color, render.film_transparent),
-        film_transparent=bool(render.film_transparent), options=options, source=source,
-        object_matrix=_matrix_tuple(volume.matrix_world), warnings=warnings,
-    )
-
-
-def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
-    """Everything render() needs, as plain data, read from the evaluated depsgraph."""
-    scene = depsgraph.scene_eval
-    render = scene.render
-    cam = engine.camera_override or scene.camera
-    if cam is None:
-        raise SceneError("no camera: set the scene's active camera")
-    camera = ray_camera_from_blender(cam, depsgraph, render)
-    inputs = scene_inputs(depsgraph)
-    width, height = render_size(render)
-    x0, y0, w, h = border_region(width, height, render.use_border, render.border_min_x, render.border_max_x,
-                                 render.border_min_y, render.border_max_y)
-    if (w, h) != (width, height):
-        camera = sub_camera(camera, x0, height - y0 - h, w, h)  # sub_camera counts rows from the top
-    return RenderJob(width=w, height=h, camera=camera, inputs=inputs, region=(x0, y0, w, h))
-
-
-def failure_text(exc: BaseException) -> str:
-    """One line for the user: the message of an error the code raises on purpose (the readers'
-    and the resource policy's ValueErrors, a device failure), the type as well otherwise."""
-    if isinstance(exc, MemoryError):
-        return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
-               "what this machine has so that such a render is refused before it starts)"
-    if isinstance(exc, (ValueError, OSError)):
-        return str(exc)
-    return f"{type(exc).__name__}: {exc}"
-
-
-def tile_pixels(device: str) -> int:
-    return TILE_PIXELS.get(device, TILE_PIXELS_GPU)
-
-
-def render_stats(stats: dict, n_elements: int, seconds: float, device: str) -> str:
-    """Status-line text: elements, samples per ray, time."""
-    n = int(stats.get("elements", n_elements))
-    parts = [f"{n} element{'s' if n != 1 else ''}"]
-    if "samples_per_ray" in stats:
-        parts.append(f"{stats['samples_per_ray']:.1f} samples/ray")
-    if "field_evaluations" in stats:
-        parts.append(f"{int(stats['field_evaluations']):,} field evaluations")
-    parts.append(f"{seconds:.2f} s on {device}")
-    return "HOVR | " + " | ".join(parts)
-
-
-@dataclass
-class ViewportFrame:
-    pixels: np.ndarray  # (H, W, 4) float32, row 0 at the bottom
-    version: int
-    converged: bool
-    stage: str
-
-
-def viewport_request(context, depsgraph):
-    """(renderer, ViewportRequest) of a 3D viewport: the region's own camera (rv3d matrices,
-    camera view included) and the scene's data and settings."""
-    from .viewport import ViewportRequest
-
-    region, rv3d = context.region, context.region_data
-    camera = ray_camera_from_view(rv3d.window_matrix, rv3d.view_matrix, region.width, region.height)
-    inputs = scene_inputs(depsgraph, original=True)
-    renderer, _n = _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
-    request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
-                              background=inputs.background, options=inputs.options,
-                              film_transparent=inputs.film_transparent, data_key=inputs.data_key)
-    return renderer, request
-
-
-def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
-    """All of view_draw except the GPU upload: detect changes (view changes arrive only
-    here, notes §1.9), do a bounded amount of work, return the frame to show."""
-    renderer, request = viewport_request(context, depsgraph)
-    state.sync(renderer, request)
-    state.step(budget)
-    return ViewportFrame(state.display, state.version, state.converged, state.stage)
-
-
-def _write_pass(render_pass, flat):
-    """RenderPass.rect.foreach_set: Blender 4.x/5.x take the flat float32 buffer, 3.4 wants
-    it shaped (pixels, channels)."""
-    try:
-        render_pass.rect.foreach_set(flat)
-    except TypeError:
-        render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
+from . import render
 
 
 def _engine_api(engine):
-    """The object render() reports progress to and polls for cancellation: the engine."""
+    """What final renders report progress to and poll for cancellation: the engine (tests
+    wrap it, since RNA methods cannot be patched on the class)."""
     return engine
 
 
@@ -269,10 +23,10 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         super().__init__(*args, **kwargs)  # required since Blender 4.4
         from .viewport import ProgressiveViewport
 
-        self._viewport = ProgressiveViewport()
-        VIEWPORTS.add(self._viewport)
-        self._texture = None  # (version, GPUTexture)
-        self._viewport_error = None
+        self.viewport = ProgressiveViewport()
+        render.VIEWPORTS.add(self.viewport)
+        self.texture = None  # (version, GPUTexture) of the viewport's last frame
+        self.viewport_error = None
 
     def __del__(self):
         # Nothing per instance to free (uploads are cached at module level); chain to the
@@ -284,138 +38,17 @@ class HovrRenderEngine(bpy.types.RenderEngine):
             except ReferenceError:
                 pass
 
-    @staticmethod
-    def _fail(api, message: str):
-        # report() reaches the status bar and makes bpy.ops.render.render raise for scripts;
-        # error_set() as well would only repeat the message.
-        api.report({'ERROR'}, message)
-        api.update_stats("", f"HOVR | {message}")
-
     def update_render_passes(self, scene=None, renderlayer=None):
-        """Declare the passes so the compositor's Render Layers node offers them."""
-        self.register_pass(scene, renderlayer, "Combined", 4, "RGBA", 'COLOR')
-        if renderlayer.use_pass_z:
-            self.register_pass(scene, renderlayer, "Depth", 1, "Z", 'VALUE')
-        hovr = getattr(renderlayer, "hovr", None)
-        if hovr is not None and hovr.use_pass_error:
-            self.register_pass(scene, renderlayer, "HOVR Error", 1, "X", 'VALUE')
+        render.declare_passes(self, scene, renderlayer)
 
     def render(self, depsgraph):
-        self._final_render(_engine_api(self), depsgraph)
-
-    def _final_render(self, api, depsgraph):
-        """render() with Blender's progress/break/stats calls going through `api` (the engine
-        itself; tests wrap it, since RNA methods cannot be patched on the class)."""
-        api.update_stats("", "HOVR | reading scene")
-        try:
-            job = snapshot(self, depsgraph)
-        except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
-            self._fail(api, str(exc))
-            return
-        except Exception as exc:  # a bug must still end as a report, never as a traceback mid-render
-            self._fail(api, f"HOVR render failed: unexpected {type(exc).__name__}: {exc}")
-            return
-        for w in job.warnings:
-            api.report({'WARNING'}, w)
-
-        device = job.options.device
-        api.update_stats("", "HOVR | loading data")
-        t0 = time.perf_counter()
-        try:
-            renderer, n_elements = _renderer(job.inputs.source, job.inputs.object_matrix, device)
-        except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
-            self._fail(api, f"HOVR render failed: {failure_text(exc)}")
-            return
-        if api.test_break():
-            return
-
-        def progress(fraction):
-            api.update_progress(fraction)
-            api.update_stats("", f"HOVR | {n_elements} elements | {100 * fraction:.0f}% | "
-                                  f"{time.perf_counter() - t0:.1f} s")
-            return not api.test_break()
-
-        try:
-            result = renderer.render(job.camera, job.transfer_function, job.background, job.options,
-                                     progress=progress, tile_pixels=tile_pixels(device))
-            pixels = combined_pass(result.rgba, job.film_transparent)
-        except Exception as exc:
-            self._fail(api, f"HOVR render failed: {failure_text(exc)}")
-            return
-        if result.cancelled or api.test_break():
-            api.update_stats("", "HOVR | cancelled")
-            return
-
-        res = self.begin_result(0, 0, job.width, job.height)
-        if (res.resolution_x, res.resolution_y) != (job.width, job.height):
-            # Blender chose another border region than border_region() computed: writing
-            # would misplace pixels, so drop the result instead.
-            self.end_result(res, cancel=True)
-            self._fail(api, f"HOVR render failed: Blender's result is {res.resolution_x}x{res.resolution_y}, "
-                       f"HOVR rendered {job.width}x{job.height}")
-            return
-        passes = {p.name: p for p in res.layers[0].passes}
-        _write_pass(passes["Combined"], pixels)
-        if "Depth" in passes:
-            _write_pass(passes["Depth"], depth_pass(job.camera, result.depth, result.rgba[..., 3]))
-        if "HOVR Error" in passes:
-            _write_pass(passes["HOVR Error"], flip_rows(result.error))
-        self.end_result(res)
-        api.update_progress(1.0)
-        api.update_stats("", render_stats(result.stats, n_elements,
-                                           result.stats.get("render_seconds", time.perf_counter() - t0), device))
-
-    # Viewport ("Rendered" shading) -------------------------------------------------------
+        render.final_render(self, _engine_api(self), depsgraph)
 
     def view_update(self, context, depsgraph):
-        # Data changes: view_draw re-reads everything and restarts on any difference; here
-        # only make sure the mesh upload (and Warp start-up) happens outside view_draw.
-        try:
-            inputs = scene_inputs(depsgraph, original=True)
-            _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
-        except Exception:
-            pass  # view_draw shows the message
-        self.tag_redraw()
+        render.view_update(self, context, depsgraph)
 
     def view_draw(self, context, depsgraph):
-        try:
-            frame = viewport_step(self._viewport, context, depsgraph)
-            self._viewport_error = None
-        except Exception as exc:
-            message = f"HOVR: {failure_text(exc)}"
-            if message != self._viewport_error:
-                self._viewport_error = message
-                self.report({'WARNING'}, message)
-            self._draw_message(context, message)
-            return
-        if not frame.converged:
-            self.tag_redraw()  # keep view_draw coming until the final image is drawn
-        if frame.pixels is not None:
-            self._draw_pixels(depsgraph.scene, context.region, frame)
-
-    def _draw_pixels(self, scene, region, frame):
-        import gpu  # lazily: background mode has no GPU module
-        from gpu_extras.presets import draw_texture_2d
-
-        h, w = frame.pixels.shape[:2]
-        if self._texture is None or self._texture[0] != frame.version:
-            buf = gpu.types.Buffer('FLOAT', w * h * 4, frame.pixels.ravel())
-            # RGBA32F: half floats would overflow to inf for bright emission
-            self._texture = (frame.version, gpu.types.GPUTexture((w, h), format='RGBA32F', data=buf))
-        gpu.state.blend_set('ALPHA_PREMULT')
-        self.bind_display_space_shader(scene)
-        draw_texture_2d(self._texture[1], (0, 0), region.width, region.height)
-        self.unbind_display_space_shader()
-        gpu.state.blend_set('NONE')
-
-    @staticmethod
-    def _draw_message(context, message):
-        import blf
-
-        blf.position(0, 20, 20, 0)
-        blf.size(0, 14)
-        blf.color(0, 1.0, 0.4, 0.3, 1.0)
-        blf.draw(0, message[:200])
+        render.view_draw(self, context, depsgraph)
 
 
 classes = (HovrRenderEngine,)
@@ -429,4 +62,4 @@ def register():
 def unregister():
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)
-    clear_cache()
+    render.clear_cache()

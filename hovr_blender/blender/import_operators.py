@@ -14,10 +14,10 @@ from bpy.app.handlers import persistent
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from .scene import cached_volume, field_samples, outline_edges, parse_component, volume_source
+from ..io import nektar, vtu
+from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
-
-SOLUTION_EXTS = (".fld", ".chk", ".rst")
+from .scene import field_samples
 
 
 def _relative_wanted() -> bool:
@@ -54,34 +54,6 @@ def _fail(op, path, exc) -> set:
     return {'CANCELLED'}
 
 
-def create_volume_object(context, name, verts, edges, source, solution="", field="", component=""):
-    """A wire object outlining the domain, marked as a HOVR volume; selected and active."""
-    me = obj = None
-    try:
-        me = bpy.data.meshes.new(name)
-        me.vertices.add(len(verts))
-        me.vertices.foreach_set("co", verts.astype("float32").ravel())
-        me.edges.add(len(edges))
-        me.edges.foreach_set("vertices", edges.astype("int32").ravel())
-        me.update()
-        obj = bpy.data.objects.new(name, me)
-        obj.display_type = 'WIRE'
-        h = obj.hovr
-        h.is_volume, h.source, h.solution, h.field, h.component = True, source, solution, field, component
-        (context.collection or context.scene.collection).objects.link(obj)
-    except Exception:
-        if obj is not None:
-            bpy.data.objects.remove(obj)
-        if me is not None:
-            bpy.data.meshes.remove(me)
-        raise
-    for other in context.selected_objects:
-        other.select_set(False)
-    obj.select_set(True)
-    context.view_layer.objects.active = obj
-    return obj
-
-
 class _ImportVolume(ImportHelper):
     bl_options = {'REGISTER', 'UNDO', 'PRESET'}
 
@@ -96,23 +68,22 @@ class _ImportVolume(ImportHelper):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         try:
             solution, field, component, notes = self.resolve(path)
-            source = volume_source(path, solution, field, context.scene.frame_current, component=component)
+            source = VolumeSource.resolve(path, solution, field, context.scene.frame_current, component=component)
             mesh = cached_volume(source)  # the first render finds it here
-            verts, edges = outline_edges(mesh)
             values = field_samples(mesh) if self.fit_range else None
         except Exception as exc:  # a reader bug must not leave a traceback instead of a message
             return _fail(self, path, exc)
         stem = os.path.splitext(os.path.basename(path))[0]
         try:
-            obj = create_volume_object(context, stem, verts, edges, stored_path(path), stored_path(solution),
-                                       field, component)
+            obj = operators.create_volume_object(context, stem, mesh, stored_path(path), stored_path(solution),
+                                                 field, component)
         except Exception as exc:
             return _fail(self, path, exc)
         settings = context.scene.hovr
         if settings.transfer_function is None:
             settings.transfer_function = operators.new_transfer_function_texture()
         if values is not None and values.size:
-            operators._SAMPLES[source.key] = values
+            operators.SAMPLES.put(source.key, values)
             lo, hi = float(values.min()), float(values.max())
             if hi <= lo:  # a constant field (no solution: zero): a range around it
                 lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
@@ -141,13 +112,8 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
                                       "Empty: the file's first field")
 
     def resolve(self, path):
-        from ..io import nektar
-
         folder = os.path.dirname(path)
-        solution = _absolute(self.solution, folder)
-        if not solution:
-            stem = os.path.splitext(path)[0]
-            solution = next((stem + e for e in SOLUTION_EXTS if os.path.exists(stem + e)), "")
+        solution = _absolute(self.solution, folder) or str(nektar.find_solution(path) or "")
         field, notes = self.field.strip(), []
         if solution and not field:
             names = nektar.list_fields(solution)
@@ -186,8 +152,6 @@ class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
                                           "an index (0, 1, 2, ...) that component")
 
     def resolve(self, path):
-        from ..io import vtu
-
         parse_component(self.component)  # a bad entry is reported before the file is read
         field = self.field.strip()
         if not field:

@@ -1,17 +1,11 @@
 """Operators: add the built-in sphere volume, create a transfer function, apply a preset,
 fit the value range to the data (which also gives the panel its histogram)."""
 import bpy
-import numpy as np
 
-from .scene import (
-    TF_PRESETS, cached_volume, field_samples, load_volume_source, value_histogram, volume_source,
-)
-
-# The 12 edges of a hexahedron in the reference numbering (bottom face, top face, verticals).
-HEX_EDGES = ((0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7))
-
-# Default ramp: three thin tents (the style of the paper's figures); (centre, half width, RGB).
-DEFAULT_TENTS = ((0.2, 0.04, (1.0, 0.2, 0.1)), (0.5, 0.04, (0.1, 1.0, 0.2)), (0.8, 0.04, (0.2, 0.3, 1.0)))
+from ..core.cache import LRUCache
+from ..core.outline import outline_edges
+from ..io.sources import VolumeSource, cached_volume, load_volume
+from .scene import DEFAULT_PRESET, TF_PRESETS, field_samples, value_histogram
 
 
 def field_range(mesh, samples: int = 9):
@@ -22,8 +16,7 @@ def field_range(mesh, samples: int = 9):
 
 # Field samples per volume source key (never stored in the .blend): the histogram is drawn
 # from here, so panels never load data while drawing.
-_SAMPLES: dict = {}
-_MAX_SAMPLES = 4
+SAMPLES = LRUCache(4)
 HISTOGRAM_BINS = 16
 
 
@@ -35,8 +28,8 @@ def _volume_object(context):
 
 
 def _source_of(obj, scene):
-    return volume_source(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
-                         abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
+    return VolumeSource.resolve(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
+                                abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
 
 
 def histogram_for(context):
@@ -48,7 +41,7 @@ def histogram_for(context):
         key = _source_of(obj, context.scene).key
     except ValueError:
         return None
-    values = _SAMPLES.get(key)
+    values = SAMPLES.get(key)
     if values is None:
         return None
     s = context.scene.hovr
@@ -68,19 +61,43 @@ def set_ramp_stops(ramp, stops):
 
 
 def new_transfer_function_texture(name: str = "HOVR Transfer Function"):
-    """A Blend texture whose linear RGB ramp holds DEFAULT_TENTS (alpha 0 between tents)."""
+    """A Blend texture whose linear RGB ramp holds the default preset (three thin tents)."""
     tex = bpy.data.textures.new(name, type='BLEND')
     tex.use_color_ramp = True
-    ramp = tex.color_ramp
-    ramp.interpolation = 'LINEAR'
-    ramp.color_mode = 'RGB'
-    # A new ramp has two stops, at 0 and 1: make them transparent black, then insert the tents.
-    for element in ramp.elements:
-        element.color = (0.0, 0.0, 0.0, 0.0)
-    for centre, half, rgb in DEFAULT_TENTS:
-        for pos, alpha in ((centre - half, 0.0), (centre, 1.0), (centre + half, 0.0)):
-            ramp.elements.new(pos).color = (*rgb, alpha)
+    set_ramp_stops(tex.color_ramp, TF_PRESETS[DEFAULT_PRESET][2])
     return tex
+
+
+def create_volume_object(context, name, mesh, source, solution="", field="", component="", location=None):
+    """A wire object outlining the domain of `mesh`, marked as a HOVR volume reading `source`;
+    selected and active. Nothing is left behind if it fails."""
+    verts, edges = outline_edges(mesh)
+    me = obj = None
+    try:
+        me = bpy.data.meshes.new(name)
+        me.vertices.add(len(verts))
+        me.vertices.foreach_set("co", verts.astype("float32").ravel())
+        me.edges.add(len(edges))
+        me.edges.foreach_set("vertices", edges.astype("int32").ravel())
+        me.update()
+        obj = bpy.data.objects.new(name, me)
+        obj.display_type = 'WIRE'
+        if location is not None:
+            obj.location = location
+        h = obj.hovr
+        h.is_volume, h.source, h.solution, h.field, h.component = True, source, solution, field, component
+        (context.collection or context.scene.collection).objects.link(obj)
+    except Exception:
+        if obj is not None:
+            bpy.data.objects.remove(obj)
+        if me is not None:
+            bpy.data.meshes.remove(me)
+        raise
+    for other in context.selected_objects:
+        other.select_set(False)
+    obj.select_set(True)
+    context.view_layer.objects.active = obj
+    return obj
 
 
 class HOVR_OT_new_transfer_function(bpy.types.Operator):
@@ -110,7 +127,7 @@ class HOVR_OT_fit_value_range(bpy.types.Operator):
         obj = _volume_object(context)
         try:
             source = _source_of(obj, context.scene)
-            values = _SAMPLES.get(source.key)
+            values = SAMPLES.get(source.key)
             if values is None:
                 values = field_samples(cached_volume(source))
         except (ValueError, OSError, MemoryError) as exc:
@@ -119,9 +136,7 @@ class HOVR_OT_fit_value_range(bpy.types.Operator):
         if values.size == 0:
             self.report({'ERROR'}, f"HOVR: {obj.name!r} has no finite field values")
             return {'CANCELLED'}
-        _SAMPLES[source.key] = values
-        while len(_SAMPLES) > _MAX_SAMPLES:
-            _SAMPLES.pop(next(iter(_SAMPLES)))
+        SAMPLES.put(source.key, values)
         lo, hi = float(values.min()), float(values.max())
         if hi <= lo:  # a constant field: a range around it keeps Value Max > Value Min
             lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
@@ -164,27 +179,8 @@ class HOVR_OT_add_sphere_volume(bpy.types.Operator):
     source = "builtin:sphere"
 
     def execute(self, context):
-        volume = load_volume_source(self.source)
-        verts = volume.vertices.reshape(-1, 3)
-        edges = np.array([[a + 8 * e, b + 8 * e] for e in range(volume.num_elements) for a, b in HEX_EDGES])
-
-        me = bpy.data.meshes.new("HOVR Sphere")
-        me.vertices.add(len(verts))
-        me.vertices.foreach_set("co", verts.astype(np.float32).ravel())
-        me.edges.add(len(edges))
-        me.edges.foreach_set("vertices", edges.astype(np.int32).ravel())
-        me.update()
-
-        obj = bpy.data.objects.new("HOVR Sphere", me)
-        obj.display_type = 'WIRE'
-        obj.location = context.scene.cursor.location
-        obj.hovr.is_volume = True
-        obj.hovr.source = self.source
-        context.collection.objects.link(obj)
-        for other in context.selected_objects:
-            other.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        volume = load_volume(VolumeSource.resolve(self.source))
+        create_volume_object(context, "HOVR Sphere", volume, self.source, location=context.scene.cursor.location)
 
         settings = context.scene.hovr
         if settings.transfer_function is None:

@@ -472,6 +472,6 @@ class Renderer:
         )
 
 
-def render_view(view: View, mesh: VolumeMesh | None = None) -> RenderResult:
-    mesh = view.load_mesh() if mesh is None else mesh
+def render_view(view: View, mesh: VolumeMesh) -> RenderResult:
+    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data)."""
     return Renderer(mesh, view.options.device).render(view.camera, view.transfer_function, view.background, view.options)

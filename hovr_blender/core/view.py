@@ -10,7 +10,6 @@ import numpy as np
 
 from .camera import RayCamera
 from .limits import read_regular
-from .mesh import VolumeMesh
 from .strict_json import as_integer, as_object, as_string, as_vector3
 from .transfer_function import TransferFunction
 
@@ -124,37 +123,3 @@ class View:
         except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
             raise ViewError(f"{path}: not valid JSON ({exc})") from exc
         return cls.from_dict(d, base_dir=os.path.dirname(os.path.abspath(path)))
-
-    def load_mesh(self) -> VolumeMesh:
-        return load_data(self.data, self.base_dir)
-
-
-def load_data(data: dict, base_dir: str = ".") -> VolumeMesh:
-    """Resolve the view's ``data`` object to a mesh: {"builtin": name} or {"path": ..., ...}."""
-    from ..io import builtin
-
-    if "builtin" in data:
-        name = data["builtin"]
-        if name not in builtin.BUILTIN:
-            raise ViewError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
-        return builtin.BUILTIN[name]()
-    if "path" not in data:
-        raise ViewError("data needs 'path' (or 'builtin')")
-    path = data["path"] if os.path.isabs(data["path"]) else os.path.join(base_dir, data["path"])
-    sol = data.get("solution")
-    if sol is not None and not os.path.isabs(sol):
-        sol = os.path.join(base_dir, sol)
-    for p in (path, sol):
-        if p is not None and not os.path.exists(p):
-            raise ViewError(f"data file not found: {p}")
-    ext = os.path.splitext(path)[1].lower()
-    if ext == ".xml":
-        from ..io import derived
-
-        return derived.read_nektar_field(path, sol, field=data.get("field"))  # "|u,v,w|": the magnitude
-    if ext == ".vtu":
-        from ..io import derived
-
-        # a vector's magnitude from its exact components, as in Blender (io/derived.py)
-        return derived.read_vtu_field(path, field=data.get("field"), component=data.get("component"))
-    raise ViewError(f"{path}: unsupported data format {ext!r} (Nektar++ .xml or VTK .vtu)")

@@ -232,7 +232,7 @@ def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
     if names is None:
         return nektar.read_nektar(mesh_path, solution_path, field)
     first = nektar.read_nektar(mesh_path, solution_path, names[0])
-    sol = Path(solution_path) if solution_path is not None else Path(mesh_path).with_suffix(".fld")
+    sol = Path(solution_path) if solution_path is not None else nektar.find_solution(mesh_path)
     blocks = nektar._guard(sol, lambda: nektar._field_blocks(sol, first.num_elements))
     comps = [first] + [_nektar_component(first, sol, blocks, n) for n in names[1:]]
     return magnitude_mesh(comps, "|" + ",".join(names) + "|")

@@ -1287,18 +1287,28 @@ def _guard(path, fn):
         raise NektarError(f"{path}: unexpected {type(exc).__name__} while reading ({exc})") from exc
 
 
+SOLUTION_EXTENSIONS = (".fld", ".chk", ".rst")
+
+
+def find_solution(mesh_path) -> Path | None:
+    """The field file beside a mesh: its name with .fld, .chk or .rst (a file or a multi-part
+    .fld/ folder), the first that exists; None if there is none."""
+    mesh_path = Path(mesh_path)
+    return next((p for p in (mesh_path.with_suffix(e) for e in SOLUTION_EXTENSIONS) if p.exists()), None)
+
+
 def read_nektar(mesh_path, solution_path=None, field=None) -> VolumeMesh:
     """VolumeMesh of one field of a Nektar++ mesh (.xml) and its field file (.fld/.chk/.rst, XML or
-    HDF5, or a multi-part .fld/ directory). Without a field file (none given and no <mesh>.fld
-    beside the mesh) the geometry comes with a zero field named "(none)" and has_field False.
+    HDF5, or a multi-part .fld/ directory). Without a field file (none given and none beside the
+    mesh: find_solution) the geometry comes with a zero field named "(none)" and has_field False.
     The returned mesh carries ``warnings`` (list of str) and ``has_field``."""
     mesh_path = Path(mesh_path)
     if solution_path is None:
-        beside = mesh_path.with_suffix(".fld")
-        solution_path = beside if beside.exists() else None
+        solution_path = find_solution(mesh_path)
     if solution_path is None and field is not None:
         raise NektarError(f"{mesh_path}: field {field!r} requested but there is no field file "
-                          f"({mesh_path.with_suffix('.fld').name} does not exist beside the mesh)")
+                          f"(no {', '.join(mesh_path.with_suffix(e).name for e in SOLUTION_EXTENSIONS)} "
+                          "beside the mesh)")
     sol = Path(solution_path) if solution_path is not None else None
     return _guard(mesh_path, lambda: _read(mesh_path, sol, field))
 

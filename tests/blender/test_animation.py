@@ -16,7 +16,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import engine as render_engine  # noqa: E402
+from hovr_blender.blender import render  # noqa: E402
 from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
 from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
@@ -79,19 +79,19 @@ def core_image(scene, folder, frame):
 def test_frames_read_their_own_file_once(scene, tmp_path):
     write_series(tmp_path, [1.0, 1.25, 1.0])
     build(scene, tmp_path)
-    render_engine.clear_cache()
+    render.clear_cache()
     images, renderers = {}, {}
     for frame in (1, 2, 2, 3):
         scene.frame_set(frame)
         images.setdefault(frame, []).append(render_to_exr(scene, tmp_path / f"f{frame}.exr"))
-        renderers.setdefault(frame, set()).update(id(r) for r, _ in render_engine._RENDERERS.values())
+        renderers.setdefault(frame, set()).update(id(r) for r, _ in render.RENDERERS.values())
     np.testing.assert_array_equal(images[2][0], images[2][1])
     assert np.abs(images[1][0] - images[2][0]).max() > 1e-2  # a different file, a different field
     np.testing.assert_array_equal(images[1][0], images[3][0])  # frames 1 and 3 hold the same field
     for frame in (1, 2):
         np.testing.assert_allclose(images[frame][0], core_image(scene, tmp_path, frame), atol=1e-5)
     # frame 2 rendered twice with one upload (the second render reused the cached renderer)
-    assert len(renderers[2]) == 2 and len(render_engine._RENDERERS) <= render_engine._MAX_RENDERERS
+    assert len(renderers[2]) == 2 and len(render.RENDERERS) <= render.RENDERERS.size
 
 
 def test_missing_frame_file_is_reported(scene, tmp_path):

@@ -14,7 +14,9 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import engine as render_engine, scene as blender_scene  # noqa: E402
+from hovr_blender.blender import render, scene as blender_scene  # noqa: E402
+from hovr_blender.core.outline import outline_edges  # noqa: E402
+from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io import nektar  # noqa: E402
 from hovr_blender.blender import import_operators, panels  # noqa: E402
 from tests.conftest import shared_file  # noqa: E402
@@ -86,10 +88,10 @@ def test_import_nektar_magnitude(scene, tmp_path):
     # an unsaved .blend has no folder to be relative to: absolute for now (made relative on save)
     assert h.source == str(xml) and h.solution == str(xml.with_suffix(".fld"))  # found beside the mesh
     # the outline: boundary edges of the element hulls, as blender_scene computes them
-    source = blender_scene.volume_source(h.source, h.solution, h.field, scene.frame_current)
-    mesh = blender_scene._MESHES[source.key]  # loaded once by the import, kept for the render
+    source = sources.VolumeSource.resolve(h.source, h.solution, h.field, scene.frame_current)
+    mesh = sources._MESHES.get(source.key)  # loaded once by the import, kept for the render
     assert mesh.field_name == "|u,v,w|" and mesh.num_elements == 48
-    verts, edges = blender_scene.outline_edges(mesh)
+    verts, edges = outline_edges(mesh)
     co, ed = mesh_edges(obj)
     np.testing.assert_allclose(co, verts, atol=1e-6)
     assert {tuple(sorted(e)) for e in ed.tolist()} == {tuple(e) for e in edges.tolist()}
@@ -127,13 +129,13 @@ def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(path), field="vel", component="1") == {'FINISHED'}
     obj = bpy.context.active_object
     assert obj.hovr.component == "1"
-    src = blender_scene.volume_source(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
-    assert blender_scene.cached_volume(src).field_name == "vel[1]"
+    src = sources.VolumeSource.resolve(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
+    assert sources.cached_volume(src).field_name == "vel[1]"
     assert scene.hovr.value_min == pytest.approx(1.0) and scene.hovr.value_max == pytest.approx(2.0)
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(path), field="vel") == {'FINISHED'}
     obj = bpy.context.active_object
-    src = blender_scene.volume_source(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
-    mag = blender_scene.cached_volume(src)
+    src = sources.VolumeSource.resolve(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
+    mag = sources.cached_volume(src)
     assert mag.field_name == "|vel|" and hasattr(mag, "derived_error")
     # the object panel shows Component for VTU sources (and no Solution)
     drawn = []
@@ -206,7 +208,7 @@ def test_failed_import_names_the_file_and_changes_nothing(scene, tmp_path, kind)
 
 def _resolved(obj, frame=1):
     h = obj.hovr
-    return blender_scene.volume_source(h.source, h.solution, h.field, frame, component=h.component,
+    return sources.VolumeSource.resolve(h.source, h.solution, h.field, frame, component=h.component,
                                        abspath=lambda p: bpy.path.abspath(p, library=obj.library))
 
 
@@ -222,7 +224,7 @@ def test_relative_paths_survive_save_move_and_reopen(scene, tmp_path):
     (project / "copies").mkdir()
     bpy.ops.wm.save_as_mainfile(filepath=str(project / "copies" / "copy.blend"), copy=True)
     assert obj.hovr.source == "//data/Tet_channel_m3.xml"
-    coeffs = blender_scene.load_volume_source(_resolved(obj)).coeffs
+    coeffs = sources.load_volume(_resolved(obj)).coeffs
 
     bpy.ops.wm.read_factory_settings(use_empty=True)  # registered classes and handlers stay
     moved = tmp_path / "moved"
@@ -233,7 +235,7 @@ def test_relative_paths_survive_save_move_and_reopen(scene, tmp_path):
         src = _resolved(obj)
         assert src.path == str(moved / "data" / "Tet_channel_m3.xml"), (blend, obj.hovr.source)
         assert src.solution == str(moved / "data" / "Tet_channel_m3.fld")
-        np.testing.assert_array_equal(blender_scene.load_volume_source(src).coeffs, coeffs)
+        np.testing.assert_array_equal(sources.load_volume(src).coeffs, coeffs)
     assert bpy.data.objects[name].hovr.source == "//../data/Tet_channel_m3.xml"
 
 
@@ -285,39 +287,39 @@ def test_imported_volume_renders_like_the_core(scene, tmp_path):
 
 def test_render_cache_reuses_the_mesh_and_rereads_changed_files(scene, tmp_path, monkeypatch):
     xml = copy_tet(tmp_path)
-    render_engine.clear_cache()
+    render.clear_cache()
     reads = []
-    real_load = blender_scene.load_volume_source
-    monkeypatch.setattr(blender_scene, "load_volume_source", lambda *a: reads.append(a) or real_load(*a))
+    real_load = sources.load_volume
+    monkeypatch.setattr(sources, "load_volume", lambda *a: reads.append(a) or real_load(*a))
     bpy.ops.import_scene.hovr_nektar(filepath=str(xml), field="|u,v,w|")
     assert len(reads) == 1
     obj = bpy.context.active_object
     add_camera(scene)
     set_contract_camera(scene, CONTRACT, W, H)
     scene.hovr.density_scale = 5.0
-    imported = dict(blender_scene._MESHES)
+    imported = dict(sources._MESHES.items())
     assert len(imported) == 1
     (key, mesh), = imported.items()
 
     _render(scene)  # the import's read serves the render
-    assert list(blender_scene._MESHES.items()) == [(key, mesh)]
-    renderers = {id(r) for r, _ in render_engine._RENDERERS.values()}
+    assert sources._MESHES.items() == [(key, mesh)]
+    renderers = {id(r) for r, _ in render.RENDERERS.values()}
     _render(scene)  # nothing changed: same renderer, no read
-    assert {id(r) for r, _ in render_engine._RENDERERS.values()} == renderers
+    assert {id(r) for r, _ in render.RENDERERS.values()} == renderers
     obj.location = (0.5, 0.0, 0.0)
     obj.rotation_euler = (0.0, 0.0, 0.3)
     _render(scene)  # moved: another upload of the same loaded mesh
-    assert list(blender_scene._MESHES.items()) == [(key, mesh)]
-    assert len({id(r) for r, _ in render_engine._RENDERERS.values()} - renderers) == 1
+    assert sources._MESHES.items() == [(key, mesh)]
+    assert len({id(r) for r, _ in render.RENDERERS.values()} - renderers) == 1
     assert len(reads) == 1  # three renders, one read (the import's)
 
     fld = xml.with_suffix(".fld")
     st = os.stat(fld)
     os.utime(fld, ns=(st.st_atime_ns, st.st_mtime_ns + 3_000_000_000))  # same bytes, new time stamp
     _render(scene)
-    assert len(blender_scene._MESHES) == 2 and blender_scene._MESHES.get(key) is mesh
-    (new_key, new_mesh), = [(k, m) for k, m in blender_scene._MESHES.items() if k != key]
+    assert len(sources._MESHES) == 2 and sources._MESHES.get(key) is mesh
+    (new_key, new_mesh), = [(k, m) for k, m in sources._MESHES.items() if k != key]
     assert new_mesh is not mesh and new_key[:3] == key[:3]
     np.testing.assert_array_equal(new_mesh.coeffs, mesh.coeffs)
     assert len(reads) == 2
-    render_engine.clear_cache()
+    render.clear_cache()

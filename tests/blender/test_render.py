@@ -8,7 +8,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import engine as render_engine  # noqa: E402
+from hovr_blender.blender import render  # noqa: E402
 from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
@@ -89,7 +89,7 @@ def test_save_reload_renders_identically(scene, tmp_path):
     first = render_to_exr(scene, tmp_path / "a.exr")
     path = str(tmp_path / "scene.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
-    render_engine.clear_cache()
+    render.clear_cache()
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.open_mainfile(filepath=path)
     loaded = bpy.context.scene
@@ -102,16 +102,16 @@ def test_save_reload_renders_identically(scene, tmp_path):
 
 def test_renderer_is_cached_per_object_transform(scene, tmp_path):
     obj = build_scene(scene, PERSPECTIVE)
-    render_engine.clear_cache()
+    render.clear_cache()
     render_to_exr(scene, tmp_path / "a.exr")
     render_to_exr(scene, tmp_path / "b.exr")
-    assert len(render_engine._RENDERERS) == 1
+    assert len(render.RENDERERS) == 1
     obj.location.x += 1.0
     moved = render_to_exr(scene, tmp_path / "c.exr")
-    assert len(render_engine._RENDERERS) == 2
+    assert len(render.RENDERERS) == 2
     obj.location.x -= 1.0
     back = render_to_exr(scene, tmp_path / "d.exr")
-    assert len(render_engine._RENDERERS) == 2  # the first upload was reused
+    assert len(render.RENDERERS) == 2  # the first upload was reused
     assert np.abs(moved - back).max() > 1e-3
 
 

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.blender
 from bpy_extras import view3d_utils  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
-from hovr_blender.blender import engine as render_engine  # noqa: E402
+from hovr_blender.blender import render  # noqa: E402
 from hovr_blender.blender.viewport import ProgressiveViewport  # noqa: E402
 
 import test_render as tr  # noqa: E402
@@ -48,7 +48,7 @@ def test_viewport_rays_follow_view3d_utils(scene, kind):
     else:  # viewport ortho views clip symmetrically around the view origin
         window = ortho_window(2.5, 2.5 * h / w, -40.0, 40.0)
     ctx = fake_context(window, view, w, h, kind)
-    _renderer, req = render_engine.viewport_request(ctx, bpy.context.evaluated_depsgraph_get())
+    _renderer, req = render.viewport_request(ctx, bpy.context.evaluated_depsgraph_get())
     cam = req.camera
     o, d = cam.rays()
     for j, i in [(0, 0), (h - 1, w - 1), (7, 31), (h // 2, w // 2)]:
@@ -70,7 +70,7 @@ def test_camera_view_converges_to_the_f12_image(scene, tmp_path):
     state = ProgressiveViewport()
     frames = []
     for _ in range(200):
-        frame = render_engine.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get())
+        frame = render.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get())
         frames.append(frame.stage)
         if frame.converged:
             break
@@ -83,7 +83,7 @@ def test_any_change_restarts_the_viewport(scene):
     obj = tr.build_scene(scene, tr.PERSPECTIVE)
     ctx = camera_view(scene, 24, 18)
     state = ProgressiveViewport()
-    step = lambda: render_engine.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get(), budget=0.01)
+    step = lambda: render.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get(), budget=0.01)
     step()
     assert state.restarts == 1
     step()
@@ -121,4 +121,4 @@ def test_viewport_errors_are_raised_for_view_draw_to_show(scene):
     scene.hovr.transfer_function.color_ramp.interpolation = 'EASE'
     ctx = camera_view(scene, 16, 12)
     with pytest.raises(ValueError, match="Linear"):
-        render_engine.viewport_step(ProgressiveViewport(), ctx, bpy.context.evaluated_depsgraph_get())
+        render.viewport_step(ProgressiveViewport(), ctx, bpy.context.evaluated_depsgraph_get())

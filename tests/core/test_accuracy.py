@@ -8,6 +8,7 @@ from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions, View
 from hovr_blender.io.builtin import sphere
+from hovr_blender.io import load_view_data
 
 from ..conftest import REPO, shared_file
 
@@ -81,7 +82,7 @@ def test_elvis_scene_pixel_exact():
     shared_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml")
     view = View.load(str(REPO / "examples" / "elvis_sphere.json"))
     cam = RayCamera.from_contract({"eye": [0, 0, 0], "target": [0, 0, -2], "up": [0, 1, 0], "fov_y_deg": 60}, 128, 128)
-    mesh = view.load_mesh()
+    mesh = load_view_data(view)
     ref, info = reference_render(mesh, cam, view.transfer_function, view.background)
     res = Renderer(mesh, "cpu").render(cam, view.transfer_function, view.background, view.options)
     err = max_err(res.rgba, ref)

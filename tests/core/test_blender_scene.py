@@ -5,9 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from hovr_blender.blender.scene import (
-    SourceError, combined_pass, load_volume_source, render_background, transfer_function_from_ramp,
-)
+from hovr_blender.blender.scene import combined_pass, render_background, transfer_function_from_ramp
+from hovr_blender.io.sources import SourceError, VolumeSource, frame_path, load_volume
 from hovr_blender.core.transfer_function import TransferFunctionError
 from hovr_blender.io import builtin
 
@@ -56,14 +55,14 @@ def test_background():
 
 
 def test_volume_sources():
-    mesh = load_volume_source("builtin:sphere")
+    mesh = load_volume(VolumeSource.resolve("builtin:sphere"))
     np.testing.assert_array_equal(mesh.vertices, builtin.sphere().vertices)
     with pytest.raises(SourceError, match="unknown built-in"):
-        load_volume_source("builtin:teapot")
+        load_volume(VolumeSource.resolve("builtin:teapot"))
     with pytest.raises(SourceError, match="unsupported"):
-        load_volume_source("/data/flow.cgns")  # .vtu became a supported source with the VTU reader
+        load_volume(VolumeSource.resolve("/data/flow.cgns"))  # .vtu became a supported source with the VTU reader
     with pytest.raises(SourceError, match="not found: /nonexistent/flow.vtu"):
-        load_volume_source("/nonexistent/flow.vtu")
+        load_volume(VolumeSource.resolve("/nonexistent/flow.vtu"))
 
 
 def test_core_and_addon_package_import_without_bpy():
@@ -79,7 +78,7 @@ def test_core_and_addon_package_import_without_bpy():
 # --- numbered series, passes, presets, histogram ------------------------------------------
 
 from hovr_blender.blender.scene import (  # noqa: E402
-    TF_PRESETS, depth_pass, field_samples, flip_rows, frame_path, value_histogram, volume_source,
+    TF_PRESETS, depth_pass, field_samples, flip_rows, value_histogram,
 )
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 
@@ -97,16 +96,16 @@ def test_volume_source_key_follows_the_frames_file(tmp_path):
         (tmp_path / f"s_{n:03d}.fld").write_text(f"frame {n}")
     (tmp_path / "m.xml").write_text("mesh")
     rel = lambda p: str(tmp_path / p[2:]) if p.startswith("//") else p  # Blender's '//' = the .blend's folder
-    a1 = volume_source("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
-    a1b = volume_source("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
-    a2 = volume_source("//m.xml", "//s_###.fld", "p", 2, abspath=rel)
+    a1 = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
+    a1b = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
+    a2 = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 2, abspath=rel)
     assert a1.path == str(tmp_path / "m.xml") and a1.solution == str(tmp_path / "s_001.fld")
     assert a1.key == a1b.key and a1.key != a2.key  # same file: no re-read; next frame: re-read
     (tmp_path / "s_001.fld").write_text("frame 1, rewritten")
-    assert volume_source("//m.xml", "//s_###.fld", "p", 1, abspath=rel).key != a1.key  # edited file
-    assert volume_source("builtin:sphere", "x", "y", 9).key == ("builtin:sphere", "", "", ())
-    with pytest.raises(SourceError, match="no source"):
-        volume_source("  ", "", "", 1)
+    assert VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel).key != a1.key  # edited file
+    assert VolumeSource.resolve("builtin:sphere", "x", "y", 9).key == ("builtin:sphere", "", "", ())
+    with pytest.raises(SourceError, match="no data"):
+        VolumeSource.resolve("  ", "", "", 1)
 
 
 def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():

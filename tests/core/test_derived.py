@@ -222,7 +222,10 @@ def test_main_prints_the_error_line(capsys):
 def test_view_files_accept_the_magnitude_syntax(tmp_path):
     """The CLI's data.field takes "|u,v,w|" too (Nektar++), and a VTU vector's magnitude is the
     same derived fit as in Blender (only the low-level read_vtu keeps VTK's nodal magnitude)."""
-    from hovr_blender.core.view import load_data
+    from hovr_blender.io.sources import VolumeSource, load_volume
+
+    def load_data(data):
+        return load_volume(VolumeSource.from_view_data(data))
 
     vec = _vector_vtu(tmp_path)
     np.testing.assert_array_equal(load_data({"path": str(vec), "field": "vel"}).coeffs,

@@ -13,6 +13,7 @@ from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions, View, ViewError
 from hovr_blender.io.synthetic import mixed_cube
+from hovr_blender.io import load_view_data
 
 from .test_curved_kernel import jittered_trilinear_brick
 from .test_shapes_kernel import CAM, chord
@@ -59,7 +60,7 @@ def test_float64_sphere_matches_reference_far_below_float32(device):
     view = View.load("examples/sphere.json")
     view.camera = RayCamera.from_contract(
         {"eye": [0.0, -9.0, 1.0], "target": [0.0, 0.0, 1.0], "up": [0, 0, 1], "fov_y_deg": 40}, 40, 30)
-    mesh = view.load_mesh()
+    mesh = load_view_data(view)
     ref, _info = reference_render(mesh, view.camera, view.transfer_function, view.background)
     r = Renderer(mesh, device)
     opts = view.options.with_(method="split", tolerance=1e-7, min_transmittance=0.0)

@@ -1,0 +1,153 @@
+"""What to read, and reading it: the one entry point from a data description to a VolumeMesh,
+used by the `hovr` command, the render engine and the import operators alike.
+
+A source is "builtin:NAME", a Nektar++ mesh .xml (with its solution: .fld/.chk/.rst, XML or
+HDF5, or a multi-part .fld/ folder) or a VTK .vtu. A run of '#' in a path is the frame number
+(Blender's convention, `flow_####.fld`). A Nektar++ mesh given without a solution gets the one
+beside it, if there is one (nektar.find_solution), in the CLI and in Blender alike.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+
+from ..core.cache import LRUCache
+from ..core.mesh import VolumeMesh
+from . import builtin, derived, nektar
+
+DATA_EXTENSIONS = (".xml", ".vtu")
+
+
+class SourceError(ValueError):
+    """A data description that cannot be read (unknown kind, missing file, bad setting)."""
+
+
+def frame_path(path: str, frame: int) -> str:
+    """Blender's numbered-file convention: the last run of '#' becomes the frame number,
+    zero-padded to the run's length ("flow_####.fld", 12 -> "flow_0012.fld")."""
+    if not path:
+        return path
+    runs = list(re.finditer(r"#+", path))
+    if not runs:
+        return path
+    m = runs[-1]
+    number = f"{abs(int(frame)):0{len(m.group())}d}"
+    return path[: m.start()] + ("-" if frame < 0 else "") + number + path[m.end():]
+
+
+def parse_component(text) -> int | str | None:
+    """A VTU vector's component setting -> read_vtu's component: "" -> None (the magnitude),
+    "magnitude" -> "magnitude", "0", "1", ... -> the index (ints pass through)."""
+    if isinstance(text, int) and not isinstance(text, bool):
+        return text
+    text = str(text or "").strip()
+    if not text:
+        return None
+    if text.lower() == "magnitude":
+        return "magnitude"
+    if text.isdigit():
+        return int(text)
+    raise SourceError(f"component {text!r}: use an index (0, 1, 2, ...), 'magnitude' or nothing")
+
+
+def _stamps(*paths) -> tuple:
+    out = []
+    for p in paths:
+        if p:
+            try:
+                st = os.stat(p)
+                out.append((st.st_mtime_ns, st.st_size))
+            except OSError:
+                out.append(None)  # missing: load_volume reports it
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class VolumeSource:
+    """One frame's data, resolved: what to read, and a key that changes exactly when the bytes
+    may. `path` is "builtin:NAME" or an absolute path (frame numbers already substituted)."""
+
+    path: str
+    solution: str = ""
+    field: str = ""
+    stamps: tuple = ()  # (mtime_ns, size) of each file when the source was resolved
+    component: str = ""  # VTU vectors: "" or "magnitude", or an index ("0", "1", ...)
+
+    @property
+    def key(self) -> tuple:
+        base = (self.path, self.solution, self.field, self.stamps)
+        return base + (self.component,) if self.component else base
+
+    @classmethod
+    def resolve(cls, path: str, solution: str = "", field: str = "", frame: int = 1, base_dir: str = "",
+                abspath=None, component="") -> "VolumeSource":
+        """A data description at a frame. Relative paths are taken from base_dir (the CLI: the
+        view file's folder) after `abspath` (Blender: '//' is the .blend's folder)."""
+        path, solution, field = path.strip(), (solution or "").strip(), (field or "").strip()
+        component = str(component if component is not None else "").strip()
+        if path.startswith("builtin:"):
+            return cls(path)
+        if not path:
+            raise SourceError("no data: give a file (Nektar++ .xml or VTK .vtu) or builtin:NAME")
+
+        def absolute(p):
+            p = (abspath or (lambda q: q))(frame_path(p, frame))
+            return os.path.abspath(os.path.join(base_dir, p) if base_dir else p)
+
+        full = absolute(path)
+        sol = absolute(solution) if solution else ""
+        if not sol and full.lower().endswith(".xml"):
+            sol = str(nektar.find_solution(full) or "")
+        return cls(full, sol, field, _stamps(full, sol), component)
+
+    @classmethod
+    def from_view_data(cls, data: dict, base_dir: str = ".") -> "VolumeSource":
+        """The view file's `data` object (core.view.data_spec has checked its types)."""
+        if "builtin" in data:
+            return cls("builtin:" + data["builtin"])
+        if not data.get("path"):
+            raise SourceError("data needs 'path' (or 'builtin')")
+        comp = data.get("component")
+        return cls.resolve(data["path"], data.get("solution") or "", data.get("field") or "", base_dir=base_dir,
+                           component="" if comp is None else comp)
+
+
+def load_volume(source: VolumeSource) -> VolumeMesh:
+    """The mesh (object space) of a resolved source. Nektar++ field "|u,v,w|" and a VTU vector
+    (the default for vector arrays) are magnitudes derived from the exact components
+    (io/derived.py); `component` picks one component of a VTU vector instead."""
+    kind, _, name = source.path.partition(":")
+    if kind == "builtin":
+        if name not in builtin.BUILTIN:
+            raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
+        return builtin.BUILTIN[name]()
+    ext = os.path.splitext(source.path)[1].lower()
+    if ext not in DATA_EXTENSIONS:
+        raise SourceError(f"{source.path}: unsupported data format {ext!r} (use builtin:NAME, a Nektar++ .xml "
+                          "or a VTK .vtu file)")
+    for p in (source.path, source.solution):
+        if p and not os.path.exists(p):
+            raise SourceError(f"data file not found: {p}")
+    if ext == ".xml":
+        return derived.read_nektar_field(source.path, source.solution or None, field=source.field or None)
+    return derived.read_vtu_field(source.path, source.field or None, parse_component(source.component))
+
+
+def load_view_data(view) -> VolumeMesh:
+    """The mesh a view file (core.view.View) names in its `data` object."""
+    return load_volume(VolumeSource.from_view_data(view.data, view.base_dir))
+
+
+# Loaded meshes (object space) by VolumeSource.key: moving the object, another device or the
+# viewport and F12 share one read; a changed file (size or mtime) has another key.
+_MESHES = LRUCache(2)
+
+
+def cached_volume(source: VolumeSource) -> VolumeMesh:
+    """load_volume(source), read again only when source.key changes."""
+    return _MESHES.get(source.key, lambda: load_volume(source))
+
+
+def clear_cache():
+    _MESHES.clear()
