@@ -148,8 +148,9 @@ def segment_bounds(c: wp.array(dtype=wp.float32), cb: int, deg: int, err: float)
     rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[cb]) + err
     glo = c[cb] - rad
     ghi = c[cb] + rad
+    # w as restriction_at evaluates it: held to >= 1e-6 (both ends 0: a segment at the apex)
     w2lo = wp.max(wp.min(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1]), 1.0e-6)
-    w2hi = wp.max(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1])
+    w2hi = wp.max(wp.max(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1]), 1.0e-6)
     w2lo = w2lo * w2lo
     w2hi = w2hi * w2hi
     return wp.vec2(wp.min(glo / w2lo, glo / w2hi), wp.max(ghi / w2lo, ghi / w2hi))
