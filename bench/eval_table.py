@@ -43,11 +43,12 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import warp as wp  # noqa: E402
 
 from hovr_blender.core import expansions as ex  # noqa: E402
-from hovr_blender.core.basis import gll_points  # noqa: E402
+from hovr_blender.core import shapes  # noqa: E402
+from hovr_blender.core.expansions import gll_points  # noqa: E402
 from hovr_blender.core.kernels import element as el_k  # noqa: E402
 
-SHAPES = [ex.HEX, ex.PRISM, ex.TET, ex.PYR]
-FAMILIES = {"modified": SHAPES, "gll_lagrange": [ex.HEX], "vtk_lagrange": [ex.HEX, ex.PRISM, ex.TET]}
+SHAPES = [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR]
+FAMILIES = {"modified": SHAPES, "gll_lagrange": [shapes.HEX], "vtk_lagrange": [shapes.HEX, shapes.PRISM, shapes.TET]}
 ORDERS = list(range(1, 15))
 
 wp.set_module_options({"enable_backward": False})
@@ -79,15 +80,15 @@ def sample_points(shape, n, rng):
         pts = np.concatenate([pts, p[ex.inside(shape, p, tol=0.0)]])
     pts = pts[:n]
     near = np.empty((0, 3))
-    if shape != ex.HEX:
+    if shape != shapes.HEX:
         m = max(n // 4, 4)
         eta = np.stack([rng.uniform(-1, 1, m), rng.uniform(-1, 1, m), 1.0 - 10.0 ** rng.uniform(-6, -2, m)], axis=1)
-        if shape == ex.TET:  # half of them near the first collapse's edge instead
+        if shape == shapes.TET:  # half of them near the first collapse's edge instead
             h = m // 2
             eta[:h, 1] = 1.0 - 10.0 ** rng.uniform(-6, -2, h)
             eta[:h, 2] = rng.uniform(-1, 1, h)
         near = ex._uncollapse(shape, eta)
-    return pts, near, ex.SHAPE_VERTICES[shape].copy()
+    return pts, near, shapes.VERTICES[shape].copy()
 
 
 # ---------------------------------------------------------------------------- families
@@ -172,20 +173,20 @@ def compare(family, shape, order, device="cpu", points=2000, trials=3, seed=0):
             worst["max_rel_near_collapse"] = max(worst["max_rel_near_collapse"], float(np.nanmax(ee[m:])) / rng_f)
         worst["min_range"] = min(worst["min_range"], rng_f)
         worst["max_abs_coeff"] = max(worst["max_abs_coeff"], float(np.abs(c).max()))
-    worst.update(family=family, shape=ex.SHAPE_NAMES[shape], order=order, modes=list(modes),
+    worst.update(family=family, shape=shapes.NAMES[shape], order=order, modes=list(modes),
                  coefficients=int(len(c)), points_per_trial=int(len(xi)), trials=trials)
     return worst
 
 
 def markdown(rows, key="max_rel", fmt="{:.1e}"):
     cols = [(f, s) for f, shapes in FAMILIES.items() for s in shapes]
-    head = "| order | " + " | ".join(f"{f} {ex.SHAPE_NAMES[s][:4]}" for f, s in cols) + " |"
+    head = "| order | " + " | ".join(f"{f} {shapes.NAMES[s][:4]}" for f, s in cols) + " |"
     out = [head, "|" + "---|" * (len(cols) + 1)]
     look = {(r["family"], r["shape"], r["order"]): r for r in rows}
     for o in sorted({r["order"] for r in rows}):
         cells = []
         for f, s in cols:
-            r = look.get((f, ex.SHAPE_NAMES[s], o))
+            r = look.get((f, shapes.NAMES[s], o))
             cells.append("" if r is None else fmt.format(r[key]))
         out.append(f"| {o} | " + " | ".join(cells) + " |")
     return "\n".join(out)

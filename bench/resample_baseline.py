@@ -42,6 +42,7 @@ if os.path.join(HERE, "..") not in sys.path:
     sys.path.insert(0, os.path.join(HERE, ".."))
 
 from hovr_blender.core import expansions as ex  # noqa: E402
+from hovr_blender.core import shapes  # noqa: E402
 from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
 from hovr_blender.core.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
 
@@ -89,7 +90,7 @@ def estimate_pairs(mesh: VolumeMesh, h_g: float) -> float:
 
 def _vertex_affine(shape, verts):
     """xi ~ A x + b through vertex 0 and the three axis vertices, per element (Newton seed)."""
-    ref = ex.SHAPE_VERTICES[shape]
+    ref = shapes.VERTICES[shape]
     axes = [int(np.nonzero((ref == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
     J = 0.5 * np.transpose(verts[:, axes] - verts[:, :1], (0, 2, 1))  # (m, 3, 3)
     A = np.linalg.inv(J)
@@ -158,12 +159,12 @@ def _block(task):
         xi = np.einsum("pij,pj->pi", M[:, :, :3], X) + M[:, :, 3]
         ins = ex.inside(sh, xi, tol=1e-9)
     else:
-        nv = len(ex.SHAPE_VERTICES[sh])
+        nv = len(shapes.VERTICES[sh])
         A, b = _vertex_affine(sh, mesh.vertices[els][:, :nv])
         Ge = mesh.geom_coeffs[mesh.geom_offset[els][:, None] + np.arange(kg)[None, :]]
         grow = margin if margin is not None else 2.0 * _map_deviation(sh, gm, Ge, A, b) + 0.05
         xi = np.einsum("pij,pj->pi", A[pe], X) + b[pe]
-        near = ex.inside(sh, (xi - ex.CENTROIDS[sh]) / (1.0 + grow) + ex.CENTROIDS[sh], tol=0.0)
+        near = ex.inside(sh, (xi - shapes.CENTROIDS[sh]) / (1.0 + grow) + shapes.CENTROIDS[sh], tol=0.0)
         pe, flat, X, e, xi = pe[near], flat[near], X[near], e[near], xi[near]
         xi, conv, outside = _newton(sh, gm, Ge[pe], X, ex._hold(sh, xi))
         ins = conv & ex.inside(sh, xi, tol=1e-9)

@@ -48,7 +48,8 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
 from hovr_blender.core import expansions as ex  # noqa: E402
-from hovr_blender.core.basis import MODIFIED_A  # noqa: E402
+from hovr_blender.core import shapes  # noqa: E402
+from hovr_blender.core.expansions import MODIFIED_A  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
 from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
@@ -99,7 +100,7 @@ def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 
     """cells^3 axis-aligned affine hexahedra, func interpolated at the tensor GLL points with
     `modes` per direction: io/synthetic.brick's mesh, built vectorised (a million elements in
     seconds, where brick's per-element loop takes many minutes)."""
-    from hovr_blender.core.basis import basis_values, gll_points
+    from hovr_blender.core.expansions import basis_values, gll_points
 
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
     h = (upper - lower) / cells
@@ -117,7 +118,7 @@ def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 
         vals = func(m0[:, 0] + half[0] * A, m0[:, 1] + half[1] * B, m0[:, 2] + half[2] * C)  # (e, i, j, k)
         c = np.einsum("ai,eijk,bj,ck->ecba", Vi, vals, Vi, Vi, optimize=True)  # direction 0 fastest
         coeffs[a:a + chunk] = c.reshape(len(m0), k)
-    verts = mid[:, None, :] + half * ex.SHAPE_VERTICES[ex.HEX][None]
+    verts = mid[:, None, :] + half * shapes.VERTICES[shapes.HEX][None]
     M = np.zeros((n, 3, 4))
     M[:, [0, 1, 2], [0, 1, 2]] = 1.0 / half
     M[:, :, 3] = -mid / half

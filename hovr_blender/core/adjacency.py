@@ -1,8 +1,8 @@
 """Host-side inputs of the traversal: which element lies across each face, and a straight-sided
 guess of every element's world -> reference map.
 
-Faces are numbered as the kernels' element.face_plane numbers them (FACE_PLANES below is the
-same table; tests/core/test_adjacency.py checks the two agree). Two faces are the same when
+Faces are numbered as the kernels' element.face_plane numbers them (shapes.FACE_PLANES;
+tests/core/test_adjacency.py checks the two agree). Two faces are the same when
 their corner vertices coincide (to 1e-9 of the mesh's size); a face met by more or fewer than
 two elements has no neighbour, and the traversal searches the BVH there instead of walking.
 Matching corners only is enough: a wrong match (two curved faces with the same corners but
@@ -12,23 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import expansions as ex
-
-MAX_FACES = 6
-# (normal, c): inside where normal . xi <= c, in the kernels' face order
-FACE_PLANES = {
-    ex.HEX: [((-1, 0, 0), 1), ((0, -1, 0), 1), ((0, 0, -1), 1), ((1, 0, 0), 1), ((0, 1, 0), 1), ((0, 0, 1), 1)],
-    ex.PRISM: [((-1, 0, 0), 1), ((0, -1, 0), 1), ((0, 0, -1), 1), ((0, 1, 0), 1), ((1, 0, 1), 0)],
-    ex.TET: [((-1, 0, 0), 1), ((0, -1, 0), 1), ((0, 0, -1), 1), ((1, 1, 1), -1)],
-    ex.PYR: [((-1, 0, 0), 1), ((0, -1, 0), 1), ((0, 0, -1), 1), ((1, 0, 1), 0), ((0, 1, 1), 0)],
-}
-
-
-def face_vertices(shape: int) -> list[np.ndarray]:
-    """Per face, the local vertex indices (ex.SHAPE_VERTICES order) lying on it."""
-    V = ex.SHAPE_VERTICES[shape]
-    return [np.nonzero(np.abs(V @ np.asarray(n, float) - c) < 1e-12)[0] for n, c in FACE_PLANES[shape]]
-
+from .shapes import MAX_FACES, VERTICES, plane_vertices
 
 def face_neighbours(mesh) -> np.ndarray:
     """(N * MAX_FACES,) int32: the element across face f of element e at e * MAX_FACES + f, -1 if none."""
@@ -40,7 +24,7 @@ def face_neighbours(mesh) -> np.ndarray:
     keys, slots = [], []
     for shape in np.unique(mesh.shape):
         elems = np.nonzero(mesh.shape == shape)[0]
-        for f, idx in enumerate(face_vertices(int(shape))):
+        for f, idx in enumerate(plane_vertices(int(shape))):
             corners = np.round((mesh.vertices[elems][:, idx] - lo) / quantum).astype(np.int64)  # (m, k, 3)
             # a face's key: its corners sorted (lexicographically), padded to four
             order = np.lexsort((corners[..., 2], corners[..., 1], corners[..., 0]), axis=-1)
@@ -73,7 +57,7 @@ def vertex_affine_guess(mesh) -> np.ndarray:
     if mesh.affine is None or mesh.affine.all():
         return M
     for shape in np.unique(mesh.shape[~mesh.affine]):
-        V = ex.SHAPE_VERTICES[int(shape)]
+        V = VERTICES[int(shape)]
         axes = [int(np.nonzero((V == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
         elems = np.nonzero((mesh.shape == shape) & ~mesh.affine)[0]
         X = mesh.vertices[elems]

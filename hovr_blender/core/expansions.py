@@ -5,7 +5,7 @@ the Warp kernels implement the same polynomials independently and are tested aga
 Conventions are those of ../shared/spec/formats.md §2.8-2.12 (Nektar++):
 
 Shapes: HEX = 0, PRISM = 1, TET = 2, PYR = 3; reference coordinates xi in [-1, 1]^3 with the
-vertex numbering of §2.8 (SHAPE_VERTICES).
+vertex numbering of §2.8 (VERTICES).
 
 A "modal expansion" of shape s with modes (P0, P1, P2) is Nektar++'s MODIFIED family
 (hex A,A,A; prism A,A,B; tet A,B,C; pyramid A,A,PyrC), coefficients in Nektar++'s storage
@@ -34,41 +34,79 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial import legendre
 
-from .basis import fit_tensor_coefficients, gll_points, modified_a
-
-HEX, PRISM, TET, PYR = 0, 1, 2, 3
-SHAPE_NAMES = {HEX: "hexahedron", PRISM: "prism", TET: "tetrahedron", PYR: "pyramid"}
+from .shapes import CENTROIDS, HEX, NAMES, PRISM, PYR, TET, VERTICES
 
 # More in the contract:
-#   SHAPE_VERTICES[shape] -> (nv, 3) reference vertex coordinates (§2.8)
+#   shapes.VERTICES[shape] -> (nv, 3) reference vertex coordinates (§2.8)
 #   affine_fit(shape, gmodes, gcoeffs) -> (A (3,3), b (3,), ok): xi = A x + b when the map
 #       x(xi) is affine (checked at fit points to 1e-12 relative), else ok = False
 # Extras (not needed by the contract's users, handy for importers and tests):
 #   basis_matrix(shape, modes, xi, corrected=True) -> (..., K) every mode at xi
 #   vertex_mode_indices(shape, modes) -> (nv,) storage index of each vertex's mode
-#   CENTROIDS[shape] -> (3,) reference centroid
-
-SHAPE_VERTICES = {
-    HEX: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1],
-                   [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64),
-    PRISM: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [-1, 1, 1]], dtype=np.float64),
-    TET: np.array([[-1, -1, -1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64),
-    PYR: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=np.float64),
-}
-for _v in SHAPE_VERTICES.values():
-    _v.setflags(write=False)
-
-# volume centroids of the reference shapes (pyramid: a quarter of the height above the base)
-CENTROIDS = {HEX: np.zeros(3), PRISM: np.array([-1 / 3, 0.0, -1 / 3]), TET: np.full(3, -0.5),
-             PYR: np.array([-0.25, -0.25, -0.5])}
+#   shapes.CENTROIDS[shape] -> (3,) reference centroid
+# One-dimensional Modified_A modes, GLL points and tensor-product fits (the hexahedron's basis,
+# used by the built-in datasets and the reference): modified_a, gll_points,
+# fit_tensor_coefficients, eval_tensor.
 
 ZERO_TOL = 1e-12  # Nektar++ kNekZeroTol: collapsed-coordinate denominators are clamped to it
 _CHUNK = 1 << 22  # basis-matrix entries per evaluation chunk (bounds memory, keeps numpy vectorised)
 
 
+MODIFIED_A = 0  # the one basis id VolumeMesh.basis holds: Nektar++ Modified_A
+
+
+def modified_a(n: int, x) -> np.ndarray:
+    """(..., n) values of Modified_A modes 0..n-1 at x (vertex modes first)."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.empty(x.shape + (n,), dtype=np.float64)
+    out[..., 0] = 0.5 * (1.0 - x)
+    if n > 1:
+        out[..., 1] = 0.5 * (1.0 + x)
+    bubble = 0.25 * (1.0 - x) * (1.0 + x)
+    for p in range(2, n):
+        # P^(1,1)_{p-2} = 2/p * d/dx P_{p-1} (Legendre): independent of the kernels' recurrence
+        out[..., p] = bubble * (2.0 / p) * legendre.Legendre.basis(p - 1).deriv()(x)
+    return out
+
+
+def gll_points(n: int) -> np.ndarray:
+    """n Gauss-Lobatto-Legendre points on [-1, 1] (n >= 2)."""
+    if n < 2:
+        return np.zeros(1)
+    interior = legendre.Legendre.basis(n - 1).deriv().roots()
+    return np.concatenate([[-1.0], np.sort(interior.real), [1.0]])
+
+
+def fit_tensor_coefficients(func, modes) -> np.ndarray:
+    """Coefficients c[i + n0 (j + n1 k)] of the tensor expansion interpolating func(xi1, xi2, xi3)
+    at GLL points; exact when func is in the space (e.g. a polynomial of degree < n per direction)."""
+    n0, n1, n2 = (int(m) for m in modes)
+    pts = [gll_points(n) for n in (n0, n1, n2)]
+    X = np.meshgrid(*pts, indexing="ij")
+    vals = np.asarray(func(*X), dtype=np.float64)  # (n0, n1, n2)
+    V = [modified_a(n, p) for n, p in zip((n0, n1, n2), pts)]
+    c = np.einsum("ai,ijk->ajk", np.linalg.inv(V[0]), vals)
+    c = np.einsum("bj,ajk->abk", np.linalg.inv(V[1]), c)
+    c = np.einsum("ck,abk->abc", np.linalg.inv(V[2]), c)
+    return np.ascontiguousarray(c.transpose(2, 1, 0)).ravel()  # direction 0 fastest
+
+
+def eval_tensor(coeffs: np.ndarray, modes, xi) -> np.ndarray:
+    """Hexahedral tensor expansions (Modified_A, direction 0 fastest) at reference points xi
+    (..., 3): one expansion (coeffs (K,)) at every point, or one per leading index (coeffs
+    (..., K) against xi (..., S, 3): row r's expansion at its S points)."""
+    n0, n1, n2 = (int(m) for m in modes)
+    xi = np.asarray(xi, dtype=np.float64)
+    c = np.asarray(coeffs, dtype=np.float64)
+    a, b, g = (modified_a(n, xi[..., k]) for k, n in enumerate((n0, n1, n2)))
+    if c.ndim == 1:
+        return np.einsum("...i,...j,...k,kji->...", a, b, g, c.reshape(n2, n1, n0))
+    return np.einsum("...si,...sj,...sk,...kji->...s", a, b, g, c.reshape(c.shape[:-1] + (n2, n1, n0)), optimize=True)
+
+
 def _check_shape(shape) -> int:
     shape = int(shape)
-    if shape not in SHAPE_NAMES:
+    if shape not in NAMES:
         raise ValueError(f"unknown shape id {shape}")
     return shape
 
@@ -81,7 +119,7 @@ def _check_modes(shape, modes) -> tuple[int, int, int]:
     if shape == PRISM and m[0] > m[2]:
         raise ValueError(f"prism modes {m}: direction 0 exceeds direction 2")
     if shape in (TET, PYR) and (m[0] > m[2] or m[1] > m[2]):
-        raise ValueError(f"{SHAPE_NAMES[shape]} modes {m}: directions 0/1 exceed direction 2")
+        raise ValueError(f"{NAMES[shape]} modes {m}: directions 0/1 exceed direction 2")
     return m
 
 
@@ -376,7 +414,7 @@ def _evaluate(shape, modes, coeffs, xi, grad: bool):
     k = num_coeffs(shape, modes)
     c = np.asarray(coeffs, dtype=np.float64)
     if c.ndim == 0 or c.shape[0] != k:
-        raise ValueError(f"{SHAPE_NAMES[shape]} modes {modes} need {k} coefficients, got array of shape {c.shape}")
+        raise ValueError(f"{NAMES[shape]} modes {modes} need {k} coefficients, got array of shape {c.shape}")
     vector = c.ndim > 1
     c2 = c.reshape(k, -1)
     lead, X = _points(xi)
@@ -556,13 +594,13 @@ def vertex_mode_indices(shape, modes) -> np.ndarray:
 
 def _axis_vertices(shape):
     """Indices of the vertices at xi = -1 + 2 e_d from vertex 0 (one per reference axis)."""
-    V = SHAPE_VERTICES[shape]
+    V = VERTICES[shape]
     return [int(np.nonzero((V == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
 
 
 def _vertex_affine(shape, modes, g):
     """x = v0 + J (xi + 1) through vertex 0 and the three axis vertices."""
-    V = eval_modal(shape, modes, g, SHAPE_VERTICES[shape])
+    V = eval_modal(shape, modes, g, VERTICES[shape])
     J = 0.5 * (V[_axis_vertices(shape)] - V[0]).T  # columns dx/dxi_d
     return V, J
 

@@ -12,15 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .basis import MAX_MODES, MODIFIED_A
-
-HEX = 0
-SHAPE_NAMES = {HEX: "hexahedron"}
-
-# Hex reference vertices (§2.8): 0(-1,-1,-1) 1(1,-1,-1) 2(1,1,-1) 3(-1,1,-1) 4..7 at xi3 = +1.
-HEX_REF_VERTICES = np.array(
-    [[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], dtype=np.float64
-)
+from . import expansions as ex
+from .expansions import MODIFIED_A
+from .shapes import HEX, MAX_MODES, NAMES, VERTICES
 
 
 class MeshError(ValueError):
@@ -34,7 +28,7 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
         raise MeshError(f"element {element}: vertex coordinates are not finite")
     x0 = v.mean(axis=0)
     J = 0.5 * np.stack([v[1] - v[0], v[3] - v[0], v[4] - v[0]], axis=1)  # columns dx/dxi_k
-    mapped = x0 + HEX_REF_VERTICES @ J.T
+    mapped = x0 + VERTICES[HEX] @ J.T
     scale = max(np.abs(v - x0).max(), 1e-300)
     if np.abs(mapped - v).max() > rtol * scale * 1e3:
         raise MeshError(
@@ -53,9 +47,7 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
 def _affine_maps(shape: int, gmodes, G: np.ndarray):
     """For m elements of one shape and geometry order, G (m, K, 3): padded vertices (m, 8, 3),
     world->reference maps (m, 3, 4) and whether each map is affine (exactly, at the fit points)."""
-    from . import expansions as ex
-
-    ref_v = ex.SHAPE_VERTICES[shape]
+    ref_v = VERTICES[shape]
     V = np.einsum("vk,mkc->mvc", ex.basis_matrix(shape, gmodes, ref_v), G)
     verts = np.concatenate([V, np.repeat(V[:, -1:], 8 - len(ref_v), axis=1)], axis=1)
     axes = [int(np.nonzero((ref_v == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
@@ -113,8 +105,6 @@ class VolumeMesh:
         """General constructor: any shape, field and geometry as modal expansions
         (core/expansions.py). Elements whose geometry is affine get the exact
         world->reference map (the traversal's fast path); MeshError names a bad element."""
-        from . import expansions as ex
-
         shapes = np.asarray(shapes, dtype=np.int32).ravel()
         n = shapes.size
         modes = np.broadcast_to(np.asarray(modes, dtype=np.int32), (n, 3)).copy()
@@ -125,12 +115,12 @@ class VolumeMesh:
         flat, gflat = [], []
         for e in range(n):  # validate every block (cheap), then do the geometry per group
             sh = int(shapes[e])
-            if sh not in ex.SHAPE_NAMES:
+            if sh not in NAMES:
                 raise MeshError(f"element {e}: unknown shape id {sh}")
             c = np.asarray(coeffs_per_element[e], dtype=np.float64).ravel()
             k = ex.num_coeffs(sh, modes[e])
             if c.size != k:
-                raise MeshError(f"element {e}: {c.size} field coefficients for {ex.SHAPE_NAMES[sh]} "
+                raise MeshError(f"element {e}: {c.size} field coefficients for {NAMES[sh]} "
                                 f"modes {modes[e].tolist()} (needs {k})")
             g = np.asarray(geom_coeffs_per_element[e], dtype=np.float64).reshape(-1, 3)
             kg = ex.num_coeffs(sh, geom_modes[e])
@@ -213,16 +203,12 @@ class VolumeMesh:
         return np.asarray(x, dtype=np.float64) @ M[:, :3].T + M[:, 3]
 
     def element_coeffs(self, e: int) -> np.ndarray:
-        from .expansions import num_coeffs
-
         o = int(self.coeff_offset[e])
-        return self.coeffs[o : o + num_coeffs(int(self.shape[e]), self.modes[e])]
+        return self.coeffs[o : o + ex.num_coeffs(int(self.shape[e]), self.modes[e])]
 
     def evaluate(self, e: int, x) -> np.ndarray:
         """float64 field of element e at world points x (..., 3), any shape (no inside test);
         curved and non-affine elements are inverted by Newton (expansions.invert_map)."""
-        from . import expansions as ex
-
         sh = int(self.shape[e])
         x = np.asarray(x, dtype=np.float64)
         if self.affine is None or self.affine[e]:
@@ -236,8 +222,6 @@ class VolumeMesh:
     def field_samples(self, per_axis: int) -> np.ndarray:
         """Field values at a lattice of reference points inside every element (all shapes,
         curved ones too: nothing to invert), grouped by (shape, modes) for speed."""
-        from . import expansions as ex
-
         g = np.linspace(-1.0, 1.0, per_axis)
         lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
         keys = np.concatenate([self.shape[:, None], self.modes], axis=1)
@@ -261,8 +245,6 @@ class VolumeMesh:
         if self.geom_coeffs is not None:
             # x' = A x + t: every geometry mode scales by A; the vertex modes sum to one, so the
             # translation goes onto them alone
-            from . import expansions as ex
-
             geoms = []
             for e in range(self.num_elements):
                 sh, gm = int(self.shape[e]), self.geom_modes[e]
@@ -292,8 +274,6 @@ def mode_bounds(shape: int, modes) -> tuple[np.ndarray, np.ndarray]:
     """(B, vertex_idx): B[m] >= max |phi_m| over the element (certified:
     expansions.mode_max_bounds), and the vertex modes' indices (a non-negative partition of
     unity, so their part of a sum lies between its coefficients)."""
-    from . import expansions as ex
-
     key = (int(shape), tuple(int(m) for m in modes))
     if key not in _BOUND_CACHE:
         B = ex.mode_max_bounds(*key)
@@ -318,8 +298,6 @@ def _modal_ranges(shape, modes, C):
 def _per_group(shapes, modes, offsets, flat, fn):
     """fn(shape, modes, C) over every element, grouped by (shape, modes) for speed; fn returns a
     tuple of per-element arrays."""
-    from . import expansions as ex
-
     n = len(shapes)
     keys = np.concatenate([np.asarray(shapes)[:, None], np.asarray(modes)], axis=1)
     out = None

@@ -5,15 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from .mesh import VolumeMesh
-
-
-# Faces of each shape in the vertex numbering of expansions.SHAPE_VERTICES (cyclic order).
-SHAPE_FACES = {
-    0: ((0, 1, 2, 3), (0, 1, 5, 4), (1, 2, 6, 5), (3, 2, 6, 7), (0, 3, 7, 4), (4, 5, 6, 7)),
-    1: ((0, 1, 2, 3), (0, 1, 4), (1, 2, 5, 4), (3, 2, 5), (0, 3, 5, 4)),
-    2: ((0, 1, 2), (0, 1, 3), (1, 2, 3), (0, 2, 3)),
-    3: ((0, 1, 2, 3), (0, 1, 4), (1, 2, 4), (2, 3, 4), (3, 0, 4)),
-}
+from .shapes import FACES
 
 
 def outline_edges(mesh: VolumeMesh):
@@ -31,7 +23,7 @@ def outline_edges(mesh: VolumeMesh):
     corners = np.zeros((len(uniq), 3))
     corners[vid.ravel()] = verts.reshape(-1, 3)
     faces = []  # (F, 4) corner ids, -1 pads triangles
-    for sh, flist in SHAPE_FACES.items():
+    for sh, flist in FACES.items():
         el = np.nonzero(shapes == sh)[0]
         if el.size == 0:
             continue

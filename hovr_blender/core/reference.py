@@ -25,9 +25,10 @@ import time
 
 import numpy as np
 
-from .basis import MODIFIED_A, basis_values
+from .expansions import MODIFIED_A, eval_tensor
 from .camera import RayCamera
-from .mesh import HEX, VolumeMesh
+from .mesh import VolumeMesh
+from .shapes import HEX
 from .transfer_function import TransferFunction
 
 
@@ -165,12 +166,8 @@ def _interval_series(mesh: VolumeMesh, o, d, ray, elem, t0, t1):
         n = _degree(k) + 1  # D + 1 samples determine a degree-D polynomial
         s = chebyshev_nodes(n)
         xi = p[sel, None, :] + (tm[sel, None] + h[sel, None] * s)[..., None] * q[sel, None, :]
-        a = basis_values(bid, n0, xi[..., 0])
-        b = basis_values(bid, n1, xi[..., 1])
-        g = basis_values(bid, n2, xi[..., 2])
         cidx = mesh.coeff_offset[elem[sel], None] + np.arange(n0 * n1 * n2)
-        c = mesh.coeffs[cidx].reshape(-1, n2, n1, n0)
-        vals = np.einsum("rsi,rsj,rsk,rkji->rs", a, b, g, c, optimize=True)
+        vals = eval_tensor(mesh.coeffs[cidx], (n0, n1, n2), xi)
         out[sel, :n] = vals @ _values_to_chebyshev(n)
     return out, h
 

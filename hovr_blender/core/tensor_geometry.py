@@ -17,20 +17,21 @@ from __future__ import annotations
 import numpy as np
 
 from . import expansions as ex
+from . import shapes
 
 # A box inside each reference element (lower corner -1 in every direction, upper corner):
 # the fit's points, so the modal expansion is only evaluated where it is defined.
-_FIT_BOX_UPPER = {ex.HEX: (1.0, 1.0, 1.0), ex.PRISM: (0.0, 1.0, 0.0),
-                  ex.TET: (-1.0 / 3.0, -1.0 / 3.0, -1.0 / 3.0), ex.PYR: (0.0, 0.0, 0.0)}
+_FIT_BOX_UPPER = {shapes.HEX: (1.0, 1.0, 1.0), shapes.PRISM: (0.0, 1.0, 0.0),
+                  shapes.TET: (-1.0 / 3.0, -1.0 / 3.0, -1.0 / 3.0), shapes.PYR: (0.0, 0.0, 0.0)}
 MAX_DEGREE = 16  # per direction, device vectors hold MAX_DEGREE + 1 Legendre values
 
 
 def tensor_degree(shape: int, gmodes) -> int:
     """Per-direction degree D of x(xi) (times w^2 for pyramids) as a polynomial in xi."""
     gm = np.asarray(gmodes, dtype=int)
-    if shape == ex.HEX:
+    if shape == shapes.HEX:
         return int(gm.max() - 1)
-    if shape == ex.PYR:
+    if shape == shapes.PYR:
         return int(gm.sum() - 3 + 2)
     return int(gm.max() - 1)
 
@@ -38,7 +39,7 @@ def tensor_degree(shape: int, gmodes) -> int:
 def weight(shape: int, xi) -> np.ndarray:
     """w with x w^2 polynomial: (1 - xi3) / 2 for pyramids, 1 otherwise."""
     xi = np.asarray(xi, dtype=np.float64)
-    if shape == ex.PYR:
+    if shape == shapes.PYR:
         return 0.5 * (1.0 - xi[..., 2])
     return np.ones(xi.shape[:-1])
 

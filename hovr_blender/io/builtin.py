@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.basis import fit_tensor_coefficients
-from ..core.mesh import HEX_REF_VERTICES, VolumeMesh
+from ..core.expansions import fit_tensor_coefficients
+from ..core.mesh import VolumeMesh
+from ..core.shapes import HEX, VERTICES
 
 # The paper's sphere (Nelson, Kirby, Haimes 2014, §6): one hexahedron, f = x^2 + y^2 + z^2.
 SPHERE_LOWER = np.array([-1.0, -1.0, -2.0])
@@ -13,7 +14,7 @@ SPHERE_UPPER = np.array([1.0, 1.0, 4.0])
 
 def box_vertices(lower, upper) -> np.ndarray:
     lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    return lower + (HEX_REF_VERTICES + 1.0) * 0.5 * (upper - lower)
+    return lower + (VERTICES[HEX] + 1.0) * 0.5 * (upper - lower)
 
 
 def sphere_field(x, y, z):

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import expansions as ex
-from ..core.basis import MAX_MODES
+from ..core.shapes import MAX_MODES
 from ..core.mesh import MeshError, VolumeMesh, element_field_ranges
 
 SAMPLES_PER_ELEMENT = 64

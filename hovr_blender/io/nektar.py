@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core import limits
-from ..core.basis import MAX_MODES, gll_points
+from ..core.expansions import gll_points
+from ..core.shapes import EDGES, FACES, HEX, MAX_MODES, NAMES, PRISM, PYR, TET, VERTICES
 from ..core.mesh import MeshError, VolumeMesh
 
 
@@ -38,8 +39,6 @@ class NektarError(ValueError):
     """A Nektar++ file this reader cannot use; the message names the file and the record."""
 
 
-HEX, PRISM, TET, PYR = 0, 1, 2, 3
-SHAPE_WORD = {HEX: "hexahedron", PRISM: "prism", TET: "tetrahedron", PYR: "pyramid"}
 ELEMENT_TAGS = {"H": HEX, "R": PRISM, "A": TET, "P": PYR}
 FLD_SHAPES = {"Hexahedron": HEX, "Prism": PRISM, "Tetrahedron": TET, "Pyramid": PYR}
 # (tag of each face in the element entry) §2.2
@@ -50,26 +49,6 @@ VERTEX_FACES = {
     PRISM: ((0, 1, 4), (0, 1, 2), (0, 2, 3), (0, 3, 4), (1, 2, 4), (2, 3, 4)),
     TET: ((0, 1, 3), (0, 1, 2), (0, 2, 3), (1, 2, 3)),
     PYR: ((0, 1, 4), (0, 1, 2), (0, 2, 3), (0, 3, 4), (1, 2, 4)),
-}
-HEX_VERTEX_FACES = VERTEX_FACES[HEX]
-FACE_VERTS = {
-    HEX: ((0, 1, 2, 3), (0, 1, 5, 4), (1, 2, 6, 5), (3, 2, 6, 7), (0, 3, 7, 4), (4, 5, 6, 7)),
-    PRISM: ((0, 1, 2, 3), (0, 1, 4), (1, 2, 5, 4), (3, 2, 5), (0, 3, 5, 4)),
-    TET: ((0, 1, 2), (0, 1, 3), (1, 2, 3), (0, 2, 3)),
-    PYR: ((0, 1, 2, 3), (0, 1, 4), (1, 2, 4), (3, 2, 4), (0, 3, 4)),
-}
-EDGE_VERTS = {
-    HEX: ((0, 1), (1, 2), (2, 3), (3, 0), (0, 4), (1, 5), (2, 6), (3, 7), (4, 5), (5, 6), (6, 7), (7, 4)),
-    PRISM: ((0, 1), (1, 2), (3, 2), (0, 3), (0, 4), (1, 4), (2, 5), (3, 5), (4, 5)),
-    TET: ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)),
-    PYR: ((0, 1), (1, 2), (3, 2), (0, 3), (0, 4), (1, 4), (2, 4), (3, 4)),
-}
-# §2.8 (the same table as expansions.SHAPE_VERTICES; kept here so topology needs no evaluator)
-REF_VERTICES = {
-    HEX: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [1, -1, 1], [1, 1, 1], [-1, 1, 1]], float),
-    PRISM: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1], [-1, 1, 1]], float),
-    TET: np.array([[-1, -1, -1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float),
-    PYR: np.array([[-1, -1, -1], [1, -1, -1], [1, 1, -1], [-1, 1, -1], [-1, -1, 1]], float),
 }
 # The Modified basis each shape must carry in a field file (§2.5); GLL_Lagrange only for hexes.
 MODIFIED_BASES = {
@@ -405,16 +384,16 @@ def _read_elements(sec, path, faces):
             items = zip(rec["id"].tolist(), rec["f"].tolist())
         else:
             i = _entity_id(node, path, "ELEMENT")
-            items = [(i, _ints(node.text, nf, path, f"{SHAPE_WORD[shape]} {i}"))]
+            items = [(i, _ints(node.text, nf, path, f"{NAMES[shape]} {i}"))]
         for i, fids in items:
             if i in elements:
                 raise NektarError(f"{path}: element {i} is defined twice")
             for k, f in enumerate(fids):
                 if f not in faces:
-                    raise NektarError(f"{path}: {SHAPE_WORD[shape]} {i} refers to missing face {f}")
+                    raise NektarError(f"{path}: {NAMES[shape]} {i} refers to missing face {f}")
                 if faces[f][0] != FACE_KINDS[shape][k]:
                     want = "quadrilateral" if FACE_KINDS[shape][k] == "Q" else "triangle"
-                    raise NektarError(f"{path}: {SHAPE_WORD[shape]} {i}: face {f} (position {k}) must be a {want}")
+                    raise NektarError(f"{path}: {NAMES[shape]} {i}: face {f} (position {k}) must be a {want}")
             elements[i] = (shape, tuple(fids))
     return elements
 
@@ -594,7 +573,7 @@ def _domain_elements(geom, path, elements):
             raise NektarError(f"{path}: composite C[{cid}] refers to missing element {e}")
         k = lo[i] + int(np.argmax(elem_shapes[lo[i] : hi[i]] != shapes[i]))
         raise NektarError(f"{path}: composite C[{cid}] lists {letter}[{elem_ids[k]}] but element {elem_ids[k]} is a "
-                          f"{SHAPE_WORD[int(elem_shapes[k])]}")
+                          f"{NAMES[int(elem_shapes[k])]}")
     return elem_ids[pos].tolist()
 
 
@@ -647,7 +626,7 @@ class _Topo:
 
 
 def _topology(mesh: _Mesh, eid, shape, fids, fverts_cache) -> _Topo:
-    what = f"{mesh.path}: {SHAPE_WORD[shape]} {eid}"
+    what = f"{mesh.path}: {NAMES[shape]} {eid}"
     fv = []
     for f in fids:
         if f not in fverts_cache:
@@ -659,11 +638,11 @@ def _topology(mesh: _Mesh, eid, shape, fids, fverts_cache) -> _Topo:
         common = fsets[a] & fsets[b] & fsets[c]
         if len(common) != 1:
             raise NektarError(f"{what}: faces {fids[a]}, {fids[b]}, {fids[c]} share {len(common)} vertices, "
-                              f"not exactly one (local vertex {k}); the face list does not describe a {SHAPE_WORD[shape]}")
+                              f"not exactly one (local vertex {k}); the face list does not describe a {NAMES[shape]}")
         local.append(common.pop())
     if len(set(local)) != len(local):
-        raise NektarError(f"{what}: two local vertices coincide; the face list does not describe a {SHAPE_WORD[shape]}")
-    for k, lv in enumerate(FACE_VERTS[shape]):
+        raise NektarError(f"{what}: two local vertices coincide; the face list does not describe a {NAMES[shape]}")
+    for k, lv in enumerate(FACES[shape]):
         if fsets[k] != {local[i] for i in lv}:
             raise NektarError(f"{what}: face {fids[k]} does not have the vertices of local face {k}")
     edge_of = {}
@@ -671,7 +650,7 @@ def _topology(mesh: _Mesh, eid, shape, fids, fverts_cache) -> _Topo:
         for e in mesh.faces[f][1]:
             edge_of[frozenset(mesh.edges[e])] = e
     edges = []
-    for a, b in EDGE_VERTS[shape]:
+    for a, b in EDGES[shape]:
         e = edge_of.get(frozenset((local[a], local[b])))
         if e is None:
             raise NektarError(f"{what}: no edge joins local vertices {a} and {b}")
@@ -691,33 +670,33 @@ class _Space:
         self.modes = np.array([P, P, P])
         self.K = ex.num_coeffs(shape, self.modes)
         self.triples = [tuple(t) for t in np.asarray(ex.mode_triples(shape, self.modes)).tolist()]
-        ref = REF_VERTICES[shape]
+        ref = VERTICES[shape]
         phi_v = self.phi(ref)
         on_vertex = np.abs(phi_v).max(axis=0) > 1e-9
         self.vidx = np.argmax(np.abs(phi_v), axis=1)  # the mode of each vertex
         if on_vertex.sum() != len(ref) or len(set(self.vidx.tolist())) != len(ref):
-            raise RuntimeError(f"{SHAPE_WORD[shape]}: vertex modes are not one per vertex")
+            raise RuntimeError(f"{NAMES[shape]}: vertex modes are not one per vertex")
         self.phi_vv_inv = np.linalg.inv(phi_v[:, self.vidx])
         # edges: P + 1 GLL samples (one more than the modes, so the fit is overdetermined)
         self.s = _space_samples(P)
         t = np.linspace(-0.9, 0.9, 7)
         on_edge = []
-        for a, b in EDGE_VERTS[shape]:
+        for a, b in EDGES[shape]:
             on_edge.append(np.abs(self.phi(self._seg(ref[a], ref[b], t))).max(axis=0) > 1e-9)
         on_edge = np.array(on_edge) & ~on_vertex
         self.eidx = [np.flatnonzero(r) for r in on_edge]
         self.edge_fit = []
-        for (a, b), idx in zip(EDGE_VERTS[shape], self.eidx):
+        for (a, b), idx in zip(EDGES[shape], self.eidx):
             ph = self.phi(self._seg(ref[a], ref[b], self.s))
             self.edge_fit.append((np.linalg.pinv(ph[:, idx]) if len(idx) else None, ph[:, self.vidx]))
         on_face = []
-        for fv in FACE_VERTS[shape]:
+        for fv in FACES[shape]:
             on_face.append(np.abs(self.phi(self._face_points(ref[list(fv)]))).max(axis=0) > 1e-9)
         self.on_face_any = np.array(on_face)  # every mode with a trace on face k
         on_face = self.on_face_any & ~on_vertex & ~on_edge.any(axis=0)
         self.fidx = [np.flatnonzero(r) for r in on_face]
         if np.any(on_edge.sum(axis=0) > 1) or np.any(on_face.sum(axis=0) > 1):
-            raise RuntimeError(f"{SHAPE_WORD[shape]}: an edge or face mode lies on two edges or faces")
+            raise RuntimeError(f"{NAMES[shape]}: an edge or face mode lies on two edges or faces")
         self._face_fit = {}
 
     def phi(self, xi):
@@ -811,7 +790,7 @@ def _face_param_points(mesh: _Mesh, fid, path, warnings):
 
 def _face_xi(space: _Space, topo: _Topo, k, fverts, uv, tag):
     """Element reference coordinates of face-frame points uv on local face k."""
-    ref = REF_VERTICES[space.shape]
+    ref = VERTICES[space.shape]
     pos = {v: ref[i] for i, v in enumerate(topo.verts)}
     c = np.array([pos[v] for v in fverts])
     a, b = uv[:, :1], uv[:, 1:]
@@ -881,7 +860,7 @@ def _check_jacobians(path, shape, P, ids, coeffs):
         return
     modes = np.array([P, P, P])
     K = ex.num_coeffs(shape, modes)
-    ref = REF_VERTICES[shape]
+    ref = VERTICES[shape]
     centre = ref.mean(axis=0)
     pts = np.concatenate([np.asarray(ex.fit_points(shape, modes), float), centre + 0.98 * (ref - centre)])
     G = np.asarray(ex.eval_modal_grad(shape, modes, np.eye(K), pts))  # (M, K, 3)
@@ -895,7 +874,7 @@ def _check_jacobians(path, shape, P, ids, coeffs):
         if len(bad):
             i = int(bad[0])
             kind = "inverted (negative Jacobian)" if np.nanmin(det[i]) < -tol[i] else "degenerate (zero Jacobian)"
-            raise NektarError(f"{path}: {SHAPE_WORD[shape]} {ids[start + i]} is {kind}")
+            raise NektarError(f"{path}: {NAMES[shape]} {ids[start + i]} is {kind}")
 
 
 # ----------------------------------------------------------------------------- field files
@@ -930,7 +909,7 @@ def _block_header(path, what, shape_s, basis, fields, nummodes, extra_attrs):
             raise NektarError(f"{path}: {what}: {key} (point data rather than coefficients) is not supported")
     basis = tuple(basis)
     if basis != MODIFIED_BASES[shape] and not (shape == HEX and basis == ("GLL_Lagrange",) * 3):
-        raise NektarError(f"{path}: {what}: BASIS={','.join(basis)} for {SHAPE_WORD[shape]}s is not supported; "
+        raise NektarError(f"{path}: {what}: BASIS={','.join(basis)} for {NAMES[shape]}s is not supported; "
                           f"expected {','.join(MODIFIED_BASES[shape])}" + (" or GLL_Lagrange x3" if shape == HEX else ""))
     fields = [f.strip() for f in fields]
     if not fields or any(not f for f in fields) or len(set(fields)) != len(fields):
@@ -960,7 +939,7 @@ def _block_ncoeffs(path, what, shape, modes):
     try:
         return _ncoeffs(shape, modes)
     except ValueError as exc:  # e.g. a prism with more modes in direction 0 than in direction 2
-        raise NektarError(f"{path}: {what}: mode counts invalid for {SHAPE_WORD[shape]}s ({exc})") from None
+        raise NektarError(f"{path}: {what}: mode counts invalid for {NAMES[shape]}s ({exc})") from None
 
 
 class _Budget:
@@ -993,7 +972,7 @@ def _finish_block(path, what, shape, basis, fields, kind, nums, ids, get_data):
     data = get_data(want)
     if data.size != want:
         raise NektarError(f"{path}: {what}: {data.size} values, expected {want} "
-                          f"({len(fields)} fields x {nel} elements, {SHAPE_WORD[shape]} modes)")
+                          f"({len(fields)} fields x {nel} elements, {NAMES[shape]} modes)")
     if len(np.unique(ids)) != nel:
         raise NektarError(f"{path}: {what}: an element ID appears twice")
     if kind == "UNIORDER":
@@ -1148,7 +1127,7 @@ def _hdf5_blocks_open(path, h5, budget):
         most = len(fields) * nel * int(_block_ncoeffs(path, what, shape, largest)[0])
         if nd > most:
             raise NektarError(f"{path}: {what}: declares {nd:,} values; {len(fields)} fields on {nel:,} "
-                              f"{SHAPE_WORD[shape]}s hold at most {most:,}")
+                              f"{NAMES[shape]}s hold at most {most:,}")
         if npoly > 3 * nel:
             raise NektarError(f"{path}: {what}: {npoly:,} POLYORDERS entries for {nel:,} elements")
     ids_all = _hdf5_values(path, _hdf5_dataset(path, g, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(r[0] for r in rows))
@@ -1337,8 +1316,8 @@ def _read(mesh_path, sol, field):
             raise NektarError(f"{sol}: element(s) {extra[:10]} are not in the mesh {mesh_path.name}")
         for e, shape, _ in mesh.elements:
             if coeffs[e][0] != shape:
-                raise NektarError(f"{sol}: element {e} is a {SHAPE_WORD[coeffs[e][0]]} in the field file but a "
-                                  f"{SHAPE_WORD[shape]} in {mesh_path.name}")
+                raise NektarError(f"{sol}: element {e} is a {NAMES[coeffs[e][0]]} in the field file but a "
+                                  f"{NAMES[shape]} in {mesh_path.name}")
     n = len(mesh.elements)
     shapes = np.array([s for _, s, _ in mesh.elements], dtype=np.int32)
     # geometry per element

@@ -39,24 +39,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core import expansions as ex
+from ..core import shapes
 from ..core.mesh import MeshError, VolumeMesh
 
 # relative interpolation error bounds of the default flow at order 6, by cells across the block
 STATED_ERROR = {1: 0.08, 2: 0.004, 4: 1e-4}
-
-HEX_FACES = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]]
-PRISM_FACES = [[0, 1, 4], [3, 2, 5], [0, 1, 2, 3], [1, 2, 5, 4], [0, 3, 5, 4]]
-TET_FACES = [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]
-PYR_FACES = [[0, 1, 2, 3], [0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]]
-# local vertex lists of every face (quadrilaterals in cyclic order), per shape
-FACES = {ex.HEX: HEX_FACES, ex.PRISM: PRISM_FACES, ex.TET: TET_FACES, ex.PYR: PYR_FACES}
 
 
 def _vertex_inverse(shape: int) -> np.ndarray:
     """(K2, nv): 2-mode geometry coefficients = this @ vertex coordinates (vertex modes are a
     permutation of the vertices when there are two modes)."""
     k = ex.num_coeffs(shape, (2, 2, 2))
-    B = ex.basis_matrix(shape, (2, 2, 2), ex.SHAPE_VERTICES[shape])  # (nv, K2)
+    B = ex.basis_matrix(shape, (2, 2, 2), shapes.VERTICES[shape])  # (nv, K2)
     assert B.shape == (k, k)
     return np.linalg.inv(B)
 
@@ -171,7 +165,7 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
     block = (I >= up) & (I < up + b) & (J >= side) & (J < side + b)
     I, J, K = I[~block], J[~block], K[~block]
     lo = np.stack([xs[I], ys[J], zs[K]], axis=1)
-    hv = lo[:, None, :] + h * (ex.SHAPE_VERTICES[ex.HEX][None] + 1.0) / 2.0  # (nh, 8, 3)
+    hv = lo[:, None, :] + h * (shapes.VERTICES[shapes.HEX][None] + 1.0) / 2.0  # (nh, 8, 3)
 
     # prisms: cells i >= nxh, each quad split on alternating diagonals into two triangles
     I, J, K = np.meshgrid(np.arange(nxh, nxh + nxp), np.arange(ny), np.arange(nz), indexing="ij")
@@ -210,8 +204,8 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
         rng = np.random.default_rng(seed)
         source = ChannelFlow(centre=(float(c[0][0]), float(c[1][0])), street_y=street, depth=cmap.depth,
                              x_end=cmap.x1, phases=tuple(rng.uniform(0, 2 * np.pi, 16).tolist()))
-    shapes, geoms, coeffs = [], [], []
-    for sh, V in ((ex.HEX, hv), (ex.PRISM, pv)):
+    kinds, geoms, coeffs = [], [], []
+    for sh, V in ((shapes.HEX, hv), (shapes.PRISM, pv)):
         if len(V) == 0:
             continue
         G2 = np.einsum("kv,evc->ekc", _vertex_inverse(sh), V)  # straight geometry (ne, K2, 3)
@@ -228,14 +222,14 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
         X = np.einsum("pk,ekc->epc", ex.basis_matrix(sh, gm, fp), G)
         vals = np.asarray(source(X[..., 0], X[..., 1], X[..., 2]), dtype=np.float64)  # (ne, P)
         C = ex.fit_modal(sh, m, vals.T).T  # (ne, K)
-        shapes.append(np.full(len(V), sh))
+        kinds.append(np.full(len(V), sh))
         geoms.extend(G)
         coeffs.extend(C)
-    shapes = np.concatenate(shapes)
-    mesh = VolumeMesh.from_elements(shapes, m, coeffs, gm, geoms, field_name="u",
+    kinds = np.concatenate(kinds)
+    mesh = VolumeMesh.from_elements(kinds, m, coeffs, gm, geoms, field_name="u",
                                     source=f"paper_scale:b{b}_o{order}{'_curved' if curved else ''}")
     mesh.paper_scale = {
-        "hexahedra": int((shapes == ex.HEX).sum()), "prisms": int((shapes == ex.PRISM).sum()),
+        "hexahedra": int((kinds == shapes.HEX).sum()), "prisms": int((kinds == shapes.PRISM).sum()),
         "requested": [int(n_hex), int(n_prism)], "block_cells": b, "cells": [nxh + nxp, ny, nz],
         "x_split": float(x_split), "order": order, "geom_modes": list(gm), "curved": bool(curved),
         "map": cmap, "source": source, "cell_size": h,
@@ -252,7 +246,7 @@ def _check_exact(shape, gm, G, G2, cmap, rtol=1e-10):
     err = np.abs(got - want).max()
     scale = np.abs(want).max()
     if err > rtol * max(scale, 1.0):
-        raise MeshError(f"the channel map is not exact in {ex.SHAPE_NAMES[shape]} geometry modes {gm} "
+        raise MeshError(f"the channel map is not exact in {shapes.NAMES[shape]} geometry modes {gm} "
                         f"(residual {err:.2e}): shared faces would not match")
 
 
@@ -270,7 +264,7 @@ def _check_jacobians(shape, gm, G, mode_sets):
     ref = np.abs(det).max()
     bad = np.nonzero(det.min(axis=1) <= 1e-9 * ref)[0]
     if bad.size:
-        raise MeshError(f"{bad.size} {ex.SHAPE_NAMES[shape]} elements have a non-positive Jacobian "
+        raise MeshError(f"{bad.size} {shapes.NAMES[shape]} elements have a non-positive Jacobian "
                         f"(min det {det.min():.3g}): lower the curvature")
 
 

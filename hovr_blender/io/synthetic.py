@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.basis import fit_tensor_coefficients
+from ..core import expansions as ex
+from ..core import shapes
+from ..core.expansions import fit_tensor_coefficients
 from ..core.mesh import VolumeMesh
 from .builtin import box_vertices
 
@@ -32,11 +34,10 @@ def brick(lower, upper, cells, modes, func, field_name="f") -> VolumeMesh:
 def straight_geometry(shape: int, vertices) -> np.ndarray:
     """2-mode geometry coefficients (K, 3) of the straight element through `vertices`
     (the shape's vertex order, spec §2.8): with two modes every mode is a vertex mode."""
-    from ..core import expansions as ex
 
     vertices = np.asarray(vertices, dtype=np.float64)
     k = ex.num_coeffs(shape, (2, 2, 2))
-    ref = ex.SHAPE_VERTICES[shape]
+    ref = shapes.VERTICES[shape]
     # B[i, j] = mode j at vertex i; vertex modes make it a permutation matrix
     B = np.stack([ex.eval_modal(shape, (2, 2, 2), np.eye(k)[j], ref) for j in range(k)], axis=1)
     return np.linalg.solve(B, vertices)
@@ -53,20 +54,19 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
     """A cube of n^3 cells, each cell cut into one shape in turn: a hexahedron, two prisms,
     six tetrahedra (Kuhn) or six pyramids (apex at the cell centre). Straight elements of all
     four shapes sharing faces across shapes; the field `func` is fitted with `modes`."""
-    from ..core import expansions as ex
 
     lower = np.asarray(lower, float)
     h = size / n
-    shapes, geoms, coeffs = [], [], []
+    kinds, geoms, coeffs = [], [], []
 
     def add(shape, verts):
         g = straight_geometry(shape, verts)
         pts = ex.eval_modal(shape, (2, 2, 2), g, ex.fit_points(shape, (modes,) * 3))
-        shapes.append(shape)
+        kinds.append(shape)
         geoms.append(g)
         coeffs.append(ex.fit_modal(shape, (modes,) * 3, func(pts[:, 0], pts[:, 1], pts[:, 2])))
 
-    cube_ref = ex.SHAPE_VERTICES[ex.HEX]
+    cube_ref = shapes.VERTICES[shapes.HEX]
     for k in range(n):
         for j in range(n):
             for i in range(n):
@@ -74,12 +74,12 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
                 corner = lambda a, b, c: o + h * np.array([a, b, c], float)  # noqa: E731
                 kind = (i + j + k) % 4
                 if kind == 0:
-                    add(ex.HEX, o + h * (cube_ref + 1.0) / 2.0)
+                    add(shapes.HEX, o + h * (cube_ref + 1.0) / 2.0)
                 elif kind == 1:  # x + z <= 1 and its point reflection through the cell's y axis
                     lo = [corner(0, 0, 0), corner(1, 0, 0), corner(1, 1, 0), corner(0, 1, 0), corner(0, 0, 1), corner(0, 1, 1)]
                     hi = [corner(1, 0, 1), corner(0, 0, 1), corner(0, 1, 1), corner(1, 1, 1), corner(1, 0, 0), corner(1, 1, 0)]
-                    add(ex.PRISM, lo)
-                    add(ex.PRISM, hi)
+                    add(shapes.PRISM, lo)
+                    add(shapes.PRISM, hi)
                 elif kind == 2:
                     from itertools import permutations
 
@@ -87,7 +87,7 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
                         p0 = np.zeros(3)
                         p1 = p0.copy(); p1[perm[0]] = 1  # noqa: E702
                         p2 = p1.copy(); p2[perm[1]] = 1  # noqa: E702
-                        add(ex.TET, _oriented_tet([o + h * p for p in (p0, p1, p2, np.ones(3))]))
+                        add(shapes.TET, _oriented_tet([o + h * p for p in (p0, p1, p2, np.ones(3))]))
                 else:
                     centre = o + 0.5 * h
                     faces = [  # each cell face as a quad (counter-clockwise seen from outside)
@@ -97,9 +97,9 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
                     ]
                     for f in faces:
                         base = [corner(*c) for c in f][::-1]  # base seen from the apex: counter-clockwise
-                        add(ex.PYR, base + [centre])
+                        add(shapes.PYR, base + [centre])
     n_modes = (modes,) * 3
-    return VolumeMesh.from_elements(shapes, n_modes, coeffs, (2, 2, 2), geoms, field_name=field_name,
+    return VolumeMesh.from_elements(kinds, n_modes, coeffs, (2, 2, 2), geoms, field_name=field_name,
                                     source=f"synthetic:mixed_cube{n}")
 
 
@@ -107,7 +107,6 @@ def with_field(mesh: VolumeMesh, func, modes: int, field_name="f") -> VolumeMesh
     """The same geometry carrying func(x, y, z) fitted with `modes` per direction in every
     element (exact for polynomials the element's space holds); for meshes that come without
     a field, such as scaleHO."""
-    from ..core import expansions as ex
 
     n = mesh.num_elements
     coeffs = [None] * n

@@ -41,11 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from ..core import expansions as ex
+from ..core import shapes
 from ..core import limits
-from ..core.basis import MAX_MODES
+from ..core.shapes import MAX_MODES
 from ..core.mesh import MeshError, VolumeMesh
 
-HEX, PRISM, TET = ex.HEX, ex.PRISM, ex.TET
+HEX, PRISM, TET = shapes.HEX, shapes.PRISM, shapes.TET
 
 
 class VtuError(ValueError):

@@ -4,7 +4,10 @@ import numpy as np
 import warp as wp
 
 from hovr_blender.core import expansions as ex
-from hovr_blender.core.adjacency import FACE_PLANES, face_neighbours, face_vertices, vertex_affine_guess
+from hovr_blender.core import shapes
+from hovr_blender.core.adjacency import face_neighbours, vertex_affine_guess
+from hovr_blender.core.shapes import FACE_PLANES
+from hovr_blender.core.shapes import plane_vertices as face_vertices
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.kernels import element as el_k
 from hovr_blender.core.renderer import Renderer
@@ -25,13 +28,13 @@ def test_kernel_face_planes_match_the_host_table():
     got = out.numpy().reshape(4, 6, 4)
     for shape, planes in FACE_PLANES.items():
         for f, (n, c) in enumerate(planes):
-            np.testing.assert_array_equal(got[shape, f], [*n, c], err_msg=f"{ex.SHAPE_NAMES[shape]} face {f}")
+            np.testing.assert_array_equal(got[shape, f], [*n, c], err_msg=f"{shapes.NAMES[shape]} face {f}")
 
 
 def test_every_face_has_its_vertices():
-    counts = {ex.HEX: [4] * 6, ex.PRISM: [4, 3, 4, 3, 4], ex.TET: [3] * 4, ex.PYR: [4, 3, 3, 3, 3]}
+    counts = {shapes.HEX: [4] * 6, shapes.PRISM: [4, 3, 4, 3, 4], shapes.TET: [3] * 4, shapes.PYR: [4, 3, 3, 3, 3]}
     for shape, want in counts.items():
-        assert sorted(len(v) for v in face_vertices(shape)) == sorted(want), ex.SHAPE_NAMES[shape]
+        assert sorted(len(v) for v in face_vertices(shape)) == sorted(want), shapes.NAMES[shape]
 
 
 def test_brick_neighbours():

@@ -25,19 +25,20 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.kernels import args
 from hovr_blender.core.kernels import restriction as rs
 from hovr_blender.core.mesh import VolumeMesh, element_field_ranges
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.io.synthetic import straight_geometry
 
-SHAPES = [ex.HEX, ex.PRISM, ex.TET, ex.PYR]
+SHAPES = [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR]
 MAX_COEFFS = 1300
 # the top orders of every shape, run on top of the drawn cases
-TOP_ORDERS = [(ex.HEX, (15, 5, 15), "dense", 1), (ex.HEX, (2, 15, 2), "decaying", 2),
-              (ex.PRISM, (15, 10, 15), "dense", 3), (ex.PRISM, (2, 15, 15), "offset", 4),
-              (ex.TET, (15, 15, 15), "dense", 5), (ex.TET, (2, 3, 15), "decaying", 6),
-              (ex.PYR, (15, 15, 15), "dense", 7), (ex.PYR, (2, 2, 15), "offset", 8)]
+TOP_ORDERS = [(shapes.HEX, (15, 5, 15), "dense", 1), (shapes.HEX, (2, 15, 2), "decaying", 2),
+              (shapes.PRISM, (15, 10, 15), "dense", 3), (shapes.PRISM, (2, 15, 15), "offset", 4),
+              (shapes.TET, (15, 15, 15), "dense", 5), (shapes.TET, (2, 3, 15), "decaying", 6),
+              (shapes.PYR, (15, 15, 15), "dense", 7), (shapes.PYR, (2, 2, 15), "offset", 8)]
 SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow],
                 print_blob=True)
 
@@ -56,10 +57,10 @@ def element_cases(draw):
     """(shape, modes, coefficient kind, seed) within the shape's mode constraints."""
     shape = draw(st.sampled_from(SHAPES))
     m2 = draw(st.integers(2, 15))
-    if shape == ex.HEX:
+    if shape == shapes.HEX:
         m0 = draw(st.integers(2, 15))
         m1 = draw(st.integers(2, min(15, MAX_COEFFS // (m0 * m2))))
-    elif shape == ex.PRISM:  # m0 <= m2 (the collapsed direction carries the top order)
+    elif shape == shapes.PRISM:  # m0 <= m2 (the collapsed direction carries the top order)
         m0 = draw(st.integers(2, m2))
         tri = m0 * (m0 + 1) // 2 + m0 * (m2 - m0)
         m1 = draw(st.integers(2, min(15, MAX_COEFFS // tri)))
@@ -79,14 +80,14 @@ def make_coeffs(shape, modes, kind, rng):
     if kind == "decaying":  # a smooth field: spectral decay with the mode's total order
         return rng.uniform(-1.0, 1.0, k) * 0.5 ** t.sum(axis=1)
     c = 0.05 * rng.uniform(-1.0, 1.0, k)  # large mean, small variation
-    c[ex.vertex_mode_indices(shape, modes)] = 3.0 + rng.uniform(-0.5, 0.5, len(ex.SHAPE_VERTICES[shape]))
+    c[ex.vertex_mode_indices(shape, modes)] = 3.0 + rng.uniform(-0.5, 0.5, len(shapes.VERTICES[shape]))
     return c
 
 
 def identity_mesh(shape, modes, coeffs):
     """One straight element whose world coordinates are its reference coordinates."""
     return VolumeMesh.from_elements([shape], modes, [coeffs], (2, 2, 2),
-                                    [straight_geometry(shape, ex.SHAPE_VERTICES[shape])])
+                                    [straight_geometry(shape, shapes.VERTICES[shape])])
 
 
 def random_inside(shape, n, rng):
@@ -100,11 +101,11 @@ def random_inside(shape, n, rng):
 def near_collapse(shape, n, rng):
     """Points close to the collapsed vertex / edges (inside), where the collapsed coordinates
     divide by a small number."""
-    if shape == ex.HEX:
+    if shape == shapes.HEX:
         return np.empty((0, 3))
     eps = 10.0 ** rng.uniform(-7, -2, n)
     eta = np.stack([rng.uniform(-1, 1, n), rng.uniform(-1, 1, n), 1.0 - eps], axis=1)
-    if shape == ex.TET:  # also near the collapsed edge of the first collapse (eta2 -> 1)
+    if shape == shapes.TET:  # also near the collapsed edge of the first collapse (eta2 -> 1)
         half = n // 2
         eta[:half, 1] = 1.0 - 10.0 ** rng.uniform(-7, -2, half)
         eta[:half, 2] = rng.uniform(-1, 1, half)
@@ -123,12 +124,12 @@ def test_element_field_ranges_enclose_sampled_field(case):
     c = make_coeffs(shape, modes, kind, rng)
     lo, hi = element_field_ranges(identity_mesh(shape, modes, c))
     pts = np.concatenate([random_inside(shape, 600, rng), near_collapse(shape, 100, rng),
-                          ex.SHAPE_VERTICES[shape], ex.fit_points(shape, (2, 2, 2))])
+                          shapes.VERTICES[shape], ex.fit_points(shape, (2, 2, 2))])
     f = ex.eval_modal(shape, modes, c, pts)
     slack = 1e-12 * np.abs(c).sum()  # float64 rounding of the sums
     assert lo[0] <= hi[0]
-    assert f.min() >= lo[0] - slack, f"{ex.SHAPE_NAMES[shape]} {modes} {kind}: min {f.min():.6g} < lo {lo[0]:.6g}"
-    assert f.max() <= hi[0] + slack, f"{ex.SHAPE_NAMES[shape]} {modes} {kind}: max {f.max():.6g} > hi {hi[0]:.6g}"
+    assert f.min() >= lo[0] - slack, f"{shapes.NAMES[shape]} {modes} {kind}: min {f.min():.6g} < lo {lo[0]:.6g}"
+    assert f.max() <= hi[0] + slack, f"{shapes.NAMES[shape]} {modes} {kind}: max {f.max():.6g} > hi {hi[0]:.6g}"
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -148,7 +149,7 @@ def test_element_field_ranges_enclose_single_modes(shape):
         lo, hi = element_field_ranges(identity_mesh(shape, modes, c))
         worst.append((B[:, m].max() - hi[0], m))
     excess, m = max(worst)
-    assert excess <= 0.0, f"{ex.SHAPE_NAMES[shape]} {modes}: mode {m} reaches {excess:.3g} above its range"
+    assert excess <= 0.0, f"{shapes.NAMES[shape]} {modes}: mode {m} reaches {excess:.3g} above its range"
 
 
 # ------------------------------------------------------------ (b) per-segment bounds
@@ -196,7 +197,7 @@ def segment_bounds(mesh_args, xo, xd, ab):
 def random_segments(shape, n, rng):
     """(P, Q): segments inside the (convex) reference element; some end at a vertex (the
     pyramid's and tet's apex among them) or run along an edge."""
-    V = ex.SHAPE_VERTICES[shape]
+    V = shapes.VERTICES[shape]
     P = random_inside(shape, n, rng)
     Q = random_inside(shape, n, rng)
     k = n // 4
@@ -204,7 +205,7 @@ def random_segments(shape, n, rng):
     Q[k:2 * k] = V[-1]  # to the last vertex (the apex of tets and pyramids)
     e = V[rng.integers(0, len(V), (2, 4))]
     P[2 * k:2 * k + 4], Q[2 * k:2 * k + 4] = e[0], e[1]  # vertex to vertex: edges, face diagonals
-    P[-4:] = near_collapse(shape, 4, rng) if shape != ex.HEX else P[-4:]
+    P[-4:] = near_collapse(shape, 4, rng) if shape != shapes.HEX else P[-4:]
     return P, Q  # ends exactly at vertices too, collapsed ones included
 
 
@@ -238,11 +239,11 @@ def test_segment_bounds_enclose_field_along_segments(case):
     for i in range(n):
         fi = f[i][inside[i]]
         assert fi.min() >= lohi[i, 0] and fi.max() <= lohi[i, 1], (
-            f"{ex.SHAPE_NAMES[shape]} {modes} {kind} segment {i} {P[i]}->{Q[i]} on [{a[i]}, {b[i]}]: "
+            f"{shapes.NAMES[shape]} {modes} {kind} segment {i} {P[i]}->{Q[i]} on [{a[i]}, {b[i]}]: "
             f"field in [{fi.min():.7g}, {fi.max():.7g}], bound [{lohi[i, 0]:.7g}, {lohi[i, 1]:.7g}]")
 
 
-@pytest.mark.parametrize("shape", [ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_segment_bounds_finite_next_to_collapsed_vertices(shape):
     """Segments of an order-14 element that start one float32 ulp (2^-23) off the collapsed
     vertex (prism: a point of the collapsed edge), where the render kernel's clipped entry point
@@ -252,9 +253,9 @@ def test_segment_bounds_finite_next_to_collapsed_vertices(shape):
     c = rng.uniform(-1, 1, ex.num_coeffs(shape, modes))
     r = Renderer(identity_mesh(shape, modes, c), "cpu")
     ulp = 2.0 ** -23
-    start = np.array([-1.0, -1.0, 1.0]) if shape != ex.PRISM else np.array([-1.0, 0.25, 1.0])
+    start = np.array([-1.0, -1.0, 1.0]) if shape != shapes.PRISM else np.array([-1.0, 0.25, 1.0])
     P = start + np.array([[ulp, 0, 0], [0, 0, 0], [ulp, ulp, 0], [0, 0, -ulp]])
     n = len(P)
-    lohi = segment_bounds(r.mesh_args(), P, ex.CENTROIDS[shape] - P, np.tile([0.0, 1.0], (n, 1)))
+    lohi = segment_bounds(r.mesh_args(), P, shapes.CENTROIDS[shape] - P, np.tile([0.0, 1.0], (n, 1)))
     bad = ~np.isfinite(lohi).all(axis=1)
-    assert not bad.any(), f"{ex.SHAPE_NAMES[shape]}: non-finite bounds on segments from {P[bad].tolist()}"
+    assert not bad.any(), f"{shapes.NAMES[shape]}: non-finite bounds on segments from {P[bad].tolist()}"

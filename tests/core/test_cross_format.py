@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
@@ -16,7 +17,7 @@ from hovr_blender.io.vtu import read_vtu
 
 from ..conftest import shared_file
 
-VTK_LAGRANGE = {ex.TET: 71, ex.HEX: 72}
+VTK_LAGRANGE = {shapes.TET: 71, shapes.HEX: 72}
 
 # Both files are straight-sided (affine elements) and carry a field of known form:
 # Tet_channel_m3: 48 tetrahedra, 3 modes (P2), w = y(1 - y) in [0, 0.25];
@@ -75,7 +76,7 @@ def write_lagrange_vtu(vtk, mesh, path, perturb=None):
         modes = mesh.modes[e]
         assert len(set(modes.tolist())) == 1 and mesh.affine[e], "isotropic affine elements only"
         p = int(modes[0]) - 1
-        n = (p + 1) ** 3 if sh == ex.HEX else (p + 1) * (p + 2) * (p + 3) // 6
+        n = (p + 1) ** 3 if sh == shapes.HEX else (p + 1) * (p + 2) * (p + 3) // 6
         r = vtk_parametric_coords(vtk, VTK_LAGRANGE[sh], n)
         gm = mesh.geom_modes[e]
         g = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(sh, gm)]

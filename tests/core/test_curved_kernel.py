@@ -6,6 +6,7 @@ ex = pytest.importorskip("hovr_blender.core.expansions")
 if not hasattr(ex, "invert_map"):
     pytest.skip("core/expansions.py not implemented yet", allow_module_level=True)
 
+from hovr_blender.core import shapes  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 from hovr_blender.core.mesh import VolumeMesh  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
@@ -28,22 +29,22 @@ def jittered_trilinear_brick(n, jitter, seed=3):
     interior = np.zeros(g.shape[:3], bool)
     interior[1:-1, 1:-1, 1:-1] = True
     g[interior] += rng.uniform(-jitter, jitter, (interior.sum(), 3)) / n
-    ref = (ex.SHAPE_VERTICES[ex.HEX] + 1) / 2
+    ref = (shapes.VERTICES[shapes.HEX] + 1) / 2
     geoms, coeffs = [], []
     for k in range(n):
         for j in range(n):
             for i in range(n):
                 v = np.array([g[i + int(a), j + int(b), k + int(c)] for a, b, c in ref])
-                geo = straight_geometry(ex.HEX, v)
+                geo = straight_geometry(shapes.HEX, v)
                 geoms.append(geo)
-                coeffs.append(straight_geometry(ex.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0])
-    return VolumeMesh.from_elements([ex.HEX] * n**3, (2, 2, 2), coeffs, (2, 2, 2), geoms)
+                coeffs.append(straight_geometry(shapes.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0])
+    return VolumeMesh.from_elements([shapes.HEX] * n**3, (2, 2, 2), coeffs, (2, 2, 2), geoms)
 
 
 def unit_box():
-    v = (ex.SHAPE_VERTICES[ex.HEX] + 1) / 2
-    return VolumeMesh.from_elements([ex.HEX], (2, 2, 2), [straight_geometry(ex.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0]],
-                                    (2, 2, 2), [straight_geometry(ex.HEX, v)])
+    v = (shapes.VERTICES[shapes.HEX] + 1) / 2
+    return VolumeMesh.from_elements([shapes.HEX], (2, 2, 2), [straight_geometry(shapes.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0]],
+                                    (2, 2, 2), [straight_geometry(shapes.HEX, v)])
 
 
 @pytest.mark.parametrize("method", ["trapezoid", "split"])
@@ -68,7 +69,7 @@ def bulged_element(shape, amount=0.15, modes=3):
     return ex.fit_modal(shape, (modes,) * 3, x)
 
 
-@pytest.mark.parametrize("shape", [ex.HEX, ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR])
 def test_curved_chords_match_numpy(device, shape):
     """Constant density in a curved element: T = exp(-tau L), L from the numpy oracle's inversion."""
     g = bulged_element(shape)

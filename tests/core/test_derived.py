@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.mesh import element_field_ranges
 from hovr_blender.io import derived, nektar, synthetic
 from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude, read_nektar_field, read_vtu_field
@@ -53,7 +54,7 @@ def test_parse_magnitude():
 def test_orders_and_shapes(kinked):
     comps, mag = kinked
     assert mag.field_name == "|a,b,c|" and mag.num_elements == comps[0].num_elements
-    assert set(np.unique(mag.shape)) == {ex.HEX, ex.PRISM, ex.TET, ex.PYR}
+    assert set(np.unique(mag.shape)) == {shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR}
     assert (mag.modes == 7).all()  # 2 * 3 + 1
     np.testing.assert_array_equal(derived.magnitude_modes([np.full((2, 3), 8), np.array([[2, 2, 2], [9, 9, 9]])]),
                                   [15, 15])  # capped at 15 modes
@@ -166,7 +167,7 @@ def test_nektar_momentum_magnitude_hump3d():
     lo, hi = element_field_ranges(mag)
     rng = np.random.default_rng(4)
     for e in sample:
-        xi = _random_xi(ex.HEX, rng, 40)
+        xi = _random_xi(shapes.HEX, rng, 40)
         truth = derived.true_magnitude(comps, e, xi)
         fit = _eval(mag, e, xi)
         assert np.abs(fit - truth).max() <= info["bound"]

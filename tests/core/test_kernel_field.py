@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from hovr_blender.core.basis import eval_tensor
+from hovr_blender.core.expansions import eval_tensor
 from hovr_blender.core.kernels import args, restriction
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.io.builtin import box_vertices

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.io import nektar as nk
 from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
 
@@ -100,7 +101,7 @@ def test_every_file_loads(mesh):
 def test_tet_channel_reproduces_the_exact_solution():
     w = read_nektar(DATA / "Tet_channel_m3.xml", field="w")
     p = read_nektar(DATA / "Tet_channel_m3.xml", field="p")
-    assert w.num_elements == 48 and set(w.shape.tolist()) == {ex.TET} and w.affine.all()
+    assert w.num_elements == 48 and set(w.shape.tolist()) == {shapes.TET} and w.affine.all()
     assert max_error(w, lambda x: x[:, 1] * (1 - x[:, 1])) < 1e-12
     assert max_error(p, lambda x: -2 * (x[:, 2] - 1)) < 1e-12
 
@@ -133,10 +134,10 @@ def test_elvis_hexahedron_reproduces_the_sphere_field():
 def test_hump3d_gll_restart_is_continuous_at_shared_vertices():
     assert list_fields(DATA / "hump3D.rst") == ["rho", "rhou", "rhov", "rhow", "E"]
     m = read_nektar(DATA / "hump3D_GLL.xml", DATA / "hump3D.rst", field="rho")
-    assert m.num_elements == 1760 and set(m.shape.tolist()) == {ex.HEX}
+    assert m.num_elements == 1760 and set(m.shape.tolist()) == {shapes.HEX}
     values = {}
     for e in range(m.num_elements):
-        v = ex.eval_modal(0, m.modes[e], field(m, e), ex.SHAPE_VERTICES[0])
+        v = ex.eval_modal(0, m.modes[e], field(m, e), shapes.VERTICES[0])
         for x, u in zip(np.round(m.vertices[e], 9), v):
             values.setdefault(tuple(x), []).append(u)
     assert len(values) == 2460
@@ -149,12 +150,12 @@ def shared_face_jump(m, a, b, n=30, seed=1):
     """Max field jump between elements a and b at random points of their common face."""
     rng = np.random.default_rng(seed)
     sa, sb = int(m.shape[a]), int(m.shape[b])
-    va = ex.eval_modal(sa, m.geom_modes[a], geom(m, a), ex.SHAPE_VERTICES[sa])
-    vb = ex.eval_modal(sb, m.geom_modes[b], geom(m, b), ex.SHAPE_VERTICES[sb])
+    va = ex.eval_modal(sa, m.geom_modes[a], geom(m, a), shapes.VERTICES[sa])
+    vb = ex.eval_modal(sb, m.geom_modes[b], geom(m, b), shapes.VERTICES[sb])
     shared = [i for i, x in enumerate(va) if np.abs(vb - x).max(axis=1).min() < 1e-12]
     assert len(shared) >= 3
     w = rng.dirichlet(np.ones(len(shared)), n)
-    xi_a = w @ ex.SHAPE_VERTICES[sa][shared]  # on the shared (planar in reference space) face
+    xi_a = w @ shapes.VERTICES[sa][shared]  # on the shared (planar in reference space) face
     x = ex.eval_modal(sa, m.geom_modes[a], geom(m, a), xi_a)
     xi_b, conv, ins = ex.invert_map(sb, m.geom_modes[b], geom(m, b), x)
     assert conv.all() and ins.all()
@@ -166,7 +167,7 @@ def shared_face_jump(m, a, b, n=30, seed=1):
 def test_wss_mixed_mesh_is_continuous_across_faces():
     m = read_nektar(DATA / "wss_3D_periodic.xml", field="rho")
     ids = m.element_ids.tolist()
-    assert sorted(zip(ids, m.shape.tolist())) == [(0, ex.HEX), (1, ex.PRISM), (2, ex.PRISM)]
+    assert sorted(zip(ids, m.shape.tolist())) == [(0, shapes.HEX), (1, shapes.PRISM), (2, shapes.PRISM)]
     assert shared_face_jump(m, ids.index(1), ids.index(2)) < 1e-10  # spec §2.15: 1e-14 (10.5 uncorrected)
     assert shared_face_jump(m, ids.index(0), ids.index(1)) < 1e-8  # spec: hex-prism 2.6e-10
 
@@ -199,8 +200,8 @@ def test_curved_edges_and_faces_pass_through_their_points():
     worst = 0.0
     for k, (eid, shape, fids) in enumerate(mesh.elements):
         topo = nk._topology(mesh, eid, shape, fids, cache)
-        ref = nk.REF_VERTICES[shape]
-        for (e, fwd), (a, b) in zip(topo.edges, nk.EDGE_VERTS[shape]):
+        ref = shapes.VERTICES[shape]
+        for (e, fwd), (a, b) in zip(topo.edges, shapes.EDGES[shape]):
             if e in mesh.curved_edges:
                 ptype, pts = mesh.curved_edges[e]
                 s = nk._points_1d(ptype, len(pts), path, "")
@@ -275,8 +276,8 @@ def test_mixed_orders_per_element_are_read(tmp_path):
     """MIXORDER with different orders: an order-2 element holds the vertex modes of the order-3 one."""
     head, vals, m = block_parts(tet_fld())
     per = vals.reshape(4, 48, 10)
-    trip = ex.mode_triples(ex.TET, (3, 3, 3)).tolist()
-    low = [trip.index(t) for t in ex.mode_triples(ex.TET, (2, 2, 2)).tolist()]
+    trip = ex.mode_triples(shapes.TET, (3, 3, 3)).tolist()
+    low = [trip.index(t) for t in ex.mode_triples(shapes.TET, (2, 2, 2)).tolist()]
     chunks = []
     for f in range(4):
         for e in range(48):
@@ -383,7 +384,7 @@ def test_other_bases_are_refused_naming_file_block_and_basis(tmp_path, basis, sh
 
 def test_shape_mismatch_between_mesh_and_field(tmp_path):
     head, vals, m = block_parts(tet_fld())
-    n = ex.num_coeffs(ex.PRISM, (3, 3, 3))
+    n = ex.num_coeffs(shapes.PRISM, (3, 3, 3))
     h = head.replace('SHAPE="Tetrahedron"', 'SHAPE="Prism"').replace("Modified_A,Modified_B,Modified_C",
                                                                        "Modified_A,Modified_A,Modified_B")
     (tmp_path / "m.fld").write_text(tet_fld()[: m.start()] + h + encode(np.zeros(4 * 48 * n)) + "</ELEMENTS>"

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.mesh import MeshError
 from hovr_blender.io import paper_scale as ps
 from hovr_blender.io.synthetic import mixed_cube
@@ -22,9 +23,9 @@ def _faces(mesh):
     for e in range(mesh.num_elements):
         sh = int(mesh.shape[e])
         V = mesh.vertices[e]
-        for f in ps.FACES[sh]:
+        for f in shapes.FACES[sh]:
             key = frozenset(tuple(np.round(V[i], 7)) for i in f)
-            faces.setdefault(key, []).append((e, f))
+            faces.setdefault(key, []).append((e, list(f)))
     return faces
 
 
@@ -62,7 +63,7 @@ def _shared_face_mismatch(mesh):
             # the same physical vertex in both elements: order B's reference vertices like A's
             keys = [tuple(np.round(mesh.vertices[e][i], 7)) for i in f]
             order = [f[keys.index(tuple(np.round(mesh.vertices[ea][i], 7)))] for i in fa]
-            xi = w @ ex.SHAPE_VERTICES[sh][order]
+            xi = w @ shapes.VERTICES[sh][order]
             xs.append(ex.eval_modal(sh, gm, g, xi))
         worst = max(worst, float(np.abs(xs[0] - xs[1]).max()))
     return worst, shared
@@ -70,8 +71,8 @@ def _shared_face_mismatch(mesh):
 
 def test_counts_follow_the_request(small):
     info = small.paper_scale
-    assert info["hexahedra"] == int((small.shape == ex.HEX).sum())
-    assert info["prisms"] == int((small.shape == ex.PRISM).sum())
+    assert info["hexahedra"] == int((small.shape == shapes.HEX).sum())
+    assert info["prisms"] == int((small.shape == shapes.PRISM).sum())
     assert info["hexahedra"] + info["prisms"] == small.num_elements
     assert info["prisms"] % 2 == 0  # each split cell gives two
     # the grid rounds to whole cells: within a third of the request at this tiny size
@@ -88,7 +89,7 @@ def test_paper_scale_counts_within_five_percent():
     info = m.paper_scale
     assert abs(info["hexahedra"] - 3400) <= 0.05 * 3400
     assert abs(info["prisms"] - 7600) <= 0.05 * 7600
-    assert info["hexahedra"] == int((m.shape == ex.HEX).sum())
+    assert info["hexahedra"] == int((m.shape == shapes.HEX).sum())
     assert m.affine.all()
 
 
@@ -119,13 +120,13 @@ def test_unshared_faces_are_exactly_the_domain_boundary():
 
 def test_jacobians_positive_inside_every_element(small):
     rng = np.random.default_rng(4)
-    for sh in (ex.HEX, ex.PRISM):
+    for sh in (shapes.HEX, shapes.PRISM):
         idx = np.nonzero(small.shape == sh)[0]
         gm = tuple(small.geom_modes[idx[0]])
         kg = ex.num_coeffs(sh, gm)
         G = small.geom_coeffs[small.geom_offset[idx][:, None] + np.arange(kg)[None, :]]
         cand = rng.uniform(-1, 1, (400, 3))
-        pts = np.concatenate([cand[ex.inside(sh, cand, tol=0.0)], ex.SHAPE_VERTICES[sh]])
+        pts = np.concatenate([cand[ex.inside(sh, cand, tol=0.0)], shapes.VERTICES[sh]])
         det = ps.jacobian_determinants(sh, gm, G, pts)
         assert det.min() > 0
         # curved indeed: the determinant varies inside elements
@@ -165,7 +166,7 @@ def test_curved_copy_of_mixed_shapes_is_conforming():
         return 0.08 * (1 - (2 * x - 1) ** 2), 0.05 * x * y, -0.06 * (y - 0.5) ** 2 + 0.02 * x
 
     m = ps.curved_copy(base, bend, geom_modes=3)
-    assert set(np.unique(m.shape)) == {ex.HEX, ex.PRISM, ex.TET, ex.PYR}
+    assert set(np.unique(m.shape)) == {shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR}
     assert not m.affine.any()
     np.testing.assert_array_equal(m.coeffs, base.coeffs)
     worst, shared = _shared_face_mismatch(m)

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from hovr_blender.core.basis import fit_tensor_coefficients
+from hovr_blender.core.expansions import fit_tensor_coefficients
 from hovr_blender.core.camera import RayCamera
-from hovr_blender.core.mesh import HEX_REF_VERTICES, VolumeMesh
+from hovr_blender.core.mesh import VolumeMesh
+from hovr_blender.core.shapes import HEX, VERTICES
 from hovr_blender.core.reference import cheb_eval, cheb_integral, reference_render
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, box_vertices, sphere
@@ -58,7 +59,7 @@ def world_chord(vertices, o, d):
 def random_parallelepiped(seed):
     rng = np.random.default_rng(seed)
     J = np.diag(rng.uniform(0.5, 1.5, 3)) + rng.uniform(-0.3, 0.3, (3, 3))
-    return rng.uniform(-0.5, 0.5, 3) + HEX_REF_VERTICES @ J.T
+    return rng.uniform(-0.5, 0.5, 3) + VERTICES[HEX] @ J.T
 
 
 def test_chebyshev_helpers_match_numpy():

@@ -7,6 +7,7 @@ ex = pytest.importorskip("hovr_blender.core.expansions")
 if not hasattr(ex, "eval_modal"):
     pytest.skip("core/expansions.py not implemented yet", allow_module_level=True)
 
+from hovr_blender.core import shapes  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 from hovr_blender.core.kernels import args, restriction  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
@@ -31,11 +32,11 @@ def random_inside(shape, n, rng):
     return np.array(pts[:n])
 
 
-@pytest.mark.parametrize("shape", [ex.HEX, ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR])
 def test_kernel_expansion_matches_numpy(device, shape):
     rng = np.random.default_rng(7 + shape)
     orders = [(n, n, n) for n in range(2, 16)] + [(3, 4, 5), (2, 6, 6)]  # collapsed direction carries the top order
-    ref_v = ex.SHAPE_VERTICES[shape]
+    ref_v = shapes.VERTICES[shape]
     geoms, coeffs = [], []
     for m in orders:
         k = ex.num_coeffs(shape, m)
@@ -55,7 +56,7 @@ def test_kernel_expansion_matches_numpy(device, shape):
         sel = elem == e
         want = ex.eval_modal(shape, m, coeffs[e], xi[sel].astype(np.float32).astype(np.float64))
         err = np.abs(got[sel] - want).max()
-        assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{ex.SHAPE_NAMES[shape]} modes {m}: {err:.3g}"
+        assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{shapes.NAMES[shape]} modes {m}: {err:.3g}"
 
 
 def chord(o, d, lo, hi):
@@ -73,7 +74,7 @@ CAM = {"eye": [3.1, 2.3, 2.6], "target": [0.5, 0.45, 0.5], "up": [0, 0, 1], "fov
 def test_mixed_shapes_are_watertight(device, method):
     """Constant density over a cube cut into hexes, prisms, tets and pyramids: T = exp(-tau L)."""
     mesh = mixed_cube(3, 2, lambda x, y, z: 0 * x + 1.0)
-    assert set(mesh.shape.tolist()) == {ex.HEX, ex.PRISM, ex.TET, ex.PYR}
+    assert set(mesh.shape.tolist()) == {shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR}
     assert mesh.affine.all()
     tf = TransferFunction.from_contract({"color": [[0, 0.2, 0.5, 0.8], [2, 0.2, 0.5, 0.8]], "density": [[0, 1.3], [2, 1.3]]})
     cam = RayCamera.from_contract(CAM, 64, 48)
@@ -124,7 +125,7 @@ def test_mesh_evaluate_and_samples_for_every_shape():
     mesh = mixed_cube(2, 3, f)
     rng = np.random.default_rng(5)
     for e in range(0, mesh.num_elements, 3):
-        nv = {ex.HEX: 8, ex.PRISM: 6, ex.TET: 4, ex.PYR: 5}[int(mesh.shape[e])]
+        nv = {shapes.HEX: 8, shapes.PRISM: 6, shapes.TET: 4, shapes.PYR: 5}[int(mesh.shape[e])]
         w = rng.dirichlet(np.ones(nv), 4)  # convex combinations of the vertices: inside
         x = w @ mesh.vertices[e, :nv]
         np.testing.assert_allclose(mesh.evaluate(e, x), f(*x.T), atol=1e-12)
@@ -159,16 +160,16 @@ def test_static_evaluator_matches_numpy(device, N):
     """The unrolled evaluators (hexahedra and prisms of N modes) against the numpy oracle, in a
     mesh that also holds every shape at other modes (those take the generic path)."""
     rng = np.random.default_rng(N)
-    elems = [(ex.HEX, (N, N, N)), (ex.PRISM, (N, N, N)), (ex.HEX, (N + 1,) * 3), (ex.PRISM, (3, 4, 5)),
-             (ex.TET, (N, N, N)), (ex.PYR, (N, N, N))]
-    shapes = [s for s, _ in elems]
+    elems = [(shapes.HEX, (N, N, N)), (shapes.PRISM, (N, N, N)), (shapes.HEX, (N + 1,) * 3), (shapes.PRISM, (3, 4, 5)),
+             (shapes.TET, (N, N, N)), (shapes.PYR, (N, N, N))]
+    kinds = [s for s, _ in elems]
     coeffs = [rng.uniform(-1, 1, ex.num_coeffs(s, m)) for s, m in elems]
-    geoms = [straight_geometry(s, ex.SHAPE_VERTICES[s]) for s in shapes]
-    mesh = VolumeMesh.from_elements(shapes, np.array([m for _, m in elems]), coeffs, (2, 2, 2), geoms)
+    geoms = [straight_geometry(s, shapes.VERTICES[s]) for s in kinds]
+    mesh = VolumeMesh.from_elements(kinds, np.array([m for _, m in elems]), coeffs, (2, 2, 2), geoms)
     r = Renderer(mesh, device)
     npts = 40
     elem = np.repeat(np.arange(len(elems), dtype=np.int32), npts)
-    xi = np.concatenate([random_inside(s, npts, rng) for s in shapes])
+    xi = np.concatenate([random_inside(s, npts, rng) for s in kinds])
     out = wp.zeros(elem.size, dtype=wp.float32, device=r.device)
     wp.launch(_static_eval_kernel(N), dim=elem.size, device=r.device,
               inputs=[r.mesh_args(), wp.array(elem, dtype=wp.int32, device=r.device),
@@ -178,13 +179,13 @@ def test_static_evaluator_matches_numpy(device, N):
         sel = elem == e
         want = ex.eval_modal(s, m, coeffs[e], xi[sel].astype(np.float32).astype(np.float64))
         err = np.abs(got[sel] - want).max()
-        assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{ex.SHAPE_NAMES[s]} modes {m}: {err:.3g}"
+        assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{shapes.NAMES[s]} modes {m}: {err:.3g}"
 
 
 def test_static_modes_picks_one_order_or_none():
     from hovr_blender.core.kernels.element import static_modes
 
-    H, P, T = ex.HEX, ex.PRISM, ex.TET
+    H, P, T = shapes.HEX, shapes.PRISM, shapes.TET
     assert static_modes([H, P, T], [(7, 7, 7), (7, 7, 7), (3, 3, 3)]) == 7  # tets go generic anyway
     assert static_modes([H, P], [(7, 7, 7), (6, 6, 6)]) == 0  # two orders: no single specialisation
     assert static_modes([H], [(3, 4, 5)]) == 0  # anisotropic

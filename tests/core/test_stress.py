@@ -15,6 +15,7 @@ from numpy.polynomial import chebyshev
 
 from bench import eval_table
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.mesh import VolumeMesh
 from hovr_blender.core.reference import reference_render
@@ -84,7 +85,7 @@ def convex_chord(V, o, d):
     return np.where(blocked, 0.0, L)
 
 
-UNIT_CUBE = 0.5 * (ex.SHAPE_VERTICES[ex.HEX] + 1.0)
+UNIT_CUBE = 0.5 * (shapes.VERTICES[shapes.HEX] + 1.0)
 
 
 def mesh_chord(mesh, o, d):
@@ -110,8 +111,8 @@ def assert_transmittance(res, L, tau=TAU, rtol=1e-4):
     ("gll_lagrange", eval_table.FAMILIES["gll_lagrange"], 14),
     # VTK hexes/prisms of degree > 8 need a large float64 pseudo-inverse for the conversion
     # (38 s for degree 14); bench/eval_table.py runs them all
-    ("vtk_lagrange", [ex.TET], 14),
-    ("vtk_lagrange", [ex.HEX, ex.PRISM], 8),
+    ("vtk_lagrange", [shapes.TET], 14),
+    ("vtk_lagrange", [shapes.HEX, shapes.PRISM], 8),
 ])
 def test_float32_expansions_match_oracle_cpu(family, shapes, max_order):
     """The comparison of bench/eval_table.py on the CPU with fewer points: inside every element
@@ -127,7 +128,7 @@ def test_float32_expansions_match_oracle_cpu(family, shapes, max_order):
 
 
 @pytest.mark.parametrize("order", [4, 14])
-@pytest.mark.parametrize("shape", [ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_float32_expansion_one_ulp_off_the_collapse(shape, order):
     """Points one float32 ulp in xi0 off the collapsed vertex / edge, as the render kernel's
     clipped entry points land for rays through them, against the oracle at the collapsed point
@@ -137,9 +138,9 @@ def test_float32_expansion_one_ulp_off_the_collapse(shape, order):
     modes = (order + 1,) * 3
     c = rng.uniform(-1, 1, ex.num_coeffs(shape, modes))
     s = np.linspace(-0.9, 0.9, 7)
-    if shape == ex.PRISM:  # the collapsed edge xi0 = -1, xi2 = 1 (any xi1)
+    if shape == shapes.PRISM:  # the collapsed edge xi0 = -1, xi2 = 1 (any xi1)
         on = np.stack([-np.ones_like(s), s, np.ones_like(s)], axis=1)
-    elif shape == ex.TET:  # the collapsed edge of the first collapse: xi0 = -1, xi1 = -xi2
+    elif shape == shapes.TET:  # the collapsed edge of the first collapse: xi0 = -1, xi1 = -xi2
         on = np.stack([-np.ones_like(s), -s, s], axis=1)
     else:  # the apex
         on = np.array([[-1.0, -1.0, 1.0]])
@@ -283,11 +284,11 @@ def apex_camera(shape, vertices, width=24, height=16, spread=1e-7):
                                     "target": apex.tolist(), "up": up.tolist(), "height": spread}, width, height)
 
 
-@pytest.mark.parametrize("shape", [ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_rays_through_collapsed_vertex_low_order(device, shape):
     """Rays within 1e-7 of the collapsed vertex of an order-2 element (and of a sheared one):
     constant density gives exp(-tau L) with L from the vertices."""
-    for V in (ex.SHAPE_VERTICES[shape], ex.SHAPE_VERTICES[shape] @ np.array([[1, 0.3, 0], [0, 1, 0.2], [0.1, 0, 2]])):
+    for V in (shapes.VERTICES[shape], shapes.VERTICES[shape] @ np.array([[1, 0.3, 0], [0, 1, 0.2], [0.1, 0, 2]])):
         mesh = single_element(shape, V, 3, lambda x, y, z: 0 * x + 1.0)
         cam = apex_camera(shape, V)
         o, d = cam.rays()
@@ -298,11 +299,11 @@ def test_rays_through_collapsed_vertex_low_order(device, shape):
                                                                RenderOptions(method=method, min_transmittance=0.0)), L)
 
 
-@pytest.mark.parametrize("shape", [ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_rays_through_collapsed_vertex_order14(device, shape):
     """As the low-order test, order 14 (a constant field: all higher coefficients zero).
     Regression: these rays once gave NaN pixels (Renderer raised 'non-finite pixels')."""
-    V = ex.SHAPE_VERTICES[shape]
+    V = shapes.VERTICES[shape]
     mesh = single_element(shape, V, 15, lambda x, y, z: 0 * x + 1.0)
     cam = apex_camera(shape, V)
     o, d = cam.rays()
@@ -326,8 +327,8 @@ def test_pyramid_apex_rays_float32_restriction(device):
     Regression: the pyramid's restriction g = f w^2 divided by w^2 again amplified g's float32
     rounding by 1/w^2 near the apex (T off by 4-7e-5 within 2e-3 of it); segments are now cut
     where w changes by more than a factor 2 (kernels/raycast.pyramid_piece_end)."""
-    V = ex.SHAPE_VERTICES[ex.PYR]
-    mesh = single_element(ex.PYR, V, 9, lambda x, y, z: 0.5 * (x + 0.3) ** 8 + 0.4 * y**3 * z**4 + 0.2 * z + 0.8)
+    V = shapes.VERTICES[shapes.PYR]
+    mesh = single_element(shapes.PYR, V, 9, lambda x, y, z: 0.5 * (x + 0.3) ** 8 + 0.4 * y**3 * z**4 + 0.2 * z + 0.8)
     tf = TransferFunction.from_contract({"color": [[-5, 1, 1, 1], [5, 1, 1, 1]], "density": [[-5, 0.0], [5, 2.0]]})
     gx, gw = np.polynomial.legendre.leggauss(64)
 
@@ -337,14 +338,14 @@ def test_pyramid_apex_rays_float32_restriction(device):
         depth = 0.0
         for a, b in zip(edges[:-1], edges[1:]):
             t = 0.5 * (a + b) + 0.5 * (b - a) * gx
-            f = ex.eval_modal(ex.PYR, mesh.modes[0], mesh.element_coeffs(0), o + t[:, None] * d)
+            f = ex.eval_modal(shapes.PYR, mesh.modes[0], mesh.element_coeffs(0), o + t[:, None] * d)
             depth += 0.5 * (b - a) * (gw @ (0.2 * (f + 5.0)))
         return np.exp(-depth)
 
     r = Renderer(mesh, device)
     errors = {}
     for spread in (2e-7, 2e-5, 2e-3):
-        cam = apex_camera(ex.PYR, V, 12, 8, spread=spread)
+        cam = apex_camera(shapes.PYR, V, 12, 8, spread=spread)
         o, d = cam.rays()
         want = np.array([[exact_T(o[i, j], d[i, j]) for j in range(cam.width)] for i in range(cam.height)])
         for method in ("split", "classified", "trapezoid"):
@@ -354,7 +355,7 @@ def test_pyramid_apex_rays_float32_restriction(device):
 
 
 @pytest.mark.parametrize("thickness", [1e-3, 1e-5])
-@pytest.mark.parametrize("shape", [ex.HEX, ex.PRISM, ex.TET, ex.PYR])
+@pytest.mark.parametrize("shape", [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR])
 def test_flat_elements(device, shape, thickness):
     """Nearly singular elements: each shape squashed to `thickness` along a tilted axis (aspect
     ratio up to 1e5), rays crossing it obliquely, constant density scaled so that tau L ~ 1;
@@ -362,7 +363,7 @@ def test_flat_elements(device, shape, thickness):
     eps32 * t of rounding, so T's stated budget is max(1e-4, 4 eps32 tau t_exit) relative
     (measured 3.3e-4 at thickness 1e-3 and 4.6e-2 at 1e-5, with t_exit ~ 3.5)."""
     Q, _ = np.linalg.qr(np.array([[1.0, 0.2, 0.1], [0.3, 1.0, 0.2], [0.1, 0.4, 1.0]]))
-    V = (ex.SHAPE_VERTICES[shape] * np.array([1.0, 1.0, thickness])) @ Q.T + np.array([0.3, -0.2, 0.1])
+    V = (shapes.VERTICES[shape] * np.array([1.0, 1.0, thickness])) @ Q.T + np.array([0.3, -0.2, 0.1])
     tau = 1.0 / thickness
     mesh = single_element(shape, V, 2, lambda x, y, z: 0 * x + 1.0)
     normal = Q[:, 2]
@@ -410,6 +411,6 @@ def test_rays_through_trilinear_brick_vertices(device):
     cam = RayCamera.from_contract({"eye": (node + [-1.5, -1.0, -0.8]).tolist(), "target": node.tolist(), "up": [0, 0, 1],
                                    "fov_y_deg": 30}, 7, 7)
     o, d = cam.rays()
-    L = convex_chord(ex.SHAPE_VERTICES[ex.HEX] * 0.5 + 0.5, o, d)
+    L = convex_chord(shapes.VERTICES[shapes.HEX] * 0.5 + 0.5, o, d)
     mesh = with_field(mesh, lambda x, y, z: 0 * x + 1.0, 2)
     assert_transmittance(Renderer(mesh, device).render(cam, constant_tf(), [0, 0, 0], split_opts()), L)

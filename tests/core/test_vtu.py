@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core import limits
 from hovr_blender.io import vtu
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
@@ -28,9 +29,9 @@ from ..conftest import shared_file
 VTU_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtu"
 REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4",
         "ngsolve_post_heat_tetprism_p4"]
-SHAPE_OF_TYPE = {71: ex.TET, 72: ex.HEX, 73: ex.PRISM}
-LAGRANGE = {ex.HEX: 72, ex.TET: 71, ex.PRISM: 73}
-BEZIER = {ex.HEX: 79, ex.TET: 78, ex.PRISM: 80}
+SHAPE_OF_TYPE = {71: shapes.TET, 72: shapes.HEX, 73: shapes.PRISM}
+LAGRANGE = {shapes.HEX: 72, shapes.TET: 71, shapes.PRISM: 73}
+BEZIER = {shapes.HEX: 79, shapes.TET: 78, shapes.PRISM: 80}
 
 
 def need_vtk():
@@ -60,7 +61,7 @@ def random_params(shape, m, rng):
     out = []
     while len(out) < m:
         r = rng.uniform(0.02, 0.98, 3)
-        if shape == ex.TET and r.sum() >= 0.98 or shape == ex.PRISM and r[0] + r[1] >= 0.98:
+        if shape == shapes.TET and r.sum() >= 0.98 or shape == shapes.PRISM and r[0] + r[1] >= 0.98:
             continue
         out.append(r)
     return np.array(out)
@@ -115,9 +116,9 @@ def test_vtk8_hex_order_is_vtks_own_conversion():
 
 def space_exponents(shape, degs):
     p, q, r = degs
-    if shape == ex.HEX:
+    if shape == shapes.HEX:
         return [(a, b, c) for a in range(p + 1) for b in range(q + 1) for c in range(r + 1)]
-    if shape == ex.TET:
+    if shape == shapes.TET:
         return [(a, b, c) for a in range(p + 1) for b in range(p + 1 - a) for c in range(p + 1 - a - b)]
     return [(a, b, c) for a in range(p + 1) for b in range(p + 1 - a) for c in range(r + 1)]
 
@@ -184,7 +185,7 @@ def write_vtk(vtk, path, cells, mode="appended", vtk8=False, hod=False):
         for v in V:
             val.InsertNextValue(v)
             vec.InsertNextTuple3(2 * v, -v, 0.5)
-        if vtk8 and c.shape == ex.HEX and c.type in (72, 79):
+        if vtk8 and c.shape == shapes.HEX and c.type in (72, 79):
             # the same nodes listed in VTK 8 order: node (i, j, k) goes to its old position
             new, old = vtu.hex_order(*c.degs), vtu.hex_order(*c.degs, vtk8=True)
             pos = {ijk: ids[n] for n, ijk in enumerate(new)}
@@ -242,7 +243,7 @@ def mixed_cells(rng, family="lagrange", degrees=range(1, 5)):
     types = LAGRANGE if family == "lagrange" else BEZIER
     cells = []
     for p in degrees:
-        for k, shape in enumerate((ex.HEX, ex.TET, ex.PRISM)):
+        for k, shape in enumerate((shapes.HEX, shapes.TET, shapes.PRISM)):
             cells.append(Cell(types[shape], (p, p, p), (1.5 * p, 1.5 * k, 0.0), rng))
     return cells
 
@@ -419,9 +420,9 @@ def node_xi(shape, P):
     """Our reference coordinates of VTK parametric points P, for the direct and the mirrored
     correspondence (the reader picks the one that makes the element right-handed)."""
     xi = 2 * P - 1
-    if shape == ex.HEX:
+    if shape == shapes.HEX:
         return xi, xi * [1, 1, -1]
-    if shape == ex.TET:
+    if shape == shapes.TET:
         return xi, xi[:, [1, 0, 2]]
     return xi[:, [1, 2, 0]], xi[:, [0, 2, 1]]
 
@@ -484,14 +485,14 @@ def test_ngsolve_ball_volume():
     _, info = real("ngsolve_ball_poisson_hex_p6")
     mesh = real_mesh("ngsolve_ball_poisson_hex_p6")
     assert np.all(mesh.geom_modes == 7)
-    k = ex.num_coeffs(ex.HEX, (7, 7, 7))
+    k = ex.num_coeffs(shapes.HEX, (7, 7, 7))
     G = mesh.geom_coeffs.reshape(-1, k, 3)
     vols = []
     for n in (9, 11):  # det J has degree <= 17 per direction: both rules are exact
         gx, gw = np.polynomial.legendre.leggauss(n)
         P = np.stack(np.meshgrid(gx, gx, gx, indexing="ij"), -1).reshape(-1, 3)
         W = np.einsum("i,j,k->ijk", gw, gw, gw).ravel()
-        D = ex.eval_modal_grad(ex.HEX, (7, 7, 7), np.eye(k), P)  # (S, K, 3)
+        D = ex.eval_modal_grad(shapes.HEX, (7, 7, 7), np.eye(k), P)  # (S, K, 3)
         J = (G.transpose(0, 2, 1).reshape(-1, k) @ D.transpose(1, 0, 2).reshape(k, -1))
         J = J.reshape(len(G), 3, len(P), 3).transpose(0, 2, 1, 3)  # J[e, s, c, d] = dx_c/dxi_d
         vols.append(float((np.linalg.det(J) * W).sum()))
@@ -532,7 +533,7 @@ def test_ngsolve_post_file_agrees_with_vtk_at_every_node():
     assert mesh.num_elements == ug.GetNumberOfCells() == 3884
     assert [int(s) for s in mesh.shape] == [SHAPE_OF_TYPE[int(t)] for t in types]
     worst_x = worst_t = 0.0
-    for shape in (ex.TET, ex.PRISM):
+    for shape in (shapes.TET, shapes.PRISM):
         members = np.flatnonzero(mesh.shape == shape)
         n = int(offs[members[0] + 1] - offs[members[0]])
         ids = np.stack([conn[offs[e]:offs[e + 1]] for e in members])  # (cells, nodes)

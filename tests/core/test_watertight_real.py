@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.core import expansions as ex
+from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
@@ -118,7 +119,7 @@ HEX_FACES = [(0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0), (2, -1.0), (2, 1.0)]  # x
 def boundary_faces(mesh):
     """(element, axis, value) of every hexahedron face that no other element shares (faces keyed
     by their four corner vertices, rounded)."""
-    V = ex.SHAPE_VERTICES[ex.HEX]
+    V = shapes.VERTICES[shapes.HEX]
     count, where = {}, {}
     for e in range(mesh.num_elements):
         for axis, val in HEX_FACES:
@@ -134,14 +135,14 @@ def face_patch(mesh, face):
     fitted exactly (n = the geometry's modes) to the oracle's element map on the face."""
     e, axis, val = face
     gm = tuple(int(v) for v in mesh.geom_modes[e])
-    G = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(ex.HEX, gm)]
+    G = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(shapes.HEX, gm)]
     n = max(gm)
     s = np.cos(np.pi * np.arange(n) / (n - 1))
     U, Vv = np.meshgrid(s, s, indexing="ij")
     xi = np.zeros((n * n, 3))
     xi[:, axis] = val
     xi[:, [k for k in range(3) if k != axis]] = np.stack([U.ravel(), Vv.ravel()], axis=1)
-    X = ex.eval_modal(ex.HEX, gm, G, xi)
+    X = ex.eval_modal(shapes.HEX, gm, G, xi)
     P = np.einsum("pa,pb->pab", U.ravel()[:, None] ** np.arange(n), Vv.ravel()[:, None] ** np.arange(n)).reshape(n * n, -1)
     C = np.linalg.solve(P, X).reshape(n, n, 3)
     # the same polynomial: check at other points of the face
@@ -150,7 +151,7 @@ def face_patch(mesh, face):
     xi = np.zeros((20, 3))
     xi[:, axis] = val
     xi[:, [k for k in range(3) if k != axis]] = uv
-    assert np.allclose(patch_eval(C, uv[:, 0], uv[:, 1])[0], ex.eval_modal(ex.HEX, gm, G, xi), atol=1e-13)
+    assert np.allclose(patch_eval(C, uv[:, 0], uv[:, 1])[0], ex.eval_modal(shapes.HEX, gm, G, xi), atol=1e-13)
     return C
 
 

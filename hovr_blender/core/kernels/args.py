@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..shapes import MAX_MODES
+
 wp.set_module_options({"enable_backward": False})
 
-MAX_MODES = 15  # modes per direction (degree 14)
 # Samples of the field along one segment: the exact restriction of an affine element has
 # degree <= 3 (MAX_MODES - 1) + 2 (pyramids); the last two slots hold the pyramid weights.
 MAX_SAMPLES = 48

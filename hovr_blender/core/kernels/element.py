@@ -8,12 +8,9 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+from ..shapes import HEX, PRISM, PYR, TET
 
-HEX = 0
-PRISM = 1
-TET = 2
-PYR = 3
+wp.set_module_options({"enable_backward": False})
 
 vecm = wp.types.vector(length=16, dtype=wp.float32)
 # reference-space margin of the affine clip (reference_interval); sized for float32 (a few
@@ -359,8 +356,8 @@ def num_faces(shape: int) -> int:
 def face_plane(shape: int, f: int) -> wp.vec4:
     """Face f of the reference element as (n, c), inside where n . xi <= c. Faces 0..2 are
     xi_k = -1; then hexahedra xi_0, xi_1, xi_2 = 1; prisms xi_1 = 1, xi_0 + xi_2 = 0;
-    tetrahedra xi_0 + xi_1 + xi_2 = -1; pyramids xi_0 + xi_2 = 0, xi_1 + xi_2 = 0. The host's
-    face adjacency (core/adjacency.py) numbers faces the same way."""
+    tetrahedra xi_0 + xi_1 + xi_2 = -1; pyramids xi_0 + xi_2 = 0, xi_1 + xi_2 = 0: the device's
+    copy of shapes.FACE_PLANES (tests/core/test_adjacency.py checks the two agree)."""
     n = wp.vec3(0.0, 0.0, 0.0)
     c = float(1.0)
     if f < 3:

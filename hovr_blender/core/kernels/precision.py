@@ -95,6 +95,13 @@ class _ToFloat64(ast.NodeTransformer):
                                           for a in node.args[1:]]
         return node
 
+    def visit_ImportFrom(self, node):
+        # the twin package sits outside hovr_blender: imports from above the kernels become absolute
+        if node.level >= 2:
+            node.module = "hovr_blender." + "core" + (f".{node.module}" if node.module else "")
+            node.level = 0
+        return node
+
     def visit_Assign(self, node):
         # module-level float constants read inside kernels (INSIDE_TOL = 1.0e-5)
         if not self.in_warp and isinstance(node.value, ast.Constant) and isinstance(node.value.value, float):
