@@ -26,11 +26,26 @@ def _modules():
     return (properties, render_engine, operators, import_operators, panels)
 
 
+_registered = False
+
+
 def register():
+    global _registered
     for module in _modules():
         module.register()
+    _registered = True
+    from .blender import compat
+
+    compat.unregister_before_exit(_unregister_if_registered)
 
 
 def unregister():
+    global _registered
     for module in reversed(_modules()):
         module.unregister()
+    _registered = False
+
+
+def _unregister_if_registered():
+    if _registered:
+        unregister()

@@ -19,6 +19,7 @@ from .camera import border_region, ray_camera_from_blender, ray_camera_from_view
 from ..core.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
+from .compat import write_pass_pixels
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -242,24 +243,6 @@ def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> View
     return ViewportFrame(state.display, state.version, state.converged, state.stage)
 
 
-def write_pass(render_pass, flat):
-    """RenderPass.rect.foreach_set: Blender 4.x/5.x take the flat float32 buffer, 3.4 wants
-    it shaped (pixels, channels)."""
-    try:
-        render_pass.rect.foreach_set(flat)
-    except TypeError:
-        render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
-
-
-def write_pass(render_pass, flat):
-    """RenderPass.rect.foreach_set: Blender 4.x/5.x take the flat float32 buffer, 3.4 wants
-    it shaped (pixels, channels)."""
-    try:
-        render_pass.rect.foreach_set(flat)
-    except TypeError:
-        render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
-
-
 def fail(api, message: str):
     """report() reaches the status bar and makes bpy.ops.render.render raise for scripts;
     error_set() as well would only repeat the message."""
@@ -330,11 +313,11 @@ def final_render(engine, api, depsgraph):
                   f"HOVR rendered {job.width}x{job.height}")
         return
     passes = {p.name: p for p in res.layers[0].passes}
-    write_pass(passes["Combined"], pixels)
+    write_pass_pixels(passes["Combined"], pixels)
     if "Depth" in passes:
-        write_pass(passes["Depth"], depth_pass(job.camera, result.depth, result.rgba[..., 3]))
+        write_pass_pixels(passes["Depth"], depth_pass(job.camera, result.depth, result.rgba[..., 3]))
     if "HOVR Error" in passes:
-        write_pass(passes["HOVR Error"], flip_rows(result.error))
+        write_pass_pixels(passes["HOVR Error"], flip_rows(result.error))
     engine.end_result(res)
     api.update_progress(1.0)
     api.update_stats("", render_stats(result.stats, n_elements,

@@ -1,12 +1,22 @@
 """Scene set-up shared by the in-Blender tests and the extension-install child script.
 
-Imports bpy but not hovr_blender, so the child script exercises the installed extension only.
+Imports bpy but not hovr_blender, so the child script exercises the installed extension only;
+compat() finds the add-on's version differences in whichever copy is loaded.
 """
+import importlib
 import math
+import sys
 
 import bpy
 import numpy as np
 from mathutils import Matrix
+
+
+def compat():
+    """hovr_blender.blender.compat of the loaded add-on: the installed extension's in the
+    install test's child process, the repository's otherwise."""
+    pkg = next((m for m in ("bl_ext.user_default.hovr_blender", "hovr_blender") if m in sys.modules), "hovr_blender")
+    return importlib.import_module(pkg + ".blender.compat")
 
 
 def look_at(eye, target, up) -> np.ndarray:
@@ -62,7 +72,7 @@ def render_to_exr(scene, path) -> np.ndarray:
     r = scene.render
     r.filepath = str(path)
     r.use_file_extension = False
-    r.image_settings.media_type = 'IMAGE'
+    compat().still_image_output(r.image_settings)
     r.image_settings.file_format = 'OPEN_EXR'
     r.image_settings.color_depth = '32'
     r.image_settings.exr_codec = 'ZIP'  # lossless

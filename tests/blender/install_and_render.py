@@ -10,7 +10,7 @@ import sys
 import bpy
 import numpy as np
 
-from blender_helpers import build_sphere_scene, render_to_exr
+from blender_helpers import build_sphere_scene, compat, render_to_exr
 
 REPO_MODULE = "bl_ext.user_default.hovr_blender"
 
@@ -49,7 +49,7 @@ def engine_registered():
         bpy.context.scene.render.engine = "HOVR"
     except TypeError:
         return False
-    bpy.context.scene.render.engine = "BLENDER_EEVEE"
+    bpy.context.scene.render.engine = compat().eevee_engine()
     return True
 
 
@@ -78,3 +78,4 @@ if __name__ == "__main__":
         disable_and_uninstall(json.loads(sys.argv[1]))
     else:
         main()
+    compat().finish_script(0)

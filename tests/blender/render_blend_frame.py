@@ -19,7 +19,11 @@ def main():
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
     print("HOVR-OUTPUT", out)
+    hovr_blender.unregister()
 
 
 if __name__ == "__main__":
     main()
+    from hovr_blender.blender import compat
+
+    compat.finish_script(0)

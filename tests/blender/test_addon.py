@@ -7,7 +7,7 @@ pytestmark = pytest.mark.blender
 
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
-from hovr_blender.blender import operators, panels  # noqa: E402
+from hovr_blender.blender import compat, operators, panels  # noqa: E402
 from hovr_blender.blender.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
 
 
@@ -25,7 +25,7 @@ def _engine_registered():
         render.engine = 'HOVR'  # the engine enum is dynamic: only registered engines are accepted
     except TypeError:
         return False
-    render.engine = 'BLENDER_EEVEE'
+    render.engine = compat.eevee_engine()
     return True
 
 

@@ -8,6 +8,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
+from hovr_blender.blender import compat  # noqa: E402
 from hovr_blender.blender import engine as render_engine  # noqa: E402
 from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.core.renderer import Renderer  # noqa: E402
@@ -21,12 +22,9 @@ from blender_helpers import render_to_exr  # noqa: E402
 
 def compositor_output(scene, output):
     """Route a Render Layers output to the compositor's result (what F12 then saves)."""
-    tree = bpy.data.node_groups.new("HOVR test compositor", "CompositorNodeTree")
-    scene.compositing_node_group = tree
+    tree, image = compat.new_compositor(scene, "HOVR test compositor")
     rl = tree.nodes.new("CompositorNodeRLayers")
-    out = tree.nodes.new("NodeGroupOutput")
-    tree.interface.new_socket("Image", in_out='OUTPUT', socket_type='NodeSocketColor')
-    tree.links.new(rl.outputs[output], out.inputs["Image"])
+    tree.links.new(rl.outputs[output], image)
     return rl
 
 
@@ -52,8 +50,7 @@ def depth_by_dense_sampling(camera, i, j):
 
 def test_passes_reach_the_compositor_only_when_enabled(scene):
     tr.build_scene(scene, tr.PERSPECTIVE)
-    tree = bpy.data.node_groups.new("c", "CompositorNodeTree")
-    scene.compositing_node_group = tree
+    tree, _image = compat.new_compositor(scene, "c")
     rl = tree.nodes.new("CompositorNodeRLayers")
     enabled = lambda: {o.name for o in rl.outputs if o.enabled}
     assert "Image" in enabled() and "Depth" not in enabled() and "HOVR Error" not in enabled()

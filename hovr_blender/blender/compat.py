@@ -1,0 +1,83 @@
+"""Where the Blender versions the manifest promises (4.2 LTS, 4.5 LTS, 5.x) differ in an API the
+add-on or its tests use, answered once, here, by looking for the feature rather than at the
+version number. Everything else in the Blender layer calls these instead of branching itself.
+
+- The EEVEE engine's id: BLENDER_EEVEE_NEXT in 4.2-4.5, BLENDER_EEVEE again from 5.0.
+- The compositor: 4.x keeps one tree per scene (scene.use_nodes, scene.node_tree, a Composite
+  node); 5.0 links a node group (scene.compositing_node_group, a Group Output node).
+- Still-image output: 5.0 adds ImageFormatSettings.media_type, which must say IMAGE before a
+  still format is chosen.
+- RenderPass.rect.foreach_set takes a flat buffer in 4.x/5.x and (pixels, channels) in 3.4.
+- bpy as a Python module (`pip install bpy`) hangs at interpreter exit in 4.5 while a Python
+  class is still registered, so the add-on unregisters itself first; in 4.2 (and 4.3) it crashes
+  at exit once any Python property callback was ever registered, unregistered or not (Blender
+  issue #125376, fixed in 4.4): finish_script() ends such scripts without the teardown.
+  docs/blender-versions.md has the reproductions. The Blender program is not affected.
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+import bpy
+
+
+_EXIT_HOOKED = False
+
+
+def unregister_before_exit(unregister) -> None:
+    """Call `unregister` when the Python interpreter exits, in bpy-as-a-module only (the Blender
+    program has an executable path and tears its add-ons down itself)."""
+    global _EXIT_HOOKED
+    if bpy.app.binary_path or _EXIT_HOOKED:
+        return
+    import atexit
+
+    atexit.register(unregister)
+    _EXIT_HOOKED = True
+
+
+def finish_script(code: int = 0):
+    """End a script run by bpy as a Python module with exit status `code`. Where Blender's
+    module crashes in its own teardown (bpy 4.2-4.3), flush and leave without it."""
+    if bpy.app.binary_path or bpy.app.version >= (4, 4, 0):
+        sys.exit(code)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def eevee_engine() -> str:
+    """The identifier of Blender's EEVEE render engine in this Blender."""
+    items = bpy.types.RenderSettings.bl_rna.properties["engine"].enum_items
+    return "BLENDER_EEVEE_NEXT" if "BLENDER_EEVEE_NEXT" in items else "BLENDER_EEVEE"
+
+
+def new_compositor(scene, name: str = "HOVR Compositor"):
+    """(node tree, input socket of the final image) of a new, empty compositor for `scene`:
+    what is linked into the socket is what F12 shows and writes."""
+    if hasattr(scene, "compositing_node_group"):  # 5.0+
+        tree = bpy.data.node_groups.new(name, "CompositorNodeTree")
+        scene.compositing_node_group = tree
+        out = tree.nodes.new("NodeGroupOutput")
+        tree.interface.new_socket("Image", in_out='OUTPUT', socket_type='NodeSocketColor')
+        return tree, out.inputs["Image"]
+    scene.use_nodes = True
+    tree = scene.node_tree
+    tree.nodes.clear()
+    out = tree.nodes.new("CompositorNodeComposite")
+    return tree, out.inputs["Image"]
+
+
+def still_image_output(image_settings) -> None:
+    """Let image_settings take a still format (OPEN_EXR, PNG, ...)."""
+    if hasattr(image_settings, "media_type"):  # 5.0+
+        image_settings.media_type = 'IMAGE'
+
+
+def write_pass_pixels(render_pass, flat) -> None:
+    """A render pass's pixels from a flat float32 buffer."""
+    try:
+        render_pass.rect.foreach_set(flat)
+    except TypeError:  # Blender 3.4: shaped (pixels, channels)
+        render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
