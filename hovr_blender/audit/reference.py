@@ -89,6 +89,7 @@ class IndependentReference:
         self._pc = [0.0, 0.0, 0.0]
         self._d2 = vtk.reference(0.0)
         self._center = [0.0, 0.0, 0.0]
+        self._by_node = {}  # cell type -> layout of InterpolateDerivs (see _jacobian)
         self.evaluations = 0
 
     # ------------------------------------------------------------------ the field
@@ -119,13 +120,38 @@ class IndependentReference:
             inside = -e <= r <= 1 + e and -e <= s <= 1 + e and -e <= t <= 1 + e
         return inside, float(np.dot(w, self.values[ids]))
 
-    @staticmethod
-    def _newton(cell, w, dw, nodes, x, pc):
+    def _jacobian(self, cell, pc, w, dw, nodes):
+        """J[k] = dx / d(pcoord k) from VTK's shape-function derivatives. VTK's cells lay these out
+        by derivative (dN_i/dr for all i, then d/ds, d/dt) or by node (dN_i/dr, dN_i/ds, dN_i/dt
+        per i): which one is found once per cell type against finite differences."""
+        cell.InterpolateDerivs(list(pc), dw)
+        kind = cell.GetCellType()
+        if kind not in self._by_node:
+            n = len(w)
+            h = 1e-6
+            fd = []
+            for k in range(3):
+                plus, minus = np.array(pc, float), np.array(pc, float)
+                plus[k] += h
+                minus[k] -= h
+                cell.InterpolateFunctions(list(plus), w)
+                xp = np.asarray(w) @ nodes
+                cell.InterpolateFunctions(list(minus), w)
+                fd.append((xp - np.asarray(w) @ nodes) / (2 * h))
+            cell.InterpolateFunctions(list(pc), w)
+            by_node = np.asarray(dw).reshape(n, 3).T @ nodes
+            self._by_node[kind] = np.abs(by_node - np.array(fd)).max() < np.abs(
+                np.asarray(dw).reshape(3, n) @ nodes - np.array(fd)).max()
+        n = len(w)
+        d = np.asarray(dw).reshape(n, 3).T if self._by_node[kind] else np.asarray(dw).reshape(3, n)
+        return d @ nodes
+
+    def _newton(self, cell, w, dw, nodes, x, pc):
         """Parametric coordinates of x by Newton on VTK's shape functions from pc, or None."""
         for _ in range(NEWTON_STEPS):
             cell.InterpolateFunctions(list(pc), w)
-            cell.InterpolateDerivs(list(pc), dw)
-            J = np.asarray(dw).reshape(-1, 3).T @ nodes  # J[k] = dx / d(pcoord k)
+            J = self._jacobian(cell, pc, w, dw, nodes)
+            cell.InterpolateFunctions(list(pc), w)
             try:
                 step = np.linalg.solve(J.T, np.asarray(w) @ nodes - x)
             except np.linalg.LinAlgError:
