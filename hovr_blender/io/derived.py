@@ -37,13 +37,13 @@ from __future__ import annotations
 import dataclasses
 import re
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from ..core import expansions as ex
 from ..core.shapes import MAX_MODES
 from ..core.mesh import MeshError, VolumeMesh, element_field_ranges
+from . import nektar, vtu
 
 SAMPLES_PER_ELEMENT = 64
 MAX_SAMPLE_POINTS = 400_000
@@ -199,22 +199,13 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
 # readers: a plain field as before, "|a,b,c|" (Nektar++) or a VTU vector's magnitude derived here
 
 
-def _nektar_component(first: VolumeMesh, sol: Path, blocks, name: str) -> VolumeMesh:
-    """Field `name` of the solution on the geometry of `first` (read with read_nektar)."""
-    from . import nektar
-
-    names = nektar._field_names(blocks)
-    if name not in names:
-        raise nektar.NektarError(f"{sol}: no field {name!r}; it holds {', '.join(names)}")
-    coeffs = nektar._guard(sol, lambda: nektar._field_coeffs(sol, blocks, name))
+def _nektar_component(first: VolumeMesh, field_file: nektar.FieldFile, name: str) -> VolumeMesh:
+    """Field `name` of the field file on the geometry of `first` (read with read_nektar)."""
     ids = first.element_ids.tolist()
-    missing = [e for e in ids if e not in coeffs]
-    if missing:
-        raise nektar.NektarError(f"{sol}: no coefficients of field {name!r} for mesh element(s) "
-                                 f"{missing[:10]}{' ...' if len(missing) > 10 else ''}")
+    coeffs = field_file.coefficients(name, ids)
     for k, e in enumerate(ids):
         if coeffs[e][0] != int(first.shape[k]):
-            raise nektar.NektarError(f"{sol}: element {e} has another shape for field {name!r}")
+            raise nektar.NektarError(f"{field_file.path}: element {e} has another shape for field {name!r}")
     modes = np.array([coeffs[e][1] for e in ids], dtype=np.int32)
     flat = [np.asarray(coeffs[e][2], dtype=np.float64) for e in ids]
     sizes = np.array([f.size for f in flat], dtype=np.int64)
@@ -226,24 +217,20 @@ def _nektar_component(first: VolumeMesh, sol: Path, blocks, name: str) -> Volume
 
 def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
     """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    from . import nektar
-
     names = parse_magnitude(field)
     if names is None:
         return nektar.read_nektar(mesh_path, solution_path, field)
     first = nektar.read_nektar(mesh_path, solution_path, names[0])
-    sol = Path(solution_path) if solution_path is not None else nektar.find_solution(mesh_path)
-    blocks = nektar._guard(sol, lambda: nektar._field_blocks(sol, first.num_elements))
-    comps = [first] + [_nektar_component(first, sol, blocks, n) for n in names[1:]]
-    return magnitude_mesh(comps, "|" + ",".join(names) + "|")
+    solution = solution_path if solution_path is not None else nektar.find_solution(mesh_path)
+    field_file = nektar.read_field_file(solution, first.num_elements)
+    components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
+    return magnitude_mesh(components, "|" + ",".join(names) + "|")
 
 
 def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
     """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
     is derived here from its exact component polynomials (read_vtu interpolates the nodal
     magnitudes instead, as VTK does)."""
-    from . import vtu
-
     if component in (None, "magnitude"):
         available = vtu.list_fields(path)
         name = field if field is not None else next(iter(available), None)
