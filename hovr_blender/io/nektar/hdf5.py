@@ -2,7 +2,9 @@
 the ELEMENTIDS, DATA and POLYORDERS datasets and name a definition group per block.
 
 Imports h5py, which only HDF5 files need: fields.py imports this module when it meets one.
-Objects are reached and read through core/limits.py's hdf5_child and hdf5_read.
+HDF5 can open and read other paths behind the file's back, so objects are followed through
+hard links only (`child`), and a dataset is read only after its size, its storage in this file
+and its compression have been checked (`read_dataset`).
 """
 from __future__ import annotations
 
@@ -22,6 +24,74 @@ BASIS_ENUM = ("NoBasisType", "Ortho_A", "Ortho_B", "Ortho_C", "Modified_A", "Mod
 MAX_ATTRIBUTE_VALUES = 4096
 
 
+# ----------------------------------------------------------------------------- safe access
+
+def child(group, name: str, what: str):
+    """Member `name` of an open h5py group, or None when there is none. Only a hard link to an
+    object whose data lies in this file is followed: soft and external links, external raw
+    storage and virtual datasets can each make HDF5 open or read another path."""
+    link = group.get(name, getlink=True)  # the link itself: nothing is traversed yet
+    if link is None:
+        return None
+    if isinstance(link, h5py.ExternalLink):
+        raise limits.UnsafeFileError(f"{what} is an external link to {link.filename}:{link.path}; refused")
+    if not isinstance(link, h5py.HardLink):
+        raise limits.UnsafeFileError(f"{what} is a soft link; only hard links are followed")
+    obj = group[name]
+    if isinstance(obj, h5py.Dataset):
+        if obj.is_virtual:
+            raise limits.UnsafeFileError(f"{what} is a virtual dataset (its data lies in other files); refused")
+        if obj.external:
+            raise limits.UnsafeFileError(f"{what} keeps its data in external file {obj.external[0][0]}; refused")
+    return obj
+
+
+def read_dataset(dataset, max_values: int, what: str):
+    """All values of an h5py dataset (reached through `child`), in its own dtype, read only
+    after its declared size (at most max_values), its storage in the file and its compression
+    have been checked. Compressed chunks are inflated here, each bounded by its declared size:
+    HDF5's own deflate filter grows its buffer until the stream ends."""
+    count = int(dataset.size)
+    if count > max_values:
+        raise limits.ResourceLimitError(f"{what} declares {count:,} values, more than the {max_values:,} it can need")
+    itemsize = dataset.dtype.itemsize
+    limits.check_bytes(count * itemsize, f"reading {what}")
+    stored = dataset.id.get_storage_size()
+    if count and not stored:
+        raise limits.ResourceLimitError(f"{what} declares {count:,} values but stores none (only a fill value); "
+                                        "refused")
+    if stored > dataset.file.id.get_filesize():
+        raise limits.ResourceLimitError(f"{what} claims {stored:,} stored bytes, more than the whole file holds")
+    plist = dataset.id.get_create_plist()
+    filters = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
+    if not filters:
+        return dataset[()]
+    deflate, shuffle = h5py.h5z.FILTER_DEFLATE, h5py.h5z.FILTER_SHUFFLE
+    if filters not in ([deflate], [shuffle, deflate]):
+        raise ValueError(f"{what}: HDF5 filter pipeline {filters} is not read; only gzip (deflate) "
+                         "compression, optionally after shuffle")
+    chunk = dataset.chunks
+    per_chunk = int(np.prod(chunk))
+    if per_chunk > max(count, 1 << 16):
+        raise limits.ResourceLimitError(f"{what}: chunks of {per_chunk:,} values for {count:,} values; refused")
+    out = np.full(dataset.shape, dataset.fillvalue, dtype=dataset.dtype)
+    for i in range(dataset.id.get_num_chunks()):
+        offset = dataset.id.get_chunk_info(i).chunk_offset
+        skipped, raw = dataset.id.read_direct_chunk(offset)  # bit k: filter k was skipped
+        if not skipped & (1 << filters.index(deflate)):
+            raw, _ = limits.inflate(raw, per_chunk * itemsize, f"{what} chunk {offset}", exact=True)
+        elif len(raw) != per_chunk * itemsize:
+            raise ValueError(f"{what} chunk {offset}: {len(raw)} bytes, expected {per_chunk * itemsize}")
+        if filters[0] == shuffle and not skipped & 1:
+            raw = np.frombuffer(raw, np.uint8).reshape(itemsize, per_chunk).T.tobytes()
+        target = tuple(slice(o, max(o, min(o + c, s))) for o, c, s in zip(offset, chunk, dataset.shape))
+        block = np.frombuffer(raw, dataset.dtype).reshape(chunk)
+        out[target] = block[tuple(slice(0, t.stop - t.start) for t in target)]
+    return out
+
+
+# ----------------------------------------------------------------------------- field files
+
 def read_blocks(path, file, budget):
     """The blocks of the HDF5 field file open as `file`; with budget None their headers only."""
     try:
@@ -34,7 +104,7 @@ def read_blocks(path, file, budget):
 
 
 def _blocks(path, h5, budget):
-    root = limits.hdf5_child(h5, "NEKTAR", f"{path}: /NEKTAR")
+    root = child(h5, "NEKTAR", f"{path}: /NEKTAR")
     if not isinstance(root, h5py.Group):
         raise NektarError(f"{path}: HDF5 file without a /NEKTAR group (not a Nektar++ field file)")
     rows = _decomposition(path, h5, root)
@@ -68,8 +138,7 @@ def _decomposition(path, h5, root):
     """The DECOMPOSITION rows (elements, values, POLYORDERS entries, 0, 0, 0, definition hash)."""
     dataset = _dataset(path, root, "DECOMPOSITION", "iu")
     # the index of the data, read for headers too: bounded by the file (it is far smaller than the data)
-    table = limits.hdf5_read(dataset, h5.id.get_filesize() // dataset.dtype.itemsize,
-                             f"{path}: /NEKTAR/DECOMPOSITION")
+    table = read_dataset(dataset, h5.id.get_filesize() // dataset.dtype.itemsize, f"{path}: /NEKTAR/DECOMPOSITION")
     if table.size % 7:
         raise NektarError(f"{path}: DECOMPOSITION has {table.size} entries, not a multiple of 7")
     if dataset.dtype.kind == "i" and np.any(table < 0):
@@ -110,7 +179,7 @@ def _dataset(path, root, name, kinds, required=True):
     """The 1-D dataset /NEKTAR/name (None if absent and not required); kinds "f": real
     floating point, "iu": integer."""
     what = f"{path}: /NEKTAR/{name}"
-    dataset = limits.hdf5_child(root, name, what)
+    dataset = child(root, name, what)
     if dataset is None:
         if required:
             raise NektarError(f"{path}: HDF5 field file lacks /NEKTAR/{name}")
@@ -133,7 +202,7 @@ def _values(path, dataset, name, count):
                           f"which holds {size:,}")
     if dataset is None:
         return np.zeros(0)
-    values = limits.hdf5_read(dataset, count, f"{path}: /NEKTAR/{name}")
+    values = read_dataset(dataset, count, f"{path}: /NEKTAR/{name}")
     if dataset.dtype.kind == "i" and np.any(values < 0):
         raise NektarError(f"{path}: /NEKTAR/{name}: negative entries")
     return values
@@ -163,7 +232,7 @@ def _text_list(value):
 
 def _header(path, root, h, what):
     """parse_header's tuple for the field definition group /NEKTAR/<h>."""
-    group = limits.hdf5_child(root, str(h), f"{path}: /NEKTAR/{h}")
+    group = child(root, str(h), f"{path}: /NEKTAR/{h}")
     if not isinstance(group, h5py.Group):
         raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{h}")
     attributes = group.attrs
