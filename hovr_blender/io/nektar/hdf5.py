@@ -110,18 +110,18 @@ def _blocks(path, h5, budget):
     rows = _decomposition(path, h5, root)
     headers = _headers(path, root, rows)
     if budget is None:
-        return [Block(shape, basis, fields, None, None, None, f"definition {h}")
-                for h, (shape, basis, fields, _, _) in headers.items()]
+        return [Block(shape, basis, fields, None, None, None, f"definition {definition}")
+                for definition, (shape, basis, fields, _, _) in headers.items()]
     _check_declared_sizes(path, rows, headers, budget)
-    all_ids = _values(path, _dataset(path, root, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(r[0] for r in rows))
-    all_data = _values(path, _dataset(path, root, "DATA", "f"), "DATA", sum(r[1] for r in rows))
+    all_ids = _values(path, _dataset(path, root, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(row[0] for row in rows))
+    all_data = _values(path, _dataset(path, root, "DATA", "f"), "DATA", sum(row[1] for row in rows))
     all_orders = _values(path, _dataset(path, root, "POLYORDERS", "iu", required=False), "POLYORDERS",
-                         sum(r[2] for r in rows))
+                         sum(row[2] for row in rows))
     blocks = []
     id_start = data_start = order_start = 0
-    for r, (num_elements, num_values, num_orders, _, _, _, h) in enumerate(rows):
-        what = f"DECOMPOSITION row {r} (definition {h})"
-        shape, basis, fields, kind, counts = headers[h]
+    for index, (num_elements, num_values, num_orders, _, _, _, definition) in enumerate(rows):
+        what = f"DECOMPOSITION row {index} (definition {definition})"
+        shape, basis, fields, kind, counts = headers[definition]
         if kind == "MIXORDER":
             if num_orders != 3 * num_elements:
                 raise NektarError(f"{path}: {what}: {num_orders} POLYORDERS entries for {num_elements} elements "
@@ -149,12 +149,12 @@ def _decomposition(path, h5, root):
 def _headers(path, root, rows):
     """{definition hash: parse_header's tuple}, in the order of first use."""
     headers = {}
-    for r, (_, _, _, homogeneous_y, homogeneous_z, strips, h) in enumerate(rows):
-        what = f"DECOMPOSITION row {r} (definition {h})"
+    for index, (_, _, _, homogeneous_y, homogeneous_z, strips, definition) in enumerate(rows):
+        what = f"DECOMPOSITION row {index} (definition {definition})"
         if homogeneous_y or homogeneous_z or strips:
             raise NektarError(f"{path}: {what}: homogeneous (Fourier-extruded) fields are not supported")
-        if h not in headers:
-            headers[h] = _header(path, root, h, what)
+        if definition not in headers:
+            headers[definition] = _header(path, root, definition, what)
     if not headers:
         raise NektarError(f"{path}: HDF5 field file holds no field definitions")
     return headers
@@ -162,9 +162,9 @@ def _headers(path, root, rows):
 
 def _check_declared_sizes(path, rows, headers, budget):
     """Each row's elements, values and POLYORDERS entries against the budget and its header."""
-    for r, (num_elements, num_values, num_orders, _, _, _, h) in enumerate(rows):
-        what = f"DECOMPOSITION row {r} (definition {h})"
-        shape, _, fields, kind, counts = headers[h]
+    for index, (num_elements, num_values, num_orders, _, _, _, definition) in enumerate(rows):
+        what = f"DECOMPOSITION row {index} (definition {definition})"
+        shape, _, fields, kind, counts = headers[definition]
         budget.claim(path, what, num_elements, fields)
         largest = mode_counts(path, what, kind, counts, 1) if kind == "UNIORDER" else [[MAX_MODES] * 3]
         most = len(fields) * num_elements * int(checked_coefficient_counts(path, what, shape, largest)[0])
@@ -230,11 +230,11 @@ def _text_list(value):
     return [_text(x).strip() for x in np.asarray(value).ravel().tolist()]
 
 
-def _header(path, root, h, what):
-    """parse_header's tuple for the field definition group /NEKTAR/<h>."""
-    group = child(root, str(h), f"{path}: /NEKTAR/{h}")
+def _header(path, root, definition, what):
+    """parse_header's tuple for the field definition group /NEKTAR/<definition>."""
+    group = child(root, str(definition), f"{path}: /NEKTAR/{definition}")
     if not isinstance(group, h5py.Group):
-        raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{h}")
+        raise NektarError(f"{path}: {what}: no field definition group /NEKTAR/{definition}")
     attributes = group.attrs
     try:
         basis = [BASIS_ENUM[int(b)] for b in np.asarray(_attribute(path, attributes, "BASIS", what)).ravel()]

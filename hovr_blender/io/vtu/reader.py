@@ -128,15 +128,15 @@ def _read_piece(file: LoadedFile, piece, where, first_cell, field, num_component
         type_name, shape, family = CELL_TYPES[cell_type]
         cell_degrees = _cell_degrees(path, cell, type_name, shape, family, nodes.size,
                                      None if degrees is None else degrees[c])
-        x = points[nodes]
-        v = values[nodes]
-        if not np.all(np.isfinite(x)):
+        node_points = points[nodes]
+        node_values = values[nodes]
+        if not np.all(np.isfinite(node_points)):
             raise VtuError(f"{path}: cell {cell}: node coordinates are NaN or Inf")
-        if not np.all(np.isfinite(v)):
+        if not np.all(np.isfinite(node_values)):
             raise VtuError(f"{path}: cell {cell}: field {field_name!r} is NaN or Inf at a node")
         if family == "bezier" and weights is not None and np.any(weights[nodes] != 1.0):
             raise VtuError(f"{path}: cell {cell}: rational Bézier cells (RationalWeights != 1) are not polynomial")
-        cells.append((shape, "lagrange" if family == "linear" else family, cell_degrees, x, v))
+        cells.append((shape, "lagrange" if family == "linear" else family, cell_degrees, node_points, node_values))
     return cells, field_name
 
 
