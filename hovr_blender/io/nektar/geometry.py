@@ -2,7 +2,7 @@
 coordinates; each curved edge's modes are fitted to Nektar++'s edge curve (interpolant of the
 points with the end points moved onto the vertices); each face with F points adds its bubble
 (the interior-mode part of the face interpolant); interior modes stay zero. For hexes this is
-the Gordon-Hall blend of §2.12. Every element's Jacobian is checked to be positive."""
+the Gordon-Hall blend the spec describes. Every element's Jacobian is checked to be positive."""
 from __future__ import annotations
 
 from functools import lru_cache
