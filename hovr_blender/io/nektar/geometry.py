@@ -20,7 +20,7 @@ from .topology import ElementTopology, element_topology
 STRAIGHT_MODES = 2  # geometry modes of an element without curves: its vertices alone
 
 
-class GeometrySpace:
+class _GeometrySpace:
     """Mode classification and fit matrices of one geometry space: `num_modes` modes per
     direction of a shape."""
 
@@ -36,7 +36,7 @@ class GeometrySpace:
         if on_vertex.sum() != len(ref) or len(set(self.vertex_modes.tolist())) != len(ref):
             raise RuntimeError(f"{NAMES[shape]}: vertex modes are not one per vertex")
         self.vertex_inverse = np.linalg.inv(at_vertices[:, self.vertex_modes])
-        self.edge_samples = edge_samples(num_modes)
+        self.edge_samples = _edge_samples(num_modes)
         t = np.linspace(-0.9, 0.9, 7)
         on_edge = []
         for a, b in EDGES[shape]:
@@ -98,11 +98,11 @@ def _face_points(corners):
 
 
 @lru_cache(maxsize=None)
-def geometry_space(shape, num_modes) -> GeometrySpace:
-    return GeometrySpace(shape, num_modes)
+def _geometry_space(shape, num_modes) -> _GeometrySpace:
+    return _GeometrySpace(shape, num_modes)
 
 
-def edge_samples(num_modes):
+def _edge_samples(num_modes):
     return gll_points(max(num_modes + 1, 3))  # one more than the modes: the edge fit is overdetermined
 
 
@@ -122,7 +122,7 @@ def _curve_matrix(points_type, count, num_modes, forward, z_bytes):
     """(L, w0, w1): curve samples = L @ points + w0 x0 + w1 x1. Overwriting the vertex modes
     moves the interpolant's ends onto the vertices linearly."""
     z = np.frombuffer(z_bytes)
-    s = edge_samples(num_modes) * (1 if forward else -1)
+    s = _edge_samples(num_modes) * (1 if forward else -1)
     L = lagrange_matrix(z, np.concatenate([s, [-1.0, 1.0]]))
     w0, w1 = ((1 - s) / 2)[:, None], ((1 + s) / 2)[:, None]
     return L[:-2] - w0 * L[-2] - w1 * L[-1], w0, w1
@@ -185,7 +185,7 @@ def _element_modes(mesh: NektarMesh, topology: ElementTopology):
 def _curved_element(mesh: NektarMesh, shape, topology: ElementTopology, num_modes, warnings, edge_cache):
     """(K, 3) geometry coefficients of a curved element; edge_cache: curve samples by
     (edge, direction, num_modes), shared by the elements of one mesh."""
-    space = geometry_space(shape, num_modes)
+    space = _geometry_space(shape, num_modes)
     coeffs = np.zeros((space.num_coeffs, 3))
     corners = np.array([mesh.vertices[v] for v in topology.vertices])
     coeffs[space.vertex_modes] = space.vertex_inverse @ corners
@@ -215,7 +215,7 @@ def _curved_element(mesh: NektarMesh, shape, topology: ElementTopology, num_mode
 
 def _straight_elements(shape, corners):
     """(N, K, 3) geometry of straight elements with corners (N, vertices, 3): vertex modes only."""
-    space = geometry_space(shape, STRAIGHT_MODES)
+    space = _geometry_space(shape, STRAIGHT_MODES)
     coeffs = np.zeros((corners.shape[0], space.num_coeffs, 3))
     coeffs[:, space.vertex_modes] = np.einsum("vw,nwj->nvj", space.vertex_inverse, corners)
     return coeffs
@@ -235,7 +235,7 @@ def _check_jacobians(path, shape, num_modes, ids, coeffs):
         chunk = coeffs[start : start + 4096]
         J = np.einsum("mkd,nkj->nmjd", gradients, chunk)  # dx_j/dxi_d
         det = np.linalg.det(J)
-        size = np.ptp(chunk[:, geometry_space(shape, num_modes).vertex_modes], axis=1).max(axis=1)
+        size = np.ptp(chunk[:, _geometry_space(shape, num_modes).vertex_modes], axis=1).max(axis=1)
         tol = 1e-10 * np.maximum(size, 1e-300) ** 3
         bad = np.flatnonzero(~np.all(det > tol[:, None], axis=1))
         if len(bad):
