@@ -588,12 +588,13 @@ def mutate(rng: np.random.Generator, doc: Doc, kind: str):
 
     if kind == "higher_order_degrees":
         from hovr_blender.io import vtu
+        from hovr_blender.io.vtu import cells as vtu_cells
 
         degs = []
         for j in range(nc):
             shape = vtu.CELL_TYPES.get(int(types[j]), (None, None))[1]
             n = int(offs[j] - (offs[j - 1] if j else 0))
-            d = vtu._infer_degs(shape, n) if shape is not None else None
+            d = vtu_cells.infer_degrees(shape, n) if shape is not None else None
             degs.append(d or (1, 1, 1))
         hod_a = doc.find(p, "CellData", "HigherOrderDegrees")
         if hod_a is not None:

@@ -23,14 +23,14 @@ def sphere_field(x, y, z):
 
 def sphere(modes: int = 3) -> VolumeMesh:
     """The paper's sphere volume: field x^2+y^2+z^2 represented exactly (degree 2 per direction)."""
-    v = box_vertices(SPHERE_LOWER, SPHERE_UPPER)
+    vertices = box_vertices(SPHERE_LOWER, SPHERE_UPPER)
     half, mid = 0.5 * (SPHERE_UPPER - SPHERE_LOWER), 0.5 * (SPHERE_UPPER + SPHERE_LOWER)
 
-    def f(a, b, c):
+    def at_reference(a, b, c):
         return sphere_field(mid[0] + half[0] * a, mid[1] + half[1] * b, mid[2] + half[2] * c)
 
-    c = fit_tensor_coefficients(f, (modes,) * 3)
-    return VolumeMesh.from_affine_hexes(v[None], (modes,) * 3, [c], field_name="f", source="builtin:sphere")
+    coeffs = fit_tensor_coefficients(at_reference, (modes,) * 3)
+    return VolumeMesh.from_affine_hexes(vertices[None], (modes,) * 3, [coeffs], field_name="f", source="builtin:sphere")
 
 
 BUILTIN = {"sphere": sphere}

@@ -37,13 +37,13 @@ from __future__ import annotations
 import dataclasses
 import re
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from ..core import expansions as ex
 from ..core.shapes import MAX_MODES
 from ..core.mesh import MeshError, VolumeMesh, element_field_ranges
+from . import nektar, vtu
 
 SAMPLES_PER_ELEMENT = 64
 MAX_SAMPLE_POINTS = 400_000
@@ -61,12 +61,12 @@ def parse_magnitude(field) -> list[str] | None:
     """"|u, v, w|" -> ["u", "v", "w"]; None for a plain field name."""
     if not field:
         return None
-    m = _MAGNITUDE.match(str(field))
-    if m is None:
+    match = _MAGNITUDE.match(str(field))
+    if match is None:
         if "|" in str(field):
             raise DerivedError(f"field {field!r}: write a magnitude as |a,b,c| (component names between bars)")
         return None
-    names = [n.strip() for n in m.group(1).split(",")]
+    names = [n.strip() for n in match.group(1).split(",")]
     if not names or any(not n for n in names):
         raise DerivedError(f"field {field!r}: empty component name (write |a,b,c|)")
     return names
@@ -92,17 +92,17 @@ def _random_inside(shape, n, rng) -> np.ndarray:
     return out[:n]
 
 
-def _magnitude_at(blocks, shape, cmodes, xi):
-    """(m, len(xi)): exact |u| of m elements whose component coefficients are blocks[c] (m, K_c)."""
-    sq = 0.0
-    for C, m in zip(blocks, cmodes):
-        sq = sq + (C @ ex.basis_matrix(shape, m, xi).T) ** 2
-    return np.sqrt(sq)
+def _magnitude_at(blocks, shape, component_modes, xi):
+    """(n, len(xi)): exact |u| of n elements whose component coefficients are blocks[c] (n, K_c)."""
+    squares = 0.0
+    for coeffs, modes in zip(blocks, component_modes):
+        squares = squares + (coeffs @ ex.basis_matrix(shape, modes, xi).T) ** 2
+    return np.sqrt(squares)
 
 
-def _fit_error(blocks, fit, shape, q, cmodes, xi):
+def _fit_error(blocks, fit, shape, q, component_modes, xi):
     """(per-element max |fit - |u|| at xi, largest |u| seen, number of points)."""
-    truth = _magnitude_at(blocks, shape, cmodes, xi)
+    truth = _magnitude_at(blocks, shape, component_modes, xi)
     approx = fit @ ex.basis_matrix(shape, (q, q, q), xi).T
     return np.abs(approx - truth).max(axis=1), float(truth.max()), truth.size
 
@@ -110,10 +110,10 @@ def _fit_error(blocks, fit, shape, q, cmodes, xi):
 def true_magnitude(components, e: int, xi) -> np.ndarray:
     """|u| at reference points xi (..., 3) of element e from the component meshes' polynomials."""
     xi = np.asarray(xi, dtype=np.float64)
-    sq = np.zeros(xi.shape[:-1])
-    for c in components:
-        sq += ex.eval_modal(int(c.shape[e]), c.modes[e], c.element_coeffs(e), xi) ** 2
-    return np.sqrt(sq)
+    squares = np.zeros(xi.shape[:-1])
+    for component in components:
+        squares += ex.eval_modal(int(component.shape[e]), component.modes[e], component.element_coeffs(e), xi) ** 2
+    return np.sqrt(squares)
 
 
 def _check_components(components):
@@ -139,7 +139,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     ncoef = np.array([ex.num_coeffs(int(s), (q, q, q)) for s, q in zip(base.shape, Q)], dtype=np.int64)
     offsets = np.concatenate([[0], np.cumsum(ncoef)[:-1]]).astype(np.int64)
     coeffs = np.zeros(int(ncoef.sum()))
-    per = int(np.clip(MAX_SAMPLE_POINTS // max(n, 1), 8, SAMPLES_PER_ELEMENT))
+    samples_per_element = int(np.clip(MAX_SAMPLE_POINTS // max(n, 1), 8, SAMPLES_PER_ELEMENT))
     rng = np.random.default_rng(seed)
     elem_err = np.zeros(n)
     peak, points, groups = 0.0, 0, []
@@ -147,22 +147,24 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     keys = np.concatenate([base.shape[:, None], Q[:, None]] + [c.modes for c in components], axis=1)
     for key in np.unique(keys, axis=0):
         idx = np.nonzero((keys == key).all(axis=1))[0]
-        sh, q = int(key[0]), int(key[1])
-        cmodes = [tuple(int(v) for v in key[2 + 3 * i: 5 + 3 * i]) for i in range(len(components))]
-        blocks = [_element_blocks(c, idx, sh, m) for c, m in zip(components, cmodes)]
-        fit = ex.fit_modal(sh, (q, q, q), _magnitude_at(blocks, sh, cmodes, ex.fit_points(sh, (q, q, q))).T).T
+        shape, q = int(key[0]), int(key[1])
+        component_modes = [tuple(int(v) for v in key[2 + 3 * i: 5 + 3 * i]) for i in range(len(components))]
+        blocks = [_element_blocks(c, idx, shape, modes) for c, modes in zip(components, component_modes)]
+        at_fit_points = _magnitude_at(blocks, shape, component_modes, ex.fit_points(shape, (q, q, q)))
+        fit = ex.fit_modal(shape, (q, q, q), at_fit_points.T).T
         coeffs[offsets[idx][:, None] + np.arange(fit.shape[1])[None, :]] = fit
-        err, top, count = _fit_error(blocks, fit, sh, q, cmodes, _random_inside(sh, per, rng))
+        err, top, count = _fit_error(blocks, fit, shape, q, component_modes,
+                                     _random_inside(shape, samples_per_element, rng))
         elem_err[idx], peak, points = err, max(peak, top), points + count
-        groups.append((idx, sh, q, cmodes, blocks, fit))
+        groups.append((idx, shape, q, component_modes, blocks, fit))
     # the sample can miss an element's worst point (near a zero of u, where |u| has its kink):
     # sample the elements with the largest errors again, densely
     worst_elements = set(np.argsort(elem_err)[-DENSE_ELEMENTS:].tolist())
-    for idx, sh, q, cmodes, blocks, fit in groups:
+    for idx, shape, q, component_modes, blocks, fit in groups:
         sel = np.array([k for k, e in enumerate(idx) if e in worst_elements], dtype=np.int64)
         if sel.size:
-            err, top, count = _fit_error([b[sel] for b in blocks], fit[sel], sh, q, cmodes,
-                                         _random_inside(sh, DENSE_SAMPLES, rng))
+            err, top, count = _fit_error([b[sel] for b in blocks], fit[sel], shape, q, component_modes,
+                                         _random_inside(shape, DENSE_SAMPLES, rng))
             elem_err[idx[sel]] = np.maximum(elem_err[idx[sel]], err)
             peak, points = max(peak, top), points + count
     worst = float(elem_err.max())
@@ -199,22 +201,13 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
 # readers: a plain field as before, "|a,b,c|" (Nektar++) or a VTU vector's magnitude derived here
 
 
-def _nektar_component(first: VolumeMesh, sol: Path, blocks, name: str) -> VolumeMesh:
-    """Field `name` of the solution on the geometry of `first` (read with read_nektar)."""
-    from . import nektar
-
-    names = nektar._field_names(blocks)
-    if name not in names:
-        raise nektar.NektarError(f"{sol}: no field {name!r}; it holds {', '.join(names)}")
-    coeffs = nektar._guard(sol, lambda: nektar._field_coeffs(sol, blocks, name))
+def _nektar_component(first: VolumeMesh, field_file: nektar.FieldFile, name: str) -> VolumeMesh:
+    """Field `name` of the field file on the geometry of `first` (read with read_nektar)."""
     ids = first.element_ids.tolist()
-    missing = [e for e in ids if e not in coeffs]
-    if missing:
-        raise nektar.NektarError(f"{sol}: no coefficients of field {name!r} for mesh element(s) "
-                                 f"{missing[:10]}{' ...' if len(missing) > 10 else ''}")
+    coeffs = field_file.coefficients(name, ids)
     for k, e in enumerate(ids):
         if coeffs[e][0] != int(first.shape[k]):
-            raise nektar.NektarError(f"{sol}: element {e} has another shape for field {name!r}")
+            raise nektar.NektarError(f"{field_file.path}: element {e} has another shape for field {name!r}")
     modes = np.array([coeffs[e][1] for e in ids], dtype=np.int32)
     flat = [np.asarray(coeffs[e][2], dtype=np.float64) for e in ids]
     sizes = np.array([f.size for f in flat], dtype=np.int64)
@@ -226,24 +219,20 @@ def _nektar_component(first: VolumeMesh, sol: Path, blocks, name: str) -> Volume
 
 def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
     """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    from . import nektar
-
     names = parse_magnitude(field)
     if names is None:
         return nektar.read_nektar(mesh_path, solution_path, field)
     first = nektar.read_nektar(mesh_path, solution_path, names[0])
-    sol = Path(solution_path) if solution_path is not None else nektar.find_solution(mesh_path)
-    blocks = nektar._guard(sol, lambda: nektar._field_blocks(sol, first.num_elements))
-    comps = [first] + [_nektar_component(first, sol, blocks, n) for n in names[1:]]
-    return magnitude_mesh(comps, "|" + ",".join(names) + "|")
+    solution = solution_path if solution_path is not None else nektar.find_solution(mesh_path)
+    field_file = nektar.read_field_file(solution, first.num_elements)
+    components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
+    return magnitude_mesh(components, "|" + ",".join(names) + "|")
 
 
 def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
     """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
     is derived here from its exact component polynomials (read_vtu interpolates the nodal
     magnitudes instead, as VTK does)."""
-    from . import vtu
-
     if component in (None, "magnitude"):
         available = vtu.list_fields(path)
         name = field if field is not None else next(iter(available), None)

@@ -66,12 +66,13 @@ class ChannelMap:
     depth: float = 2.0
     amount: float = 1.0
 
-    def _s(self, x, y, z):
+    def _normalised(self, x, y, z):
+        """The coordinates scaled to [-1, 1] over the channel."""
         sx = (2.0 * x - (self.x0 + self.x1)) / (self.x1 - self.x0)
         return sx, y / self.half_height, 2.0 * z / self.depth - 1.0
 
     def displacement(self, x, y, z):
-        sx, sy, sz = self._s(x, y, z)
+        sx, sy, sz = self._normalised(x, y, z)
         a = self.amount
         dx = a * 0.06 * (self.x1 - self.x0) * 0.5 * (1.0 - sy * sy)  # vertical grid lines bow downstream
         dy = a * 0.25 * self.half_height * (1.0 - sx * sx)  # the channel arches
@@ -158,16 +159,55 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
     zs = h * np.arange(nz + 1)
     x_split = xs[nxh]
     cmap = ChannelMap(float(xs[0]), float(xs[-1]), float(ys[-1]), float(zs[-1]), curvature if curved else 0.0)
+    hv = _hex_vertices(xs, ys, zs, h, (nxh, ny, nz), (up, side, b))
+    pv = _prism_vertices(xs, ys, zs, h, (nxh, nxp, ny, nz))
+    geometry_modes = (geom_modes,) * 3 if curved else (2, 2, 2)
+    if curved and geom_modes < 3:
+        raise ValueError("curved geometry needs geom_modes >= 3 (the map is quadratic)")
+    field_modes = (order + 1,) * 3
+    source = func if func is not None else _default_flow(cmap, seed)
+    kinds, geoms, coeffs = [], [], []
+    for shape, V in ((shapes.HEX, hv), (shapes.PRISM, pv)):
+        if len(V) == 0:
+            continue
+        G2 = np.einsum("kv,evc->ekc", _vertex_inverse(shape), V)  # straight geometry (ne, K2, 3)
+        G = _mapped_geometry(shape, geometry_modes, G2, cmap) if curved else G2
+        _check_jacobians(shape, geometry_modes, G, [geometry_modes, field_modes])
+        field_points = ex.fit_points(shape, field_modes)
+        X = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, geometry_modes, field_points), G)
+        vals = np.asarray(source(X[..., 0], X[..., 1], X[..., 2]), dtype=np.float64)  # (ne, P)
+        C = ex.fit_modal(shape, field_modes, vals.T).T  # (ne, K)
+        kinds.append(np.full(len(V), shape))
+        geoms.extend(G)
+        coeffs.extend(C)
+    kinds = np.concatenate(kinds)
+    mesh = VolumeMesh.from_elements(kinds, field_modes, coeffs, geometry_modes, geoms, field_name="u",
+                                    source=f"paper_scale:b{b}_o{order}{'_curved' if curved else ''}")
+    mesh.paper_scale = {
+        "hexahedra": int((kinds == shapes.HEX).sum()), "prisms": int((kinds == shapes.PRISM).sum()),
+        "requested": [int(n_hex), int(n_prism)], "block_cells": b, "cells": [nxh + nxp, ny, nz],
+        "x_split": float(x_split), "order": order, "geom_modes": list(geometry_modes), "curved": bool(curved),
+        "map": cmap, "source": source, "cell_size": h,
+    }
+    return mesh
 
-    # hexahedra: cells i < nxh except the block
+
+def _hex_vertices(xs, ys, zs, h, cells, block):
+    """(nh, 8, 3): the cubes of side h with i < nxh, except the block's (the H-grid around it)."""
+    nxh, ny, nz = cells
+    up, side, b = block
     I, J, K = np.meshgrid(np.arange(nxh), np.arange(ny), np.arange(nz), indexing="ij")
     I, J, K = I.ravel(), J.ravel(), K.ravel()
-    block = (I >= up) & (I < up + b) & (J >= side) & (J < side + b)
-    I, J, K = I[~block], J[~block], K[~block]
+    in_block = (I >= up) & (I < up + b) & (J >= side) & (J < side + b)
+    I, J, K = I[~in_block], J[~in_block], K[~in_block]
     lo = np.stack([xs[I], ys[J], zs[K]], axis=1)
-    hv = lo[:, None, :] + h * (shapes.VERTICES[shapes.HEX][None] + 1.0) / 2.0  # (nh, 8, 3)
+    return lo[:, None, :] + h * (shapes.VERTICES[shapes.HEX][None] + 1.0) / 2.0
 
-    # prisms: cells i >= nxh, each quad split on alternating diagonals into two triangles
+
+def _prism_vertices(xs, ys, zs, h, cells):
+    """(np, 6, 3): the cells with i >= nxh, each quad split on alternating diagonals into two
+    triangles, as positively oriented prisms."""
+    nxh, nxp, ny, nz = cells
     I, J, K = np.meshgrid(np.arange(nxh, nxh + nxp), np.arange(ny), np.arange(nz), indexing="ij")
     I, J, K = I.ravel(), J.ravel(), K.ravel()
     p00 = np.stack([xs[I], ys[J]], 1)
@@ -190,77 +230,56 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
     def lift(p, z):
         return np.concatenate([p, z[:, None]], axis=1)
 
-    pv = np.stack([lift(A, z0), lift(B, z0), lift(B, z0 + h), lift(A, z0 + h), lift(C, z0), lift(C, z0 + h)], 1)
-
-    gm = (geom_modes,) * 3 if curved else (2, 2, 2)
-    if curved and geom_modes < 3:
-        raise ValueError("curved geometry needs geom_modes >= 3 (the map is quadratic)")
-    m = (order + 1,) * 3
-    source = func
-    if source is None:
-        cl = np.linspace(cmap.x0, cmap.x1, 64)
-        street = (cl, np.asarray(cmap(cl, np.zeros_like(cl), np.zeros_like(cl))[1]))
-        c = cmap(np.zeros(1), np.zeros(1), np.zeros(1))
-        rng = np.random.default_rng(seed)
-        source = ChannelFlow(centre=(float(c[0][0]), float(c[1][0])), street_y=street, depth=cmap.depth,
-                             x_end=cmap.x1, phases=tuple(rng.uniform(0, 2 * np.pi, 16).tolist()))
-    kinds, geoms, coeffs = [], [], []
-    for sh, V in ((shapes.HEX, hv), (shapes.PRISM, pv)):
-        if len(V) == 0:
-            continue
-        G2 = np.einsum("kv,evc->ekc", _vertex_inverse(sh), V)  # straight geometry (ne, K2, 3)
-        if curved:
-            pts = ex.fit_points(sh, gm)
-            Xs = np.einsum("pk,ekc->epc", ex.basis_matrix(sh, (2, 2, 2), pts), G2)
-            X = np.stack(cmap(Xs[..., 0], Xs[..., 1], Xs[..., 2]), axis=-1)
-            G = np.moveaxis(ex.fit_modal(sh, gm, np.moveaxis(X, 1, 0).reshape(len(pts), -1)).reshape(-1, len(V), 3), 1, 0)
-            _check_exact(sh, gm, G, G2, cmap)
-        else:
-            G = G2
-        _check_jacobians(sh, gm, G, [gm, m])
-        fp = ex.fit_points(sh, m)
-        X = np.einsum("pk,ekc->epc", ex.basis_matrix(sh, gm, fp), G)
-        vals = np.asarray(source(X[..., 0], X[..., 1], X[..., 2]), dtype=np.float64)  # (ne, P)
-        C = ex.fit_modal(sh, m, vals.T).T  # (ne, K)
-        kinds.append(np.full(len(V), sh))
-        geoms.extend(G)
-        coeffs.extend(C)
-    kinds = np.concatenate(kinds)
-    mesh = VolumeMesh.from_elements(kinds, m, coeffs, gm, geoms, field_name="u",
-                                    source=f"paper_scale:b{b}_o{order}{'_curved' if curved else ''}")
-    mesh.paper_scale = {
-        "hexahedra": int((kinds == shapes.HEX).sum()), "prisms": int((kinds == shapes.PRISM).sum()),
-        "requested": [int(n_hex), int(n_prism)], "block_cells": b, "cells": [nxh + nxp, ny, nz],
-        "x_split": float(x_split), "order": order, "geom_modes": list(gm), "curved": bool(curved),
-        "map": cmap, "source": source, "cell_size": h,
-    }
-    return mesh
+    return np.stack([lift(A, z0), lift(B, z0), lift(B, z0 + h), lift(A, z0 + h), lift(C, z0), lift(C, z0 + h)], 1)
 
 
-def _check_exact(shape, gm, G, G2, cmap, rtol=1e-10):
-    """The fitted geometry must be Phi o (straight map) itself (then shared faces coincide)."""
-    pts = ex.fit_points(shape, tuple(v + 1 for v in gm))
-    got = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, gm, pts), G)
+def _default_flow(cmap, seed):
+    """ChannelFlow past the block's image, its street following the channel's centre line."""
+    centre_line = np.linspace(cmap.x0, cmap.x1, 64)
+    centre_line_y = cmap(centre_line, np.zeros_like(centre_line), np.zeros_like(centre_line))[1]
+    street = (centre_line, np.asarray(centre_line_y))
+    centre = cmap(np.zeros(1), np.zeros(1), np.zeros(1))
+    rng = np.random.default_rng(seed)
+    return ChannelFlow(centre=(float(centre[0][0]), float(centre[1][0])), street_y=street,
+                       depth=cmap.depth, x_end=cmap.x1, phases=tuple(rng.uniform(0, 2 * np.pi, 16).tolist()))
+
+
+def _mapped_geometry(shape, geometry_modes, G2, mapping):
+    """(ne, K, 3): straight geometries G2 (ne, K2, 3) pushed through mapping(x, y, z) and fitted
+    with geometry_modes; MeshError unless the fit is the mapped geometry itself."""
+    pts = ex.fit_points(shape, geometry_modes)
     Xs = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, (2, 2, 2), pts), G2)
-    want = np.stack(cmap(Xs[..., 0], Xs[..., 1], Xs[..., 2]), axis=-1)
+    X = np.stack(mapping(Xs[..., 0], Xs[..., 1], Xs[..., 2]), axis=-1)
+    fitted = ex.fit_modal(shape, geometry_modes, np.moveaxis(X, 1, 0).reshape(len(pts), -1))
+    G = np.moveaxis(fitted.reshape(-1, len(G2), 3), 1, 0)
+    _check_exact(shape, geometry_modes, G, G2, mapping)
+    return G
+
+
+def _check_exact(shape, geometry_modes, G, G2, mapping, rtol=1e-10):
+    """The fitted geometry must be Phi o (straight map) itself (then shared faces coincide)."""
+    pts = ex.fit_points(shape, tuple(v + 1 for v in geometry_modes))
+    got = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, geometry_modes, pts), G)
+    Xs = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, (2, 2, 2), pts), G2)
+    want = np.stack(mapping(Xs[..., 0], Xs[..., 1], Xs[..., 2]), axis=-1)
     err = np.abs(got - want).max()
     scale = np.abs(want).max()
     if err > rtol * max(scale, 1.0):
-        raise MeshError(f"the channel map is not exact in {shapes.NAMES[shape]} geometry modes {gm} "
+        raise MeshError(f"the channel map is not exact in {shapes.NAMES[shape]} geometry modes {geometry_modes} "
                         f"(residual {err:.2e}): shared faces would not match")
 
 
-def jacobian_determinants(shape, gm, G, pts) -> np.ndarray:
+def jacobian_determinants(shape, geometry_modes, G, pts) -> np.ndarray:
     """(ne, P) det dx/dxi of geometries G (ne, K, 3) at reference points pts (P, 3)."""
     ne, k, _ = G.shape
-    D = ex.eval_modal_grad(shape, gm, np.moveaxis(G, 0, 1).reshape(k, ne * 3), pts)  # (P, ne*3, 3)
+    D = ex.eval_modal_grad(shape, geometry_modes, np.moveaxis(G, 0, 1).reshape(k, ne * 3), pts)  # (P, ne*3, 3)
     J = D.reshape(len(pts), ne, 3, 3)
     return np.moveaxis(np.linalg.det(J), 0, 1)
 
 
-def _check_jacobians(shape, gm, G, mode_sets):
+def _check_jacobians(shape, geometry_modes, G, mode_sets):
     pts = np.concatenate([ex.fit_points(shape, ms) for ms in mode_sets])
-    det = jacobian_determinants(shape, gm, G, pts)
+    det = jacobian_determinants(shape, geometry_modes, G, pts)
     ref = np.abs(det).max()
     bad = np.nonzero(det.min(axis=1) <= 1e-9 * ref)[0]
     if bad.size:
@@ -276,7 +295,7 @@ def curved_copy(mesh: VolumeMesh, displacement, geom_modes: int = 3) -> VolumeMe
     keeps its reference-space coefficients: it moves with the geometry."""
     if mesh.geom_coeffs is None or mesh.affine is None or not mesh.affine.all():
         raise MeshError("curved_copy needs a mesh of straight affine elements with modal geometry")
-    gm = (geom_modes,) * 3
+    modes = (geom_modes,) * 3
 
     def phi(x, y, z):
         d = displacement(x, y, z)
@@ -284,23 +303,19 @@ def curved_copy(mesh: VolumeMesh, displacement, geom_modes: int = 3) -> VolumeMe
 
     n = mesh.num_elements
     geoms = [None] * n
-    for sh in np.unique(mesh.shape):
-        sh = int(sh)
-        idx = np.nonzero(mesh.shape == sh)[0]
-        k2 = ex.num_coeffs(sh, (2, 2, 2))
+    for shape in np.unique(mesh.shape):
+        shape = int(shape)
+        idx = np.nonzero(mesh.shape == shape)[0]
+        k2 = ex.num_coeffs(shape, (2, 2, 2))
         if np.any(mesh.geom_modes[idx] != 2):
             raise MeshError("curved_copy needs 2 geometry modes (straight elements)")
         G2 = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(k2)[None, :]]
-        pts = ex.fit_points(sh, gm)
-        Xs = np.einsum("pk,ekc->epc", ex.basis_matrix(sh, (2, 2, 2), pts), G2)
-        X = np.stack(phi(Xs[..., 0], Xs[..., 1], Xs[..., 2]), axis=-1)
-        G = np.moveaxis(ex.fit_modal(sh, gm, np.moveaxis(X, 1, 0).reshape(len(pts), -1)).reshape(-1, len(idx), 3), 1, 0)
-        _check_exact(sh, gm, G, G2, phi)
-        _check_jacobians(sh, gm, G, [gm, tuple(mesh.modes[idx[0]])])
+        G = _mapped_geometry(shape, modes, G2, phi)
+        _check_jacobians(shape, modes, G, [modes, tuple(mesh.modes[idx[0]])])
         for j, e in enumerate(idx):
             geoms[e] = G[j]
     return VolumeMesh.from_elements(mesh.shape, mesh.modes, [mesh.element_coeffs(e) for e in range(n)],
-                                    gm, geoms, field_name=mesh.field_name, source=mesh.source + ":curved")
+                                    modes, geoms, field_name=mesh.field_name, source=mesh.source + ":curved")
 
 
 def interpolation_error(mesh: VolumeMesh, func, per_element: int = 64, seed: int = 1) -> dict:
@@ -310,15 +325,16 @@ def interpolation_error(mesh: VolumeMesh, func, per_element: int = 64, seed: int
     worst, lo, hi = 0.0, np.inf, -np.inf
     keys = np.concatenate([mesh.shape[:, None], mesh.modes, mesh.geom_modes], axis=1)
     for key in np.unique(keys, axis=0):
-        sh, m, gm = int(key[0]), tuple(int(v) for v in key[1:4]), tuple(int(v) for v in key[4:])
+        shape = int(key[0])
+        field_modes, geometry_modes = tuple(int(v) for v in key[1:4]), tuple(int(v) for v in key[4:])
         idx = np.nonzero((keys == key).all(axis=1))[0]
         cand = rng.uniform(-1, 1, (8 * per_element, 3))
-        pts = cand[ex.inside(sh, cand, tol=0.0)][:per_element]
-        kg, k = ex.num_coeffs(sh, gm), ex.num_coeffs(sh, m)
+        pts = cand[ex.inside(shape, cand, tol=0.0)][:per_element]
+        kg, k = ex.num_coeffs(shape, geometry_modes), ex.num_coeffs(shape, field_modes)
         G = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(kg)[None, :]]
-        X = np.einsum("pk,ekc->epc", ex.basis_matrix(sh, gm, pts), G)
+        X = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, geometry_modes, pts), G)
         C = mesh.coeffs[mesh.coeff_offset[idx][:, None] + np.arange(k)[None, :]]
-        fh = C @ ex.basis_matrix(sh, m, pts).T
+        fh = C @ ex.basis_matrix(shape, field_modes, pts).T
         f = np.asarray(func(X[..., 0], X[..., 1], X[..., 2]))
         worst = max(worst, float(np.abs(fh - f).max()))
         lo, hi = min(lo, float(f.min())), max(hi, float(f.max()))

@@ -31,9 +31,9 @@ def frame_path(path: str, frame: int) -> str:
     runs = list(re.finditer(r"#+", path))
     if not runs:
         return path
-    m = runs[-1]
-    number = f"{abs(int(frame)):0{len(m.group())}d}"
-    return path[: m.start()] + ("-" if frame < 0 else "") + number + path[m.end():]
+    last = runs[-1]
+    number = f"{abs(int(frame)):0{len(last.group())}d}"
+    return path[: last.start()] + ("-" if frame < 0 else "") + number + path[last.end():]
 
 
 def parse_component(text) -> int | str | None:
@@ -56,8 +56,8 @@ def _stamps(*paths) -> tuple:
     for p in paths:
         if p:
             try:
-                st = os.stat(p)
-                out.append((st.st_mtime_ns, st.st_size))
+                status = os.stat(p)
+                out.append((status.st_mtime_ns, status.st_size))
             except OSError:
                 out.append(None)  # missing: load_volume reports it
     return tuple(out)

@@ -1,6 +1,8 @@
 """Generated affine meshes for tests and benchmarks: any field sampled onto a brick of hexes."""
 from __future__ import annotations
 
+from itertools import permutations
+
 import numpy as np
 
 from ..core import expansions as ex
@@ -33,7 +35,7 @@ def brick(lower, upper, cells, modes, func, field_name="f") -> VolumeMesh:
 
 def straight_geometry(shape: int, vertices) -> np.ndarray:
     """2-mode geometry coefficients (K, 3) of the straight element through `vertices`
-    (the shape's vertex order, spec §2.8): with two modes every mode is a vertex mode."""
+    (the shape's vertex order, docs/spec/formats.md §2.8): with two modes every mode is a vertex mode."""
 
     vertices = np.asarray(vertices, dtype=np.float64)
     k = ex.num_coeffs(shape, (2, 2, 2))
@@ -70,33 +72,31 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
     for k in range(n):
         for j in range(n):
             for i in range(n):
-                o = lower + h * np.array([i, j, k], float)
-                corner = lambda a, b, c: o + h * np.array([a, b, c], float)  # noqa: E731
+                origin = lower + h * np.array([i, j, k], float)
+                corner = lambda a, b, c: origin + h * np.array([a, b, c], float)  # noqa: E731
                 kind = (i + j + k) % 4
                 if kind == 0:
-                    add(shapes.HEX, o + h * (cube_ref + 1.0) / 2.0)
+                    add(shapes.HEX, origin + h * (cube_ref + 1.0) / 2.0)
                 elif kind == 1:  # x + z <= 1 and its point reflection through the cell's y axis
                     lo = [corner(0, 0, 0), corner(1, 0, 0), corner(1, 1, 0), corner(0, 1, 0), corner(0, 0, 1), corner(0, 1, 1)]
                     hi = [corner(1, 0, 1), corner(0, 0, 1), corner(0, 1, 1), corner(1, 1, 1), corner(1, 0, 0), corner(1, 1, 0)]
                     add(shapes.PRISM, lo)
                     add(shapes.PRISM, hi)
                 elif kind == 2:
-                    from itertools import permutations
-
                     for perm in permutations(range(3)):
                         p0 = np.zeros(3)
                         p1 = p0.copy(); p1[perm[0]] = 1  # noqa: E702
                         p2 = p1.copy(); p2[perm[1]] = 1  # noqa: E702
-                        add(shapes.TET, _oriented_tet([o + h * p for p in (p0, p1, p2, np.ones(3))]))
+                        add(shapes.TET, _oriented_tet([origin + h * p for p in (p0, p1, p2, np.ones(3))]))
                 else:
-                    centre = o + 0.5 * h
+                    centre = origin + 0.5 * h
                     faces = [  # each cell face as a quad (counter-clockwise seen from outside)
                         [(0, 0, 0), (0, 1, 0), (1, 1, 0), (1, 0, 0)], [(0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)],
                         [(0, 0, 0), (1, 0, 0), (1, 0, 1), (0, 0, 1)], [(0, 1, 0), (0, 1, 1), (1, 1, 1), (1, 1, 0)],
                         [(0, 0, 0), (0, 0, 1), (0, 1, 1), (0, 1, 0)], [(1, 0, 0), (1, 1, 0), (1, 1, 1), (1, 0, 1)],
                     ]
-                    for f in faces:
-                        base = [corner(*c) for c in f][::-1]  # base seen from the apex: counter-clockwise
+                    for face in faces:
+                        base = [corner(*c) for c in face][::-1]  # base seen from the apex: counter-clockwise
                         add(shapes.PYR, base + [centre])
     n_modes = (modes,) * 3
     return VolumeMesh.from_elements(kinds, n_modes, coeffs, (2, 2, 2), geoms, field_name=field_name,
@@ -112,19 +112,21 @@ def with_field(mesh: VolumeMesh, func, modes: int, field_name="f") -> VolumeMesh
     coeffs = [None] * n
     keys = np.concatenate([mesh.shape[:, None], mesh.geom_modes], axis=1)
     for key in np.unique(keys, axis=0):
-        sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
+        shape, geometry_modes = int(key[0]), tuple(int(v) for v in key[1:])
         idx = np.nonzero((keys == key).all(axis=1))[0]
-        m = (modes,) * 3
-        pts = ex.fit_points(sh, m)
-        Bg = ex.basis_matrix(sh, gm, pts)
-        kg = ex.num_coeffs(sh, gm)
-        G = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(kg)[None, :]]  # (k, K, 3)
-        X = np.einsum("pk,ekc->epc", Bg, G)
+        field_modes = (modes,) * 3
+        pts = ex.fit_points(shape, field_modes)
+        geometry_basis = ex.basis_matrix(shape, geometry_modes, pts)
+        num_geometry_coeffs = ex.num_coeffs(shape, geometry_modes)
+        G = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(num_geometry_coeffs)[None, :]]  # (k, K, 3)
+        X = np.einsum("pk,ekc->epc", geometry_basis, G)
         vals = func(X[..., 0], X[..., 1], X[..., 2])  # (k, P)
-        C = ex.fit_modal(sh, m, vals.T)  # (K, k)
+        C = ex.fit_modal(shape, field_modes, vals.T)  # (K, k)
         for j, e in enumerate(idx):
             coeffs[e] = C[:, j]
-    gco = [mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
-           for e in range(n)]
-    return VolumeMesh.from_elements(mesh.shape, (modes,) * 3, coeffs, mesh.geom_modes, gco, field_name=field_name,
+    geometry = []
+    for e in range(n):
+        start = mesh.geom_offset[e]
+        geometry.append(mesh.geom_coeffs[start:start + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])])
+    return VolumeMesh.from_elements(mesh.shape, (modes,) * 3, coeffs, mesh.geom_modes, geometry, field_name=field_name,
                                     source=mesh.source)

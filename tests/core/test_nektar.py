@@ -18,6 +18,7 @@ import pytest
 from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.io import nektar as nk
+from hovr_blender.io.nektar import geometry, mesh as nektar_mesh, points, topology
 from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
 
 ROOT = Path(__file__).parents[2]
@@ -195,23 +196,23 @@ def test_curved_edges_and_faces_pass_through_their_points():
     """Every curved edge point and every curved quad face point lies on the element map (§2.12)."""
     path = DATA / "RotPerBcs3D_Annulus.xml"
     m = read_nektar(path)
-    mesh = nk._read_mesh(path)
+    mesh = nektar_mesh.read_mesh(path)
     cache = {}
     worst = 0.0
     for k, (eid, shape, fids) in enumerate(mesh.elements):
-        topo = nk._topology(mesh, eid, shape, fids, cache)
+        topo = topology.element_topology(mesh, eid, shape, fids, cache)
         ref = shapes.VERTICES[shape]
         for (e, fwd), (a, b) in zip(topo.edges, shapes.EDGES[shape]):
             if e in mesh.curved_edges:
                 ptype, pts = mesh.curved_edges[e]
-                s = nk._points_1d(ptype, len(pts), path, "")
+                s = points.points_1d(ptype, len(pts), path, "")
                 s = s if fwd else -s
                 xi = ref[a] * (1 - s[:, None]) / 2 + ref[b] * (1 + s[:, None]) / 2
                 worst = max(worst, np.abs(ex.eval_modal(shape, m.geom_modes[k], geom(m, k), xi) - pts).max())
-        for j, (f, fverts) in enumerate(topo.faces):
+        for f, fverts in topo.faces:
             if f in mesh.curved_faces:
-                uv, n = nk._face_param_points(mesh, f, path, [])
-                xi = nk._face_xi(nk._space(shape, int(m.geom_modes[k][0])), topo, j, fverts, uv, "Q")
+                uv, n = geometry.face_frame_points(mesh, f, [])
+                xi = geometry.face_to_element(shape, topo, fverts, uv, "Q")
                 pts = mesh.curved_faces[f][1]
                 worst = max(worst, np.abs(ex.eval_modal(shape, m.geom_modes[k], geom(m, k), xi) - pts).max())
     assert len(mesh.curved_faces) == 236 and worst < 1e-9
@@ -439,7 +440,7 @@ def compress_mesh(text):
                 index.append(len(pts))
                 pts.append((len(pts), p))
             ent = int(x.attrib["EDGEID" if x.tag == "E" else "FACEID"])
-            recs[x.tag].append([int(x.attrib["ID"]), ent, n, 0, off, nk.POINTS_ENUM.index(x.attrib["TYPE"])])
+            recs[x.tag].append([int(x.attrib["ID"]), ent, n, 0, off, points.POINTS_ENUM.index(x.attrib["TYPE"])])
         cv[:] = []
         cv.attrib["COMPRESSED"] = "B64Z-LittleEndian"
         for tag in "EF":

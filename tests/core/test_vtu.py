@@ -22,6 +22,7 @@ from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.core import limits
 from hovr_blender.io import vtu
+from hovr_blender.io.vtu import cells as vtu_cells, decoding, vtkfile
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 
 from ..conftest import shared_file
@@ -77,7 +78,7 @@ def test_node_order_and_basis_match_vtk(cell_type):
     rng = np.random.default_rng(cell_type)
     for p in range(1, 7):
         degs = (p, p, p)
-        n = vtu._node_count(shape, degs)
+        n = vtu_cells.node_count(shape, degs)
         cell, _ = vtk_cell(vtk, cell_type, n)
         pc = np.array(cell.GetParametricCoords()).reshape(n, 3)
         assert np.abs(vtu.vtk_node_params(shape, degs) - pc).max() < 1e-14, (cell_type, p)
@@ -95,7 +96,7 @@ def test_anisotropic_hex_and_wedge_orders_match_vtk():
     vtk = need_vtk()
     for cell_type, degs in [(72, (2, 3, 1)), (72, (1, 4, 2)), (73, (2, 2, 3)), (73, (3, 3, 1))]:
         shape = vtu.CELL_TYPES[cell_type][1]
-        n = vtu._node_count(shape, degs)
+        n = vtu_cells.node_count(shape, degs)
         cell, _ = vtk_cell(vtk, cell_type, n, degs)
         pc = np.array(cell.GetParametricCoords()).reshape(n, 3)
         assert np.abs(vtu.vtk_node_params(shape, degs) - pc).max() < 1e-14, (cell_type, degs)
@@ -296,11 +297,11 @@ def test_every_encoding_decodes_what_vtk_wrote(vm, tmp_path):
                 "g": vtk_to_numpy(ug.GetPointData().GetArray("g")),
                 "gvec": vtk_to_numpy(ug.GetPointData().GetArray("gvec")),
                 "HigherOrderDegrees": vtk_to_numpy(ug.GetCellData().GetArray("HigherOrderDegrees"))}
-        root, src = vtu._load(path)
-        piece = vtu._grid(path, root)[0]
+        root, src = vtkfile.load(path)
+        piece = vtkfile.pieces(path, root)[0]
         for el in piece.iter("DataArray"):
             name = el.attrib.get("Name") or "Points"
-            got = vtu._decode(src, el, name, want[name].size, "vtk's count")
+            got = decoding.decode(src, el, name, want[name].size, "vtk's count")
             assert np.array_equal(got, want[name].ravel()), (label, name)
         mesh = read_vtu(path, "g")
         first = first or mesh
@@ -541,7 +542,7 @@ def test_ngsolve_post_file_agrees_with_vtk_at_every_node():
         kg, kf = ex.num_coeffs(shape, gm), ex.num_coeffs(shape, fm)
         G = np.stack([mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] + kg] for e in members])
         C = np.stack([mesh.coeffs[mesh.coeff_offset[e]:mesh.coeff_offset[e] + kf] for e in members])
-        params = vtu.vtk_node_params(shape, vtu._infer_degs(shape, n))
+        params = vtu.vtk_node_params(shape, vtu_cells.infer_degrees(shape, n))
         # each cell is read directly or mirrored (whichever is right-handed): take the variant whose
         # geometry lands on the nodes, then its field must be the node values
         err_x, err_t = [], []

@@ -1,0 +1,33 @@
+"""Nektar++ reader: mesh XML (plain or B64Z-compressed, curved edges and faces, all four 3-D
+shapes) and field files (.fld/.chk/.rst in XML or HDF5, multi-part .fld/ directories), following
+docs/spec/formats.md §2. The result is a VolumeMesh whose field and geometry are both modal
+expansions of Nektar++'s MODIFIED family in Nektar++'s storage order (core/expansions.py).
+
+Untrusted input (core/limits.py is the policy): only regular files are opened; the mesh is
+read first and every size a field file declares is checked against it before anything is
+inflated or allocated; zlib output is bounded; HDF5 objects are followed through hard links
+only and their data must lie in the file itself. Every failure is a NektarError naming the file
+and the record or element.
+
+Modules, each importing only those above it:
+  errors     NektarError, and the guard that makes every failure one
+  xmlfile    safe XML parsing, numbers in element text, B64Z blocks and records
+  ranges     ID lists ("0-7,12") as ranges, never expanded unchecked
+  points     1-D and triangle point sets of curves, Lagrange interpolation
+  entities   vertices, edges, faces, elements
+  curves     the CURVED section
+  domain     the DOMAIN's elements through its composites
+  mesh       NektarMesh and read_mesh: the above together
+  topology   an element's local vertices, edges and faces from the mesh's
+  geometry   element geometry as modal coefficients, Jacobians checked
+  blocks     a field file's blocks, format-free, sizes checked against the mesh
+  hdf5       HDF5 field files, and safe access to HDF5 objects (imports h5py)
+  fields     field files and directories -> FieldFile; one field's coefficients
+  reader     read_nektar, list_fields, find_solution
+"""
+from .errors import NektarError
+from .fields import FieldFile, read_field_file
+from .reader import NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, read_nektar
+
+__all__ = ["NO_FIELD", "SOLUTION_EXTENSIONS", "FieldFile", "NektarError", "find_solution", "list_fields",
+           "read_field_file", "read_nektar"]

@@ -1,0 +1,133 @@
+"""Nektar++ XML at the lowest level: parsing a file safely, numbers and IDs in element text, and
+the B64Z blocks of compressed meshes and field files (docs/spec/formats.md §2.3, §2.6)."""
+from __future__ import annotations
+
+import base64
+import binascii
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ...core import limits
+from .errors import NektarError
+
+_FORBIDDEN = (b"<!doctype", b"<!entity")
+# Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
+MESH_INFLATE_RATIO = 200
+
+
+def parse_xml(path: Path, what: str) -> ET.Element:
+    """The <NEKTAR> root of an XML file, read through the resource policy."""
+    try:
+        raw = limits.read_regular(path, what)
+    except OSError as exc:
+        raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    lowered = raw.lower()
+    # DTDs can define entities (exponential expansion, external files): no Nektar++ file has one.
+    for pattern in _FORBIDDEN:
+        for encoding in ("ascii", "utf-16-le", "utf-16-be"):
+            if pattern.decode().encode(encoding) in lowered:
+                raise NektarError(f"{path}: DOCTYPE/ENTITY declarations are refused")
+    try:
+        root = ET.fromstring(raw)
+    except ET.ParseError as exc:
+        raise NektarError(f"{path}: not well-formed XML ({exc})") from exc
+    if root.tag != "NEKTAR":
+        raise NektarError(f"{path}: root element is <{root.tag}>, expected <NEKTAR>")
+    return root
+
+
+def parse_int(text, path, what):
+    try:
+        return int(str(text).strip())
+    except (TypeError, ValueError):
+        raise NektarError(f"{path}: {what}: {text!r} is not an integer") from None
+
+
+def parse_ints(text, count, path, what):
+    try:
+        values = [int(v) for v in (text or "").split()]
+    except ValueError:
+        raise NektarError(f"{path}: {what}: expected {count} integers, got {text!r}") from None
+    if len(values) != count:
+        raise NektarError(f"{path}: {what}: expected {count} integers, got {len(values)}")
+    return values
+
+
+def parse_floats(text, count, path, what):
+    tokens = (text or "").split()
+    if len(tokens) != count:
+        raise NektarError(f"{path}: {what}: expected {count} numbers, got {len(tokens)}")
+    try:
+        values = np.array(tokens, dtype=np.float64)
+    except ValueError:
+        raise NektarError(f"{path}: {what}: not all numbers (expressions are not supported)") from None
+    if not np.all(np.isfinite(values)):
+        raise NektarError(f"{path}: {what}: coordinates are not finite")
+    return values
+
+
+def parse_number(text, path, what):
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise NektarError(f"{path}: {what}: {text!r} is not a number (expressions are not supported)") from None
+    if not np.isfinite(value):
+        raise NektarError(f"{path}: {what}: {text!r} is not finite")
+    return value
+
+
+def entity_id(node, path, what):
+    try:
+        return int(node.attrib["ID"])
+    except (KeyError, ValueError):
+        raise NektarError(f"{path}: {what} <{node.tag}> without a valid integer ID") from None
+
+
+def endianness(node, path, what, default=None):
+    """"<" or ">" for a B64Z-compressed node, None for plain text (docs/spec/formats.md §2.3)."""
+    compressed = node.attrib.get("COMPRESSED", default)
+    if compressed is None:
+        return None
+    if compressed not in ("B64Z-LittleEndian", "B64Z-BigEndian"):
+        raise NektarError(f"{path}: {what}: COMPRESSED={compressed!r}; only B64Z-LittleEndian/BigEndian are known")
+    bits = node.attrib.get("BITSIZE", "64").strip()
+    if bits != "64":
+        raise NektarError(f"{path}: {what}: BITSIZE={bits!r}; only 64-bit data is known")
+    return "<" if compressed.endswith("LittleEndian") else ">"
+
+
+def inflate_b64z(text, path, what, max_bytes):
+    """Bytes of a B64Z block (docs/spec/formats.md §2.3): base64 without '=' padding, zlib, NUL
+    padding after the stream."""
+    packed_text = re.sub(r"\s+", "", text or "")
+    if not packed_text:
+        raise NektarError(f"{path}: {what}: empty data")
+    try:
+        packed = base64.b64decode(packed_text + "=" * (-len(packed_text) % 4), validate=True)
+    except (binascii.Error, ValueError) as exc:
+        raise NektarError(f"{path}: {what}: data is not valid base64 ({exc})") from exc
+    try:
+        raw, rest = limits.inflate(packed, max_bytes, f"{path}: {what}")
+    except ValueError as exc:
+        raise NektarError(str(exc)) from exc
+    if rest.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
+        raise NektarError(f"{path}: {what}: {len(rest)} unexpected bytes after the zlib stream")
+    return raw
+
+
+def records(node, path, what, fields, endian):
+    """Structured array of the fixed-size records of a compressed mesh block
+    (docs/spec/formats.md §2.3 table); fields: (name, numpy kind, shape or None)."""
+    text = node.text or ""
+    # the ratio bounds a bomb; the memory limit caps the bound so that a low limit refuses only
+    # sections that really inflate beyond it
+    bound = min(MESH_INFLATE_RATIO * len(text) + 4096, limits.current().max_memory)
+    raw = inflate_b64z(text, path, what, bound)
+    dtype = np.dtype([(name, endian + kind, shape) if shape else (name, endian + kind)
+                      for name, kind, shape in fields])
+    if len(raw) % dtype.itemsize:
+        raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of {dtype.itemsize}-byte records")
+    return np.frombuffer(raw, dtype=dtype)
