@@ -14,8 +14,8 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
    and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
    order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
-   (bench/resample_baseline.pixel_exact_reference: split, tolerance 1e-9, curved tails 1e-12, no
-   early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
+   (core/reference.pixel_exact_reference, RenderOptions.pixel_exact(): split, tolerance 1e-9, curved
+   tails 1e-12, no early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
 2. resample: what users do today (bench/resample_baseline.py): the field resampled onto a
    regular grid of spacing h_g and ray-marched trilinearly (step h_g / 2): error against the
    reference, grid build and render time, grid memory, for several h_g; on the sphere and
@@ -309,8 +309,7 @@ class Suite:
     # ------------------------------------------------------------------------------ section 1
 
     def methods(self):
-        import resample_baseline as rb
-        from hovr_blender.core.reference import reference_render
+        from hovr_blender.core.reference import pixel_exact_reference, reference_render
         from hovr_blender.core.image_io import write_png
 
         sec = self.out["sections"].setdefault("methods", {})
@@ -330,7 +329,7 @@ class Suite:
                         "build_seconds": build, "upload_seconds": r.upload_seconds, "first_render_seconds": first,
                         "transfer_function": tf.to_contract(), "runs": []}
                 t1 = time.perf_counter()
-                ref, ref_stats = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
                 case["renderer_float64_seconds"] = ref_stats["render_seconds"]
                 if name == "sphere":
                     exact, info = reference_render(mesh, cam, tf, BACKGROUND)
@@ -339,7 +338,7 @@ class Suite:
                     case["renderer_float64_vs_integrator"] = rgb_error(ref, exact)
                     ref = exact
                 else:
-                    case["reference"] = "Renderer in float64, split, tolerance 1e-9, min_transmittance 0"
+                    case["reference"] = "pixel_exact_reference: Renderer in float64, split, tolerance 1e-9, min_transmittance 0"
                 case["reference_seconds"] = time.perf_counter() - t1
                 self.log(f"  {W}x{H}: reference in {case['reference_seconds']:.1f} s")
                 if name == "paper_scale" and (W, H) == tuple(cfg["method_sizes"][-1]):
@@ -375,7 +374,7 @@ class Suite:
 
     def resample(self):
         import resample_baseline as rb
-        from hovr_blender.core.reference import reference_render
+        from hovr_blender.core.reference import pixel_exact_reference, reference_render
 
         sec = self.out["sections"].setdefault("resample", {})
         cfg = self.cfg
@@ -389,7 +388,7 @@ class Suite:
                 ref = reference_render(mesh, cam, tf, BACKGROUND)[0]
                 hs = cfg["resample_sphere"]
             else:
-                ref, _ = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                ref, _ = pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
                 hs = [mesh.paper_scale["cell_size"] / d for d in cfg["resample_paper"]]
             case = {"dataset": name, "description": desc, "size": [W, H], "elements": mesh.num_elements,
                     "mesh_bytes": rb.mesh_memory_bytes(mesh),
