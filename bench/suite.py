@@ -11,7 +11,7 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
 1. methods: time against max error of riemann / trapezoid / classified (a sweep of h) and
    split (a sweep of tolerance) on three datasets: the paper's sphere (reference: the float64
    integrator, core/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
-   and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
+   and pyramids, io/synthetic.curved_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
    order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
    (core/reference.pixel_exact_reference, RenderOptions.pixel_exact(): split, tolerance 1e-9, curved
@@ -47,12 +47,10 @@ ROOT = os.path.join(HERE, "..")
 sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
-from hovr_blender.core import expansions as ex  # noqa: E402
-from hovr_blender.core import shapes  # noqa: E402
-from hovr_blender.core.expansions import MODIFIED_A  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.core.mesh import element_boxes  # noqa: E402
 from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.io.synthetic import brick, curved_cube  # noqa: E402
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
 BACKGROUND = [0.02, 0.02, 0.03]
@@ -96,56 +94,8 @@ CONFIG = {
 # --------------------------------------------------------------------------------- datasets
 
 
-def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 1.0, 1.0), chunk=20000) -> VolumeMesh:
-    """cells^3 axis-aligned affine hexahedra, func interpolated at the tensor GLL points with
-    `modes` per direction: io/synthetic.brick's mesh, built vectorised (a million elements in
-    seconds, where brick's per-element loop takes many minutes)."""
-    from hovr_blender.core.expansions import basis_values, gll_points
-
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    h = (upper - lower) / cells
-    idx = np.stack(np.meshgrid(*[np.arange(cells)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    mid = lower + h * (idx + 0.5)
-    half = 0.5 * h
-    n = len(mid)
-    g = gll_points(modes)
-    Vi = np.linalg.inv(basis_values(MODIFIED_A, modes, g))  # nodal -> modal, one direction
-    A, B, C = np.meshgrid(g, g, g, indexing="ij")
-    k = modes ** 3
-    coeffs = np.empty((n, k))
-    for a in range(0, n, chunk):
-        m0 = mid[a:a + chunk, :, None, None, None]
-        vals = func(m0[:, 0] + half[0] * A, m0[:, 1] + half[1] * B, m0[:, 2] + half[2] * C)  # (e, i, j, k)
-        c = np.einsum("ai,eijk,bj,ck->ecba", Vi, vals, Vi, Vi, optimize=True)  # direction 0 fastest
-        coeffs[a:a + chunk] = c.reshape(len(m0), k)
-    verts = mid[:, None, :] + half * shapes.VERTICES[shapes.HEX][None]
-    M = np.zeros((n, 3, 4))
-    M[:, [0, 1, 2], [0, 1, 2]] = 1.0 / half
-    M[:, :, 3] = -mid / half
-    return VolumeMesh(shape=np.zeros(n, np.int32), vertices=verts, ref_from_world=M,
-                      modes=np.full((n, 3), modes, np.int32), basis=np.full(n, MODIFIED_A, np.int32),
-                      coeff_offset=(np.arange(n, dtype=np.int64) * k), coeffs=coeffs.ravel(), field_name="f",
-                      source=f"suite:brick{cells}^3_m{modes}")
-
-
 def wave(x, y, z):
     return np.sin(2 * np.pi * x) * np.sin(2 * np.pi * y) * np.cos(np.pi * z) + 0.3 * z
-
-
-def cube_field(x, y, z):
-    return np.sin(2.5 * x + 0.5) * np.cos(2.0 * y) + z * z
-
-
-def curved_cube(cells: int) -> VolumeMesh:
-    from hovr_blender.io.paper_scale import curved_copy
-    from hovr_blender.io.synthetic import mixed_cube
-
-    base = mixed_cube(cells, 5, cube_field)
-
-    def bend(x, y, z):
-        return 0.08 * (1 - (2 * x - 1) ** 2), 0.05 * x * y, -0.06 * (y - 0.5) ** 2 + 0.02 * x
-
-    return curved_copy(base, bend, geom_modes=3)
 
 
 def tents(lo, hi, colors, density):
@@ -436,7 +386,7 @@ class Suite:
         rows = []
         last = {}
         for order in cfg["orders"]:
-            mesh = fast_brick(n, order + 1, wave)
+            mesh = brick((0, 0, 0), (1, 1, 1), (n, n, n), order + 1, wave)
             r, _ = self.renderer(mesh)
             cam = framing(mesh, W, H)
             tf = tents(-0.9, 1.2, COLORS, 8.0)
@@ -465,7 +415,7 @@ class Suite:
                 rows.append({"elements": N, "skipped": f"needs about {need / 2**30:.1f} GiB"})
                 continue
             t0 = time.perf_counter()
-            mesh = fast_brick(c, modes, wave)
+            mesh = brick((0, 0, 0), (1, 1, 1), (c, c, c), modes, wave)
             build = time.perf_counter() - t0
             r, _ = self.renderer(mesh)
             cam = framing(mesh, W, H)
