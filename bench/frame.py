@@ -73,7 +73,7 @@ def main(argv=None):
         build = time.perf_counter() - t0
         tf = suite.tents(0.25, 1.55, suite.COLORS, 3.0)
         r, first = suite.compiled_renderer(mesh, args.device)
-        lo, hi = suite.bounds(mesh)
+        lo, hi = suite.mesh_bounds(mesh)
         diag = float(np.linalg.norm(hi - lo))
         print(f"{variant}: {mesh.num_elements} elements ({int(mesh.affine.sum())} affine), build {build:.1f} s, "
               f"upload {r.upload_seconds:.2f} s, first render {first:.1f} s", flush=True)

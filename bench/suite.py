@@ -48,12 +48,12 @@ sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
 from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.mesh import element_boxes  # noqa: E402
 from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.io.synthetic import brick, curved_cube  # noqa: E402
+from hovr_blender.io.synthetic import brick  # noqa: E402
+# the scenes the tests share (one definition: tests/helpers.py)
+from tests.helpers import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents  # noqa: E402
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
-BACKGROUND = [0.02, 0.02, 0.03]
 
 CONFIG = {
     "small": {
@@ -98,37 +98,11 @@ def wave(x, y, z):
     return np.sin(2 * np.pi * x) * np.sin(2 * np.pi * y) * np.cos(np.pi * z) + 0.3 * z
 
 
-def tents(lo, hi, colors, density):
-    """len(colors) tents spread over [lo, hi] (zero density between: empty segments exist)."""
-    k = len(colors)
-    cs, col, dens = [], [], []
-    for i, rgb in enumerate(colors):
-        m = lo + (i + 1) * (hi - lo) / (k + 1)
-        w = 0.07 * (hi - lo)
-        for s, a in ((m - w, 0.0), (m, density), (m + w, 0.0)):
-            cs.append(s), col.append(rgb), dens.append(a)
-    return TransferFunction(np.array(cs), np.array(col), np.array(cs), np.array(dens))
-
-
-COLORS = [(0.95, 0.35, 0.1), (0.2, 0.75, 0.3), (0.15, 0.35, 0.95)]
 SPHERE_TF = {
     "color": [[1.0, 1.0, 0.9, 0.2], [4.0, 0.2, 1.0, 0.3], [9.0, 0.1, 0.4, 1.0], [16.0, 1.0, 0.2, 0.6]],
     "density": [[1.5, 0.0], [2.0, 2.0], [2.5, 0.0], [4.5, 0.0], [5.0, 1.5], [5.5, 0.0],
                 [8.5, 0.0], [9.0, 1.0], [9.5, 0.0], [15.0, 0.0], [16.0, 0.4], [17.0, 0.0]],
 }
-
-
-def bounds(mesh):
-    lo, hi = element_boxes(mesh)
-    return lo.min(axis=0), hi.max(axis=0)
-
-
-def framing(mesh, w, h, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0):
-    lo, hi = bounds(mesh)
-    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    return RayCamera.from_contract({"eye": (c + distance * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
-                                    "fov_y_deg": fov}, w, h)
 
 
 def dataset(name, cfg):
@@ -141,9 +115,7 @@ def dataset(name, cfg):
         return (sphere(), TransferFunction.from_contract(SPHERE_TF), lambda w, h: RayCamera.from_contract(cam, w, h),
                 "the paper's sphere: one hexahedron, f = x^2 + y^2 + z^2")
     if name == "curved_mixed":
-        mesh = curved_cube(cfg["cube_cells"])
-        lo, hi = np.percentile(mesh.field_samples(4), [2, 98])
-        return (mesh, tents(lo, hi, COLORS, 12.0), lambda w, h: framing(mesh, w, h),
+        return (*curved_mixed_scene(cfg["cube_cells"]),
                 f"mixed_cube({cfg['cube_cells']}) of all four shapes, order 4, bent by a quadratic map (3 geometry modes)")
     if name == "paper_scale":
         from hovr_blender.io.paper_scale import paper_scale_mesh
@@ -269,7 +241,7 @@ class Suite:
             mesh, tf, camera, desc = dataset(name, cfg)
             build = time.perf_counter() - t0
             r, first = self.renderer(mesh)
-            lo, hi = bounds(mesh)
+            lo, hi = mesh_bounds(mesh)
             diag = float(np.linalg.norm(hi - lo))
             self.log(f"{name}: {mesh.num_elements} elements, built in {build:.1f} s, upload {r.upload_seconds:.2f} s, "
                      f"first render (compile/load) {first:.1f} s")
@@ -362,7 +334,7 @@ class Suite:
         # image size, on the paper-scale dataset
         mesh, tf, camera, _ = dataset("paper_scale", cfg)
         r, _ = self.renderer(mesh)
-        lo, hi = bounds(mesh)
+        lo, hi = mesh_bounds(mesh)
         h = float(np.linalg.norm(hi - lo)) / 400
         rows, last = [], {}
         for W, H in cfg["image_sizes"]:

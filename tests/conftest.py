@@ -1,5 +1,6 @@
+"""Fixtures tests/ share (the device fixture is in the repository's conftest.py; plain helper
+functions and constants in tests/helpers.py)."""
 import importlib.util
-import os
 import sys
 from pathlib import Path
 
@@ -15,26 +16,6 @@ def shared_file(*parts) -> Path:
     if not p.exists():
         pytest.skip(f"shared data not present: {p}")
     return p
-
-
-def warp_devices():
-    """cpu always; cuda:0 too where a CUDA device exists. HOVR_TEST_DEVICES=cuda:0 narrows the
-    list (the GPU machine's packed Warp carries no CPU compiler)."""
-    import warp as wp
-
-    if os.environ.get("HOVR_TEST_DEVICES"):
-        return os.environ["HOVR_TEST_DEVICES"].split(",")
-    wp.config.quiet = True
-    wp.init()
-    devs = ["cpu"]
-    if wp.is_cuda_available():
-        devs.append("cuda:0")
-    return devs
-
-
-@pytest.fixture(params=warp_devices())
-def device(request):
-    return request.param
 
 
 @pytest.fixture(scope="session")
