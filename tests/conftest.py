@@ -2,20 +2,10 @@
 functions and constants in tests/helpers.py)."""
 import importlib.util
 import sys
-from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
-
-
-def shared_file(*parts) -> Path:
-    """A file from ../shared/data, or skip the test with the reason."""
-    p = SHARED_DATA.joinpath(*parts)
-    if not p.exists():
-        pytest.skip(f"shared data not present: {p}")
-    return p
+from .helpers import REPO
 
 
 @pytest.fixture(scope="session")

@@ -1,17 +1,18 @@
-"""What the tests share: scenes, cameras, chords and the float32 evaluation check. Plain
-functions and constants (fixtures are in conftest.py); test modules import from here, never
-from each other and never from bench/. bench/ imports the scenes it
+"""What the tests share: where the data files are, scenes, cameras, chords and the float32
+evaluation check. Plain functions and constants (fixtures are in conftest.py); test modules
+import from here, never from each other and never from bench/. bench/ imports the scenes it
 shares with the tests from here too (bench/suite.py: the curved mixed cube, framing, tents;
 bench/eval_table.py: the evaluation check), so a scene has one definition.
 
-Sections: cameras and chords; meshes and scenes; float32 device evaluation against the float64
-oracle.
+Sections: data files; cameras and chords; meshes and scenes; float32 device evaluation against
+the float64 oracle.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+import pytest
 import warp as wp
 
 from hovr_blender.core import expansions as ex
@@ -22,6 +23,42 @@ from hovr_blender.core.mesh import VolumeMesh, element_boxes
 from hovr_blender.core.transfer_function import TransferFunction
 
 REPO = Path(__file__).resolve().parents[1]
+
+# ------------------------------------------------------------------------------------ data files
+# Real third-party files: the small ones are vendored in tests/data (MANIFEST.md: source, commit,
+# licence); the rest are looked up in ../shared/data beside the checkout, where the project keeps
+# them. A test that needs a file neither place holds is skipped, naming the file.
+
+DATA_DIRS = (REPO / "tests" / "data", REPO.parent / "shared" / "data")
+
+
+def find_data(kind: str, name: str) -> Path | None:
+    """tests/data/KIND/NAME, else ../shared/data/KIND/NAME, else None (kind: "nektar" or "vtu")."""
+    for root in DATA_DIRS:
+        path = root / kind / name
+        if path.exists():
+            return path
+    return None
+
+
+def data_file(kind: str, name: str) -> Path:
+    """find_data, or skip the calling test with a reason that names the missing file. Call it
+    inside a test or fixture, never at collection time."""
+    path = find_data(kind, name)
+    if path is None:
+        pytest.skip(f"data file {kind}/{name} not found (looked in {', '.join(str(r / kind) for r in DATA_DIRS)})")
+    return path
+
+
+class data_dir:  # noqa: N801  (reads as a function: DATA = data_dir("nektar"))
+    """DATA / name is data_file(kind, name): for modules that spell their files as paths."""
+
+    def __init__(self, kind: str):
+        self.kind = kind
+
+    def __truediv__(self, name) -> Path:
+        return data_file(self.kind, str(name))
+
 
 # ---------------------------------------------------------------------------- cameras and chords
 

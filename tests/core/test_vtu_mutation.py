@@ -12,7 +12,7 @@ import pytest
 
 from hovr_blender.io.vtu import VtuError, read_vtu
 
-from ..conftest import shared_file
+from ..helpers import data_file as shared_file
 
 
 @pytest.fixture(scope="module")
