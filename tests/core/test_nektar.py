@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import base64
 import contextlib
-import importlib.util
 import os
 import re
 import signal
@@ -22,7 +21,6 @@ from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
 
 from ..helpers import data_dir
 
-ROOT = Path(__file__).parents[2]
 DATA = data_dir("nektar")  # DATA / name: the file, or the test skipped naming it
 STEM = "Hex_01_01_01_03Modes_x2_Offset3"
 
@@ -571,15 +569,8 @@ def test_malformed_input_raises_nektar_error_naming_file_and_record(tmp_path, ca
 
 # ------------------------------------------------------------------------------ mutation test
 
-def _mutation_module():
-    spec = importlib.util.spec_from_file_location("nektar_mutation", ROOT / "bench" / "nektar_mutation.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_mutations_of_real_files_load_or_raise_a_named_nektar_error():
-    mod = _mutation_module()
+    from tests.fuzz import nektar_mutation as mod  # its sources are vendored in tests/data
     s = mod.run_cases(n_cases=520, seed=4)
     assert s["cases"] >= 500
     assert s["crashes"] == [] and s["unexpected"] == [] and s["timeouts"] == [] and s["unnamed"] == []
