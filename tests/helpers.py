@@ -4,11 +4,12 @@ import from here, never from each other and never from bench/. bench/ imports th
 shares with the tests from here too (bench/suite.py: the curved mixed cube, framing, tents;
 bench/eval_table.py: the evaluation check), so a scene has one definition.
 
-Sections: data files; cameras and chords; meshes and scenes; float32 device evaluation against
-the float64 oracle.
+Sections: data files; cameras and chords; meshes and scenes; the Blender sphere scene; float32
+device evaluation against the float64 oracle.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -143,6 +144,64 @@ def jittered_trilinear_brick(n, jitter, seed=3) -> VolumeMesh:
                 geoms.append(geo)
                 coeffs.append(straight_geometry(shapes.HEX, linear_field(*v.T)[:, None].repeat(3, 1))[:, 0])
     return VolumeMesh.from_elements([shapes.HEX] * n**3, (2, 2, 2), coeffs, (2, 2, 2), geoms)
+
+
+# ------------------------------------------------------------------------ the Blender sphere scene
+
+
+class SPHERE:  # noqa: N801  (a namespace of constants)
+    """The scene of the F12 tests (tests/blender): the built-in sphere as one HOVR volume, moved
+    and turned, seen by a contract camera through a linear ramp; built in Blender by
+    build_scene, and through the core API alone by core_render, for comparison. Dyadic values
+    survive Blender's float32 storage exactly; ramp positions 0..1 map onto f in [0, 2]."""
+
+    W, H = 64, 48
+    # The sphere's inner ball (f < 1, where the ramp is non-zero) seen from outside its box: the
+    # density vanishes before the box faces, so the image has no silhouette edge, only smooth
+    # shells. Blender keeps camera parameters in float32 (rays differ from the contract's float64
+    # ones by ~1e-7); a sharp edge would turn that into more than the 1e-5 the tests demand.
+    PERSPECTIVE = {"projection": "perspective", "eye": [4.0, 3.0, 3.5], "target": [0.25, -0.5, 0.5],
+                   "up": [0.0, 0.0, 1.0], "fov_y_deg": 40.0}
+    ORTHOGRAPHIC = {"projection": "orthographic", "eye": [4.0, 3.0, 3.5], "target": [0.25, -0.5, 0.5],
+                    "up": [0.0, 0.0, 1.0], "height": 3.0}
+    STOPS = [(0.0, (1.0, 0.875, 0.25, 0.5)), (0.125, (1.0, 0.5, 0.25, 1.0)), (0.25, (0.25, 1.0, 0.375, 0.25)),
+             (0.375, (0.125, 0.5, 1.0, 0.75)), (0.5, (1.0, 0.25, 0.5, 0.0)), (1.0, (0.0, 0.0, 0.0, 0.0))]
+    VALUE_RANGE, DENSITY_SCALE = (0.0, 2.0), 2.0
+    BACKGROUND = (0.0625, 0.03125, 0.125)
+    OBJECT_LOCATION, OBJECT_ANGLE_Z = (0.25, -0.5, 0.5), 0.5
+
+    @classmethod
+    def object_matrix(cls):
+        """The sphere object's transform, built here independently of Blender."""
+        c, s = math.cos(cls.OBJECT_ANGLE_Z), math.sin(cls.OBJECT_ANGLE_Z)
+        m = np.eye(4)
+        m[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+        m[:3, 3] = cls.OBJECT_LOCATION
+        return m
+
+    @classmethod
+    def build_scene(cls, scene, contract, method="classified", film_transparent=False, percentage=100):
+        """The scene in Blender (needs bpy): camera, world colour, the volume; returns its object."""
+        from tests.blender.blender_helpers import build_sphere_scene
+
+        return build_sphere_scene(scene, contract, cls.W, cls.H, cls.STOPS, cls.VALUE_RANGE, cls.DENSITY_SCALE,
+                                  cls.BACKGROUND, cls.OBJECT_LOCATION, cls.OBJECT_ANGLE_Z, method, film_transparent,
+                                  percentage)
+
+    @classmethod
+    def core_render(cls, contract, method, film_transparent, camera=None, matrix=None):
+        """The same view through the core API only: contract camera, ramp lists, numpy transform."""
+        from hovr_blender.core.renderer import Renderer
+        from hovr_blender.core.view import RenderOptions
+        from hovr_blender.io import builtin
+
+        camera = RayCamera.from_contract(contract, cls.W, cls.H) if camera is None else camera
+        tf = TransferFunction.from_rgba_ramp([p for p, _ in cls.STOPS], [c for _, c in cls.STOPS], cls.DENSITY_SCALE,
+                                             *cls.VALUE_RANGE)
+        bg = np.zeros(3) if film_transparent else np.array(cls.BACKGROUND)
+        mesh = builtin.sphere().transformed(cls.object_matrix() if matrix is None else matrix)
+        options = RenderOptions(method=method, h=0.01, tolerance=1e-6, device="cpu")
+        return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
 
 
 # ------------------------------------------ float32 device evaluation against the float64 oracle

@@ -23,8 +23,8 @@ from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.nektar import read_nektar  # noqa: E402
 
-from tests.helpers import data_file  # noqa: E402
-from blender_helpers import add_camera, render_to_exr, set_contract_camera, set_ramp  # noqa: E402
+from ..helpers import data_file  # noqa: E402
+from .blender_helpers import add_camera, render_to_exr, set_contract_camera, set_ramp  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 STEM = "Hex_01_01_01_03Modes_x2_Offset3"  # one hex [-1,1]^2 x [-4,-2], p = x^2 + y^2 + z^2

@@ -19,9 +19,9 @@ from hovr_blender.core.outline import outline_edges  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io import nektar  # noqa: E402
 from hovr_blender.blender import import_operators, panels  # noqa: E402
-from tests.helpers import data_file  # noqa: E402
 
-from blender_helpers import add_camera, render_to_exr, set_contract_camera  # noqa: E402
+from ..helpers import data_file  # noqa: E402
+from .blender_helpers import add_camera, render_to_exr, set_contract_camera  # noqa: E402
 
 TET = "Tet_channel_m3"  # 48 straight tets on the unit cube, fields u, v, w, p (3 modes)
 W, H = 24, 16
