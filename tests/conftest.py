@@ -1,5 +1,5 @@
-"""Fixtures tests/ share (the device fixture is in the repository's conftest.py; plain helper
-functions and constants in tests/helpers.py)."""
+"""Fixtures tests/ share (the device fixture and the markers are in the repository's conftest.py;
+plain helper functions and constants in tests/helpers.py)."""
 import pytest
 
 

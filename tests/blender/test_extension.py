@@ -34,6 +34,7 @@ def test_zip_layout(tmp_path):
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
 
 
+@pytest.mark.slow
 def test_install_enable_and_render(tmp_path):
     zip_path = build_zip(tmp_path / "dist")
     user = tmp_path / "blender-user"

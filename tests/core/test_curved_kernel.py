@@ -47,6 +47,7 @@ def bulged_element(shape, amount=0.15, modes=3):
     return ex.fit_modal(shape, (modes,) * 3, x)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR])
 def test_curved_chords_match_numpy(device, shape):
     """Constant density in a curved element: T = exp(-tau L), L from the numpy oracle's inversion."""

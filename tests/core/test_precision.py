@@ -134,6 +134,7 @@ def test_float32_overflow_is_named_and_float64_renders(device):
     np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_float32_matches_float64_on_curved_pyramid_apexes(device):
     """The suite's curved cube of all four shapes (io/synthetic.curved_cube, 2 cells) in float32 against
     float64. Near a curved pyramid's apex x = G / w^2 magnifies float32 rounding; Newton's steps

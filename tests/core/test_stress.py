@@ -302,6 +302,7 @@ def test_rays_through_collapsed_vertex_low_order(device, shape):
                                                                RenderOptions(method=method, min_transmittance=0.0)), L)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_rays_through_collapsed_vertex_order14(device, shape):
     """As the low-order test, order 14 (a constant field: all higher coefficients zero).
@@ -323,6 +324,7 @@ def interval(V, o, d):
     return max(0.0, t[den < 0].max()), t[den > 0].min()
 
 
+@pytest.mark.slow
 def test_pyramid_apex_rays_float32_restriction(device):
     """Rays within `spread` of a pyramid's apex, order 8 field, density linear in the field (no
     breakpoint: one smooth segment); T against the float64 oracle integrated per ray (32 panels

@@ -237,6 +237,7 @@ def annulus_cameras():
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_curved_annulus_is_watertight(device, precision):
     mesh = constant(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
