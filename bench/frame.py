@@ -9,7 +9,7 @@ is the full benchmark.
 Each case: the build time, the first render (kernel compile or cache load), then per setting
 the best of --repeats renders: seconds, element segments, curved locations, field and
 restriction evaluations per ray, the empty/smooth/piecewise counts, and the max RGB error
-against resample_baseline.pixel_exact_reference (float64, split at tolerance 1e-9, no early
+against core/reference.pixel_exact_reference (float64, split at tolerance 1e-9, no early
 termination; --no-reference skips it).
 """
 from __future__ import annotations
@@ -27,9 +27,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 sys.path.insert(0, HERE)
 
-import resample_baseline as rb  # noqa: E402  (its pixel_exact_reference is every benchmark's reference)
 import suite  # noqa: E402  (datasets, framing and transfer functions are the suite's own)
 
+from hovr_blender.core.reference import pixel_exact_reference  # noqa: E402  (every benchmark's reference)
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 
 SETTINGS = {
@@ -73,7 +73,7 @@ def main(argv=None):
         build = time.perf_counter() - t0
         tf = suite.tents(0.25, 1.55, suite.COLORS, 3.0)
         r, first = suite.compiled_renderer(mesh, args.device)
-        lo, hi = suite.bounds(mesh)
+        lo, hi = suite.mesh_bounds(mesh)
         diag = float(np.linalg.norm(hi - lo))
         print(f"{variant}: {mesh.num_elements} elements ({int(mesh.affine.sum())} affine), build {build:.1f} s, "
               f"upload {r.upload_seconds:.2f} s, first render {first:.1f} s", flush=True)
@@ -84,7 +84,7 @@ def main(argv=None):
                     "size": [W, H], "build_seconds": build, "first_render_seconds": first, "runs": []}
             ref = None
             if not args.no_reference:
-                ref, ref_stats = rb.pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
+                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
                 case["reference_seconds"] = ref_stats["render_seconds"]
             for name in args.settings.split(","):
                 kw = dict(SETTINGS[name])

@@ -20,9 +20,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 sys.path.insert(0, HERE)
 
-import resample_baseline as rb  # noqa: E402
 import suite  # noqa: E402
 
+from hovr_blender.core.reference import pixel_exact_reference  # noqa: E402
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 
 
@@ -49,7 +49,7 @@ def main(argv=None):
     for size in args.sizes.split(","):
         W, H = (int(v) for v in size.split("x"))
         cam = camera(W, H)
-        ref, _ = rb.pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
+        ref, _ = pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
         for tol in (float(v) for v in args.tolerances.split(",")):
             res = r.render(cam, tf, suite.BACKGROUND, RenderOptions(method="split", tolerance=tol, device=args.device))
             got = res.rgba.astype(np.float64)

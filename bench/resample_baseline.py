@@ -17,8 +17,9 @@ with trilinear interpolation (as VTK's GPU ray caster does), against the pixel-e
    A sample with any of its 8 grid corners empty counts as empty.
 3. ``compare``: grid build time, render time, grid memory and the largest RGB difference
    (also its 99th percentile and mean over pixels: the largest sits on the domain's
-   silhouette, where the grid's boundary is off by up to h_g) against the pixel-exact reference (``pixel_exact_reference``: the Renderer in float64
-   with method split, tolerance 1e-9, min_transmittance 0).
+   silhouette, where the grid's boundary is off by up to h_g) against the pixel-exact reference
+   (core/reference.pixel_exact_reference: the Renderer in float64 with RenderOptions.pixel_exact(),
+   split at tolerance 1e-9, min_transmittance 0).
 
     python bench/resample_baseline.py --device cpu --size 48x36        (sphere, quick look)
 """
@@ -367,21 +368,6 @@ def march(grid: GridField, camera, tf, background, step: float | None = None, de
         samples = int(ns.numpy().astype(np.int64).sum())
     return img, {"render_seconds": secs, "samples_per_ray": samples / (W * H), "step": step,
                  "grid_shape": list(grid.values.shape), "grid_bytes": grid.nbytes}
-
-
-REFERENCE_OPTIONS = dict(method="split", tolerance=1e-9, min_transmittance=0.0, precision="float64")
-
-
-def pixel_exact_reference(mesh, camera, tf, background, device="cpu", renderer=None):
-    """The Renderer in float64 (curved interpolants to a tail of 1e-12, Gauss-Kronrod to 1e-9,
-    no early termination): independent of the float32 kernels' rounding and of their tail
-    tolerance, so an error measured against it includes both."""
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
-
-    r = renderer or Renderer(mesh, device)
-    res = r.render(camera, tf, background, RenderOptions(device=device, **REFERENCE_OPTIONS))
-    return res.rgba.astype(np.float64), res.stats
 
 
 def mesh_memory_bytes(mesh: VolumeMesh) -> int:

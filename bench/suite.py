@@ -11,11 +11,11 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
 1. methods: time against max error of riemann / trapezoid / classified (a sweep of h) and
    split (a sweep of tolerance) on three datasets: the paper's sphere (reference: the float64
    integrator, core/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
-   and pyramids, io/paper_scale.curved_copy of io/synthetic.mixed_cube) and the paper-scale
+   and pyramids, io/synthetic.curved_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
    order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
-   (bench/resample_baseline.pixel_exact_reference: split, tolerance 1e-9, curved tails 1e-12, no
-   early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
+   (core/reference.pixel_exact_reference, RenderOptions.pixel_exact(): split, tolerance 1e-9, curved
+   tails 1e-12, no early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
 2. resample: what users do today (bench/resample_baseline.py): the field resampled onto a
    regular grid of spacing h_g and ray-marched trilinearly (step h_g / 2): error against the
    reference, grid build and render time, grid memory, for several h_g; on the sphere and
@@ -47,15 +47,13 @@ ROOT = os.path.join(HERE, "..")
 sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
-from hovr_blender.core import expansions as ex  # noqa: E402
-from hovr_blender.core import shapes  # noqa: E402
-from hovr_blender.core.expansions import MODIFIED_A  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
 from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.io.synthetic import brick  # noqa: E402
+# the scenes the tests share (one definition: tests/helpers.py)
+from tests.helpers import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents  # noqa: E402
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
-BACKGROUND = [0.02, 0.02, 0.03]
 
 CONFIG = {
     "small": {
@@ -96,89 +94,15 @@ CONFIG = {
 # --------------------------------------------------------------------------------- datasets
 
 
-def fast_brick(cells: int, modes: int, func, lower=(0.0, 0.0, 0.0), upper=(1.0, 1.0, 1.0), chunk=20000) -> VolumeMesh:
-    """cells^3 axis-aligned affine hexahedra, func interpolated at the tensor GLL points with
-    `modes` per direction: io/synthetic.brick's mesh, built vectorised (a million elements in
-    seconds, where brick's per-element loop takes many minutes)."""
-    from hovr_blender.core.expansions import basis_values, gll_points
-
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    h = (upper - lower) / cells
-    idx = np.stack(np.meshgrid(*[np.arange(cells)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    mid = lower + h * (idx + 0.5)
-    half = 0.5 * h
-    n = len(mid)
-    g = gll_points(modes)
-    Vi = np.linalg.inv(basis_values(MODIFIED_A, modes, g))  # nodal -> modal, one direction
-    A, B, C = np.meshgrid(g, g, g, indexing="ij")
-    k = modes ** 3
-    coeffs = np.empty((n, k))
-    for a in range(0, n, chunk):
-        m0 = mid[a:a + chunk, :, None, None, None]
-        vals = func(m0[:, 0] + half[0] * A, m0[:, 1] + half[1] * B, m0[:, 2] + half[2] * C)  # (e, i, j, k)
-        c = np.einsum("ai,eijk,bj,ck->ecba", Vi, vals, Vi, Vi, optimize=True)  # direction 0 fastest
-        coeffs[a:a + chunk] = c.reshape(len(m0), k)
-    verts = mid[:, None, :] + half * shapes.VERTICES[shapes.HEX][None]
-    M = np.zeros((n, 3, 4))
-    M[:, [0, 1, 2], [0, 1, 2]] = 1.0 / half
-    M[:, :, 3] = -mid / half
-    return VolumeMesh(shape=np.zeros(n, np.int32), vertices=verts, ref_from_world=M,
-                      modes=np.full((n, 3), modes, np.int32), basis=np.full(n, MODIFIED_A, np.int32),
-                      coeff_offset=(np.arange(n, dtype=np.int64) * k), coeffs=coeffs.ravel(), field_name="f",
-                      source=f"suite:brick{cells}^3_m{modes}")
-
-
 def wave(x, y, z):
     return np.sin(2 * np.pi * x) * np.sin(2 * np.pi * y) * np.cos(np.pi * z) + 0.3 * z
 
 
-def cube_field(x, y, z):
-    return np.sin(2.5 * x + 0.5) * np.cos(2.0 * y) + z * z
-
-
-def curved_cube(cells: int) -> VolumeMesh:
-    from hovr_blender.io.paper_scale import curved_copy
-    from hovr_blender.io.synthetic import mixed_cube
-
-    base = mixed_cube(cells, 5, cube_field)
-
-    def bend(x, y, z):
-        return 0.08 * (1 - (2 * x - 1) ** 2), 0.05 * x * y, -0.06 * (y - 0.5) ** 2 + 0.02 * x
-
-    return curved_copy(base, bend, geom_modes=3)
-
-
-def tents(lo, hi, colors, density):
-    """len(colors) tents spread over [lo, hi] (zero density between: empty segments exist)."""
-    k = len(colors)
-    cs, col, dens = [], [], []
-    for i, rgb in enumerate(colors):
-        m = lo + (i + 1) * (hi - lo) / (k + 1)
-        w = 0.07 * (hi - lo)
-        for s, a in ((m - w, 0.0), (m, density), (m + w, 0.0)):
-            cs.append(s), col.append(rgb), dens.append(a)
-    return TransferFunction(np.array(cs), np.array(col), np.array(cs), np.array(dens))
-
-
-COLORS = [(0.95, 0.35, 0.1), (0.2, 0.75, 0.3), (0.15, 0.35, 0.95)]
 SPHERE_TF = {
     "color": [[1.0, 1.0, 0.9, 0.2], [4.0, 0.2, 1.0, 0.3], [9.0, 0.1, 0.4, 1.0], [16.0, 1.0, 0.2, 0.6]],
     "density": [[1.5, 0.0], [2.0, 2.0], [2.5, 0.0], [4.5, 0.0], [5.0, 1.5], [5.5, 0.0],
                 [8.5, 0.0], [9.0, 1.0], [9.5, 0.0], [15.0, 0.0], [16.0, 0.4], [17.0, 0.0]],
 }
-
-
-def bounds(mesh):
-    lo, hi = element_boxes(mesh)
-    return lo.min(axis=0), hi.max(axis=0)
-
-
-def framing(mesh, w, h, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0):
-    lo, hi = bounds(mesh)
-    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    return RayCamera.from_contract({"eye": (c + distance * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
-                                    "fov_y_deg": fov}, w, h)
 
 
 def dataset(name, cfg):
@@ -191,9 +115,7 @@ def dataset(name, cfg):
         return (sphere(), TransferFunction.from_contract(SPHERE_TF), lambda w, h: RayCamera.from_contract(cam, w, h),
                 "the paper's sphere: one hexahedron, f = x^2 + y^2 + z^2")
     if name == "curved_mixed":
-        mesh = curved_cube(cfg["cube_cells"])
-        lo, hi = np.percentile(mesh.field_samples(4), [2, 98])
-        return (mesh, tents(lo, hi, COLORS, 12.0), lambda w, h: framing(mesh, w, h),
+        return (*curved_mixed_scene(cfg["cube_cells"]),
                 f"mixed_cube({cfg['cube_cells']}) of all four shapes, order 4, bent by a quadratic map (3 geometry modes)")
     if name == "paper_scale":
         from hovr_blender.io.paper_scale import paper_scale_mesh
@@ -309,8 +231,7 @@ class Suite:
     # ------------------------------------------------------------------------------ section 1
 
     def methods(self):
-        import resample_baseline as rb
-        from hovr_blender.core.reference import reference_render
+        from hovr_blender.core.reference import pixel_exact_reference, reference_render
         from hovr_blender.core.image_io import write_png
 
         sec = self.out["sections"].setdefault("methods", {})
@@ -320,7 +241,7 @@ class Suite:
             mesh, tf, camera, desc = dataset(name, cfg)
             build = time.perf_counter() - t0
             r, first = self.renderer(mesh)
-            lo, hi = bounds(mesh)
+            lo, hi = mesh_bounds(mesh)
             diag = float(np.linalg.norm(hi - lo))
             self.log(f"{name}: {mesh.num_elements} elements, built in {build:.1f} s, upload {r.upload_seconds:.2f} s, "
                      f"first render (compile/load) {first:.1f} s")
@@ -330,7 +251,7 @@ class Suite:
                         "build_seconds": build, "upload_seconds": r.upload_seconds, "first_render_seconds": first,
                         "transfer_function": tf.to_contract(), "runs": []}
                 t1 = time.perf_counter()
-                ref, ref_stats = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
                 case["renderer_float64_seconds"] = ref_stats["render_seconds"]
                 if name == "sphere":
                     exact, info = reference_render(mesh, cam, tf, BACKGROUND)
@@ -339,7 +260,7 @@ class Suite:
                     case["renderer_float64_vs_integrator"] = rgb_error(ref, exact)
                     ref = exact
                 else:
-                    case["reference"] = "Renderer in float64, split, tolerance 1e-9, min_transmittance 0"
+                    case["reference"] = "pixel_exact_reference: Renderer in float64, split, tolerance 1e-9, min_transmittance 0"
                 case["reference_seconds"] = time.perf_counter() - t1
                 self.log(f"  {W}x{H}: reference in {case['reference_seconds']:.1f} s")
                 if name == "paper_scale" and (W, H) == tuple(cfg["method_sizes"][-1]):
@@ -375,7 +296,7 @@ class Suite:
 
     def resample(self):
         import resample_baseline as rb
-        from hovr_blender.core.reference import reference_render
+        from hovr_blender.core.reference import pixel_exact_reference, reference_render
 
         sec = self.out["sections"].setdefault("resample", {})
         cfg = self.cfg
@@ -389,7 +310,7 @@ class Suite:
                 ref = reference_render(mesh, cam, tf, BACKGROUND)[0]
                 hs = cfg["resample_sphere"]
             else:
-                ref, _ = rb.pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
+                ref, _ = pixel_exact_reference(mesh, cam, tf, BACKGROUND, self.args.device, renderer=r)
                 hs = [mesh.paper_scale["cell_size"] / d for d in cfg["resample_paper"]]
             case = {"dataset": name, "description": desc, "size": [W, H], "elements": mesh.num_elements,
                     "mesh_bytes": rb.mesh_memory_bytes(mesh),
@@ -413,7 +334,7 @@ class Suite:
         # image size, on the paper-scale dataset
         mesh, tf, camera, _ = dataset("paper_scale", cfg)
         r, _ = self.renderer(mesh)
-        lo, hi = bounds(mesh)
+        lo, hi = mesh_bounds(mesh)
         h = float(np.linalg.norm(hi - lo)) / 400
         rows, last = [], {}
         for W, H in cfg["image_sizes"]:
@@ -437,7 +358,7 @@ class Suite:
         rows = []
         last = {}
         for order in cfg["orders"]:
-            mesh = fast_brick(n, order + 1, wave)
+            mesh = brick((0, 0, 0), (1, 1, 1), (n, n, n), order + 1, wave)
             r, _ = self.renderer(mesh)
             cam = framing(mesh, W, H)
             tf = tents(-0.9, 1.2, COLORS, 8.0)
@@ -466,7 +387,7 @@ class Suite:
                 rows.append({"elements": N, "skipped": f"needs about {need / 2**30:.1f} GiB"})
                 continue
             t0 = time.perf_counter()
-            mesh = fast_brick(c, modes, wave)
+            mesh = brick((0, 0, 0), (1, 1, 1), (c, c, c), modes, wave)
             build = time.perf_counter() - t0
             r, _ = self.renderer(mesh)
             cam = framing(mesh, W, H)

@@ -4,6 +4,8 @@
 # promises (BLENDER_LTS below, one cached .venv-bpy-X each). Sets up the environments first.
 #   bash scripts/test.sh [pytest args]   pytest args apply to the main run only
 #   HOVR_BLENDER_LTS="" bash scripts/test.sh     the newest Blender only
+# Every CPU test runs, slow ones included; pass -m "not slow" for a quick pass. Tests marked gpu
+# (the device fixture's cuda:0 cases) skip where there is no CUDA device.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BLENDER_LTS=${HOVR_BLENDER_LTS-"4.2.23 4.5.15"}

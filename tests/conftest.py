@@ -1,48 +1,12 @@
-import importlib.util
-import os
-import sys
-from pathlib import Path
-
+"""Fixtures tests/ share (the device fixture and the markers are in the repository's conftest.py;
+plain helper functions and constants in tests/helpers.py)."""
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
-
-
-def shared_file(*parts) -> Path:
-    """A file from ../shared/data, or skip the test with the reason."""
-    p = SHARED_DATA.joinpath(*parts)
-    if not p.exists():
-        pytest.skip(f"shared data not present: {p}")
-    return p
-
-
-def warp_devices():
-    """cpu always; cuda:0 too where a CUDA device exists. HOVR_TEST_DEVICES=cuda:0 narrows the
-    list (the GPU machine's packed Warp carries no CPU compiler)."""
-    import warp as wp
-
-    if os.environ.get("HOVR_TEST_DEVICES"):
-        return os.environ["HOVR_TEST_DEVICES"].split(",")
-    wp.config.quiet = True
-    wp.init()
-    devs = ["cpu"]
-    if wp.is_cuda_available():
-        devs.append("cuda:0")
-    return devs
-
-
-@pytest.fixture(params=warp_devices())
-def device(request):
-    return request.param
 
 
 @pytest.fixture(scope="session")
 def vm():
-    """bench/vtu_mutation.py as a module: its vtk-written sources and its .vtu block editor."""
+    """tests/fuzz/vtu_mutation.py: its vtk-written sources and its .vtu block editor."""
     pytest.importorskip("vtk", reason="the vtk package (writer of the .vtu sources) is not installed")
-    spec = importlib.util.spec_from_file_location("vtu_mutation", REPO / "bench" / "vtu_mutation.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["vtu_mutation"] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    from tests.fuzz import vtu_mutation
+
+    return vtu_mutation

@@ -18,6 +18,10 @@ No early ray termination: T is exact however small. Inside one piece the emissio
 not sampled past depth ``depth_cut`` (60: exp(-60) ~ 1e-26, below float64 resolution of C).
 Vectorised over rays with numpy; Python loops run over element blocks, (modes, basis) classes,
 degree classes and the piece rank along a ray, never over rays.
+
+Curved meshes and the other shapes have no closed-form reference: ``pixel_exact_reference``
+renders them with the Renderer in float64 (``RenderOptions.pixel_exact()``), the reference of
+every benchmark.
 """
 from __future__ import annotations
 
@@ -389,3 +393,17 @@ def reference_render(
         **totals,
     }
     return rgba.reshape(H, W, 4), info
+
+
+def pixel_exact_reference(mesh: VolumeMesh, camera: RayCamera, tf: TransferFunction, background=(0.0, 0.0, 0.0),
+                          device: str = "cpu", renderer=None):
+    """The reference image of any mesh (curved, all four shapes), where reference_render covers
+    affine hexahedra only: the Renderer with RenderOptions.pixel_exact(), float64 from end to
+    end. (rgba (H, W, 4) float64, the render's stats). Pass `renderer` (a core.renderer.Renderer
+    of this mesh) to reuse its upload."""
+    from .renderer import Renderer
+    from .view import RenderOptions
+
+    r = renderer if renderer is not None else Renderer(mesh, device)
+    res = r.render(camera, tf, background, RenderOptions.pixel_exact(device))
+    return res.rgba.astype(np.float64), res.stats

@@ -70,6 +70,14 @@ class RenderOptions:
         if self.precision not in ("float32", "float64"):
             raise ViewError(f"precision must be 'float32' or 'float64', got {self.precision!r}")
 
+    @classmethod
+    def pixel_exact(cls, device: str = "cpu") -> "RenderOptions":
+        """The settings of the pixel-exact reference image (core/reference.pixel_exact_reference):
+        the breakpoint-split method in float64, Gauss-Kronrod panels to 1e-9 (curved interpolants
+        to a tail of 1e-12), no early ray termination. Independent of the float32 kernels'
+        rounding and of their tolerance, so an error measured against it includes both."""
+        return cls(method="split", tolerance=1e-9, min_transmittance=0.0, precision="float64", device=device)
+
     def with_(self, **kw) -> "RenderOptions":
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
 

@@ -1,4 +1,5 @@
-"""Generated affine meshes for tests and benchmarks: any field sampled onto a brick of hexes."""
+"""Generated meshes for tests and benchmarks: any field sampled onto a brick of hexes, a cube of all
+four shapes (straight or bent)."""
 from __future__ import annotations
 
 from itertools import permutations
@@ -7,30 +8,48 @@ import numpy as np
 
 from ..core import expansions as ex
 from ..core import shapes
-from ..core.expansions import fit_tensor_coefficients
-from ..core.mesh import VolumeMesh
-from .builtin import box_vertices
+from ..core.mesh import MeshError, VolumeMesh
+from .paper_scale import curved_copy
 
 
-def brick(lower, upper, cells, modes, func, field_name="f") -> VolumeMesh:
-    """cells = (nx, ny, nz) axis-aligned hexes over [lower, upper]; func(x, y, z) interpolated
-    with `modes` per direction (exact for polynomials of degree < modes)."""
-    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
-    nx, ny, nz = cells
-    edges = [np.linspace(lower[k], upper[k], n + 1) for k, n in enumerate((nx, ny, nz))]
-    verts, coeffs = [], []
-    for k in range(nz):
-        for j in range(ny):
-            for i in range(nx):
-                lo = np.array([edges[0][i], edges[1][j], edges[2][k]])
-                hi = np.array([edges[0][i + 1], edges[1][j + 1], edges[2][k + 1]])
-                mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
-                verts.append(box_vertices(lo, hi))
-                coeffs.append(fit_tensor_coefficients(
-                    lambda a, b, c, mid=mid, half=half: func(mid[0] + half[0] * a, mid[1] + half[1] * b, mid[2] + half[2] * c),
-                    (modes,) * 3))
-    return VolumeMesh.from_affine_hexes(np.array(verts), (modes,) * 3, coeffs, field_name=field_name,
-                                        source=f"synthetic:brick{nx}x{ny}x{nz}")
+def brick(lower, upper, cells, modes, func, field_name="f", chunk=20000) -> VolumeMesh:
+    """cells = (nx, ny, nz) axis-aligned hexes over [lower, upper], element i + nx (j + ny k);
+    func(x, y, z) interpolated at the tensor GLL points with `modes` per direction (exact for
+    polynomials of degree < modes). Vectorised over elements, `chunk` at a time (a million
+    elements in seconds); the same mesh, bit for bit, as fitting every element on its own
+    (expansions.fit_tensor_coefficients, VolumeMesh.from_affine_hexes)."""
+    lower, upper, modes = np.asarray(lower, float), np.asarray(upper, float), int(modes)
+    nx, ny, nz = (int(c) for c in cells)
+    if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(upper > lower)):
+        raise MeshError(f"brick: upper {upper.tolist()} must exceed lower {lower.tolist()} in every direction")
+    edges = [np.linspace(lower[d], upper[d], n + 1) for d, n in enumerate((nx, ny, nz))]
+    k, j, i = (a.ravel() for a in np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij"))
+    lo = np.stack([edges[0][i], edges[1][j], edges[2][k]], axis=1)
+    hi = np.stack([edges[0][i + 1], edges[1][j + 1], edges[2][k + 1]], axis=1)
+    mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    verts = lo[:, None, :] + (shapes.VERTICES[shapes.HEX] + 1.0)[None] * 0.5 * (hi - lo)[:, None, :]  # box_vertices
+    n, size = len(lo), modes ** 3
+    g = ex.gll_points(modes)
+    Vi = np.linalg.inv(ex.modified_a(modes, g))  # nodal -> modal, one direction
+    A, B, C = np.meshgrid(g, g, g, indexing="ij")
+    coeffs = np.empty((n, size))
+    for a in range(0, n, chunk):
+        m, h = mid[a:a + chunk, :, None, None, None], half[a:a + chunk, :, None, None, None]
+        vals = np.broadcast_to(np.asarray(func(m[:, 0] + h[:, 0] * A, m[:, 1] + h[:, 1] * B, m[:, 2] + h[:, 2] * C),
+                                          dtype=np.float64), (len(m),) + A.shape)
+        c = np.einsum("ai,eijk->eajk", Vi, vals)  # one direction at a time, as fit_tensor_coefficients
+        c = np.einsum("bj,eajk->eabk", Vi, c)
+        c = np.einsum("ck,eabk->eabc", Vi, c)
+        coeffs[a:a + chunk] = c.transpose(0, 3, 2, 1).reshape(len(m), size)  # direction 0 fastest
+    x0 = verts.mean(axis=1)  # the world->reference map of mesh.affine_from_hex_vertices: diagonal here
+    inv = 1.0 / (0.5 * (verts[:, [1, 3, 4], [0, 1, 2]] - verts[:, 0, :]))
+    M = np.zeros((n, 3, 4))
+    M[:, [0, 1, 2], [0, 1, 2]] = inv
+    M[:, :, 3] = -(inv * x0)
+    return VolumeMesh(shape=np.full(n, shapes.HEX, np.int32), vertices=verts, ref_from_world=M,
+                      modes=np.full((n, 3), modes, np.int32), basis=np.full(n, ex.MODIFIED_A, np.int32),
+                      coeff_offset=np.arange(n, dtype=np.int64) * size, coeffs=coeffs.ravel(), field_name=field_name,
+                      source=f"synthetic:brick{nx}x{ny}x{nz}")
 
 
 def straight_geometry(shape: int, vertices) -> np.ndarray:
@@ -101,6 +120,23 @@ def mixed_cube(n: int, modes: int, func, field_name="f", lower=(0.0, 0.0, 0.0), 
     n_modes = (modes,) * 3
     return VolumeMesh.from_elements(kinds, n_modes, coeffs, (2, 2, 2), geoms, field_name=field_name,
                                     source=f"synthetic:mixed_cube{n}")
+
+
+def cube_field(x, y, z):
+    """curved_cube's field: smooth, not a polynomial (so every order approximates it)."""
+    return np.sin(2.5 * x + 0.5) * np.cos(2.0 * y) + z * z
+
+
+def curved_cube(cells: int, modes: int = 5, func=cube_field) -> VolumeMesh:
+    """mixed_cube(cells, modes, func) over the unit cube bent by a quadratic displacement (3
+    geometry modes, paper_scale.curved_copy): curved elements of all four shapes, pyramid apexes
+    and many elements meeting at a vertex. The benchmark's curved mixed-shape dataset
+    (bench/suite.py) and the scene of the float32-against-float64 regression tests."""
+
+    def bend(x, y, z):
+        return 0.08 * (1 - (2 * x - 1) ** 2), 0.05 * x * y, -0.06 * (y - 0.5) ** 2 + 0.02 * x
+
+    return curved_copy(mixed_cube(cells, modes, func), bend, geom_modes=3)
 
 
 def with_field(mesh: VolumeMesh, func, modes: int, field_name="f") -> VolumeMesh:

@@ -23,10 +23,10 @@ from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.nektar import read_nektar  # noqa: E402
 
-from blender_helpers import add_camera, render_to_exr, set_contract_camera, set_ramp  # noqa: E402
+from ..helpers import data_file  # noqa: E402
+from .blender_helpers import add_camera, render_to_exr, set_contract_camera, set_ramp  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-DATA = HERE.parents[1].parent / "shared" / "data" / "nektar"
 STEM = "Hex_01_01_01_03Modes_x2_Offset3"  # one hex [-1,1]^2 x [-4,-2], p = x^2 + y^2 + z^2
 W, H = 32, 24
 STOPS = [(0.0, (0.0, 0.0, 0.0, 0.0)), (0.25, (1.0, 0.5, 0.25, 0.5)), (0.5, (0.25, 1.0, 0.5, 1.0)),
@@ -36,10 +36,8 @@ CONTRACT = {"eye": [5.0, 4.0, 0.5], "target": [0.0, 0.0, -3.0], "up": [0.0, 0.0,
 
 def write_series(folder: Path, scales):
     """m.xml plus m_0001.fld, m_0002.fld, ...: the ElVis field times scales[k] in frame k+1."""
-    if not (DATA / f"{STEM}.xml").exists():
-        pytest.skip(f"Nektar++ test data not found at {DATA}")
-    shutil.copy(DATA / f"{STEM}.xml", folder / "m.xml")
-    fld = (DATA / f"{STEM}.fld").read_text()
+    shutil.copy(data_file("nektar", f"{STEM}.xml"), folder / "m.xml")
+    fld = data_file("nektar", f"{STEM}.fld").read_text()
     body = re.search(r">([^<]+)</ELEMENTS>", fld).group(1)
     values = np.frombuffer(zlib.decompress(base64.b64decode(body + "=" * (-len(body) % 4))), "<f8")
     for k, s in enumerate(scales, start=1):

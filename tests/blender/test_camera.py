@@ -13,7 +13,7 @@ from mathutils import Vector  # noqa: E402
 
 from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
 
-from blender_helpers import add_camera  # noqa: E402
+from .blender_helpers import add_camera  # noqa: E402
 
 CASES = [
     # (type, sensor_fit, (res_x, res_y, percentage), (pixel_aspect_x, pixel_aspect_y), (shift_x, shift_y))

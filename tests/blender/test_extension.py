@@ -13,7 +13,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-import test_render as tr  # noqa: E402
+from ..helpers import SPHERE  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
@@ -34,6 +34,7 @@ def test_zip_layout(tmp_path):
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
 
 
+@pytest.mark.slow
 def test_install_enable_and_render(tmp_path):
     zip_path = build_zip(tmp_path / "dist")
     user = tmp_path / "blender-user"
@@ -47,9 +48,9 @@ def test_install_enable_and_render(tmp_path):
     env.pop("PYTHONPATH", None)
     spec = {
         "zip": str(zip_path), "out": str(tmp_path / "rgba.npy"), "exr": str(tmp_path / "ext.exr"),
-        "report": str(tmp_path / "report.json"), "contract": tr.PERSPECTIVE, "width": tr.W, "height": tr.H,
-        "stops": tr.STOPS, "value_range": tr.VALUE_RANGE, "density_scale": tr.DENSITY_SCALE,
-        "background": tr.BACKGROUND, "location": tr.OBJECT_LOCATION, "angle_z": tr.OBJECT_ANGLE_Z,
+        "report": str(tmp_path / "report.json"), "contract": SPHERE.PERSPECTIVE, "width": SPHERE.W, "height": SPHERE.H,
+        "stops": SPHERE.STOPS, "value_range": SPHERE.VALUE_RANGE, "density_scale": SPHERE.DENSITY_SCALE,
+        "background": SPHERE.BACKGROUND, "location": SPHERE.OBJECT_LOCATION, "angle_z": SPHERE.OBJECT_ANGLE_Z,
         "method": "classified",
     }
     proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],
@@ -62,7 +63,7 @@ def test_install_enable_and_render(tmp_path):
     assert (user / "extensions" / "user_default" / "hovr_blender" / "blender_manifest.toml").is_file()
 
     got = np.load(spec["out"])
-    want = tr.core_render(tr.PERSPECTIVE, "classified", False)
+    want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
     np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
 
     spec.update(mode="uninstall", report=str(tmp_path / "uninstall.json"))
@@ -76,8 +77,7 @@ def test_install_enable_and_render(tmp_path):
     assert not (user / "extensions" / "user_default" / "hovr_blender").exists()
 
 
-sys.path.insert(0, str(REPO / "scripts"))
-import build_extension as be  # noqa: E402
+from scripts import build_extension as be  # noqa: E402  (scripts/ as a namespace package of the repository)
 
 
 def test_built_zip_is_valid_for_our_checks_and_blenders(tmp_path):

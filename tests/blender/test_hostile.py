@@ -9,7 +9,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from tests.hostile import cases  # noqa: E402
+from ..hostile import cases  # noqa: E402
 
 SECONDS = 5.0
 
@@ -95,7 +95,7 @@ def test_hostile_import_is_refused_quickly_and_changes_nothing(scene, tmp_path, 
 
 def test_render_of_a_hostile_source_is_a_report(scene, tmp_path):
     """A volume whose file was swapped for a FIFO: F12 reports, does not hang, changes nothing."""
-    from blender_helpers import add_camera, set_contract_camera
+    from .blender_helpers import add_camera, set_contract_camera
 
     bpy.ops.hovr.add_sphere_volume()
     add_camera(scene)

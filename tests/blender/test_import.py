@@ -19,9 +19,9 @@ from hovr_blender.core.outline import outline_edges  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io import nektar  # noqa: E402
 from hovr_blender.blender import import_operators, panels  # noqa: E402
-from tests.conftest import shared_file  # noqa: E402
 
-from blender_helpers import add_camera, render_to_exr, set_contract_camera  # noqa: E402
+from ..helpers import data_file  # noqa: E402
+from .blender_helpers import add_camera, render_to_exr, set_contract_camera  # noqa: E402
 
 TET = "Tet_channel_m3"  # 48 straight tets on the unit cube, fields u, v, w, p (3 modes)
 W, H = 24, 16
@@ -31,7 +31,7 @@ CONTRACT = {"eye": [2.6, -1.9, 2.2], "target": [0.5, 0.5, 0.5], "up": [0.0, 0.0,
 def copy_tet(folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     for ext in (".xml", ".fld"):
-        shutil.copy(shared_file("nektar", TET + ext), folder / (TET + ext))
+        shutil.copy(data_file("nektar", TET + ext), folder / (TET + ext))
     return folder / (TET + ".xml")
 
 
@@ -119,7 +119,7 @@ def test_import_picks_the_first_field_and_reports_the_others(scene, tmp_path):
 
 
 def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
-    mfem = shared_file("vtu", "mfem_fichera_poisson_mixed_p4.vtu")
+    mfem = data_file("vtu", "mfem_fichera_poisson_mixed_p4.vtu")
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(mfem)) == {'FINISHED'}
     obj = bpy.context.active_object
     assert obj.hovr.source == str(mfem) and obj.hovr.field == "u" and len(obj.data.edges) > 0

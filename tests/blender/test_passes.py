@@ -16,8 +16,8 @@ from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 
-import test_render as tr  # noqa: E402
-from blender_helpers import render_to_exr  # noqa: E402
+from ..helpers import SPHERE  # noqa: E402
+from .blender_helpers import render_to_exr  # noqa: E402
 
 
 def compositor_output(scene, output):
@@ -35,12 +35,12 @@ def depth_by_dense_sampling(camera, i, j):
     o, d = o[j, i], d[j, i]
     t = np.linspace(0.0, 20.0, 400001)
     x = o + t[:, None] * d
-    inv = np.linalg.inv(tr.object_matrix())
+    inv = np.linalg.inv(SPHERE.object_matrix())
     xo = x @ inv[:3, :3].T + inv[:3, 3]
     lo, hi = builtin.sphere().vertices[0].min(axis=0), builtin.sphere().vertices[0].max(axis=0)
     inside = np.all((xo >= lo) & (xo <= hi), axis=1)
-    tf = TransferFunction.from_rgba_ramp([p for p, _ in tr.STOPS], [c for _, c in tr.STOPS], tr.DENSITY_SCALE,
-                                         *tr.VALUE_RANGE)
+    tf = TransferFunction.from_rgba_ramp([p for p, _ in SPHERE.STOPS], [c for _, c in SPHERE.STOPS], SPHERE.DENSITY_SCALE,
+                                         *SPHERE.VALUE_RANGE)
     tau = np.where(inside, tf.density(builtin.sphere_field(*xo.T)), 0.0)
     od = np.concatenate([[0.0], np.cumsum(0.5 * (tau[1:] + tau[:-1]) * np.diff(t))])
     k = np.searchsorted(od, np.log(2.0))
@@ -49,7 +49,7 @@ def depth_by_dense_sampling(camera, i, j):
 
 
 def test_passes_reach_the_compositor_only_when_enabled(scene):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     tree, _image = compat.new_compositor(scene, "c")
     rl = tree.nodes.new("CompositorNodeRLayers")
     enabled = lambda: {o.name for o in rl.outputs if o.enabled}
@@ -63,11 +63,11 @@ def test_passes_reach_the_compositor_only_when_enabled(scene):
 
 
 def test_depth_pass_is_the_view_depth_at_half_opacity(scene, tmp_path):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.view_layers[0].use_pass_z = True
     compositor_output(scene, "Depth")
     z = render_to_exr(scene, tmp_path / "z.exr")[..., 0]  # rows from the top
-    rgba = tr.core_render(tr.PERSPECTIVE, "classified", False)
+    rgba = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
     hit = rgba[..., 3] >= 0.5
     assert 10 < hit.sum() < hit.size
     cam = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
@@ -80,17 +80,17 @@ def test_depth_pass_is_the_view_depth_at_half_opacity(scene, tmp_path):
 
 @pytest.mark.parametrize("method", ["split", "trapezoid"])
 def test_error_pass_is_the_core_estimate(scene, tmp_path, method):
-    obj = tr.build_scene(scene, tr.PERSPECTIVE, method=method)
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method=method)
     scene.view_layers[0].hovr.use_pass_error = True
     compositor_output(scene, "HOVR Error")
     err = render_to_exr(scene, tmp_path / "e.exr")[..., 0]
     cam = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
-    tf = TransferFunction.from_rgba_ramp([p for p, _ in tr.STOPS], [c for _, c in tr.STOPS], tr.DENSITY_SCALE,
-                                         *tr.VALUE_RANGE)
+    tf = TransferFunction.from_rgba_ramp([p for p, _ in SPHERE.STOPS], [c for _, c in SPHERE.STOPS], SPHERE.DENSITY_SCALE,
+                                         *SPHERE.VALUE_RANGE)
     # the object's own (float32) transform: the estimate sums accepted Gauss-Kronrod panels, and
     # a transform off in the 8th digit can accept a panel one subdivision sooner somewhere
     res = Renderer(builtin.sphere().transformed(np.array(obj.matrix_world)), "cpu").render(
-        cam, tf, np.array(tr.BACKGROUND), RenderOptions(method=method, h=0.01, tolerance=1e-6))
+        cam, tf, np.array(SPHERE.BACKGROUND), RenderOptions(method=method, h=0.01, tolerance=1e-6))
     np.testing.assert_array_equal(err, res.error)
     if method == "split":  # adaptive Gauss-Kronrod: positive estimates, only where the volume is
         assert err.max() > 0 and np.all(err >= 0) and np.all(err[res.rgba[..., 3] == 0] == 0)
@@ -100,14 +100,14 @@ def test_error_pass_is_the_core_estimate(scene, tmp_path, method):
 
 @pytest.mark.parametrize("crop", [False, True])
 def test_render_border_renders_only_the_border(scene, tmp_path, crop):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     full = render_to_exr(scene, tmp_path / "full.exr")
     r = scene.render
     r.use_border, r.use_crop_to_border = True, crop
     r.border_min_x, r.border_max_x, r.border_min_y, r.border_max_y = 0.26, 0.71, 0.1, 0.55
     got = render_to_exr(scene, tmp_path / "border.exr")
     x0, x1, y0, y1 = 16, 45, 4, 26  # int(0.26*64), int(0.71*64), int(0.1*48), int(0.55*48): from the bottom
-    rows = slice(tr.H - y1, tr.H - y0)  # the same rows counted from the top
+    rows = slice(SPHERE.H - y1, SPHERE.H - y0)  # the same rows counted from the top
     if crop:
         assert got.shape == (y1 - y0, x1 - x0, 4)
         np.testing.assert_allclose(got, full[rows, x0:x1], atol=1e-5)
@@ -121,14 +121,14 @@ def test_render_border_renders_only_the_border(scene, tmp_path, crop):
 
 
 def test_clip_start_and_end(scene, tmp_path):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     full = render_to_exr(scene, tmp_path / "a.exr")
-    j, i = tr.H // 2, tr.W // 2
+    j, i = SPHERE.H // 2, SPHERE.W // 2
     cam = scene.camera.data
     cam.clip_start = 20.0  # beyond the volume: only the world colour is left
-    assert np.abs(render_to_exr(scene, tmp_path / "b.exr")[..., :3] - tr.BACKGROUND).max() < 1e-6
+    assert np.abs(render_to_exr(scene, tmp_path / "b.exr")[..., :3] - SPHERE.BACKGROUND).max() < 1e-6
     cam.clip_start, cam.clip_end = 0.1, 1.0  # before the volume
-    assert np.abs(render_to_exr(scene, tmp_path / "c.exr")[..., :3] - tr.BACKGROUND).max() < 1e-6
+    assert np.abs(render_to_exr(scene, tmp_path / "c.exr")[..., :3] - SPHERE.BACKGROUND).max() < 1e-6
     cam.clip_end = 5.2  # through the middle of the volume: less of it on the central ray
     mid = render_to_exr(scene, tmp_path / "d.exr")
     assert np.abs(mid[j, i, :3] - full[j, i, :3]).max() > 1e-3
@@ -161,9 +161,9 @@ class _Recorder:
 def test_progress_stats_and_cancel_latency(scene, tmp_path, monkeypatch):
     """test_break() is polled from the renderer's progress callback after every tile; once it
     says stop, render() returns within 0.5 s and writes no result."""
-    tr.build_scene(scene, tr.PERSPECTIVE, method="split")
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method="split")
     scene.hovr.tolerance = 1e-8
-    scene.render.resolution_x, scene.render.resolution_y = 4 * tr.W, 4 * tr.H
+    scene.render.resolution_x, scene.render.resolution_y = 4 * SPHERE.W, 4 * SPHERE.H
     calls = {"progress": [], "stats": [], "break_at": None, "cancel_after": None, "end": None}
     monkeypatch.setattr(render_engine, "_engine_api", lambda engine: _Recorder(engine, calls))
     bpy.ops.render.render(write_still=False)

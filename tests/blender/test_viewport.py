@@ -15,8 +15,8 @@ from mathutils import Matrix  # noqa: E402
 from hovr_blender.blender import render  # noqa: E402
 from hovr_blender.blender.viewport import ProgressiveViewport  # noqa: E402
 
-import test_render as tr  # noqa: E402
-from blender_helpers import look_at, render_to_exr  # noqa: E402
+from ..helpers import SPHERE  # noqa: E402
+from .blender_helpers import look_at, render_to_exr  # noqa: E402
 
 
 def fake_context(window, view, width, height, kind="PERSP"):
@@ -39,7 +39,7 @@ def camera_view(scene, w, h):
 
 @pytest.mark.parametrize("kind", ["PERSP", "ORTHO"])
 def test_viewport_rays_follow_view3d_utils(scene, kind):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     w, h = 40, 30
     view = Matrix(look_at([5.0, -4.0, 3.0], [0.2, 0.1, 0.4], [0, 0, 1]).tolist()).inverted()
     if kind == "PERSP":
@@ -64,9 +64,9 @@ def test_viewport_rays_follow_view3d_utils(scene, kind):
 
 
 def test_camera_view_converges_to_the_f12_image(scene, tmp_path):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     f12 = render_to_exr(scene, tmp_path / "f12.exr")[::-1]  # bottom row first, like the viewport
-    ctx = camera_view(scene, tr.W, tr.H)
+    ctx = camera_view(scene, SPHERE.W, SPHERE.H)
     state = ProgressiveViewport()
     frames = []
     for _ in range(200):
@@ -74,13 +74,13 @@ def test_camera_view_converges_to_the_f12_image(scene, tmp_path):
         frames.append(frame.stage)
         if frame.converged:
             break
-    assert frame.converged and frame.pixels.shape == (tr.H, tr.W, 4)
+    assert frame.converged and frame.pixels.shape == (SPHERE.H, SPHERE.W, 4)
     assert frames[0] in ("refining", "converged") and state.log[0].kind == "preview"
     np.testing.assert_allclose(frame.pixels, f12, atol=1e-5)
 
 
 def test_any_change_restarts_the_viewport(scene):
-    obj = tr.build_scene(scene, tr.PERSPECTIVE)
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     ctx = camera_view(scene, 24, 18)
     state = ProgressiveViewport()
     step = lambda: render.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get(), budget=0.01)
@@ -117,7 +117,7 @@ def test_any_change_restarts_the_viewport(scene):
 
 
 def test_viewport_errors_are_raised_for_view_draw_to_show(scene):
-    tr.build_scene(scene, tr.PERSPECTIVE)
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.hovr.transfer_function.color_ramp.interpolation = 'EASE'
     ctx = camera_view(scene, 16, 12)
     with pytest.raises(ValueError, match="Linear"):

@@ -10,7 +10,7 @@ from hovr_blender.core.view import RenderOptions, View
 from hovr_blender.io.builtin import sphere
 from hovr_blender.io import load_view_data
 
-from ..conftest import REPO, shared_file
+from ..helpers import REPO, data_file
 
 SPIKES = {  # several breakpoint pairs (the benchmark's "spikes")
     "color": [[1.0, 1.0, 0.9, 0.2], [4.0, 0.2, 1.0, 0.3], [9.0, 0.1, 0.4, 1.0], [16.0, 1.0, 0.2, 0.6]],
@@ -79,8 +79,10 @@ def test_gauss_kronrod_beats_trapezoid_without_breakpoints():
 
 def test_elvis_scene_pixel_exact():
     """ElVis's Nektar++ regression scene (read from its files), 128^2: pixel-exact vs reference."""
-    shared_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml")
     view = View.load(str(REPO / "examples" / "elvis_sphere.json"))
+    # the example names ../shared/data; read the same files from wherever the tests find them
+    view.data.update(path=str(data_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml")),
+                     solution=str(data_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.fld")))
     cam = RayCamera.from_contract({"eye": [0, 0, 0], "target": [0, 0, -2], "up": [0, 1, 0], "fov_y_deg": 60}, 128, 128)
     mesh = load_view_data(view)
     ref, info = reference_render(mesh, cam, view.transfer_function, view.background)

@@ -16,7 +16,8 @@ from hovr_blender.core.reference import reference_render  # noqa: E402
 from hovr_blender.core.view import View  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 from hovr_blender.io.nektar import read_nektar  # noqa: E402
-from tests.conftest import REPO, shared_file  # noqa: E402
+from tests.helpers import REPO  # noqa: E402
+from tests.helpers import data_file as shared_file  # noqa: E402
 
 
 def vtk_values(grid, points):

@@ -1,7 +1,5 @@
-"""The bpy-free steps of the Blender render path, and that the core never imports bpy."""
-import subprocess
-import sys
-
+"""The bpy-free steps of the Blender render path (that they and the core import without bpy:
+test_layers.py)."""
 import numpy as np
 import pytest
 
@@ -63,16 +61,6 @@ def test_volume_sources():
         load_volume(VolumeSource.resolve("/data/flow.cgns"))  # .vtu became a supported source with the VTU reader
     with pytest.raises(SourceError, match="not found: /nonexistent/flow.vtu"):
         load_volume(VolumeSource.resolve("/nonexistent/flow.vtu"))
-
-
-def test_core_and_addon_package_import_without_bpy():
-    code = (
-        "import sys, hovr_blender, hovr_blender.blender.camera, hovr_blender.blender.scene, "
-        "hovr_blender.core.renderer, hovr_blender.io.builtin, hovr_blender.blender; "
-        "assert 'bpy' not in sys.modules, 'bpy imported'; "
-        "assert callable(hovr_blender.register) and hovr_blender.bl_info['name'] == 'HOVR'"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True)
 
 
 # --- numbered series, passes, presets, histogram ------------------------------------------

@@ -15,7 +15,7 @@ from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.nektar import read_nektar
 from hovr_blender.io.vtu import read_vtu
 
-from ..conftest import shared_file
+from ..helpers import data_file as shared_file
 
 VTK_LAGRANGE = {shapes.TET: 71, shapes.HEX: 72}
 

@@ -14,36 +14,14 @@ from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.synthetic import straight_geometry  # noqa: E402
 
+from ..helpers import jittered_trilinear_brick, linear_field  # noqa: E402
+
 CAM = {"eye": [2.6, 1.9, 2.2], "target": [0.5, 0.5, 0.5], "up": [0, 0, 1], "fov_y_deg": 40}
-
-
-def linear(x, y, z):
-    return 1.0 + 2.0 * x + 3.0 * y - z
-
-
-def jittered_trilinear_brick(n, jitter, seed=3):
-    """n^3 trilinear hexes over [0,1]^3, interior grid nodes moved: faces become bilinear
-    patches shared exactly by both neighbours; the outer surface stays the unit cube."""
-    rng = np.random.default_rng(seed)
-    g = np.stack(np.meshgrid(*[np.linspace(0, 1, n + 1)] * 3, indexing="ij"), axis=-1)
-    interior = np.zeros(g.shape[:3], bool)
-    interior[1:-1, 1:-1, 1:-1] = True
-    g[interior] += rng.uniform(-jitter, jitter, (interior.sum(), 3)) / n
-    ref = (shapes.VERTICES[shapes.HEX] + 1) / 2
-    geoms, coeffs = [], []
-    for k in range(n):
-        for j in range(n):
-            for i in range(n):
-                v = np.array([g[i + int(a), j + int(b), k + int(c)] for a, b, c in ref])
-                geo = straight_geometry(shapes.HEX, v)
-                geoms.append(geo)
-                coeffs.append(straight_geometry(shapes.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0])
-    return VolumeMesh.from_elements([shapes.HEX] * n**3, (2, 2, 2), coeffs, (2, 2, 2), geoms)
 
 
 def unit_box():
     v = (shapes.VERTICES[shapes.HEX] + 1) / 2
-    return VolumeMesh.from_elements([shapes.HEX], (2, 2, 2), [straight_geometry(shapes.HEX, linear(*v.T)[:, None].repeat(3, 1))[:, 0]],
+    return VolumeMesh.from_elements([shapes.HEX], (2, 2, 2), [straight_geometry(shapes.HEX, linear_field(*v.T)[:, None].repeat(3, 1))[:, 0]],
                                     (2, 2, 2), [straight_geometry(shapes.HEX, v)])
 
 
@@ -69,6 +47,7 @@ def bulged_element(shape, amount=0.15, modes=3):
     return ex.fit_modal(shape, (modes,) * 3, x)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR])
 def test_curved_chords_match_numpy(device, shape):
     """Constant density in a curved element: T = exp(-tau L), L from the numpy oracle's inversion."""

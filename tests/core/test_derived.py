@@ -12,7 +12,7 @@ from hovr_blender.core import shapes
 from hovr_blender.core.mesh import element_field_ranges
 from hovr_blender.io import derived, nektar, synthetic
 from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude, read_nektar_field, read_vtu_field
-from tests.conftest import shared_file
+from tests.helpers import data_file as shared_file
 
 # Components of degree 2 (exact with 3 modes): u = 0 on a curve through the cube, so |u| has a
 # kink inside some elements (the hard case for a polynomial fit).

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import base64
 import zlib
-from pathlib import Path
 from xml.etree import ElementTree
 
 import numpy as np
@@ -17,7 +16,8 @@ from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.core.expansions import gll_points
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "nektar"
+from ..helpers import data_file
+
 SHAPES = [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR]
 NAMES = {s: shapes.NAMES[s] for s in SHAPES}
 ANISO = {
@@ -433,22 +433,15 @@ def _local_vertices(shape, faces, face_edges, edges):
     return out
 
 
-def _need(*names):
-    missing = [n for n in names if not (DATA / n).exists()]
-    if missing:
-        pytest.skip(f"Nektar++ test data {missing} not found in {DATA} (../shared/data/nektar)")
-
-
 def test_tet_channel_field_matches_the_exact_solution():
     """Tet_channel_m3: 48 straight tets, P=3; w = y(1-y), p = -2(z-1) hold only with the tet
     corrections (spec: 1.6e-15 / 2.7e-14, 0.17 without)."""
-    _need("Tet_channel_m3.xml", "Tet_channel_m3.fld")
-    geo = ElementTree.parse(DATA / "Tet_channel_m3.xml").getroot().find("GEOMETRY")
+    geo = ElementTree.parse(data_file("nektar", "Tet_channel_m3.xml")).getroot().find("GEOMETRY")
     verts = {int(v.get("ID")): np.array(v.text.split(), float) for v in geo.find("VERTEX")}
     edges = {int(e.get("ID")): tuple(int(t) for t in e.text.split()) for e in geo.find("EDGE")}
     face_edges = {int(f.get("ID")): [int(t) for t in f.text.split()] for f in geo.find("FACE")}
     tets = {int(a.get("ID")): [int(t) for t in a.text.split()] for a in geo.find("ELEMENT").iter("A")}
-    modes, ids, fields = _read_fld(DATA / "Tet_channel_m3.fld")[shapes.TET]
+    modes, ids, fields = _read_fld(data_file("nektar", "Tet_channel_m3.fld"))[shapes.TET]
     assert modes == (3, 3, 3) and len(ids) == 48
     rng = np.random.default_rng(100)
     errs_w, errs_p, errs_unc = [], [], []
@@ -474,8 +467,7 @@ def test_tet_channel_field_matches_the_exact_solution():
 def test_wss_prisms_are_continuous_across_their_shared_face():
     """wss_3D_periodic: two P=2 prisms sharing the quad face that holds one prism's singular
     edge; rho agrees across it only with the prism correction (spec: 1e-14 vs 10.5)."""
-    _need("wss_3D_periodic.xml", "wss_3D_periodic.fld")
-    geo = ElementTree.parse(DATA / "wss_3D_periodic.xml").getroot().find("GEOMETRY")
+    geo = ElementTree.parse(data_file("nektar", "wss_3D_periodic.xml")).getroot().find("GEOMETRY")
     assert geo.find("EDGE").get("COMPRESSED") == "B64Z-LittleEndian"
     edges = {int(r[0]): (int(r[1]), int(r[2])) for r in _decode(geo.find("EDGE").text, "<i8", 3)}
     face_edges = {}
@@ -483,7 +475,7 @@ def test_wss_prisms_are_continuous_across_their_shared_face():
         for el in geo.find("FACE").iter(tag):
             face_edges.update({int(r[0]): [int(v) for v in r[1:]] for r in _decode(el.text, "<i8", ncol)})
     prisms = {int(r[0]): [int(v) for v in r[1:]] for r in _decode(geo.find("ELEMENT/R").text, "<i8", 6)}
-    modes, ids, fields = _read_fld(DATA / "wss_3D_periodic.fld")[shapes.PRISM]
+    modes, ids, fields = _read_fld(data_file("nektar", "wss_3D_periodic.fld"))[shapes.PRISM]
     assert modes == (2, 2, 2) and sorted(prisms) == ids
     (ea, fa), (eb, fb) = prisms.items()
     shared = set(fa) & set(fb)

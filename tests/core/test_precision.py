@@ -1,25 +1,19 @@
 """float64 kernels: generated from the float32 source, and as exact as float64 allows."""
 import ast
-import os
-import sys
 
 import numpy as np
 import pytest
 
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.kernels import precision
-from hovr_blender.core.reference import reference_render
+from hovr_blender.core.reference import pixel_exact_reference, reference_render
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions, View, ViewError
 from hovr_blender.io.synthetic import mixed_cube
 from hovr_blender.io import load_view_data
 
-from .test_curved_kernel import jittered_trilinear_brick
-from .test_shapes_kernel import CAM, chord
-
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
-import suite  # noqa: E402  (the benchmark's curved cube, the scene where these bugs showed)
+from ..helpers import BACKGROUND, UNIT_CUBE_CAM, box_chord, curved_mixed_scene, jittered_trilinear_brick
 
 F32_NAMES = {"float32", "vec2", "vec3", "vec4", "mat33", "vec2f", "vec3f", "vec4f", "mat33f"}
 
@@ -73,16 +67,34 @@ def test_float64_sphere_matches_reference_far_below_float32(device):
     assert e64 < 1e-8, f"float64 split off by {e64:.2e}"
 
 
+def test_pixel_exact_reference_is_the_integrator_on_the_sphere(device):
+    """pixel_exact_reference (the Renderer with RenderOptions.pixel_exact(): float64, split at
+    1e-9, no early termination), the reference of curved benchmark data, agrees with the float64
+    integrator where both apply (measured: 9e-12)."""
+    opts = RenderOptions.pixel_exact(device)
+    assert (opts.method, opts.tolerance, opts.min_transmittance, opts.precision, opts.device) == \
+        ("split", 1e-9, 0.0, "float64", device)
+    view = View.load("examples/sphere.json")
+    cam = RayCamera.from_contract({"eye": [7.0, 5.5, 8.0], "target": [0.0, 0.0, 1.0], "up": [0, 0, 1],
+                                   "fov_y_deg": 40.0}, 32, 24)
+    mesh = load_view_data(view)
+    ref, _info = reference_render(mesh, cam, view.transfer_function, view.background)
+    img, stats = pixel_exact_reference(mesh, cam, view.transfer_function, view.background, device)
+    assert img.dtype == np.float64 and stats["precision"] == "float64"
+    assert ref[..., 3].max() > 0.5
+    assert np.abs(img - ref).max() < 1e-9
+
+
 def test_float64_watertight_mixed_shapes(device):
     """Constant density over hexes, prisms, tets and pyramids: T = exp(-tau L) to 1e-6 relative
     in float64 (the issue's budget; float32 is tested to 1e-4 in test_shapes_kernel)."""
     mesh = mixed_cube(3, 2, lambda x, y, z: 0 * x + 1.0)
     tf = TransferFunction.from_contract({"color": [[0, 0.2, 0.5, 0.8], [2, 0.2, 0.5, 0.8]], "density": [[0, 1.3], [2, 1.3]]})
-    cam = RayCamera.from_contract(CAM, 48, 36)
+    cam = RayCamera.from_contract(UNIT_CUBE_CAM, 48, 36)
     res = Renderer(mesh, device).render(cam, tf, [0, 0, 0], RenderOptions(method="split", min_transmittance=0,
                                                                           precision="float64"))
     o, d = cam.rays()
-    L = chord(o, d, np.zeros(3), np.ones(3))
+    L = box_chord(o, d, np.zeros(3), np.ones(3))
     assert (L > 0.5).sum() > 200
     T = 1 - res.rgba[..., 3]
     want = np.exp(-1.3 * L)
@@ -98,7 +110,7 @@ def test_float64_watertight_curved_brick(device):
     res = Renderer(mesh, device).render(cam, tf, [0, 0, 0], RenderOptions(method="split", min_transmittance=0,
                                                                           precision="float64"))
     o, d = cam.rays()
-    L = chord(o, d, np.zeros(3), np.ones(3))
+    L = box_chord(o, d, np.zeros(3), np.ones(3))
     assert (L > 0.5).sum() > 50
     T = 1 - res.rgba[..., 3]
     np.testing.assert_allclose(T, np.exp(-2.0 * L), rtol=1e-6, atol=1e-9)
@@ -112,28 +124,29 @@ def test_float32_overflow_is_named_and_float64_renders(device):
     mesh = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0e300)
     tf = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],
                                          "density": [[0, 0.0], [0.5e300, 2.0], [2e300, 2.0]]})
-    cam = RayCamera.from_contract(CAM, 12, 9)
+    cam = RayCamera.from_contract(UNIT_CUBE_CAM, 12, 9)
     r = Renderer(mesh, device)
     with pytest.raises(RenderError, match="element 0: field coefficients exceed the float32"):
         r.render(cam, tf, [0, 0, 0], RenderOptions(method="split"))
     res = r.render(cam, tf, [0, 0, 0], RenderOptions(method="split", min_transmittance=0, precision="float64"))
     o, d = cam.rays()
-    L = chord(o, d, np.zeros(3), np.ones(3))
+    L = box_chord(o, d, np.zeros(3), np.ones(3))
     np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_float32_matches_float64_on_curved_pyramid_apexes(device):
-    """The suite's curved cube of all four shapes (bench/suite.py curved_cube) in float32 against
+    """The suite's curved cube of all four shapes (io/synthetic.curved_cube, 2 cells) in float32 against
     float64. Near a curved pyramid's apex x = G / w^2 magnifies float32 rounding; Newton's steps
     stalled above its fixed tolerance, the point counted as outside and one ray left a pyramid
     early, off by 1.4e-2 (pixel row 16, column 47). Newton now stops at the rounding floor
     (args.geo_err)."""
-    mesh, tf, camera, _ = suite.dataset("curved_mixed", suite.CONFIG["small"])
+    mesh, tf, camera = curved_mixed_scene(2)  # bench/suite.py --size small
     cam = camera(64, 48)
     r = Renderer(mesh, device)
     opts = RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0)
-    a32 = r.render(cam, tf, suite.BACKGROUND, opts).rgba
-    a64 = r.render(cam, tf, suite.BACKGROUND, opts.with_(precision="float64")).rgba
+    a32 = r.render(cam, tf, BACKGROUND, opts).rgba
+    a64 = r.render(cam, tf, BACKGROUND, opts.with_(precision="float64")).rgba
     assert a64[..., 3].max() > 0.5
     err = np.abs(a32[..., :3] - a64[..., :3]).max()
     assert err < 1e-3, f"float32 off float64 by {err:.2e}"
@@ -145,13 +158,13 @@ def test_search_past_a_vertex_of_many_elements_finds_element_zero(device):
     second pass. The Newton checks of the first pass were counted into the list of located
     elements without being written to it, so its zero-initialised slots said element 0 had been
     located: the search never tried it and the ray ended transparent (float64: alpha 0.705)."""
-    mesh, tf, camera, _ = suite.dataset("curved_mixed", suite.CONFIG["full"])
+    mesh, tf, camera = curved_mixed_scene(4)  # bench/suite.py --size full
     O, D = camera(1920, 1080).rays()
     z = np.zeros(3)
     one = RayCamera(1, 1, O[807, 516], z, z, D[807, 516], z, z, projection="orthographic")
     r = Renderer(mesh, device)
     opts = RenderOptions(method="split", tolerance=1e-5, min_transmittance=0.0)
-    a32 = r.render(one, tf, suite.BACKGROUND, opts).rgba[0, 0]
-    a64 = r.render(one, tf, suite.BACKGROUND, opts.with_(precision="float64")).rgba[0, 0]
+    a32 = r.render(one, tf, BACKGROUND, opts).rgba[0, 0]
+    a64 = r.render(one, tf, BACKGROUND, opts.with_(precision="float64")).rgba[0, 0]
     assert a64[3] > 0.7
     assert abs(a32[3] - a64[3]) < 1e-4, f"float32 alpha {a32[3]:.4f}, float64 {a64[3]:.4f}"

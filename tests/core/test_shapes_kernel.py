@@ -16,6 +16,8 @@ from hovr_blender.core.view import RenderOptions  # noqa: E402
 from hovr_blender.io.synthetic import brick, mixed_cube, straight_geometry  # noqa: E402
 from hovr_blender.core.mesh import VolumeMesh  # noqa: E402
 
+from ..helpers import UNIT_CUBE_CAM, box_chord  # noqa: E402
+
 
 @wp.kernel
 def _eval_points(mesh: args.MeshArgs, elem: wp.array(dtype=wp.int32), xi: wp.array(dtype=wp.vec3),
@@ -59,17 +61,6 @@ def test_kernel_expansion_matches_numpy(device, shape):
         assert err < 5e-5 * max(1.0, np.abs(want).max()), f"{shapes.NAMES[shape]} modes {m}: {err:.3g}"
 
 
-def chord(o, d, lo, hi):
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - o) / d, (hi - o) / d
-    t0 = np.nanmax(np.minimum(ta, tb), axis=-1)
-    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
-    return np.clip(t1 - np.maximum(t0, 0.0), 0.0, None)
-
-
-CAM = {"eye": [3.1, 2.3, 2.6], "target": [0.5, 0.45, 0.5], "up": [0, 0, 1], "fov_y_deg": 35}
-
-
 @pytest.mark.parametrize("method", ["trapezoid", "split"])
 def test_mixed_shapes_are_watertight(device, method):
     """Constant density over a cube cut into hexes, prisms, tets and pyramids: T = exp(-tau L)."""
@@ -77,10 +68,10 @@ def test_mixed_shapes_are_watertight(device, method):
     assert set(mesh.shape.tolist()) == {shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR}
     assert mesh.affine.all()
     tf = TransferFunction.from_contract({"color": [[0, 0.2, 0.5, 0.8], [2, 0.2, 0.5, 0.8]], "density": [[0, 1.3], [2, 1.3]]})
-    cam = RayCamera.from_contract(CAM, 64, 48)
+    cam = RayCamera.from_contract(UNIT_CUBE_CAM, 64, 48)
     res = Renderer(mesh, device).render(cam, tf, [0, 0, 0], RenderOptions(method=method, h=0.02, min_transmittance=0))
     o, d = cam.rays()
-    L = chord(o, d, np.zeros(3), np.ones(3))
+    L = box_chord(o, d, np.zeros(3), np.ones(3))
     assert (L > 0.5).sum() > 300
     np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-1.3 * L), rtol=1e-4, atol=2e-6)
 
@@ -93,7 +84,7 @@ def test_mixed_shapes_render_like_hexes(device):
     hexes = brick([0, 0, 0], [1, 1, 1], (2, 2, 2), 3, f)
     tf = TransferFunction.from_contract({"color": [[1.0, 1, 0.3, 0], [3.0, 0, 0.4, 1]],
                                          "density": [[1.2, 0], [1.6, 4], [2.0, 0], [2.5, 0], [2.8, 3], [3.1, 0]]})
-    cam = RayCamera.from_contract(CAM, 48, 36)
+    cam = RayCamera.from_contract(UNIT_CUBE_CAM, 48, 36)
     opts = RenderOptions(method="split", tolerance=1e-7)
     a = Renderer(mixed, device).render(cam, tf, [0, 0, 0], opts)
     b = Renderer(hexes, device).render(cam, tf, [0, 0, 0], opts)

@@ -1,6 +1,7 @@
 """Stress tests through the Renderer: large coordinate offsets, tiny and flat elements, order-14
 fields, grazing rays along faces and edges and through vertices (collapsed ones included), and
-the float32 evaluation of every shape against the float64 oracle (bench/eval_table.py).
+the float32 evaluation of every shape against the float64 oracle (tests/helpers.eval_compare, whose
+full table is bench/eval_table.py).
 
 Every image is small (at most 24 x 16 pixels; the one non-affine case 7 x 7) and is checked for
 finite pixels and against an independent answer: the float64 reference (core/reference.py,
@@ -13,7 +14,6 @@ import numpy as np
 import pytest
 from numpy.polynomial import chebyshev
 
-from bench import eval_table
 from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
@@ -23,6 +23,8 @@ from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.synthetic import brick, mixed_cube, straight_geometry, with_field
+
+from ..helpers import EVAL_FAMILIES, device_eval, eval_compare, jittered_trilinear_brick, sample_points
 
 EPS32 = float(np.finfo(np.float32).eps)
 TAU = 1.3
@@ -107,21 +109,22 @@ def assert_transmittance(res, L, tau=TAU, rtol=1e-4):
 
 
 @pytest.mark.parametrize("family,shapes,max_order", [
-    ("modified", eval_table.FAMILIES["modified"], 14),
-    ("gll_lagrange", eval_table.FAMILIES["gll_lagrange"], 14),
+    ("modified", EVAL_FAMILIES["modified"], 14),
+    ("gll_lagrange", EVAL_FAMILIES["gll_lagrange"], 14),
     # VTK hexes/prisms of degree > 8 need a large float64 pseudo-inverse for the conversion
     # (38 s for degree 14); bench/eval_table.py runs them all
     ("vtk_lagrange", [shapes.TET], 14),
     ("vtk_lagrange", [shapes.HEX, shapes.PRISM], 8),
 ])
 def test_float32_expansions_match_oracle_cpu(family, shapes, max_order):
-    """The comparison of bench/eval_table.py on the CPU with fewer points: inside every element
-    (uniform points and the vertices) the float32 kernel is within 1e-4 of the field's range
-    of the float64 oracle at every order (measured: <= 2.1e-6, bench/results/eval_table.json)."""
+    """The comparison of bench/eval_table.py (tests/helpers.eval_compare) on the CPU with fewer
+    points: inside every element (uniform points and the vertices) the float32 kernel is within
+    1e-4 of the field's range of the float64 oracle at every order (measured: <= 2.1e-6,
+    bench/results/eval_table.json)."""
     worst = []
     for shape in shapes:
         for order in range(1, max_order + 1):
-            r = eval_table.compare(family, shape, order, "cpu", points=300, trials=1, seed=1)
+            r = eval_compare(family, shape, order, "cpu", points=300, trials=1, seed=1)
             assert r["nonfinite"] == 0, r
             worst.append((r["max_rel"], r["shape"], order))
     assert max(worst)[0] < 1e-4, f"{family}: worst {max(worst)}"
@@ -146,9 +149,9 @@ def test_float32_expansion_one_ulp_off_the_collapse(shape, order):
         on = np.array([[-1.0, -1.0, 1.0]])
     off = on.astype(np.float32)
     off[:, 0] = np.nextafter(np.float32(-1.0), np.float32(0.0))
-    got = eval_table.device_eval(shape, modes, c.astype(np.float32), off, "cpu")
+    got = device_eval(shape, modes, c.astype(np.float32), off, "cpu")
     want = ex.eval_modal(shape, modes, c.astype(np.float32).astype(np.float64), on)
-    pts = eval_table.sample_points(shape, 2000, rng)[0]
+    pts = sample_points(shape, 2000, rng)[0]
     f = ex.eval_modal(shape, modes, c, pts)
     span = f.max() - f.min()
     assert np.all(np.isfinite(got)), f"non-finite at {off[~np.isfinite(got)].tolist()}"
@@ -299,6 +302,7 @@ def test_rays_through_collapsed_vertex_low_order(device, shape):
                                                                RenderOptions(method=method, min_transmittance=0.0)), L)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", [shapes.PRISM, shapes.TET, shapes.PYR])
 def test_rays_through_collapsed_vertex_order14(device, shape):
     """As the low-order test, order 14 (a constant field: all higher coefficients zero).
@@ -320,6 +324,7 @@ def interval(V, o, d):
     return max(0.0, t[den < 0].max()), t[den > 0].min()
 
 
+@pytest.mark.slow
 def test_pyramid_apex_rays_float32_restriction(device):
     """Rays within `spread` of a pyramid's apex, order 8 field, density linear in the field (no
     breakpoint: one smooth segment); T against the float64 oracle integrated per ray (32 panels
@@ -402,8 +407,6 @@ def test_rays_through_trilinear_brick_vertices(device):
     """The jittered trilinear brick (non-affine: the curved path) at 7 x 7 pixels, the centre
     ray through an interior node where 8 bilinear-faced hexes meet: constant density gives
     exp(-tau L) of the unit cube, its outer surface."""
-    from .test_curved_kernel import jittered_trilinear_brick
-
     mesh = jittered_trilinear_brick(2, 0.25)
     assert not mesh.affine.any()
     node = mesh.vertices[0, 6]  # element 0's far corner: the brick's one interior node

@@ -9,15 +9,9 @@ from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field
 from hovr_blender.io.synthetic import brick
 
+from ..helpers import box_chord
+
 TAU = 0.7
-
-
-def chord_lengths(o, d, lo, hi):
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - o) / d, (hi - o) / d
-    t0 = np.nanmax(np.minimum(ta, tb), axis=-1)
-    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
-    return np.clip(t1 - np.maximum(t0, 0.0), 0.0, None)
 
 
 @pytest.mark.parametrize("method", ["riemann", "trapezoid", "classified", "split"])
@@ -31,7 +25,7 @@ def test_constant_density_chords_over_many_elements(device, method):
                                    "fov_y_deg": 40}, 48, 40)
     res = Renderer(mesh, device).render(cam, tf, [0.1, 0.1, 0.1], RenderOptions(method=method, h=0.05, min_transmittance=0.0))
     o, d = cam.rays()
-    L = chord_lengths(o, d, lo, hi)
+    L = box_chord(o, d, lo, hi)
     T = np.exp(-TAU * L)
     assert (L > 3.0).sum() > 100  # many rays really cross long stacks of elements
     np.testing.assert_allclose(1.0 - res.rgba[..., 3], T, rtol=2e-5, atol=2e-6)
@@ -67,7 +61,7 @@ def test_depth_pass_constant_density(device, method):
     with np.errstate(divide="ignore", invalid="ignore"):
         ta, tb = (lo - o) / d, (hi - o) / d
     t_in = np.nanmax(np.minimum(ta, tb), axis=-1)
-    L = chord_lengths(o, d, lo, hi)
+    L = box_chord(o, d, lo, hi)
     reaches = L > np.log(2) / tau + 1e-3
     assert reaches.sum() > 100 and (~reaches).sum() > 100
     np.testing.assert_allclose(res.depth[reaches], (t_in + np.log(2) / tau)[reaches], atol=2e-4)

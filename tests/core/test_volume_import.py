@@ -10,7 +10,7 @@ from hovr_blender.blender import scene as bs
 from hovr_blender.core.outline import outline_edges
 from hovr_blender.io import sources
 from hovr_blender.io import synthetic
-from tests.conftest import shared_file
+from tests.helpers import data_file as shared_file
 
 
 def _surface_counts(verts, edges):

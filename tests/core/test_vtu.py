@@ -25,9 +25,9 @@ from hovr_blender.io import vtu
 from hovr_blender.io.vtu import cells as vtu_cells, decoding, vtkfile
 from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 
-from ..conftest import shared_file
+from ..helpers import data_dir, data_file as shared_file
 
-VTU_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vtu"
+VTU_DATA = data_dir("vtu")  # VTU_DATA / name: the file, or the test skipped naming it
 REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4",
         "ngsolve_post_heat_tetprism_p4"]
 SHAPE_OF_TYPE = {71: shapes.TET, 72: shapes.HEX, 73: shapes.PRISM}

@@ -1,4 +1,4 @@
-"""Mutation test of the .vtu reader, quick form of bench/vtu_mutation.py: every mutation kind on
+"""Mutation test of the .vtu reader, quick form of tests/fuzz/vtu_mutation.py: every mutation kind on
 every vtk-written encoding (in-process: none of these can hang the reader) must load or raise a
 VtuError that names the file and is not read_vtu's catch-all; the mutator itself is checked
 (re-encoding round trip, a change it writes is seen); and the corruptions that found reader bugs
@@ -12,7 +12,7 @@ import pytest
 
 from hovr_blender.io.vtu import VtuError, read_vtu
 
-from ..conftest import shared_file
+from ..helpers import data_file as shared_file
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,6 @@ lines: through vertices, along edges and faces, between elements of different sh
 diagonal views, and perspective views of both meshes; several thousand rays per mesh.
 Budgets (issue 3): max relative error of T <= 1e-6 with float64 kernels, <= 1e-4 float32.
 """
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -27,15 +25,9 @@ from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.nektar import read_nektar
 from hovr_blender.io.synthetic import with_field
 
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "nektar"
+from ..helpers import data_file
+
 BUDGET = {"float64": 1e-6, "float32": 1e-4}
-
-
-def need(name):
-    path = DATA / name
-    if not path.exists():
-        pytest.skip(f"{path} not found: the shared Nektar++ data is not beside this checkout")
-    return path
 
 
 def constant(mesh):
@@ -94,7 +86,7 @@ def cube_cameras():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_cube_all_elements_is_watertight(device, precision):
-    mesh = constant(read_nektar(need("CubeAllElements.xml")))
+    mesh = constant(read_nektar(data_file("nektar", "CubeAllElements.xml")))
     assert np.bincount(mesh.shape, minlength=4).tolist() == [10, 36, 66, 69]
     r = Renderer(mesh, device)
     tau = 1.3
@@ -245,9 +237,10 @@ def annulus_cameras():
     ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_curved_annulus_is_watertight(device, precision):
-    mesh = constant(read_nektar(need("RotPerBcs3D_Annulus.xml")))
+    mesh = constant(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
     assert mesh.num_elements == 60 and not mesh.affine.any()
     r = Renderer(mesh, device)
     tau = 1.1

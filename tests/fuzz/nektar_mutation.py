@@ -1,11 +1,13 @@
 """Mutation test of the Nektar++ reader: corrupted variants of real files must either load or raise
 a NektarError naming the file, within a time bound; never another exception, never a hang.
 
-    python bench/nektar_mutation.py [--cases 600] [--seed 4] [--scaleho]
+    python -m tests.fuzz.nektar_mutation [--cases 600] [--seed 4] [--scaleho]
 
-writes bench/results/nektar_mutation.json (counts per mutation kind and outcome; with --scaleho
-also the load time and peak memory of scaleHO.xml and hump3D). tests/core/test_nektar.py runs
-the same generator.
+(from the repository root) writes bench/results/nektar_mutation.json (counts per mutation kind and
+outcome; with --scaleho also the load time and peak memory of scaleHO.xml and hump3D, which live
+in ../shared/data only). tests/core/test_nektar.py runs the same generator on fewer cases. The
+source files are found as the tests find them (tests/helpers.find_data: tests/data, then
+../shared/data).
 """
 from __future__ import annotations
 
@@ -23,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-DATA = ROOT.parent / "shared" / "data" / "nektar"
-RESULT = ROOT / "bench" / "results" / "nektar_mutation.json"
+from tests.helpers import REPO, find_data
+
+RESULT = REPO / "bench" / "results" / "nektar_mutation.json"
 
 # (mesh, field or None): small real files, so hundreds of cases stay within a minute
 SOURCES = [
@@ -39,6 +40,13 @@ SOURCES = [
     ("Pyr_channel_m6.xml", None),
 ]
 CASE_SECONDS = 10.0  # a case slower than this counts as a hang
+
+
+def source(name) -> Path:
+    path = find_data("nektar", name)
+    if path is None:
+        raise FileNotFoundError(f"Nektar++ file {name} is neither in tests/data/nektar nor in ../shared/data/nektar")
+    return path
 
 
 def b64z(raw: bytes) -> str:
@@ -199,7 +207,7 @@ def run_cases(n_cases=600, seed=4, memory=False, case_seconds=CASE_SECONDS):
     rng = np.random.default_rng(seed)
     originals = []
     for mesh, fld in SOURCES:
-        originals.append((mesh, (DATA / mesh).read_text(), (DATA / fld).read_text() if fld else None))
+        originals.append((mesh, source(mesh).read_text(), source(fld).read_text() if fld else None))
     summary = {"seed": seed, "cases": 0, "loaded": 0, "nektar_error": 0, "by_kind": {},
                "unexpected": [], "crashes": [], "timeouts": [], "unnamed": [], "max_case_seconds": 0.0}
     old = signal.signal(signal.SIGALRM, _alarm)
@@ -271,12 +279,12 @@ def load_figures():
                                   ("scaleHO", "scaleHO.xml", None, None)):
         tracemalloc.start()
         t0 = time.perf_counter()
-        m = read_nektar(DATA / mesh, DATA / sol if sol else None, field=field)
+        m = read_nektar(source(mesh), source(sol) if sol else None, field=field)
         dt = time.perf_counter() - t0
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         t0 = time.perf_counter()
-        read_nektar(DATA / mesh, DATA / sol if sol else None, field=field)
+        read_nektar(source(mesh), source(sol) if sol else None, field=field)
         out[key] = {"elements": int(m.num_elements), "shapes": np.bincount(m.shape, minlength=4).tolist(),
                     "seconds_traced": round(dt, 2), "seconds": round(time.perf_counter() - t0, 2),
                     "peak_traced_memory_mb": round(peak / 2**20, 1), "warnings": len(m.warnings)}

@@ -1,9 +1,9 @@
 """Mutation test of the .vtu reader: corrupted variants of real solver exports (NGSolve, PyFR,
-MFEM in ../shared/data/vtu) and of a vtk-written Lagrange file in four encodings must either
-load or raise a VtuError naming the file, within a time and memory bound; never another
-exception, never read_vtu's catch-all ("unreadable (...)"), never a crash or a hang.
+MFEM in ../shared/data/vtu, those present) and of a vtk-written Lagrange file in four encodings
+must either load or raise a VtuError naming the file, within a time and memory bound; never
+another exception, never read_vtu's catch-all ("unreadable (...)"), never a crash or a hang.
 
-    python bench/vtu_mutation.py [--cases 680] [--seed 7] [--jobs 1]
+    python -m tests.fuzz.vtu_mutation [--cases 680] [--seed 7] [--jobs 1]      (from the repository root)
 
 Each variant is read by read_vtu in a fresh subprocess limited to CASE_SECONDS of wall time and
 CASE_MEMORY bytes of address space (RLIMIT_AS). Writes bench/results/vtu_mutation.json (counts
@@ -37,10 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-DATA = ROOT.parent / "shared" / "data" / "vtu"
-RESULT = ROOT / "bench" / "results" / "vtu_mutation.json"
+from tests.helpers import REPO, find_data
+
+RESULT = REPO / "bench" / "results" / "vtu_mutation.json"
 
 # (file, field, component)
 REAL_SOURCES = [
@@ -126,7 +125,8 @@ def write_vtk_lagrange(path, mode="ascii", header=32, compressor=None, hod=False
 
 def sources(tmp: Path):
     """[(label, path, field, component)] : the real files, then the vtk-written encodings."""
-    out = [(name.split("_")[0], DATA / name, f, c) for name, f, c in REAL_SOURCES if (DATA / name).exists()]
+    real = [(name, find_data("vtu", name), f, c) for name, f, c in REAL_SOURCES]
+    out = [(name.split("_")[0], path, f, c) for name, path, f, c in real if path is not None]
     for enc, kw in VTK_ENCODINGS.items():
         p = write_vtk_lagrange(tmp / f"vtk_lagrange_{enc}.vtu", **kw)
         out.append((f"vtk-{enc}", p, "g", None))
@@ -746,8 +746,7 @@ def mutate(rng: np.random.Generator, doc: Doc, kind: str):
 
 WORKER = r"""
 import json, resource, sys
-root, path, field, comp, mem = json.loads(sys.argv[1])
-sys.path.insert(0, root)
+path, field, comp, mem = json.loads(sys.argv[1])
 import numpy as np
 from hovr_blender.io.vtu import VtuError, read_vtu
 resource.setrlimit(resource.RLIMIT_AS, (mem, mem))
@@ -771,8 +770,8 @@ sys.stdout.write("\n@@RESULT@@" + json.dumps(out) + "\n")
 
 def read_in_subprocess(path, fld, comp, case_seconds=CASE_SECONDS, memory=CASE_MEMORY):
     """Result dict of read_vtu in a fresh, time- and memory-limited Python."""
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    args = json.dumps([str(ROOT), str(path), fld, comp, memory])
+    env = dict(os.environ, PYTHONPATH=str(REPO), OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    args = json.dumps([str(path), fld, comp, memory])
     t0 = time.perf_counter()
     try:
         pr = subprocess.run([sys.executable, "-c", WORKER, args], capture_output=True, timeout=case_seconds, env=env)
@@ -859,7 +858,7 @@ def run_cases(n_cases=680, seed=7, jobs=1, in_process=False, case_seconds=CASE_S
         docs = {}
         for label, path, fld, comp in srcs:
             docs[label] = Doc(path.read_bytes())
-            summary["sources"][label] = {"file": path.name if path.parent == DATA else f"(vtk 9 writer) {path.name}",
+            summary["sources"][label] = {"file": path.name if path.parent != tmp else f"(vtk 9 writer) {path.name}",
                                          "bytes": len(docs[label].raw), "field": fld, "component": comp}
 
         def one(i):
@@ -909,7 +908,7 @@ def main():
 
     s = run_cases(args.cases, args.seed, args.jobs, log=None if args.quiet else lambda m: print(m, flush=True))
     s = {"date": datetime.date.today().isoformat(),
-         "command": "python bench/vtu_mutation.py " + " ".join(sys.argv[1:]),
+         "command": "python -m tests.fuzz.vtu_mutation " + " ".join(sys.argv[1:]),
          "vtk": vtk.vtkVersion.GetVTKVersion(), "case_seconds": CASE_SECONDS, "case_memory_bytes": CASE_MEMORY,
          **s}
     args.output.parent.mkdir(parents=True, exist_ok=True)

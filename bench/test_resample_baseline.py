@@ -1,20 +1,20 @@
 """The resample-and-trilinear baseline (bench/resample_baseline.py): grid size and memory,
-grid values, an exact case for the march, and convergence to the reference as h_g shrinks."""
+grid values, an exact case for the march, and convergence to the reference as h_g shrinks.
+
+The one test that lives in bench/: it checks the baseline the suite times against, which is
+bench code (tests/ never import bench). pytest collects it with tests/ (pyproject testpaths);
+the device fixture is the repository's conftest.py."""
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "bench"))
-
-import resample_baseline as rb  # noqa: E402
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.reference import reference_render  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.io import paper_scale as ps  # noqa: E402
-from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field  # noqa: E402
+import resample_baseline as rb  # bench/ is this module's folder: pytest puts it on the path
+from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.reference import reference_render
+from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.io import paper_scale as ps
+from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field
 
 CAM = {"eye": [7.0, 5.5, 8.0], "target": [0.0, 0.0, 1.0], "up": [0, 0, 1], "fov_y_deg": 40.0}
 BG = [0.02, 0.02, 0.03]
