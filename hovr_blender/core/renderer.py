@@ -103,8 +103,8 @@ def polynomial_degree(shape, modes):
                                                             d.sum(axis=1) + 2], d.sum(axis=1))
 
 
-def geometry_rounding(geo_offset, geo_coeffs, geo_centre, dtype) -> np.ndarray:
-    """Per element, how far x(xi) can be off by rounding in `dtype` (kernels/args.py geo_err):
+def geometry_rounding(geo_offset, geo_coeffs, geo_centre, eps: float) -> np.ndarray:
+    """Per element, how far x(xi) can be off by rounding (machine epsilon `eps`; kernels/args.py geo_err):
     the Legendre values are at most 1 on the reference box, so each coordinate is a sum of terms
     no larger than its coefficients, plus the centre added back (tensor_geometry's layout:
     element e's coefficients run from its offset to the next element's)."""
@@ -112,7 +112,7 @@ def geometry_rounding(geo_offset, geo_coeffs, geo_centre, dtype) -> np.ndarray:
     ends = np.append(offset[1:], len(geo_coeffs))
     cs = np.concatenate([np.zeros((1, 3)), np.cumsum(np.abs(geo_coeffs), axis=0)])
     absum = (cs[ends] - cs[offset]).max(axis=1) + np.abs(np.asarray(geo_centre)).max(axis=1)
-    return GEO_ERROR_FACTOR * float(np.finfo(dtype).eps) * absum
+    return GEO_ERROR_FACTOR * eps * absum
 
 
 def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
@@ -138,8 +138,8 @@ class Renderer:
         self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
         self.device = resolve_device(device)
         self.mesh = mesh
-        self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
-        self._bytes_per_ray = {}  # scalar type -> launch-tile bytes per ray (_tile_limit)
+        self._uploads = {}  # precision name -> (Precision, MeshArgs, GK tables, walk kernels)
+        self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
             from .mesh import element_boxes
@@ -164,7 +164,7 @@ class Renderer:
             pass  # data float32 cannot hold: render() says so, unless asked for float64
         self.upload_seconds = time.perf_counter() - t0
 
-    def _tile_buffers(self, k, tile, scalar, vec2, vec4, stats):
+    def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
         a few hundred bytes per ray, plus SEGMENTS_PER_ROUND * MAX_SAMPLES samples)."""
         wp = _warp()
@@ -175,36 +175,36 @@ class Renderer:
             allocated.append(a)
             return a
 
-        rays = k.RayState()
-        rays.color_t = zeros(tile, vec4)
-        rays.depth_err = zeros(tile, vec2)
-        rays.t_cur = zeros(tile, scalar)
-        rays.t_end = zeros(tile, scalar)
+        kernels = prec.kernels
+        rays = kernels.RayState()
+        rays.color_t = zeros(tile, prec.vec4)
+        rays.depth_err = zeros(tile, prec.vec2)
+        rays.t_cur = zeros(tile, prec.scalar)
+        rays.t_end = zeros(tile, prec.scalar)
         rays.next_element = zeros(tile, wp.int32)
         rays.left_element = zeros(tile, wp.int32)
-        rays.entry_r = zeros(tile, vec4)
-        rays.entry_dv = zeros(tile, vec4)
+        rays.entry_r = zeros(tile, prec.vec4)
+        rays.entry_dv = zeros(tile, prec.vec4)
         rays.phase = zeros(tile, wp.int32)
         rays.stats = stats
         rays.active = zeros(tile, wp.int32)
         rays.active_next = zeros(tile, wp.int32)
         rays.active_count = zeros(1, wp.int32)
-        segs = k.Segments()
-        slots = tile * k.SEGMENTS_PER_ROUND
+        segs = kernels.Segments()
+        slots = tile * kernels.SEGMENTS_PER_ROUND
         segs.count = zeros(tile, wp.int32)
         segs.element = zeros(slots, wp.int32)
-        segs.t0 = zeros(slots, scalar)
-        segs.t1 = zeros(slots, scalar)
+        segs.t0 = zeros(slots, prec.scalar)
+        segs.t1 = zeros(slots, prec.scalar)
         segs.degree = zeros(slots, wp.int32)
         segs.flags = zeros(slots, wp.int32)
-        segs.tail = zeros(slots, scalar)
-        vec3 = wp.vec3d if scalar == wp.float64 else wp.vec3
-        segs.xi0 = zeros(slots, vec3)
-        segs.v0 = zeros(slots, vec3)
-        segs.xi1 = zeros(slots, vec3)
-        segs.v1 = zeros(slots, vec3)
-        segs.samples = zeros(slots * k.MAX_SAMPLES, scalar)
-        segs.coeffs = zeros(slots * k.MAX_SAMPLES, scalar)
+        segs.tail = zeros(slots, prec.scalar)
+        segs.xi0 = zeros(slots, prec.vec3)
+        segs.v0 = zeros(slots, prec.vec3)
+        segs.xi1 = zeros(slots, prec.vec3)
+        segs.v1 = zeros(slots, prec.vec3)
+        segs.samples = zeros(slots * kernels.MAX_SAMPLES, prec.scalar)
+        segs.coeffs = zeros(slots * kernels.MAX_SAMPLES, prec.scalar)
         segs.list = zeros(slots, wp.int32)
         segs.list_count = zeros(1, wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
@@ -212,7 +212,7 @@ class Renderer:
         again_count = [zeros(1, wp.int32) for _ in range(2)]
         return rays, segs, again, again_count, sum(a.capacity for a in allocated)
 
-    def _tile_limit(self, k, scalar, vec2, vec4) -> int:
+    def _tile_limit(self, prec) -> int:
         """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
         its free memory holds (one tile per frame where it fits: every tile ends in rounds of
         few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
@@ -222,18 +222,18 @@ class Renderer:
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
             return CPU_TILE_RAYS
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(k, scalar, vec2, vec4),
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
                            MIN_TILE_RAYS, MAX_TILE_RAYS))
 
-    def _ray_bytes(self, k, scalar, vec2, vec4) -> float:
+    def _ray_bytes(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
         wp = _warp()
-        if scalar not in self._bytes_per_ray:
+        if prec.name not in self._bytes_per_ray:
             probe = 1024
             with wp.ScopedDevice(self.device):
-                stats = wp.zeros((1, k.NUM_STATS), dtype=wp.int32)
-                self._bytes_per_ray[scalar] = self._tile_buffers(k, probe, scalar, vec2, vec4, stats)[-1] / probe
-        return self._bytes_per_ray[scalar]
+                stats = wp.zeros((1, prec.kernels.NUM_STATS), dtype=wp.int32)
+                self._bytes_per_ray[prec.name] = self._tile_buffers(prec, probe, stats)[-1] / probe
+        return self._bytes_per_ray[prec.name]
 
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None):
         """Refuse a render the resource policy does not allow (core/limits.py), before
@@ -248,37 +248,35 @@ class Renderer:
                     f"(its bounding box diagonal is {self.data_diagonal:.4g}); the limit is "
                     f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
                     f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
-        f64 = options.precision == "float64"
-        k = self._upload(options.precision)[0]
-        wp = _warp()
-        scalar, vec2, vec4 = (wp.float64, wp.vec2d, wp.vec4d) if f64 else (wp.float32, wp.vec2, wp.vec4)
+        prec = self._upload(options.precision)[0]
+        num_stats = prec.kernels.NUM_STATS
         total = int(width) * int(height)
         # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
-        per_pixel = (4 + 2) * (8 if f64 else 4) * 2 + 4 * k.NUM_STATS + 8 * k.NUM_STATS + 16
+        per_pixel = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats + 8 * num_stats + 16
         rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
-        limits.check_bytes(total * per_pixel + rays * self._ray_bytes(k, scalar, vec2, vec4),
+        limits.check_bytes(total * per_pixel + rays * self._ray_bytes(prec),
                            f"a {width}x{height} image in {options.precision}")
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
         return self._upload(precision)[1]
 
-    def _upload(self, precision: str):
-        """Mesh arrays and kernel for one precision (float64 on first use)."""
-        if precision in self._uploads:
-            return self._uploads[precision]
+    def _upload(self, name: str):
+        """Mesh arrays and kernels for the precision called `name` (float64 on first use)."""
+        if name in self._uploads:
+            return self._uploads[name]
         wp = _warp()
-        from .kernels import precision as kp, quadrature_tables
+        from .kernels import quadrature_tables
+        from .kernels.precision import Precision
         from .mesh import element_coefficient_scale, element_field_ranges
         from .tensor_geometry import mesh_tensor_geometry
 
-        raycast = kp.kernels(precision)
+        prec = Precision.named(name)
+        raycast = prec.kernels
         mesh = self.mesh
-        f64 = precision == "float64"
-        if not f64:
+        if name == "float32":
             _check_float32_range(mesh)
-        fdt, v3, m33 = (np.float64, wp.vec3d, wp.mat33d) if f64 else (np.float32, wp.vec3, wp.mat33)
-        scalar = wp.float64 if f64 else wp.float32
+        fdt, v3, m33, scalar = prec.dtype, prec.vec3, prec.mat33, prec.scalar
         with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
@@ -299,7 +297,7 @@ class Renderer:
             m.field_hi = wp.array(fhi.astype(fdt), dtype=scalar)
             # a sample is a sum of terms of this size: its rounding error, and the interpolant's
             # (Lebesgue constant of <= 48 Chebyshev-Lobatto points < 4) times a few ulps per term
-            err = EVAL_ERROR_FACTOR * float(np.finfo(fdt).eps) * element_coefficient_scale(mesh)
+            err = EVAL_ERROR_FACTOR * prec.eps * element_coefficient_scale(mesh)
             m.field_err = wp.array(err.astype(fdt), dtype=scalar)
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
@@ -311,7 +309,7 @@ class Renderer:
             m.geo_offset = wp.array(goff.astype(np.int32), dtype=wp.int32)
             m.geo_coeffs = wp.array(gco.astype(fdt), dtype=v3)
             m.geo_centre = wp.array(gcen.astype(fdt), dtype=v3)
-            m.geo_err = wp.array(geometry_rounding(goff, gco, gcen, fdt).astype(fdt), dtype=scalar)
+            m.geo_err = wp.array(geometry_rounding(goff, gco, gcen, prec.eps).astype(fdt), dtype=scalar)
             m.box_lo = wp.array(self._box_lo.astype(fdt), dtype=v3)
             m.box_hi = wp.array(self._box_hi.astype(fdt), dtype=v3)
             x, wk, wg = quadrature_tables.gauss_kronrod_15()
@@ -322,8 +320,8 @@ class Renderer:
             kernel = raycast.walk_kernels(curved=not bool(affine.all()),
                                           modes=raycast.el_k.static_modes(mesh.shape, mesh.modes))
             self._sample_stride = sample_stride(mesh, gdeg, k=raycast)
-        self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
-        return self._uploads[precision]
+        self._uploads[name] = (prec, m, gk, gk_s, kernel)
+        return self._uploads[name]
 
     def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
@@ -333,14 +331,12 @@ class Renderer:
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
         waits add a little to render_seconds)."""
         wp = _warp()
-        k, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
+        prec, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
+        k = prec.kernels
         curved = not bool(self.mesh.affine is None or self.mesh.affine.all())
         stride = self._sample_stride
         odd_stride = (k.MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
-        f64 = options.precision == "float64"
-        vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
-        scalar = wp.float64 if f64 else wp.float32
-        fdt = np.float64 if f64 else np.float32
+        vec3, vec2, vec4, scalar, fdt = prec.vec3, prec.vec2, prec.vec4, prec.scalar, prec.dtype
         W, H = int(camera.width), int(camera.height)
         bg = np.asarray(background, dtype=np.float64).reshape(3)
         with wp.ScopedDevice(self.device):
@@ -371,13 +367,13 @@ class Renderer:
             total = W * H
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = total if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self._tile_limit(k, scalar, vec2, vec4), total)
+            tile = min(tile, self._tile_limit(prec), total)
             self.check_limits(W, H, options, tile)
             try:
                 rgba = wp.zeros(total, dtype=vec4)
                 aux = wp.zeros(total, dtype=vec2)
                 stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
-                rays, segs, again, again_count, _ = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
+                rays, segs, again, again_count, _ = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region (coefficients: the module of integrate)
@@ -437,7 +433,7 @@ class Renderer:
                         break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
-            img = rgba.numpy().reshape(H, W, 4).astype(np.float32 if not f64 else np.float64)
+            img = rgba.numpy().reshape(H, W, 4).astype(fdt)
             depth_err = aux.numpy().reshape(H, W, 2)
             st = stats.numpy().astype(np.int64)
         if not np.all(np.isfinite(img)):

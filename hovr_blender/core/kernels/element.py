@@ -13,9 +13,9 @@ from ..shapes import HEX, PRISM, PYR, TET
 wp.set_module_options({"enable_backward": False})
 
 vecm = wp.types.vector(length=16, dtype=wp.float32)
-# reference-space margin of the affine clip (reference_interval); sized for float32 (a few
-# ulps of 1), retightened for the float64 twin in precision.FLOAT64_CONSTANTS
+# reference-space margin of the affine clip (reference_clip): a few ulps of 1
 CLIP_TOL = 1.0e-6
+CLIP_TOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
 
 
 @wp.func

@@ -24,11 +24,14 @@ from .args import MeshArgs
 
 wp.set_module_options({"enable_backward": False})
 
-# Tolerances sized for float32; the float64 twin gets kernels/precision.FLOAT64_CONSTANTS.
+# Tolerances sized for float32; NAME_FLOAT64 is NAME in the float64 twin (kernels/precision.py).
 INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
+INSIDE_TOL_FLOAT64 = 1.0e-11
 NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
+NEWTON_STEP_TOL_FLOAT64 = 1.0e-8
 NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
 ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
+ROOT_RTOL_FLOAT64 = 1.0e-13
 NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
 ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit

@@ -49,6 +49,7 @@ SEARCH_PASSES = 4
 # walked to. A curved element just left is searched again only from 1/LEAVE_FRACTION of its box
 # chord beyond (inside it, a rounding error past its exit still counts as inside)
 STRETCH_RTOL = 1.0e-5
+STRETCH_RTOL_FLOAT64 = 1.0e-11  # in the float64 twin (kernels/precision.py)
 LEAVE_FRACTION = 64.0
 MAX_ZERO_STEPS = 3  # zero-length walks in a row (a ray through an edge) before searching instead
 PYRAMID_W_RATIO = 2.0  # a pyramid's segment is cut where its weight w changes by more than this
