@@ -115,7 +115,7 @@ def geometry_rounding(geo_offset, geo_coeffs, geo_centre, eps: float) -> np.ndar
     return GEO_ERROR_FACTOR * eps * absum
 
 
-def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
+def sample_stride(mesh: VolumeMesh, geo_degree, max_samples: int) -> int:
     """Threads per slot in the sample kernel: the most sample points a first pass needs
     (restriction.restriction_degree + 1, curved: curved_base_degree + 1). Not rounded up to a
     power of two: a warp may then hold parts of two slots, but no lane idles (order 6, 19 points:
@@ -123,9 +123,9 @@ def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
     deg = polynomial_degree(mesh.shape, mesh.modes)
     if mesh.affine is not None:
         curved = ~mesh.affine
-        full = np.minimum(deg + geo_degree, k.MAX_SAMPLES - 5)  # restriction.curved_base_degree
+        full = np.minimum(deg + geo_degree, max_samples - 5)  # restriction.curved_base_degree
         half = (full + 1) // 2
-        deg = np.where(curved, np.maximum(np.where(2 * half > k.MAX_SAMPLES - 5, full, half), 2), deg)
+        deg = np.where(curved, np.maximum(np.where(2 * half > max_samples - 5, full, half), 2), deg)
     return int(deg.max()) + 1
 
 
@@ -318,8 +318,8 @@ class Renderer:
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
             kernel = raycast.walk_kernels(curved=not bool(affine.all()),
-                                          modes=raycast.el_k.static_modes(mesh.shape, mesh.modes))
-            self._sample_stride = sample_stride(mesh, gdeg, k=raycast)
+                                          modes=raycast.element.static_modes(mesh.shape, mesh.modes))
+            self._sample_stride = sample_stride(mesh, gdeg, raycast.MAX_SAMPLES)
         self._uploads[name] = (prec, m, gk, gk_s, kernel)
         return self._uploads[name]
 
@@ -332,15 +332,15 @@ class Renderer:
         waits add a little to render_seconds)."""
         wp = _warp()
         prec, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
-        k = prec.kernels
+        kernels = prec.kernels
         curved = not bool(self.mesh.affine is None or self.mesh.affine.all())
         stride = self._sample_stride
-        odd_stride = (k.MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
+        odd_stride = (kernels.MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         vec3, vec2, vec4, scalar, fdt = prec.vec3, prec.vec2, prec.vec4, prec.scalar, prec.dtype
         W, H = int(camera.width), int(camera.height)
         bg = np.asarray(background, dtype=np.float64).reshape(3)
         with wp.ScopedDevice(self.device):
-            cam = k.CameraArgs()
+            cam = kernels.CameraArgs()
             for name in ("o0", "ou", "ov", "d0", "du", "dv"):
                 setattr(cam, name, vec3(*map(float, getattr(camera, name))))
             cam.width, cam.height = W, H
@@ -349,12 +349,12 @@ class Renderer:
             cam.clip_axis = vec3(*map(float, camera.clip_axis))
             cam.clip_near = float(camera.clip_near)
             cam.clip_far = float(min(camera.clip_far, 1e30))
-            t = k.TransferArgs()
+            t = kernels.TransferArgs()
             t.color_s = wp.array(tf.color_s.astype(fdt), dtype=scalar)
             t.color_rgb = wp.array(tf.color_rgb.astype(fdt), dtype=vec3)
             t.density_s = wp.array(tf.density_s.astype(fdt), dtype=scalar)
             t.density_tau = wp.array(tf.density_tau.astype(fdt), dtype=scalar)
-            q = k.QuadArgs()
+            q = kernels.QuadArgs()
             q.method = _METHOD_IDS[options.method]
             q.inner = _INNER_IDS[options.inner]
             q.h = float(options.h)
@@ -372,11 +372,11 @@ class Renderer:
             try:
                 rgba = wp.zeros(total, dtype=vec4)
                 aux = wp.zeros(total, dtype=vec2)
-                stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
+                stats = wp.zeros((total, kernels.NUM_STATS), dtype=wp.int32)
                 rays, segs, again, again_count, _ = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region (coefficients: the module of integrate)
+            for kern in (search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.finalize):  # compile outside the timed region (coefficients: the module of integrate)
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
             kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "sample": 0.0, "refine": 0.0,
@@ -394,7 +394,7 @@ class Renderer:
             rounds = 0
             for start in range(0, total, tile):
                 n = min(tile, total - start)
-                launch("init_rays", k.init_rays, n, [cam, start, rays])
+                launch("init_rays", kernels.init_rays, n, [cam, start, rays])
                 active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
                 while active > 0:
                     rays.active_count.zero_()
@@ -408,24 +408,24 @@ class Renderer:
                     slots, count, n_slots = segs.list, segs.list_count, listed
                     for p in range(2 if curved and listed > 0 else 0):
                         again_count[p].zero_()
-                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
+                        launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
                         n_slots = int(again_count[p].numpy()[0])
                         if n_slots == 0:
                             break
                         launch("sample", sample, n_slots * odd_stride, [mesh_args, cam, start, segs, again[p], odd_stride, 1])
                         slots, count = again[p], again_count[p]
                     if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
-                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
+                        launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
                     if listed > 0:
-                        launch("coefficients", k.coefficients, listed * stride, [segs, segs.list, stride])
-                    launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
+                        launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+                    launch("integrate", kernels.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
                     rounds += 1
                     active = int(rays.active_count.numpy()[0])
                     rays.active, rays.active_next = rays.active_next, rays.active
                     if rounds > MAX_ROUNDS_PER_TILE * (start // tile + 1):
                         raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
                                           f"still going): a bug, please report it with the data")
-                launch("finalize", k.finalize, n, [q, start, rays, rgba, aux])
+                launch("finalize", kernels.finalize, n, [q, start, rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -451,15 +451,15 @@ class Renderer:
                 "height": H,
                 "method": options.method,
                 "parameters": options.as_dict(),
-                "field_evaluations": int(tot[k.STAT_FIELD_EVALS]),
-                "restriction_evaluations": int(tot[k.STAT_RESTRICTION_EVALS]),
-                "samples_per_ray": float((tot[k.STAT_FIELD_EVALS] + tot[k.STAT_RESTRICTION_EVALS]) / (W * H)),
-                "segments": int(tot[k.STAT_SEGMENTS]),
-                "segments_empty": int(tot[k.STAT_EMPTY]),
-                "segments_smooth": int(tot[k.STAT_SMOOTH]),
-                "segments_piecewise_smooth": int(tot[k.STAT_PIECEWISE]),
-                "curved_locates": int(tot[k.STAT_LOCATES]),
-                "walks": int(tot[k.STAT_WALKS]),
+                "field_evaluations": int(tot[kernels.STAT_FIELD_EVALS]),
+                "restriction_evaluations": int(tot[kernels.STAT_RESTRICTION_EVALS]),
+                "samples_per_ray": float((tot[kernels.STAT_FIELD_EVALS] + tot[kernels.STAT_RESTRICTION_EVALS]) / (W * H)),
+                "segments": int(tot[kernels.STAT_SEGMENTS]),
+                "segments_empty": int(tot[kernels.STAT_EMPTY]),
+                "segments_smooth": int(tot[kernels.STAT_SMOOTH]),
+                "segments_piecewise_smooth": int(tot[kernels.STAT_PIECEWISE]),
+                "curved_locates": int(tot[kernels.STAT_LOCATES]),
+                "walks": int(tot[kernels.STAT_WALKS]),
                 "rounds": rounds,
                 **({"kernel_seconds": kernel_seconds} if profile else {}),
                 "elements": self.mesh.num_elements,

@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from . import element as el_k
-from . import geometry as geo
-from . import quadrature as qd
-from . import restriction as rs
+from . import element
+from . import geometry
+from . import quadrature
+from . import restriction
 from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
                    STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, Segments, TransferArgs)
@@ -64,9 +64,9 @@ STEPS_PER_ROUND = 64 * SEGMENTS_PER_ROUND  # walking steps a ray may take in one
 MAX_REGISTERS = 128
 SAMPLE_MAX_REGISTERS = 64
 
-vecw = wp.types.vector(length=WINDOW, dtype=wp.float32)
-vecwi = wp.types.vector(length=WINDOW, dtype=wp.int32)
-vecli = wp.types.vector(length=LOCATED, dtype=wp.int32)
+WindowKeys = wp.types.vector(length=WINDOW, dtype=wp.float32)
+WindowElements = wp.types.vector(length=WINDOW, dtype=wp.int32)
+LocatedElements = wp.types.vector(length=LOCATED, dtype=wp.int32)
 
 
 @wp.func
@@ -105,7 +105,7 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
 
 
 @wp.func
-def in_list(ids: vecli, n: int, e: int) -> int:
+def in_list(ids: LocatedElements, n: int, e: int) -> int:
     for k in range(n):
         if ids[k] == e:
             return 1
@@ -116,7 +116,7 @@ def in_list(ids: vecli, n: int, e: int) -> int:
 def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
     """(hit, t0, t1, exit face) of the ray in affine element e: the clip in reference space."""
     A = mesh.ref_a[e]
-    return el_k.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
+    return element.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
 @wp.func
@@ -159,12 +159,12 @@ def _make_walk_kernels(CURVED: bool):
         best = wp.vec3(t_end, t_end, -1.0)  # t0, t1, exit face
         best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
         best_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        located = vecli()  # the curved candidates already located (curved_entry), n_listed of them
+        located = LocatedElements()  # the curved candidates already located (curved_entry), n_listed of them
         n_listed = int(0)
         nloc = int(0)  # Newton locations of any kind (the statistics' count)
         for p in range(SEARCH_PASSES):
-            win_key = vecw()
-            win_e = vecwi()
+            win_key = WindowKeys()
+            win_e = WindowElements()
             nwin = int(0)
             thresh = float(1.0e30)
             # the query starts at t_from (less eps): boxes wholly behind it are culled in the tree
@@ -183,7 +183,7 @@ def _make_walk_kernels(CURVED: bool):
                             best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
                 else:
                     if wp.static(CURVED):
-                        bx = geo.box_interval(mesh, cand, o, d)
+                        bx = geometry.box_interval(mesh, cand, o, d)
                         key = wp.max(bx[0], t_from)
                         if bx[1] > t_from + eps and key < best[0]:
                             if in_list(located, n_listed, cand) == 0:
@@ -211,7 +211,7 @@ def _make_walk_kernels(CURVED: bool):
                         cand = win_e[w]
                         if cand != left and win_key[w] <= t_near:
                             nloc += 1
-                            r, dv = geo.curved_inside(mesh, cand, o, d, t_near, geo.start_guess(mesh, cand, o + t_near * d))
+                            r, dv = geometry.curved_inside(mesh, cand, o, d, t_near, geometry.start_guess(mesh, cand, o + t_near * d))
                             if r[3] > 0.0:
                                 return cand, wp.vec3(t_near, t_near, -1.0), r, dv, nloc
                 for w in range(nwin):
@@ -221,11 +221,11 @@ def _make_walk_kernels(CURVED: bool):
                         if n_listed < LOCATED:
                             located[n_listed] = cand
                             n_listed += 1
-                        bx = geo.box_interval(mesh, cand, o, d)
+                        bx = geometry.box_interval(mesh, cand, o, d)
                         t_look = t_from + eps
                         if cand == left:
                             t_look = t_from + (bx[1] - bx[0]) / LEAVE_FRACTION
-                        ent, r, dv = geo.curved_entry(mesh, cand, o, d, t_look)
+                        ent, r, dv = geometry.curved_entry(mesh, cand, o, d, t_look)
                         if ent[0] > 0.0 and ent[1] < best[0]:
                             best_e = cand
                             best = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
@@ -267,9 +267,9 @@ def _make_walk_kernels(CURVED: bool):
         e = rays.next_element[i]
         r_entry = rays.entry_r[i]  # the search's solution in a curved e at t (margin > 0: valid)
         dv_entry = rays.entry_dv[i]
-        restriction = int(0)  # classified and split integrate the restriction; skip empty elements
+        uses_restriction = int(0)  # classified and split integrate the restriction; skip empty elements
         if q.method >= METHOD_CLASSIFIED:
-            restriction = 1
+            uses_restriction = 1
         n_field = int(0)
         n_seg = int(0)
         n_empty = int(0)
@@ -309,7 +309,7 @@ def _make_walk_kernels(CURVED: bool):
                         dv_a = dv_entry
                         r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)
                     else:
-                        r_a, dv_a = geo.curved_inside(mesh, e, o, d, a, geo.start_guess(mesh, e, o + a * d))
+                        r_a, dv_a = geometry.curved_inside(mesh, e, o, d, a, geometry.start_guess(mesh, e, o + a * d))
                     if r_a[3] <= 0.0:
                         inside = 0
                     else:
@@ -319,12 +319,12 @@ def _make_walk_kernels(CURVED: bool):
                 break
             if wp.static(CURVED):
                 if need_exit == 1:
-                    bx = geo.box_interval(mesh, e, o, d)
-                    ex, r_b, dv_b = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+                    bx = geometry.box_interval(mesh, e, o, d)
+                    ex, r_b, dv_b = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
                     b = wp.max(a, ex[0])
                     face = int(ex[1])
             stay = int(0)
-            if restriction == 1 and mesh.shape[e] == el_k.PYR and mesh.affine[e] == 1 and b > a:
+            if uses_restriction == 1 and mesh.shape[e] == element.PYR and mesh.affine[e] == 1 and b > a:
                 # a pyramid's restriction is f w^2 (w linear): its rounding is amplified by
                 # 1 / w^2 where w is small, near the apex. Pieces where w changes by at most
                 # PYRAMID_W_RATIO keep that within PYRAMID_W_RATIO^2 of the rest of the segment.
@@ -335,7 +335,7 @@ def _make_walk_kernels(CURVED: bool):
             if b > a:
                 zero_steps = 0
                 n_seg += 1
-                if restriction == 1 and qd.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
+                if uses_restriction == 1 and quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
                     n_empty += 1  # the element's whole range is transparent: no samples
                 else:
                     slot = i * SEGMENTS_PER_ROUND + n
@@ -346,19 +346,19 @@ def _make_walk_kernels(CURVED: bool):
                     curved = int(0)  # a constant in the affine kernel: the sample kernel's Newton compiles out
                     if wp.static(CURVED):
                         curved = int(1) - mesh.affine[e]
-                    if curved == 0 and restriction == 0:
+                    if curved == 0 and uses_restriction == 0:
                         segs.degree[slot] = -1  # the baselines evaluate affine elements themselves
                         segs.flags[slot] = SEG_EVALUATE
                     else:
                         deg = int(0)
                         if curved == 1:
-                            deg = rs.curved_base_degree(mesh, e)
+                            deg = restriction.curved_base_degree(mesh, e)
                             segs.xi0[slot] = wp.vec3(r_a[0], r_a[1], r_a[2])
                             segs.v0[slot] = wp.vec3(dv_a[0], dv_a[1], dv_a[2])
                             segs.xi1[slot] = wp.vec3(r_b[0], r_b[1], r_b[2])
                             segs.v1[slot] = wp.vec3(dv_b[0], dv_b[1], dv_b[2])
                         else:
-                            deg = rs.restriction_degree(mesh, e)
+                            deg = restriction.restriction_degree(mesh, e)
                         segs.degree[slot] = deg
                         segs.flags[slot] = curved * SEG_CURVED
                         segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
@@ -393,7 +393,7 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
     # MODES > 0: hexahedra and prisms of (MODES,) * 3 modes evaluate through the unrolled
     # element.static_evaluator (its loops need max_unroll >= MODES)
     opts = {"max_unroll": max(4, MODES)} if CURVED or MODES else {}
-    evaluate = el_k.static_evaluator(MODES) if MODES else el_k.eval_element
+    evaluate = element.static_evaluator(MODES) if MODES else element.eval_element
 
     @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=SAMPLE_MAX_REGISTERS if CURVED else None)
     def sample(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, segs: Segments, slots: wp.array(dtype=wp.int32),
@@ -414,12 +414,12 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        xi, w = rs.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
         e = segs.element[slot]
         f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         segs.samples[slot * MAX_SAMPLES + j] = f * w * w
         if j == 0:
-            ends = rs.end_weights(mesh, o, d, segs, slot, curved)
+            ends = restriction.end_weights(mesh, o, d, segs, slot, curved)
             segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 2] = ends[0]
             segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 1] = ends[1]
 
@@ -439,7 +439,7 @@ def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int
     base = slot * MAX_SAMPLES
     kk = k
     while kk <= deg:
-        segs.coeffs[base + kk] = rs.chebyshev_coefficient(segs, slot, kk, deg)
+        segs.coeffs[base + kk] = restriction.chebyshev_coefficient(segs, slot, kk, deg)
         kk += stride
     if k == 0:
         segs.coeffs[base + MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
@@ -459,7 +459,7 @@ def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.arr
     slot = slots[idx]
     if (segs.flags[slot] & SEG_CURVED) == 0:
         return
-    if rs.refine_degree(segs, slot, allow) == 1:
+    if restriction.refine_degree(segs, slot, allow) == 1:
         again[wp.atomic_add(again_count, 0, 1)] = slot
         rays.stats[slot // SEGMENTS_PER_ROUND + pixel_offset, STAT_FIELD_EVALS] += segs.degree[slot] // 2
 
@@ -488,8 +488,8 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     """One segment into the ray state; returns the new state and (element evaluations,
     restriction evaluations, class: 1 empty, 2 smooth, 3 piecewise-smooth, 0 unclassified)."""
     state = state_in
-    c = segs.coeffs
-    cb = slot * MAX_SAMPLES
+    coeffs = segs.coeffs
+    base = slot * MAX_SAMPLES
     evaluate = int(0)
     xo = wp.vec3(0.0, 0.0, 0.0)
     xd = wp.vec3(0.0, 0.0, 0.0)
@@ -512,21 +512,21 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
             # of it (split integrates the interpolant itself, so its bounds decide there)
             bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
         else:
-            bnd = rs.segment_bounds(c, cb, deg, mesh.field_err[e])
+            bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
         emitting = int(0)
-        if qd.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
+        if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
             emitting = 1
-        piecewise = qd.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
-        if emitting == 1 and qd.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
+        piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
+        if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
             piecewise = 1
-        if qd.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
+        if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
             counts[2] = 1.0
             return state, counts
         counts[2] = 2.0 + float(piecewise)
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
-        state, nev = qd.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, c, cb, deg, a, b, state)
+        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
@@ -534,10 +534,10 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         while piece < b and state[3] >= q.min_transmittance:
             cut = b
             if piecewise == 1:
-                nc = qd.next_cut(tf, c, cb, deg, a, b, piece)
+                nc = quadrature.next_cut(tf, coeffs, base, deg, a, b, piece)
                 cut = nc[0]
                 counts[1] = counts[1] + nc[1]
-            state = qd.gauss_kronrod_smooth(tf, q, c, cb, deg, a, b, piece, cut, emitting, state)
+            state = quadrature.gauss_kronrod_smooth(tf, q, coeffs, base, deg, a, b, piece, cut, emitting, state)
             piece = cut
     return state, counts
 
