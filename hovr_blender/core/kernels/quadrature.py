@@ -8,9 +8,7 @@ quadratures and the segment classification of Nelson, Kirby and Haimes (2014).
 - split: like classified, but piecewise-smooth segments are cut at the exact crossings of the
   transfer function's breakpoints (next_cut), so every piece is smooth and gets Gauss-Kronrod.
 
-The ray state (vecst) is (C.r, C.g, C.b, T, restriction evaluations, depth, error estimate):
-depth is the t where 1 - T first reaches 0.5 (-1 until then); the error estimate sums the
-accepted Gauss-Kronrod panels' own estimates (0 for methods without one).
+What a ray has integrated so far travels through these functions as a RayIntegral.
 """
 from __future__ import annotations
 
@@ -38,7 +36,20 @@ SCAN_PER_DEGREE = 2  # split: cells per degree of the restriction in the search 
 PanelEnds = wp.types.vector(length=GK_STACK, dtype=wp.float32)  # the panel stack's ends
 PanelDepths = wp.types.vector(length=GK_STACK, dtype=wp.int32)  # ... and bisection depths
 NodeValues = wp.types.vector(length=15, dtype=wp.float32)  # one value per Kronrod node
-vecst = wp.types.vector(length=7, dtype=wp.float32)
+
+
+@wp.struct
+class RayIntegral:
+    """A ray's integrals up to where it got: the integrate kernel carries one through the ray's
+    segments of the round (RayState holds it between rounds)."""
+
+    color: wp.vec3  # C
+    transmittance: wp.float32  # T
+    restriction_evals: wp.float32  # evaluations of a segment's restriction (stats)
+    depth: wp.float32  # the t where 1 - T first reaches 0.5 (-1 until then)
+    # the accepted Gauss-Kronrod panels' error estimates and curved segments' tails, summed
+    # (0 for methods without one)
+    error: wp.float32
 
 
 # ------------------------------------------------------------------ transfer function
@@ -150,7 +161,8 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
-          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, state_in: vecst):
+          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float,
+          state_in: RayIntegral):
     """The baselines on [a, b] with n = ceil((b - a) / h) equal steps (at most q.max_steps): left Riemann sum
     (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
     samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
@@ -159,9 +171,9 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
     # in floating point and capped: (b - a) / h of a tiny h overflows a 32-bit int
     n = int(wp.clamp(wp.ceil((b - a) / q.h), 1.0, float(q.max_steps)))
     w = (b - a) / float(n)
-    col = wp.vec3(state[0], state[1], state[2])
-    T = state[3]
-    depth = state[5]
+    col = state.color
+    T = state.transmittance
+    depth = state.depth
     tau0 = float(0.0)
     g0 = wp.vec3(0.0, 0.0, 0.0)
     nev = int(0)
@@ -195,11 +207,9 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
         g0 = g
         if T < q.min_transmittance:
             break
-    state[0] = col[0]
-    state[1] = col[1]
-    state[2] = col[2]
-    state[3] = T
-    state[5] = depth
+    state.color = col
+    state.transmittance = T
+    state.depth = depth
     if evaluate == 1:
         return state, wp.vec2(float(nev), 0.0)
     return state, wp.vec2(0.0, float(nev))
@@ -239,8 +249,8 @@ def piece_ends(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
 
 @wp.func
 def gauss_kronrod_smooth(
-    tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
-) -> vecst:
+    tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: RayIntegral
+) -> RayIntegral:
     """Adaptive G7/K15 over [lo, hi] (inside segment [a, b]) where kappa and tau are smooth.
 
     Depth-first, left half first, so panels finish front to back and each panel starts
@@ -253,11 +263,11 @@ def gauss_kronrod_smooth(
     the paper's trapezoid rule over the nodes) and the panel's error adds T times the G7/K15
     difference of its optical depth. Loops are not unrolled: the nodes' values go through a
     local array, which keeps this kernel's registers down."""
-    col = wp.vec3(state[0], state[1], state[2])
-    T = state[3]
-    nev = state[4]
-    depth_t = state[5]
-    err_sum = state[6]
+    col = state.color
+    T = state.transmittance
+    nev = state.restriction_evals
+    depth_t = state.depth
+    err_sum = state.error
     stack_l = PanelEnds()
     stack_r = PanelEnds()
     stack_d = PanelDepths()
@@ -377,7 +387,13 @@ def gauss_kronrod_smooth(
             stack_r[top + 1] = mid
             stack_d[top + 1] = depth + 1
             top += 2
-    return vecst(col[0], col[1], col[2], T, nev, depth_t, err_sum)
+    out = RayIntegral()
+    out.color = col
+    out.transmittance = T
+    out.restriction_evals = nev
+    out.depth = depth_t
+    out.error = err_sum
+    return out
 
 
 # ------------------------------------------------------------------- breakpoint cuts

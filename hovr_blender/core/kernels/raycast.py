@@ -33,7 +33,7 @@ from . import restriction
 from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
                    STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, Segments, TransferArgs)
-from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, vecst
+from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
 wp.set_module_options({"enable_backward": False})
 
@@ -484,7 +484,7 @@ def walk_kernels(curved: bool, modes: int = 0):
 
 @wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
-                      b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: vecst):
+                      b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: RayIntegral):
     """One segment into the ray state; returns the new state and (element evaluations,
     restriction evaluations, class: 1 empty, 2 smooth, 3 piecewise-smooth, 0 unclassified)."""
     state = state_in
@@ -531,7 +531,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         counts[1] = nev[1]
     else:
         piece = a
-        while piece < b and state[3] >= q.min_transmittance:
+        while piece < b and state.transmittance >= q.min_transmittance:
             cut = b
             if piecewise == 1:
                 nc = quadrature.next_cut(tf, coeffs, base, deg, a, b, piece)
@@ -552,17 +552,22 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
     o, d = camera_ray(cam, pixel)
     ct = rays.color_t[i]
     de = rays.depth_err[i]
-    state = vecst(ct[0], ct[1], ct[2], ct[3], 0.0, de[0], de[1])
+    state = RayIntegral()
+    state.color = wp.vec3(ct[0], ct[1], ct[2])
+    state.transmittance = ct[3]
+    state.restriction_evals = 0.0
+    state.depth = de[0]
+    state.error = de[1]
     n_field = int(0)
     n_restr = float(0.0)
     n_empty = int(0)
     n_smooth = int(0)
     n_pw = int(0)
     for k in range(segs.count[i]):
-        if state[3] < q.min_transmittance:
+        if state.transmittance < q.min_transmittance:
             break
         slot = i * SEGMENTS_PER_ROUND + k
-        state[6] = state[6] + segs.tail[slot]
+        state.error = state.error + segs.tail[slot]
         state, counts = integrate_segment(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
                                           segs.degree[slot], segs.flags[slot], segs, slot, state)
         n_field += int(counts[0])
@@ -574,14 +579,14 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
             n_smooth += 1
         elif cls == 3:
             n_pw += 1
-    rays.color_t[i] = wp.vec4(state[0], state[1], state[2], state[3])
-    rays.depth_err[i] = wp.vec2(state[5], state[6])
+    rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
+    rays.depth_err[i] = wp.vec2(state.depth, state.error)
     rays.stats[pixel, STAT_FIELD_EVALS] += n_field
-    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(n_restr + state[4])
+    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(n_restr + state.restriction_evals)
     rays.stats[pixel, STAT_EMPTY] += n_empty
     rays.stats[pixel, STAT_SMOOTH] += n_smooth
     rays.stats[pixel, STAT_PIECEWISE] += n_pw
-    if state[3] < q.min_transmittance or rays.phase[i] == 1:
+    if state.transmittance < q.min_transmittance or rays.phase[i] == 1:
         rays.phase[i] = 2
     else:
         rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
