@@ -247,6 +247,109 @@ def piece_ends(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
     return wp.vec2(s_arr[k], s_arr[k + 1])
 
 
+@wp.struct
+class Panel:
+    """One Gauss-Kronrod panel's sums (gauss_kronrod_panel): the emission's K15 and G7 sums (to
+    be scaled by T half) and the optical depth across the panel by each rule."""
+
+    emission: wp.vec3
+    emission_gauss: wp.vec3
+    depth: wp.float32
+    depth_gauss: wp.float32
+
+
+@wp.func
+def node_emission(tf: TransferArgs, s: float, tau: float, inner: float, hint: int):
+    """tau kappa(s) exp(-inner) at a node (inner: the optical depth from the panel's start), and
+    the colour lookup's breakpoint segment (the next lookup's hint)."""
+    tc = tf_color_at(tf, s, hint)
+    return tau * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2]), int(tc[3])
+
+
+@wp.func
+def gauss_kronrod_panel(tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int,
+                        a: float, b: float, l: float, r: float, half: float, mid: float, unweighted: int,
+                        half_seg: float, mid_seg: float, emitting: int, nev: float, hint_d: int, hint_c: int):
+    """The panel [l, r] (half width, middle) of segment [a, b] (half_seg, mid_seg), as
+    gauss_kronrod_smooth says: its Panel, and nev (restriction evaluations) and the lookups'
+    hints carried on."""
+    svals = NodeValues()
+    fvals = NodeValues()  # the series' antiderivative at the nodes (unweighted only)
+    nev += 15.0
+    for j in range(15):
+        t = mid + half * q.gk_x[j]
+        if unweighted == 1:
+            vf = clenshaw_and_integral(coeffs, base, deg, wp.clamp((t - mid_seg) / half_seg, -1.0, 1.0))
+            svals[j] = vf[0]
+            fvals[j] = half_seg * vf[1]
+        else:
+            svals[j] = restriction_at(coeffs, base, deg, a, b, t)
+    # the transfer function's pieces at the panel's middle value (node 7 is the middle)
+    fm = svals[7]
+    pd = linear_piece(tf.density_s, tf.density_tau, fm)
+    pr = piece_ends(tf.color_s, fm)
+    lin = unweighted
+    for j in range(15):
+        if svals[j] < wp.max(pd[2], pr[0]) or svals[j] > wp.min(pd[3], pr[1]):
+            lin = 0
+    ek = wp.vec3(0.0, 0.0, 0.0)
+    eg = wp.vec3(0.0, 0.0, 0.0)
+    dk = float(0.0)
+    dg = float(0.0)
+    if lin == 1:
+        # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
+        # held to [-1, 1] like every evaluation of the series: on a segment a few ulps long,
+        # the rounded l and r can map to |s| = 2, where a degree-30 series' noise grows by
+        # 2^30 (H100: one pixel's optical depth of -inf, a NaN image)
+        f_l = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((l - mid_seg) / half_seg, -1.0, 1.0))
+        f_r = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((r - mid_seg) / half_seg, -1.0, 1.0))
+        nev += 2.0
+        dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
+        dg = dk
+        if emitting == 1:
+            for j in range(15):
+                t = mid + half * q.gk_x[j]
+                sv = svals[j]
+                inner = pd[0] * (t - l) + pd[1] * (fvals[j] - f_l)
+                g, hint_c = node_emission(tf, sv, pd[0] + pd[1] * sv, inner, hint_c)
+                ek += q.gk_wk[j] * g
+                eg += q.gk_wg[j] * g
+    else:
+        taus = NodeValues()
+        for j in range(15):
+            td = tf_density_at(tf, svals[j], hint_d)
+            taus[j] = td[0]
+            hint_d = int(td[1])
+            dk += q.gk_wk[j] * taus[j]
+            dg += q.gk_wg[j] * taus[j]
+        dk = dk * half
+        dg = dg * half
+        if emitting == 1:
+            run = float(0.0)
+            for j in range(15):
+                inner = float(0.0)
+                if q.inner == 0:
+                    for i in range(15):
+                        inner += q.gk_s[j, i] * taus[i]
+                    inner = inner * half
+                else:
+                    # trapezoid over the nodes; first node from the panel start with tau_0
+                    if j == 0:
+                        run = taus[0] * half * (q.gk_x[0] + 1.0)
+                    else:
+                        run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
+                    inner = run
+                g, hint_c = node_emission(tf, svals[j], taus[j], inner, hint_c)
+                ek += q.gk_wk[j] * g
+                eg += q.gk_wg[j] * g
+    p = Panel()
+    p.emission = ek
+    p.emission_gauss = eg
+    p.depth = dk
+    p.depth_gauss = dg
+    return p, nev, hint_d, hint_c
+
+
 @wp.func
 def gauss_kronrod_smooth(
     tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: RayIntegral
@@ -290,90 +393,19 @@ def gauss_kronrod_smooth(
         depth = stack_d[top]
         half = 0.5 * (r - l)
         mid = 0.5 * (r + l)
-        svals = NodeValues()
-        fvals = NodeValues()  # the series' antiderivative at the nodes (unweighted only)
-        nev += 15.0
-        for j in range(15):
-            t = mid + half * q.gk_x[j]
-            if unweighted == 1:
-                vf = clenshaw_and_integral(coeffs, base, deg, wp.clamp((t - mid_seg) / half_seg, -1.0, 1.0))
-                svals[j] = vf[0]
-                fvals[j] = half_seg * vf[1]
-            else:
-                svals[j] = restriction_at(coeffs, base, deg, a, b, t)
-        # the transfer function's pieces at the panel's middle value (node 7 is the middle)
-        fm = svals[7]
-        pd = linear_piece(tf.density_s, tf.density_tau, fm)
-        pr = piece_ends(tf.color_s, fm)
-        lin = unweighted
-        for j in range(15):
-            if svals[j] < wp.max(pd[2], pr[0]) or svals[j] > wp.min(pd[3], pr[1]):
-                lin = 0
-        ek = wp.vec3(0.0, 0.0, 0.0)
-        eg = wp.vec3(0.0, 0.0, 0.0)
-        dk = float(0.0)
-        dg = float(0.0)
-        if lin == 1:
-            # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
-            # held to [-1, 1] like every evaluation of the series: on a segment a few ulps long,
-            # the rounded l and r can map to |s| = 2, where a degree-30 series' noise grows by
-            # 2^30 (H100: one pixel's optical depth of -inf, a NaN image)
-            f_l = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((l - mid_seg) / half_seg, -1.0, 1.0))
-            f_r = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((r - mid_seg) / half_seg, -1.0, 1.0))
-            nev += 2.0
-            dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
-            dg = dk
-            if emitting == 1:
-                for j in range(15):
-                    t = mid + half * q.gk_x[j]
-                    sv = svals[j]
-                    inner = pd[0] * (t - l) + pd[1] * (fvals[j] - f_l)
-                    tc = tf_color_at(tf, sv, hint_c)
-                    hint_c = int(tc[3])
-                    g = (pd[0] + pd[1] * sv) * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
-                    ek += q.gk_wk[j] * g
-                    eg += q.gk_wg[j] * g
-        else:
-            taus = NodeValues()
-            for j in range(15):
-                td = tf_density_at(tf, svals[j], hint_d)
-                taus[j] = td[0]
-                hint_d = int(td[1])
-                dk += q.gk_wk[j] * taus[j]
-                dg += q.gk_wg[j] * taus[j]
-            dk = dk * half
-            dg = dg * half
-            if emitting == 1:
-                run = float(0.0)
-                for j in range(15):
-                    inner = float(0.0)
-                    if q.inner == 0:
-                        for i in range(15):
-                            inner += q.gk_s[j, i] * taus[i]
-                        inner = inner * half
-                    else:
-                        # trapezoid over the nodes; first node from the panel start with tau_0
-                        if j == 0:
-                            run = taus[0] * half * (q.gk_x[0] + 1.0)
-                        else:
-                            run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
-                        inner = run
-                    tc = tf_color_at(tf, svals[j], hint_c)
-                    hint_c = int(tc[3])
-                    g = taus[j] * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
-                    ek += q.gk_wk[j] * g
-                    eg += q.gk_wg[j] * g
-        ek = ek * (T * half)
-        eg = eg * (T * half)
+        p, nev, hint_d, hint_c = gauss_kronrod_panel(tf, q, coeffs, base, deg, a, b, l, r, half, mid, unweighted,
+                                                     half_seg, mid_seg, emitting, nev, hint_d, hint_c)
+        ek = p.emission * (T * half)
+        eg = p.emission_gauss * (T * half)
         diff = ek - eg
-        err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
+        err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(p.depth - p.depth_gauss)
         panels += 1
         # a panel is accepted when converged, at the depth limit, or when the segment's panel
         # budget is spent or the estimate is not a number (NaN never compares below tol, and
         # 2^GK_MAX_DEPTH panels of one segment would hold the ray for minutes)
         if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK or panels >= GK_MAX_PANELS or wp.isnan(err):
             col += ek
-            T1 = T * wp.exp(-dk)
+            T1 = T * wp.exp(-p.depth)
             depth_t = depth_update(depth_t, l, r, T, T1)
             err_sum += err
             T = T1
