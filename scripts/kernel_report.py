@@ -70,7 +70,7 @@ def main(argv=None):
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:
-                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].replace("_make_walk_kernels__locals__", ""))
+                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].split("__locals__")[-1])
                 elif "registers" in line or "spill" in line:
                     print("       ", line.replace("ptxas info    : ", ""))
     shutil.rmtree(tmp, ignore_errors=True)
