@@ -6,6 +6,7 @@ vertex corrections without which tets are off by 0.17 and prisms jump across fac
 """
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ..shapes import HEX, PRISM, PYR, TET
@@ -230,8 +231,6 @@ _STATIC = {}
 def static_modes(shape, modes) -> int:
     """N if every hexahedron and prism has modes (N, N, N) with N in STATIC_MODES (and there is at
     least one), else 0 (eval_element for all)."""
-    import numpy as np
-
     shape = np.asarray(shape)
     modes = np.asarray(modes)
     sel = (shape == HEX) | (shape == PRISM)
