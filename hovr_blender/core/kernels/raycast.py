@@ -153,6 +153,7 @@ class Entry:
 
 @wp.func
 def no_entry(t_end: float) -> Entry:
+    """No element before t_end."""
     entry = Entry()
     entry.element = -1
     entry.span = wp.vec3(t_end, t_end, -1.0)
