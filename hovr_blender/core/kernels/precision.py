@@ -144,14 +144,17 @@ class _ToFloat64(ast.NodeTransformer):
         return node
 
 
-def _float32_source(name: str) -> str:
-    fullname = f"{KERNELS_PACKAGE}.{name}"
-    return importlib.util.find_spec(fullname).loader.get_source(fullname)
+def _float32_spec(name: str):
+    return importlib.util.find_spec(f"{KERNELS_PACKAGE}.{name}")
 
 
-def float64_source(name: str) -> str:
-    """The float64 twin's source of kernels module `name` (e.g. "geometry")."""
-    tree = ast.parse(_float32_source(name))
+def _float32_tree(name: str) -> ast.Module:
+    spec = _float32_spec(name)
+    return ast.parse(spec.loader.get_source(spec.name))
+
+
+def _to_float64(name: str, tree: ast.Module) -> str:
+    """The float64 twin's source from kernels module `name`'s syntax tree (rewritten in place)."""
     constants = _float_constants(tree)
     float64_values = {}
     for key, value in constants.items():
@@ -165,27 +168,33 @@ def float64_source(name: str) -> str:
     return ast.unparse(tree) + "\n"
 
 
-def _package_imports(name: str) -> list:
-    """The kernels modules `name` imports (its relative imports of level 1), in source order."""
-    out = []
-    for node in ast.parse(_float32_source(name)).body:
-        if isinstance(node, ast.ImportFrom) and node.level == 1:
-            out += [a.name for a in node.names] if node.module is None else [node.module]
-    return out
+def float64_source(name: str) -> str:
+    """The float64 twin's source of kernels module `name` (e.g. "geometry")."""
+    return _to_float64(name, _float32_tree(name))
+
+
+def _dependency_order(root: str) -> dict:
+    """{name: syntax tree} of `root` and the kernels modules it imports (its relative imports of
+    level 1, and theirs), dependencies first; each source is parsed once."""
+    order = {}
+
+    def visit(name):
+        if name in order:
+            return
+        tree = _float32_tree(name)
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                for dep in [a.name for a in node.names] if node.module is None else [node.module]:
+                    visit(dep)
+        order[name] = tree
+
+    visit(root)
+    return order
 
 
 def float64_modules(root: str = "raycast") -> tuple:
     """The kernels modules with a float64 twin: `root` and what it imports, dependencies first."""
-    order = []
-
-    def visit(name):
-        if name not in order:
-            for dep in _package_imports(name):
-                visit(dep)
-            order.append(name)
-
-    visit(root)
-    return tuple(order)
+    return tuple(_dependency_order(root))
 
 
 class _TwinLoader(importlib.abc.InspectLoader):
@@ -202,11 +211,10 @@ class _TwinLoader(importlib.abc.InspectLoader):
         exec(compile(self.source, self.filename, "exec"), module.__dict__)
 
 
-def _load_twin(name: str) -> ModuleType:
+def _load_twin(name: str, source: str) -> ModuleType:
     fullname = f"{TWIN_PACKAGE}.{name}"
-    source = float64_source(name)
     # not a path anything could exist at (linecache would read that file instead)
-    filename = f"{importlib.util.find_spec(f'{KERNELS_PACKAGE}.{name}').origin} (float64)"
+    filename = f"{_float32_spec(name).origin} (float64)"
     linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
     loader = _TwinLoader(source, filename)
     spec = importlib.util.spec_from_loader(fullname, loader, origin=filename)
@@ -228,9 +236,9 @@ def _float64_kernels() -> ModuleType:
         package = ModuleType(TWIN_PACKAGE, "float64 twins of the kernels (kernels/precision.py)")
         package.__path__ = []
         sys.modules[TWIN_PACKAGE] = package
-    for name in float64_modules():
+    for name, tree in _dependency_order("raycast").items():
         if f"{TWIN_PACKAGE}.{name}" not in sys.modules:
-            _load_twin(name)
+            _load_twin(name, _to_float64(name, tree))
     return sys.modules[f"{TWIN_PACKAGE}.raycast"]
 
 
