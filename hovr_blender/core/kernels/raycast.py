@@ -123,7 +123,9 @@ def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
 def pyramid_piece_end(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float) -> float:
     """Where the first piece of affine pyramid e's segment [a, b] ends: w = (1 - xi_3) / 2 is
     linear along the ray, and the piece goes on while w stays within a factor
-    PYRAMID_W_RATIO of w(a)."""
+    PYRAMID_W_RATIO of w(a). A pyramid's restriction is f w^2: its rounding is amplified by
+    1 / w^2 where w is small, near the apex; in such pieces it stays within PYRAMID_W_RATIO^2
+    of the rest of the segment."""
     A = mesh.ref_a[e]
     wa = 0.5 * (1.0 - (A * (o + a * d) + mesh.ref_b[e])[2])
     wb = 0.5 * (1.0 - (A * (o + b * d) + mesh.ref_b[e])[2])
@@ -457,9 +459,6 @@ def _make_traverse_kernel(CURVED: bool):
             face = int(stretch[2])
             stay = int(0)
             if uses_restriction == 1 and mesh.shape[e] == element.PYR and mesh.affine[e] == 1 and b > a:
-                # a pyramid's restriction is f w^2 (w linear): its rounding is amplified by
-                # 1 / w^2 where w is small, near the apex. Pieces where w changes by at most
-                # PYRAMID_W_RATIO keep that within PYRAMID_W_RATIO^2 of the rest of the segment.
                 cut = pyramid_piece_end(mesh, e, o, d, a, b)
                 if cut < b:
                     b = cut
