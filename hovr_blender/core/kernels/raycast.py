@@ -451,7 +451,7 @@ def _make_traverse_kernel(CURVED: bool):
                 stretch = affine_walk_step(mesh, e, o, d, a, t_end)
             elif wp.static(CURVED):
                 stretch, r_a, dv_a, r_b, dv_b = curved_walk_step(mesh, e, o, d, a, t_end, r_entry, dv_entry)
-                r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # used, or of no use
+                r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
             if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
                 break
