@@ -40,16 +40,16 @@ def main(argv=None):
 
     wp.config.quiet = True
     wp.init()
-    from hovr_blender.core.kernels import precision as kp
+    from hovr_blender.core.kernels.precision import Precision
 
-    k = kp.kernels(args.precision)
+    raycast = Precision.named(args.precision).kernels
     kernels = []
     for kind in ("curved", "affine"):
-        search, traverse, _ = k.walk_kernels(kind == "curved")
+        search, traverse, _ = raycast.walk_kernels(kind == "curved")
         kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
-        kernels += [(f"sample ({kind}, modes {m or 'generic'})", k.walk_kernels(kind == "curved", m)[2])
+        kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
                     for m in args.modes]
-    kernels.append(("integrate, init_rays, finalize", k.integrate))
+    kernels.append(("integrate, init_rays, finalize", raycast.integrate))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:
@@ -70,7 +70,7 @@ def main(argv=None):
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:
-                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].replace("_make_walk_kernels__locals__", ""))
+                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].split("__locals__")[-1])
                 elif "registers" in line or "spill" in line:
                     print("       ", line.replace("ptxas info    : ", ""))
     shutil.rmtree(tmp, ignore_errors=True)

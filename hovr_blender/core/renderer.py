@@ -1,4 +1,6 @@
-"""Host side of a render: upload a VolumeMesh once per device, launch the ray kernel, gather stats."""
+"""Host side of a render: upload a VolumeMesh once per device, launch the ray kernels in rounds
+over launch tiles, gather stats. The CLI and the add-on import this module only when they
+render, so it imports Warp (and the kernels) at the top."""
 from __future__ import annotations
 
 import os
@@ -7,10 +9,17 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import warp as wp
 
 from . import limits
+from .adjacency import face_neighbours, vertex_affine_guess
 from .camera import RayCamera
-from .mesh import VolumeMesh
+from .kernels import quadrature_tables
+from .kernels.args import MAX_SAMPLES
+from .kernels.element import static_modes
+from .kernels.precision import Precision
+from .mesh import VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges
+from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
 from .view import RenderOptions, View
 
@@ -34,21 +43,19 @@ class RenderResult:
 _WARP_READY = False
 
 
-def _warp():
-    """Import and initialise Warp on first use (device probing deferred until a render needs it).
-    Warp's greeting, module-load lines and its native "no CUDA driver" line are shown only with
-    HOVR_DEBUG=1: on a machine without a GPU they are noise on every render."""
-    import warp as wp
-
+def _init_warp():
+    """Initialise Warp once, on the first device look-up (device probing deferred until a render
+    needs it). Warp's greeting, module-load lines and its native "no CUDA driver" line are shown
+    only with HOVR_DEBUG=1: on a machine without a GPU they are noise on every render."""
     global _WARP_READY
     if _WARP_READY:
-        return wp
+        return
     _WARP_READY = True
     debug = bool(os.environ.get("HOVR_DEBUG"))
     wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
     if debug:
         wp.init()
-        return wp
+        return
     # the driver probe prints from C to the process's stderr: hold fd 2 on /dev/null meanwhile
     sys.stderr.flush()
     saved = os.dup(2)
@@ -59,11 +66,10 @@ def _warp():
     finally:
         os.dup2(saved, 2)
         os.close(saved)
-    return wp
 
 
 def resolve_device(device: str) -> str:
-    wp = _warp()
+    _init_warp()
     try:
         return str(wp.get_device(device))
     except (RuntimeError, ValueError) as exc:
@@ -103,8 +109,8 @@ def polynomial_degree(shape, modes):
                                                             d.sum(axis=1) + 2], d.sum(axis=1))
 
 
-def geometry_rounding(geo_offset, geo_coeffs, geo_centre, dtype) -> np.ndarray:
-    """Per element, how far x(xi) can be off by rounding in `dtype` (kernels/args.py geo_err):
+def geometry_rounding(geo_offset, geo_coeffs, geo_centre, eps: float) -> np.ndarray:
+    """Per element, how far x(xi) can be off by rounding (machine epsilon `eps`; kernels/args.py geo_err):
     the Legendre values are at most 1 on the reference box, so each coordinate is a sum of terms
     no larger than its coefficients, plus the centre added back (tensor_geometry's layout:
     element e's coefficients run from its offset to the next element's)."""
@@ -112,10 +118,10 @@ def geometry_rounding(geo_offset, geo_coeffs, geo_centre, dtype) -> np.ndarray:
     ends = np.append(offset[1:], len(geo_coeffs))
     cs = np.concatenate([np.zeros((1, 3)), np.cumsum(np.abs(geo_coeffs), axis=0)])
     absum = (cs[ends] - cs[offset]).max(axis=1) + np.abs(np.asarray(geo_centre)).max(axis=1)
-    return GEO_ERROR_FACTOR * float(np.finfo(dtype).eps) * absum
+    return GEO_ERROR_FACTOR * eps * absum
 
 
-def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
+def sample_stride(mesh: VolumeMesh, geo_degree) -> int:
     """Threads per slot in the sample kernel: the most sample points a first pass needs
     (restriction.restriction_degree + 1, curved: curved_base_degree + 1). Not rounded up to a
     power of two: a warp may then hold parts of two slots, but no lane idles (order 6, 19 points:
@@ -123,9 +129,9 @@ def sample_stride(mesh: VolumeMesh, geo_degree, k) -> int:
     deg = polynomial_degree(mesh.shape, mesh.modes)
     if mesh.affine is not None:
         curved = ~mesh.affine
-        full = np.minimum(deg + geo_degree, k.MAX_SAMPLES - 5)  # restriction.curved_base_degree
+        full = np.minimum(deg + geo_degree, MAX_SAMPLES - 5)  # restriction.curved_base_degree
         half = (full + 1) // 2
-        deg = np.where(curved, np.maximum(np.where(2 * half > k.MAX_SAMPLES - 5, full, half), 2), deg)
+        deg = np.where(curved, np.maximum(np.where(2 * half > MAX_SAMPLES - 5, full, half), 2), deg)
     return int(deg.max()) + 1
 
 
@@ -133,17 +139,15 @@ class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
     def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None):
-        wp = _warp()
         # bounds the per-render buffers (about 4 kB a ray in float32); None: from the device's memory
         self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
         self.device = resolve_device(device)
         self.mesh = mesh
-        self._uploads = {}  # precision -> (kernel module, MeshArgs, GK tables, kernel)
-        self._bytes_per_ray = {}  # scalar type -> launch-tile bytes per ray (_tile_limit)
+        self._curved = not bool(mesh.affine is None or mesh.affine.all())
+        self._uploads = {}  # precision name -> _Upload
+        self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
-            from .mesh import element_boxes
-
             lowers, uppers = element_boxes(mesh)
             pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
             self._box_lo = lowers - pad
@@ -154,8 +158,6 @@ class Renderer:
             self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
             self._bvh = wp.Bvh(self._lowers, self._uppers)
-            from .adjacency import face_neighbours, vertex_affine_guess
-
             self._neighbour = wp.array(face_neighbours(mesh), dtype=wp.int32)
             self._affine_guess = vertex_affine_guess(mesh)
         try:
@@ -164,10 +166,9 @@ class Renderer:
             pass  # data float32 cannot hold: render() says so, unless asked for float64
         self.upload_seconds = time.perf_counter() - t0
 
-    def _tile_buffers(self, k, tile, scalar, vec2, vec4, stats):
+    def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
         a few hundred bytes per ray, plus SEGMENTS_PER_ROUND * MAX_SAMPLES samples)."""
-        wp = _warp()
         allocated = []
 
         def zeros(n, dtype):
@@ -175,65 +176,63 @@ class Renderer:
             allocated.append(a)
             return a
 
-        rays = k.RayState()
-        rays.color_t = zeros(tile, vec4)
-        rays.depth_err = zeros(tile, vec2)
-        rays.t_cur = zeros(tile, scalar)
-        rays.t_end = zeros(tile, scalar)
+        kernels = prec.kernels
+        rays = kernels.RayState()
+        rays.color_t = zeros(tile, prec.vec4)
+        rays.depth_err = zeros(tile, prec.vec2)
+        rays.t_cur = zeros(tile, prec.scalar)
+        rays.t_end = zeros(tile, prec.scalar)
         rays.next_element = zeros(tile, wp.int32)
         rays.left_element = zeros(tile, wp.int32)
-        rays.entry_r = zeros(tile, vec4)
-        rays.entry_dv = zeros(tile, vec4)
+        rays.entry_r = zeros(tile, prec.vec4)
+        rays.entry_dv = zeros(tile, prec.vec4)
         rays.phase = zeros(tile, wp.int32)
         rays.stats = stats
         rays.active = zeros(tile, wp.int32)
         rays.active_next = zeros(tile, wp.int32)
         rays.active_count = zeros(1, wp.int32)
-        segs = k.Segments()
-        slots = tile * k.SEGMENTS_PER_ROUND
+        segs = kernels.Segments()
+        slots = tile * kernels.SEGMENTS_PER_ROUND
         segs.count = zeros(tile, wp.int32)
         segs.element = zeros(slots, wp.int32)
-        segs.t0 = zeros(slots, scalar)
-        segs.t1 = zeros(slots, scalar)
+        segs.t0 = zeros(slots, prec.scalar)
+        segs.t1 = zeros(slots, prec.scalar)
         segs.degree = zeros(slots, wp.int32)
         segs.flags = zeros(slots, wp.int32)
-        segs.tail = zeros(slots, scalar)
-        vec3 = wp.vec3d if scalar == wp.float64 else wp.vec3
-        segs.xi0 = zeros(slots, vec3)
-        segs.v0 = zeros(slots, vec3)
-        segs.xi1 = zeros(slots, vec3)
-        segs.v1 = zeros(slots, vec3)
-        segs.samples = zeros(slots * k.MAX_SAMPLES, scalar)
-        segs.coeffs = zeros(slots * k.MAX_SAMPLES, scalar)
+        segs.tail = zeros(slots, prec.scalar)
+        segs.xi0 = zeros(slots, prec.vec3)
+        segs.v0 = zeros(slots, prec.vec3)
+        segs.xi1 = zeros(slots, prec.vec3)
+        segs.v1 = zeros(slots, prec.vec3)
+        segs.samples = zeros(slots * MAX_SAMPLES, prec.scalar)
+        segs.coeffs = zeros(slots * MAX_SAMPLES, prec.scalar)
         segs.list = zeros(slots, wp.int32)
         segs.list_count = zeros(1, wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
         again = [zeros(slots, wp.int32) for _ in range(2)]
         again_count = [zeros(1, wp.int32) for _ in range(2)]
-        return rays, segs, again, again_count, sum(a.capacity for a in allocated)
+        return _TileBuffers(rays, segs, again, again_count, sum(a.capacity for a in allocated))
 
-    def _tile_limit(self, k, scalar, vec2, vec4) -> int:
+    def _tile_limit(self, prec) -> int:
         """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
         its free memory holds (one tile per frame where it fits: every tile ends in rounds of
         few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
         if self.max_tile_rays is not None:
             return self.max_tile_rays
-        wp = _warp()
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
             return CPU_TILE_RAYS
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(k, scalar, vec2, vec4),
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
                            MIN_TILE_RAYS, MAX_TILE_RAYS))
 
-    def _ray_bytes(self, k, scalar, vec2, vec4) -> float:
+    def _ray_bytes(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
-        wp = _warp()
-        if scalar not in self._bytes_per_ray:
+        if prec.name not in self._bytes_per_ray:
             probe = 1024
             with wp.ScopedDevice(self.device):
-                stats = wp.zeros((1, k.NUM_STATS), dtype=wp.int32)
-                self._bytes_per_ray[scalar] = self._tile_buffers(k, probe, scalar, vec2, vec4, stats)[-1] / probe
-        return self._bytes_per_ray[scalar]
+                stats = wp.zeros((1, prec.kernels.NUM_STATS), dtype=wp.int32)
+                self._bytes_per_ray[prec.name] = self._tile_buffers(prec, probe, stats).nbytes / probe
+        return self._bytes_per_ray[prec.name]
 
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None):
         """Refuse a render the resource policy does not allow (core/limits.py), before
@@ -248,37 +247,29 @@ class Renderer:
                     f"(its bounding box diagonal is {self.data_diagonal:.4g}); the limit is "
                     f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
                     f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
-        f64 = options.precision == "float64"
-        k = self._upload(options.precision)[0]
-        wp = _warp()
-        scalar, vec2, vec4 = (wp.float64, wp.vec2d, wp.vec4d) if f64 else (wp.float32, wp.vec2, wp.vec4)
+        prec = self._upload(options.precision).precision
+        num_stats = prec.kernels.NUM_STATS
         total = int(width) * int(height)
         # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
-        per_pixel = (4 + 2) * (8 if f64 else 4) * 2 + 4 * k.NUM_STATS + 8 * k.NUM_STATS + 16
+        per_pixel = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats + 8 * num_stats + 16
         rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
-        limits.check_bytes(total * per_pixel + rays * self._ray_bytes(k, scalar, vec2, vec4),
+        limits.check_bytes(total * per_pixel + rays * self._ray_bytes(prec),
                            f"a {width}x{height} image in {options.precision}")
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
-        return self._upload(precision)[1]
+        return self._upload(precision).mesh_args
 
-    def _upload(self, precision: str):
-        """Mesh arrays and kernel for one precision (float64 on first use)."""
-        if precision in self._uploads:
-            return self._uploads[precision]
-        wp = _warp()
-        from .kernels import precision as kp, quadrature_tables
-        from .mesh import element_coefficient_scale, element_field_ranges
-        from .tensor_geometry import mesh_tensor_geometry
-
-        raycast = kp.kernels(precision)
+    def _upload(self, name: str) -> _Upload:
+        """Mesh arrays and kernels for the precision called `name` (float64 on first use)."""
+        if name in self._uploads:
+            return self._uploads[name]
+        prec = Precision.named(name)
+        raycast = prec.kernels
         mesh = self.mesh
-        f64 = precision == "float64"
-        if not f64:
+        if name == "float32":
             _check_float32_range(mesh)
-        fdt, v3, m33 = (np.float64, wp.vec3d, wp.mat33d) if f64 else (np.float32, wp.vec3, wp.mat33)
-        scalar = wp.float64 if f64 else wp.float32
+        fdt, v3, m33, scalar = prec.dtype, prec.vec3, prec.mat33, prec.scalar
         with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
@@ -299,7 +290,7 @@ class Renderer:
             m.field_hi = wp.array(fhi.astype(fdt), dtype=scalar)
             # a sample is a sum of terms of this size: its rounding error, and the interpolant's
             # (Lebesgue constant of <= 48 Chebyshev-Lobatto points < 4) times a few ulps per term
-            err = EVAL_ERROR_FACTOR * float(np.finfo(fdt).eps) * element_coefficient_scale(mesh)
+            err = EVAL_ERROR_FACTOR * prec.eps * element_coefficient_scale(mesh)
             m.field_err = wp.array(err.astype(fdt), dtype=scalar)
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
@@ -311,7 +302,7 @@ class Renderer:
             m.geo_offset = wp.array(goff.astype(np.int32), dtype=wp.int32)
             m.geo_coeffs = wp.array(gco.astype(fdt), dtype=v3)
             m.geo_centre = wp.array(gcen.astype(fdt), dtype=v3)
-            m.geo_err = wp.array(geometry_rounding(goff, gco, gcen, fdt).astype(fdt), dtype=scalar)
+            m.geo_err = wp.array(geometry_rounding(goff, gco, gcen, prec.eps).astype(fdt), dtype=scalar)
             m.box_lo = wp.array(self._box_lo.astype(fdt), dtype=v3)
             m.box_hi = wp.array(self._box_hi.astype(fdt), dtype=v3)
             x, wk, wg = quadrature_tables.gauss_kronrod_15()
@@ -319,11 +310,10 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            kernel = raycast.walk_kernels(curved=not bool(affine.all()),
-                                          modes=raycast.el_k.static_modes(mesh.shape, mesh.modes))
-            self._sample_stride = sample_stride(mesh, gdeg, k=raycast)
-        self._uploads[precision] = (raycast, m, gk, gk_s, kernel)
-        return self._uploads[precision]
+            walk = raycast.walk_kernels(curved=self._curved, modes=static_modes(mesh.shape, mesh.modes))
+            self._sample_stride = sample_stride(mesh, gdeg)
+        self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
+        return self._uploads[name]
 
     def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
@@ -332,104 +322,39 @@ class Renderer:
         (the result then has cancelled=True and only the finished tiles filled in). With `profile`,
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
         waits add a little to render_seconds)."""
-        wp = _warp()
-        k, mesh_args, gk, gk_s, (search, traverse, sample) = self._upload(options.precision)
-        curved = not bool(self.mesh.affine is None or self.mesh.affine.all())
-        stride = self._sample_stride
-        odd_stride = (k.MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
-        f64 = options.precision == "float64"
-        vec3, vec2, vec4 = (wp.vec3d, wp.vec2d, wp.vec4d) if f64 else (wp.vec3, wp.vec2, wp.vec4)
-        scalar = wp.float64 if f64 else wp.float32
-        fdt = np.float64 if f64 else np.float32
+        upload = self._upload(options.precision)
+        prec = upload.precision
+        kernels = prec.kernels
         W, H = int(camera.width), int(camera.height)
-        bg = np.asarray(background, dtype=np.float64).reshape(3)
+        total = W * H
         with wp.ScopedDevice(self.device):
-            cam = k.CameraArgs()
-            for name in ("o0", "ou", "ov", "d0", "du", "dv"):
-                setattr(cam, name, vec3(*map(float, getattr(camera, name))))
-            cam.width, cam.height = W, H
-            cam.t_min = float(camera.t_min)
-            cam.t_max = float(min(camera.t_max, 1e30))
-            cam.clip_axis = vec3(*map(float, camera.clip_axis))
-            cam.clip_near = float(camera.clip_near)
-            cam.clip_far = float(min(camera.clip_far, 1e30))
-            t = k.TransferArgs()
-            t.color_s = wp.array(tf.color_s.astype(fdt), dtype=scalar)
-            t.color_rgb = wp.array(tf.color_rgb.astype(fdt), dtype=vec3)
-            t.density_s = wp.array(tf.density_s.astype(fdt), dtype=scalar)
-            t.density_tau = wp.array(tf.density_tau.astype(fdt), dtype=scalar)
-            q = k.QuadArgs()
-            q.method = _METHOD_IDS[options.method]
-            q.inner = _INNER_IDS[options.inner]
-            q.h = float(options.h)
-            q.max_steps = int(limits.current().max_samples_per_ray) + 1
-            q.tol = float(options.tolerance)
-            q.min_transmittance = float(options.min_transmittance)
-            q.background = vec3(*map(float, bg))
-            q.gk_x, q.gk_wk, q.gk_wg = gk
-            q.gk_s = gk_s
-            total = W * H
+            cam = _camera_args(prec, camera)
+            transfer = _transfer_args(prec, tf)
+            quad = _quad_args(prec, options, background, upload)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = total if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self._tile_limit(k, scalar, vec2, vec4), total)
+            tile = min(tile, self._tile_limit(prec), total)
             self.check_limits(W, H, options, tile)
             try:
-                rgba = wp.zeros(total, dtype=vec4)
-                aux = wp.zeros(total, dtype=vec2)
-                stats = wp.zeros((total, k.NUM_STATS), dtype=wp.int32)
-                rays, segs, again, again_count, _ = self._tile_buffers(k, tile, scalar, vec2, vec4, stats)
+                rgba = wp.zeros(total, dtype=prec.vec4)
+                aux = wp.zeros(total, dtype=prec.vec2)
+                stats = wp.zeros((total, kernels.NUM_STATS), dtype=wp.int32)
+                buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            for kern in (search, traverse, sample, k.refine, k.init_rays, k.integrate, k.finalize):  # compile outside the timed region (coefficients: the module of integrate)
+            # compile outside the timed region (coefficients: the module of integrate)
+            for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
+                         kernels.integrate, kernels.finalize):
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
-            kernel_seconds = {"init_rays": 0.0, "search": 0.0, "traverse": 0.0, "sample": 0.0, "refine": 0.0,
-                              "coefficients": 0.0, "integrate": 0.0, "finalize": 0.0}
-
-            def launch(name, kern, dim, inputs):
-                t_launch = time.perf_counter()
-                wp.launch(kern, dim=dim, inputs=inputs)
-                if profile:
-                    wp.synchronize_device(self.device)
-                    kernel_seconds[name] += time.perf_counter() - t_launch
-
+            launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
             for start in range(0, total, tile):
                 n = min(tile, total - start)
-                launch("init_rays", k.init_rays, n, [cam, start, rays])
-                active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
-                while active > 0:
-                    rays.active_count.zero_()
-                    segs.list_count.zero_()
-                    launch("search", search, active, [mesh_args, cam, start, rays])
-                    launch("traverse", traverse, active, [mesh_args, cam, t, q, start, rays, segs])
-                    listed = int(segs.list_count.numpy()[0])
-                    if listed > 0:
-                        launch("sample", sample, listed * stride, [mesh_args, cam, start, segs, segs.list, stride, 0])
-                    # curved interpolants whose tail is too large: degree doubled (twice at most)
-                    slots, count, n_slots = segs.list, segs.list_count, listed
-                    for p in range(2 if curved and listed > 0 else 0):
-                        again_count[p].zero_()
-                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
-                        n_slots = int(again_count[p].numpy()[0])
-                        if n_slots == 0:
-                            break
-                        launch("sample", sample, n_slots * odd_stride, [mesh_args, cam, start, segs, again[p], odd_stride, 1])
-                        slots, count = again[p], again_count[p]
-                    if curved and n_slots > 0:  # the last refined slots: their tails, no more doubling
-                        launch("refine", k.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
-                    if listed > 0:
-                        launch("coefficients", k.coefficients, listed * stride, [segs, segs.list, stride])
-                    launch("integrate", k.integrate, active, [mesh_args, cam, t, q, start, rays, segs])
-                    rounds += 1
-                    active = int(rays.active_count.numpy()[0])
-                    rays.active, rays.active_next = rays.active_next, rays.active
-                    if rounds > MAX_ROUNDS_PER_TILE * (start // tile + 1):
-                        raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
-                                          f"still going): a bug, please report it with the data")
-                launch("finalize", k.finalize, n, [q, start, rays, rgba, aux])
+                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n)
+                launch("finalize", kernels.finalize, n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n) / total) is False:
@@ -437,39 +362,159 @@ class Renderer:
                         break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
-            img = rgba.numpy().reshape(H, W, 4).astype(np.float32 if not f64 else np.float64)
+            img = rgba.numpy().reshape(H, W, 4).astype(prec.dtype)
             depth_err = aux.numpy().reshape(H, W, 2)
-            st = stats.numpy().astype(np.int64)
+            counts = stats.numpy().astype(np.int64).sum(axis=0)
         if not np.all(np.isfinite(img)):
             raise RenderError("the render produced non-finite pixels (NaN/Inf in the data or transfer function?)")
-        tot = st.sum(axis=0)
-        return RenderResult(
-            depth=depth_err[..., 0],
-            error=depth_err[..., 1],
-            cancelled=cancelled,
-            rgba=img,
-            stats={
-                "device": self.device,
-                "render_seconds": seconds,
-                "width": W,
-                "height": H,
-                "method": options.method,
-                "parameters": options.as_dict(),
-                "field_evaluations": int(tot[k.STAT_FIELD_EVALS]),
-                "restriction_evaluations": int(tot[k.STAT_RESTRICTION_EVALS]),
-                "samples_per_ray": float((tot[k.STAT_FIELD_EVALS] + tot[k.STAT_RESTRICTION_EVALS]) / (W * H)),
-                "segments": int(tot[k.STAT_SEGMENTS]),
-                "segments_empty": int(tot[k.STAT_EMPTY]),
-                "segments_smooth": int(tot[k.STAT_SMOOTH]),
-                "segments_piecewise_smooth": int(tot[k.STAT_PIECEWISE]),
-                "curved_locates": int(tot[k.STAT_LOCATES]),
-                "walks": int(tot[k.STAT_WALKS]),
-                "rounds": rounds,
-                **({"kernel_seconds": kernel_seconds} if profile else {}),
-                "elements": self.mesh.num_elements,
-                "precision": options.precision,
-            },
-        )
+        info = {"device": self.device, "render_seconds": seconds, "width": W, "height": H, "method": options.method,
+                "parameters": options.as_dict(), **_counter_stats(kernels, counts, W * H), "rounds": rounds,
+                **({"kernel_seconds": launch.seconds} if profile else {}),
+                "elements": self.mesh.num_elements, "precision": options.precision}
+        return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
+                            stats=info)
+
+    def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
+                    n: int) -> int:
+        """Rays start .. start + n of the image, in rounds until none is left: search, traverse,
+        sample, integrate. Returns the rounds."""
+        kernels = upload.precision.kernels
+        rays, segs = buffers.rays, buffers.segs
+        launch("init_rays", kernels.init_rays, n, [cam, start, rays])
+        active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
+        rounds = 0
+        while active > 0:
+            rays.active_count.zero_()
+            segs.list_count.zero_()
+            launch("search", upload.search, active, [upload.mesh_args, cam, start, rays])
+            launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            self._sample_segments(launch, upload, cam, start, buffers)
+            launch("integrate", kernels.integrate, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            rounds += 1
+            active = int(rays.active_count.numpy()[0])
+            rays.active, rays.active_next = rays.active_next, rays.active
+            if rounds > MAX_ROUNDS_PER_TILE:
+                raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
+                                  f"still going): a bug, please report it with the data")
+        return rounds
+
+    def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers):
+        """The samples of the segments traverse listed, then their Chebyshev coefficients; curved
+        interpolants whose tail is too large get their degree doubled (twice at most)."""
+        kernels = upload.precision.kernels
+        rays, segs, again, again_count = buffers.rays, buffers.segs, buffers.again, buffers.again_count
+        listed = int(segs.list_count.numpy()[0])
+        if listed == 0:
+            return
+        stride = self._sample_stride
+        odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
+        launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
+        if self._curved:
+            slots, count, n_slots = segs.list, segs.list_count, listed
+            for p in range(2):
+                again_count[p].zero_()
+                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
+                n_slots = int(again_count[p].numpy()[0])
+                if n_slots == 0:
+                    break
+                launch("sample", upload.sample, n_slots * odd_stride,
+                       [upload.mesh_args, cam, start, segs, again[p], odd_stride, 1])
+                slots, count = again[p], again_count[p]
+            if n_slots > 0:  # the last refined slots: their tails, no more doubling
+                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
+        launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+
+
+@dataclass
+class _Upload:
+    """One precision's mesh on the device and the kernels specialised for it (Renderer._upload)."""
+
+    precision: Precision
+    mesh_args: object  # kernels.MeshArgs
+    gk: list  # Gauss-Kronrod nodes, Kronrod and Gauss weights
+    gk_s: object  # the spectral integration matrix on the nodes
+    search: object
+    traverse: object
+    sample: object
+
+
+@dataclass
+class _TileBuffers:
+    """A launch tile's per-ray state and round buffers (Renderer._tile_buffers)."""
+
+    rays: object  # kernels.RayState
+    segs: object  # kernels.Segments
+    again: list  # per refine pass: the slots whose degree it doubled (their odd points to sample)
+    again_count: list
+    nbytes: int
+
+
+class _Launcher:
+    """wp.launch by kernel name; with `profile`, each launch is waited for and timed."""
+
+    def __init__(self, device: str, profile: bool):
+        self.device = device
+        self.profile = profile
+        self.seconds = {name: 0.0 for name in ("init_rays", "search", "traverse", "sample", "refine",
+                                               "coefficients", "integrate", "finalize")}
+
+    def __call__(self, name: str, kernel, dim: int, inputs: list):
+        t_launch = time.perf_counter()
+        wp.launch(kernel, dim=dim, inputs=inputs)
+        if self.profile:
+            wp.synchronize_device(self.device)
+            self.seconds[name] += time.perf_counter() - t_launch
+
+
+def _camera_args(prec: Precision, camera: RayCamera):
+    cam = prec.kernels.CameraArgs()
+    for name in ("o0", "ou", "ov", "d0", "du", "dv"):
+        setattr(cam, name, prec.vec3(*map(float, getattr(camera, name))))
+    cam.width, cam.height = int(camera.width), int(camera.height)
+    cam.t_min = float(camera.t_min)
+    cam.t_max = float(min(camera.t_max, 1e30))
+    cam.clip_axis = prec.vec3(*map(float, camera.clip_axis))
+    cam.clip_near = float(camera.clip_near)
+    cam.clip_far = float(min(camera.clip_far, 1e30))
+    return cam
+
+
+def _transfer_args(prec: Precision, tf: TransferFunction):
+    transfer = prec.kernels.TransferArgs()
+    transfer.color_s = wp.array(tf.color_s.astype(prec.dtype), dtype=prec.scalar)
+    transfer.color_rgb = wp.array(tf.color_rgb.astype(prec.dtype), dtype=prec.vec3)
+    transfer.density_s = wp.array(tf.density_s.astype(prec.dtype), dtype=prec.scalar)
+    transfer.density_tau = wp.array(tf.density_tau.astype(prec.dtype), dtype=prec.scalar)
+    return transfer
+
+
+def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload):
+    quad = prec.kernels.QuadArgs()
+    quad.method = _METHOD_IDS[options.method]
+    quad.inner = _INNER_IDS[options.inner]
+    quad.h = float(options.h)
+    quad.max_steps = int(limits.current().max_samples_per_ray) + 1
+    quad.tol = float(options.tolerance)
+    quad.min_transmittance = float(options.min_transmittance)
+    quad.background = prec.vec3(*map(float, np.asarray(background, dtype=np.float64).reshape(3)))
+    quad.gk_x, quad.gk_wk, quad.gk_wg = upload.gk
+    quad.gk_s = upload.gk_s
+    return quad
+
+
+def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
+    """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
+    return {
+        "field_evaluations": int(counts[kernels.STAT_FIELD_EVALS]),
+        "restriction_evaluations": int(counts[kernels.STAT_RESTRICTION_EVALS]),
+        "samples_per_ray": float((counts[kernels.STAT_FIELD_EVALS] + counts[kernels.STAT_RESTRICTION_EVALS]) / pixels),
+        "segments": int(counts[kernels.STAT_SEGMENTS]),
+        "segments_empty": int(counts[kernels.STAT_EMPTY]),
+        "segments_smooth": int(counts[kernels.STAT_SMOOTH]),
+        "segments_piecewise_smooth": int(counts[kernels.STAT_PIECEWISE]),
+        "curved_locates": int(counts[kernels.STAT_LOCATES]),
+        "walks": int(counts[kernels.STAT_WALKS]),
+    }
 
 
 def render_view(view: View, mesh: VolumeMesh) -> RenderResult:

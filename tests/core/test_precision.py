@@ -21,12 +21,8 @@ F32_NAMES = {"float32", "vec2", "vec3", "vec4", "mat33", "vec2f", "vec3f", "vec4
 def test_generated_source_has_no_float32_arithmetic():
     """Every float literal, float() cast and float32 type inside Warp code is rewritten; the only
     float32 left is the BVH query's ray and its max_dist (Warp's BVH is float32)."""
-    from pathlib import Path
-
-    import hovr_blender.core.kernels as kdir
-
-    for name in precision._MODULES:
-        src = precision.float64_source(Path(kdir.__file__).parent / f"{name}.py")
+    for name in precision.float64_modules():
+        src = precision.float64_source(name)
         tree = ast.parse(src)
         for node in ast.walk(tree):
             if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "wp":

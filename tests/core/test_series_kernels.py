@@ -52,9 +52,11 @@ def test_value_and_antiderivative_match_numpy(device):
 @wp.kernel
 def _panel(tf: TransferArgs, q: QuadArgs, c: wp.array(dtype=wp.float32), deg: int, a: float, b: float,
            out: wp.array(dtype=wp.vec4)):
-    st = quadrature.vecst(0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0)
+    st = quadrature.RayIntegral()
+    st.transmittance = 1.0
+    st.depth = -1.0
     st = quadrature.gauss_kronrod_smooth(tf, q, c, 0, deg, a, b, a, b, 1, st)
-    out[0] = wp.vec4(st[0], st[1], st[2], st[3])
+    out[0] = wp.vec4(st.color[0], st.color[1], st.color[2], st.transmittance)
 
 
 def test_gauss_kronrod_on_a_one_ulp_segment_stays_finite(device):

@@ -19,6 +19,7 @@ wp.set_module_options({"enable_backward": False})
 # Samples of the field along one segment: the exact restriction of an affine element has
 # degree <= 3 (MAX_MODES - 1) + 2 (pyramids); the last two slots hold the pyramid weights.
 MAX_SAMPLES = 48
+assert 3 * (MAX_MODES - 1) + 2 + 1 + 2 <= MAX_SAMPLES, "MAX_SAMPLES does not hold shapes.MAX_MODES"
 SEGMENTS_PER_ROUND = 8
 
 # per-ray counters (stats)

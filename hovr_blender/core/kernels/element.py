@@ -6,16 +6,17 @@ vertex corrections without which tets are off by 0.17 and prisms jump across fac
 """
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ..shapes import HEX, PRISM, PYR, TET
 
 wp.set_module_options({"enable_backward": False})
 
-vecm = wp.types.vector(length=16, dtype=wp.float32)
-# reference-space margin of the affine clip (reference_interval); sized for float32 (a few
-# ulps of 1), retightened for the float64 twin in precision.FLOAT64_CONSTANTS
+ModeValues = wp.types.vector(length=16, dtype=wp.float32)
+# reference-space margin of the affine clip (reference_clip): a few ulps of 1
 CLIP_TOL = 1.0e-6
+CLIP_TOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
 
 
 @wp.func
@@ -50,9 +51,9 @@ def jacobi11_next(k: int, x: float, pm1: float, pm2: float) -> float:
 
 
 @wp.func
-def modified_a_values(n: int, x: float) -> vecm:
+def modified_a_values(n: int, x: float) -> ModeValues:
     """Modified_A modes 0..n-1 at x: (1-x)/2, (1+x)/2, then bubbles (1-x)(1+x)/4 P^(1,1)_{p-2}."""
-    v = vecm()
+    v = ModeValues()
     v[0] = 0.5 * (1.0 - x)
     if n > 1:
         v[1] = 0.5 * (1.0 + x)
@@ -68,10 +69,10 @@ def modified_a_values(n: int, x: float) -> vecm:
 
 
 @wp.func
-def collapsed_row(k: int, alpha: float, n: int, x: float) -> vecm:
+def collapsed_row(k: int, alpha: float, n: int, x: float) -> ModeValues:
     """((1-x)/2)^k times [1, (1+x)/2 P^(alpha,1)_{r-1}(x) for r >= 1], r = 0..n-1: the shared
     form of Modified_B (k = p) and ModifiedPyr_C (k = p + q - 2) in a collapsed direction."""
-    v = vecm()
+    v = ModeValues()
     lo = wp.pow(0.5 * (1.0 - x), float(k))
     v[0] = lo
     for r in range(1, n):
@@ -80,7 +81,7 @@ def collapsed_row(k: int, alpha: float, n: int, x: float) -> vecm:
 
 
 @wp.func
-def modified_b_row(p: int, n: int, x: float) -> vecm:
+def modified_b_row(p: int, n: int, x: float) -> ModeValues:
     """phi^B_{p,r}(x) for r = 0..n-1 (p = 0: Modified_A; p >= 1: ((1-x)/2)^p [(1+x)/2 P^(2p-1,1)_{r-1}])."""
     if p == 0:
         return modified_a_values(n, x)
@@ -88,7 +89,7 @@ def modified_b_row(p: int, n: int, x: float) -> vecm:
 
 
 @wp.func
-def modified_pyr_c_row(p: int, q: int, n: int, x: float) -> vecm:
+def modified_pyr_c_row(p: int, q: int, n: int, x: float) -> ModeValues:
     """ModifiedPyr_C phi_{p,q,r}(x) for r = 0..n-1."""
     if p <= 1 or q <= 1:
         return modified_b_row(wp.max(p, q), n, x)
@@ -230,8 +231,6 @@ _STATIC = {}
 def static_modes(shape, modes) -> int:
     """N if every hexahedron and prism has modes (N, N, N) with N in STATIC_MODES (and there is at
     least one), else 0 (eval_element for all)."""
-    import numpy as np
-
     shape = np.asarray(shape)
     modes = np.asarray(modes)
     sel = (shape == HEX) | (shape == PRISM)
@@ -250,9 +249,9 @@ def static_evaluator(N: int):
         return _STATIC[N]
 
     @wp.func
-    def modified_a_static(x: float) -> vecm:
+    def modified_a_static(x: float) -> ModeValues:
         """modified_a_values(N, x) with the loop unrolled."""
-        v = vecm()
+        v = ModeValues()
         v[0] = 0.5 * (1.0 - x)
         v[1] = 0.5 * (1.0 + x)
         bubble = 0.25 * (1.0 - x) * (1.0 + x)

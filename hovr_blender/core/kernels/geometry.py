@@ -19,16 +19,19 @@ from __future__ import annotations
 
 import warp as wp
 
-from . import element as el_k
+from . import element
 from .args import MeshArgs
 
 wp.set_module_options({"enable_backward": False})
 
-# Tolerances sized for float32; the float64 twin gets kernels/precision.FLOAT64_CONSTANTS.
+# Tolerances sized for float32; NAME_FLOAT64 is NAME in the float64 twin (kernels/precision.py).
 INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
+INSIDE_TOL_FLOAT64 = 1.0e-11
 NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
+NEWTON_STEP_TOL_FLOAT64 = 1.0e-8
 NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
 ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
+ROOT_RTOL_FLOAT64 = 1.0e-13
 NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
 ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit
@@ -49,7 +52,7 @@ def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
     values run as recurrences inside the loops (no arrays: they would live in local memory)."""
     sh = mesh.shape[e]
     xi = xi_in
-    if sh == el_k.PYR:
+    if sh == element.PYR:
         xi[2] = wp.min(xi[2], 0.9999)  # the apex: x w^2 is polynomial, x is not defined there
     n = mesh.geo_degree[e] + 1
     x = wp.vec3(0.0, 0.0, 0.0)
@@ -103,7 +106,7 @@ def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
         ck = cn[0]
         dckm = dck
         dck = cn[1]
-    if sh == el_k.PYR:
+    if sh == element.PYR:
         # stored G = (x - centre) w^2 with w = (1 - xi3) / 2: x - centre = G / w^2 and
         # d/dxi3 (G / w^2) = (G_3 + (x - centre) w) / w^2
         w = 0.5 * (1.0 - xi[2])
@@ -164,7 +167,7 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
             break
         if step < NEWTON_NOISE_MAX:  # the floor is only worth computing for a step this small
             noise = mesh.geo_err[e]
-            if mesh.shape[e] == el_k.PYR:
+            if mesh.shape[e] == element.PYR:
                 if xi[2] < 0.9999:
                     w = 0.5 * (1.0 - xi[2])
                     noise = noise / (w * w)
@@ -185,8 +188,8 @@ def margin_and_face(shape: int, xi: wp.vec3) -> wp.vec2:
     which face it is."""
     m = float(1.0e30)
     face = int(0)
-    for f in range(el_k.num_faces(shape)):
-        p = el_k.face_plane(shape, f)
+    for f in range(element.num_faces(shape)):
+        p = element.face_plane(shape, f)
         mf = p[3] - (p[0] * xi[0] + p[1] * xi[1] + p[2] * xi[2])
         if mf < m:
             m = mf
@@ -216,7 +219,7 @@ def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0:
     if r[3] > 0.0:
         mf = margin_and_face(mesh.shape[e], xi)
         m = mf[0] + INSIDE_TOL
-        pl = el_k.face_plane(mesh.shape[e], int(mf[1]))
+        pl = element.face_plane(mesh.shape[e], int(mf[1]))
         slope = -(pl[0] * v[0] + pl[1] * v[1] + pl[2] * v[2])
     return wp.vec4(xi[0], xi[1], xi[2], m), wp.vec4(v[0], v[1], v[2], slope)
 
@@ -356,8 +359,8 @@ def tangent_face_step(shape: int, xi: wp.vec3, v: wp.vec3) -> float:
     """How far along the ray (t units) the tangent line xi + s v reaches the first reference
     face it is heading for (1e30 if none): the predictor of curved_exit."""
     best = float(1.0e30)
-    for f in range(el_k.num_faces(shape)):
-        p = el_k.face_plane(shape, f)
+    for f in range(element.num_faces(shape)):
+        p = element.face_plane(shape, f)
         rate = p[0] * v[0] + p[1] * v[1] + p[2] * v[2]
         if rate > 0.0:
             s = (p[3] - (p[0] * xi[0] + p[1] * xi[1] + p[2] * xi[2])) / rate
@@ -415,7 +418,7 @@ def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
     """(s_in, s_out): where the tangent line xi + s v (s in t units) enters and leaves the
     reference element (element.reference_clip, the affine elements' clip); s_in > s_out where
     it misses."""
-    cl = el_k.reference_clip(shape, xi, v)
+    cl = element.reference_clip(shape, xi, v)
     if cl[0] <= 0.0:
         return wp.vec2(1.0e30, -1.0e30)
     return wp.vec2(cl[1], cl[2])

@@ -1,29 +1,54 @@
-"""float64 kernels from the float32 source: one kernel text, two precisions.
+"""float32 and float64 kernels from one source, and the Precision record the renderer uses.
 
 Warp types every float literal and `float(...)` as float32 and refuses to mix them with
-float64, so a float64 kernel cannot simply take other argument types. Instead the
-kernel modules (_MODULES) are rewritten once, mechanically, on their syntax
-tree: float literals and `float(...)` become wp.float64, the float32 vector/matrix types
-their float64 twins; the BVH query (Warp's BVH is float32) gets float32 ray arguments.
-The result is written to a cache folder as a package (Warp compiles from source files)
-and imported. The float32 files stay the only source anyone edits.
+float64, so a float64 kernel cannot simply take other argument types. The float32 kernel
+modules are the only source anyone edits; their float64 twins are generated from it in
+memory, once per process:
+
+- the module's syntax tree is rewritten (_ToFloat64): inside Warp functions float literals,
+  `float(...)` and `wp.pi` become wp.float64, everywhere the float32 vector/matrix types become
+  their float64 twins; the BVH query gets float32 ray arguments (Warp's BVH is float32); a
+  module-level float constant NAME takes the value of NAME_FLOAT64 where the module defines one
+  (each float64 tolerance is written beside its float32 value);
+- the new text is compiled and executed into a module object registered in sys.modules as
+  a sibling package of the kernels (TWIN_PACKAGE), so the modules' relative imports resolve
+  unchanged: `.args` to the twin of args.py, `..shapes` to the core's own shapes;
+- the modules to twin are raycast and what it imports from its package, found in the source's
+  relative imports (dependencies first).
+
+Warp reads each function's source to compile it: the generated text is registered in
+linecache (where Warp looks first) and is what the module's loader returns (where inspect
+falls back). Nothing is written to disk and sys.path is not touched. Warp's module hash covers
+that text, so identical source loads the cached binary as the float32 kernels do.
+
+Two alternatives Warp offers were not taken: warp.fem's factories over a scalar type would
+turn every literal into `Scalar(1.0)` and every module into a function; a code transformer on
+wp.Function rewrites one function's tree, but the functions, structs and constants it names
+would still be the float32 module's, and Warp's hash covers the untransformed source (a
+changed transform would reuse stale binaries).
 """
 from __future__ import annotations
 
 import ast
-import hashlib
-import importlib
-import os
+import importlib.abc
+import importlib.util
+import linecache
 import sys
-from pathlib import Path
+import threading
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+import warp as wp
+
+from . import raycast
+
+KERNELS_PACKAGE = __package__
+TWIN_PACKAGE = KERNELS_PACKAGE.rpartition(".")[0] + "._kernels_float64"
+FLOAT64_SUFFIX = "_FLOAT64"  # NAME_FLOAT64 = value: NAME's value in the float64 twin
 
 _TYPE_MAP = {"float32": "float64", "vec2": "vec2d", "vec3": "vec3d", "vec4": "vec4d", "mat33": "mat33d",
              "vec2f": "vec2d", "vec3f": "vec3d", "vec4f": "vec4d", "mat33f": "mat33d"}
-_MODULES = ("args", "element", "geometry", "restriction", "quadrature", "raycast")
-# float32-sized tolerances of raycast.py, retightened for float64 (same names, new values)
-FLOAT64_CONSTANTS = {"CLIP_TOL": 1.0e-12, "INSIDE_TOL": 1.0e-11, "NEWTON_STEP_TOL": 1.0e-8, "ROOT_RTOL": 1.0e-13,
-                     "STRETCH_RTOL": 1.0e-11, "CURVED_TAIL_RTOL": 1.0e-12}
-_loaded = {}
 
 
 def _f64(node):
@@ -40,11 +65,22 @@ def _is_warp_decorated(fn: ast.FunctionDef) -> bool:
     return False
 
 
-class _ToFloat64(ast.NodeTransformer):
-    """Rewrites the inside of Warp functions (and float constants they read)."""
+def _float_constants(tree: ast.Module) -> dict:
+    """Module-level `NAME = <float literal>` assignments: {NAME: value}."""
+    out = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) \
+                and isinstance(node.value, ast.Constant) and isinstance(node.value.value, float):
+            out[node.targets[0].id] = node.value.value
+    return out
 
-    def __init__(self):
+
+class _ToFloat64(ast.NodeTransformer):
+    """Rewrites the inside of Warp functions (and the float constants they read)."""
+
+    def __init__(self, float64_values: dict):
         self.in_warp = 0
+        self.float64_values = float64_values  # NAME -> its NAME_FLOAT64
 
     def visit_FunctionDef(self, node):
         warp = _is_warp_decorated(node)
@@ -95,69 +131,147 @@ class _ToFloat64(ast.NodeTransformer):
                                           for a in node.args[1:]]
         return node
 
-    def visit_ImportFrom(self, node):
-        # the twin package sits outside hovr_blender: imports from above the kernels become absolute
-        if node.level >= 2:
-            node.module = "hovr_blender." + "core" + (f".{node.module}" if node.module else "")
-            node.level = 0
-        return node
-
     def visit_Assign(self, node):
         # module-level float constants read inside kernels (INSIDE_TOL = 1.0e-5)
         if not self.in_warp and isinstance(node.value, ast.Constant) and isinstance(node.value.value, float):
             name = node.targets[0].id if isinstance(node.targets[0], ast.Name) else None
-            value = FLOAT64_CONSTANTS.get(name, node.value.value)
+            if name is not None and name.endswith(FLOAT64_SUFFIX):
+                return None  # its value went to NAME
+            value = self.float64_values.get(name, node.value.value)
             node.value = _f64(ast.Constant(value))
             return node
         self.generic_visit(node)
         return node
 
 
-def float64_source(path: Path) -> str:
-    tree = ast.parse(path.read_text())
-    tree = _ToFloat64().visit(tree)
+def _float32_spec(name: str):
+    return importlib.util.find_spec(f"{KERNELS_PACKAGE}.{name}")
+
+
+def _float32_tree(name: str) -> ast.Module:
+    spec = _float32_spec(name)
+    return ast.parse(spec.loader.get_source(spec.name))
+
+
+def _to_float64(name: str, tree: ast.Module) -> str:
+    """The float64 twin's source from kernels module `name`'s syntax tree (rewritten in place)."""
+    constants = _float_constants(tree)
+    float64_values = {}
+    for key, value in constants.items():
+        if key.endswith(FLOAT64_SUFFIX):
+            base = key[: -len(FLOAT64_SUFFIX)]
+            if base not in constants:
+                raise ValueError(f"kernels/{name}.py: {key} has no float constant {base} beside it")
+            float64_values[base] = value
+    tree = _ToFloat64(float64_values).visit(tree)
     ast.fix_missing_locations(tree)
-    return "# generated by hovr_blender/core/kernels/precision.py from " + path.name + "; do not edit\n" \
-        + ast.unparse(tree) + "\n"
+    return ast.unparse(tree) + "\n"
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("HOVR_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "hovr_blender")
-    return Path(base)
+def float64_source(name: str) -> str:
+    """The float64 twin's source of kernels module `name` (e.g. "geometry")."""
+    return _to_float64(name, _float32_tree(name))
 
 
-def kernels(precision: str = "float32"):
-    """The raycast module for `precision`: the package's own for float32, the generated
-    float64 twin otherwise (built on first use, cached by the source's hash)."""
-    from . import raycast
+def _dependency_order(root: str) -> dict:
+    """{name: syntax tree} of `root` and the kernels modules it imports (its relative imports of
+    level 1, and theirs), dependencies first; each source is parsed once."""
+    order = {}
 
-    if precision == "float32":
-        return raycast
-    if precision != "float64":
-        raise ValueError(f"precision must be 'float32' or 'float64', not {precision!r}")
-    here = Path(__file__).resolve().parent
-    sources = {m: (here / f"{m}.py") for m in _MODULES}
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources.values())
-                            + Path(__file__).read_bytes()).hexdigest()[:12]
-    if digest in _loaded:
-        return _loaded[digest]
-    pkg = f"hovr_f64_{digest}"
-    root = _cache_dir() / "kernels"
-    target = root / pkg
-    if not (target / "raycast.py").exists():
-        tmp = root / f"{pkg}.tmp{os.getpid()}"
-        tmp.mkdir(parents=True, exist_ok=True)
-        (tmp / "__init__.py").write_text("")
-        for m, p in sources.items():
-            (tmp / f"{m}.py").write_text(float64_source(p))
-        try:
-            os.replace(tmp, target)
-        except OSError:  # another process won the race: use its copy
-            import shutil
+    def visit(name):
+        if name in order:
+            return
+        tree = _float32_tree(name)
+        for node in tree.body:
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                for dep in [a.name for a in node.names] if node.module is None else [node.module]:
+                    visit(dep)
+        order[name] = tree
 
-            shutil.rmtree(tmp, ignore_errors=True)
-    if str(root) not in sys.path:
-        sys.path.append(str(root))
-    mod = importlib.import_module(f"{pkg}.raycast")
-    _loaded[digest] = mod
-    return mod
+    visit(root)
+    return order
+
+
+def float64_modules(root: str = "raycast") -> tuple:
+    """The kernels modules with a float64 twin: `root` and what it imports, dependencies first."""
+    return tuple(_dependency_order(root))
+
+
+class _TwinLoader(importlib.abc.InspectLoader):
+    """Executes a float64 twin from its generated source, and gives that source to inspect."""
+
+    def __init__(self, source: str, filename: str):
+        self.source = source
+        self.filename = filename
+
+    def get_source(self, fullname):
+        return self.source
+
+    def exec_module(self, module):
+        exec(compile(self.source, self.filename, "exec"), module.__dict__)
+
+
+def _load_twin(name: str, source: str) -> ModuleType:
+    fullname = f"{TWIN_PACKAGE}.{name}"
+    # not a path anything could exist at (linecache would read that file instead)
+    filename = f"{_float32_spec(name).origin} (float64)"
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    loader = _TwinLoader(source, filename)
+    spec = importlib.util.spec_from_loader(fullname, loader, origin=filename)
+    module = importlib.util.module_from_spec(spec)
+    module.__file__ = filename  # inspect finds a function's module by its file
+    sys.modules[fullname] = module
+    try:
+        loader.exec_module(module)
+    except BaseException:
+        del sys.modules[fullname]
+        raise
+    setattr(sys.modules[TWIN_PACKAGE], name, module)
+    return module
+
+
+def _float64_kernels() -> ModuleType:
+    """The float64 twin of raycast (with the twins of the modules it imports)."""
+    if TWIN_PACKAGE not in sys.modules:
+        package = ModuleType(TWIN_PACKAGE, "float64 twins of the kernels (kernels/precision.py)")
+        package.__path__ = []
+        sys.modules[TWIN_PACKAGE] = package
+    for name, tree in _dependency_order("raycast").items():
+        if f"{TWIN_PACKAGE}.{name}" not in sys.modules:
+            _load_twin(name, _to_float64(name, tree))
+    return sys.modules[f"{TWIN_PACKAGE}.raycast"]
+
+
+_PRECISIONS = {}
+_BUILD_LOCK = threading.Lock()  # the Blender add-on may render from more than one thread
+
+
+@dataclass(frozen=True)
+class Precision:
+    """What the host side needs of one kernel precision: its kernels and their types."""
+
+    name: str  # "float32" / "float64" (RenderOptions.precision)
+    scalar: type  # Warp scalar
+    vec2: type
+    vec3: type
+    vec4: type
+    mat33: type
+    dtype: np.dtype  # numpy twin of scalar
+    eps: float  # dtype's machine epsilon
+    kernels: ModuleType  # the raycast module of this precision
+
+    @staticmethod
+    def named(name: str) -> Precision:
+        """float32: the package's own kernels; float64: their twins, generated on first use."""
+        with _BUILD_LOCK:
+            if name not in _PRECISIONS:
+                if name == "float32":
+                    _PRECISIONS[name] = Precision(name, wp.float32, wp.vec2, wp.vec3, wp.vec4, wp.mat33,
+                                                  np.dtype(np.float32), float(np.finfo(np.float32).eps), raycast)
+                elif name == "float64":
+                    _PRECISIONS[name] = Precision(name, wp.float64, wp.vec2d, wp.vec3d, wp.vec4d, wp.mat33d,
+                                                  np.dtype(np.float64), float(np.finfo(np.float64).eps),
+                                                  _float64_kernels())
+                else:
+                    raise ValueError(f"precision must be 'float32' or 'float64', not {name!r}")
+            return _PRECISIONS[name]

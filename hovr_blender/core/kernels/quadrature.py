@@ -8,9 +8,7 @@ quadratures and the segment classification of Nelson, Kirby and Haimes (2014).
 - split: like classified, but piecewise-smooth segments are cut at the exact crossings of the
   transfer function's breakpoints (next_cut), so every piece is smooth and gets Gauss-Kronrod.
 
-The ray state (vecst) is (C.r, C.g, C.b, T, restriction evaluations, depth, error estimate):
-depth is the t where 1 - T first reaches 0.5 (-1 until then); the error estimate sums the
-accepted Gauss-Kronrod panels' own estimates (0 for methods without one).
+What a ray has integrated so far travels through these functions as a RayIntegral.
 """
 from __future__ import annotations
 
@@ -35,10 +33,23 @@ GK_MAX_DEPTH = 24
 GK_MAX_PANELS = 4096  # per segment piece: bounds a ray's work where the estimate never converges
 SCAN_PER_DEGREE = 2  # split: cells per degree of the restriction in the search for crossings
 
-vecs = wp.types.vector(length=GK_STACK, dtype=wp.float32)
-vecsi = wp.types.vector(length=GK_STACK, dtype=wp.int32)
-vec15 = wp.types.vector(length=15, dtype=wp.float32)
-vecst = wp.types.vector(length=7, dtype=wp.float32)
+PanelEnds = wp.types.vector(length=GK_STACK, dtype=wp.float32)  # the panel stack's ends
+PanelDepths = wp.types.vector(length=GK_STACK, dtype=wp.int32)  # ... and bisection depths
+NodeValues = wp.types.vector(length=15, dtype=wp.float32)  # one value per Kronrod node
+
+
+@wp.struct
+class RayIntegral:
+    """A ray's integrals up to where it got: the integrate kernel carries one through the ray's
+    segments of the round (RayState holds it between rounds)."""
+
+    color: wp.vec3  # C
+    transmittance: wp.float32  # T
+    restriction_evals: wp.float32  # evaluations of a segment's restriction (stats)
+    depth: wp.float32  # the t where 1 - T first reaches 0.5 (-1 until then)
+    # the accepted Gauss-Kronrod panels' error estimates and curved segments' tails, summed
+    # (0 for methods without one)
+    error: wp.float32
 
 
 # ------------------------------------------------------------------ transfer function
@@ -150,18 +161,19 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
-          evaluate: int, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, state_in: vecst):
+          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float,
+          state_in: RayIntegral):
     """The baselines on [a, b] with n = ceil((b - a) / h) equal steps (at most q.max_steps): left Riemann sum
     (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
     samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
-    restriction c. Returns the new state and (element evaluations, restriction evaluations)."""
+    restriction coeffs. Returns the new state and (element evaluations, restriction evaluations)."""
     state = state_in
     # in floating point and capped: (b - a) / h of a tiny h overflows a 32-bit int
     n = int(wp.clamp(wp.ceil((b - a) / q.h), 1.0, float(q.max_steps)))
     w = (b - a) / float(n)
-    col = wp.vec3(state[0], state[1], state[2])
-    T = state[3]
-    depth = state[5]
+    col = state.color
+    T = state.transmittance
+    depth = state.depth
     tau0 = float(0.0)
     g0 = wp.vec3(0.0, 0.0, 0.0)
     nev = int(0)
@@ -173,7 +185,7 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
         if evaluate == 1:
             s = eval_field(mesh, e, xo + t * xd)
         else:
-            s = restriction_at(c, cb, deg, a, b, t)
+            s = restriction_at(coeffs, base, deg, a, b, t)
         nev += 1
         td = tf_density_at(tf, s, hint_d)
         tc = tf_color_at(tf, s, hint_c)
@@ -195,11 +207,9 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
         g0 = g
         if T < q.min_transmittance:
             break
-    state[0] = col[0]
-    state[1] = col[1]
-    state[2] = col[2]
-    state[3] = T
-    state[5] = depth
+    state.color = col
+    state.transmittance = T
+    state.depth = depth
     if evaluate == 1:
         return state, wp.vec2(float(nev), 0.0)
     return state, wp.vec2(0.0, float(nev))
@@ -237,10 +247,113 @@ def piece_ends(s_arr: wp.array(dtype=wp.float32), s: float) -> wp.vec2:
     return wp.vec2(s_arr[k], s_arr[k + 1])
 
 
+@wp.struct
+class Panel:
+    """One Gauss-Kronrod panel's sums (gauss_kronrod_panel): the emission's K15 and G7 sums (to
+    be scaled by T half) and the optical depth across the panel by each rule."""
+
+    emission: wp.vec3
+    emission_gauss: wp.vec3
+    depth: wp.float32
+    depth_gauss: wp.float32
+
+
+@wp.func
+def node_emission(tf: TransferArgs, s: float, tau: float, inner: float, hint: int):
+    """tau kappa(s) exp(-inner) at a node (inner: the optical depth from the panel's start), and
+    the colour lookup's breakpoint segment (the next lookup's hint)."""
+    tc = tf_color_at(tf, s, hint)
+    return tau * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2]), int(tc[3])
+
+
+@wp.func
+def gauss_kronrod_panel(tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int,
+                        a: float, b: float, l: float, r: float, half: float, mid: float, unweighted: int,
+                        half_seg: float, mid_seg: float, emitting: int, nev: float, hint_d: int, hint_c: int):
+    """The panel [l, r] (half width, middle) of segment [a, b] (half_seg, mid_seg), as
+    gauss_kronrod_smooth says: its Panel, and nev (restriction evaluations) and the lookups'
+    hints carried on."""
+    svals = NodeValues()
+    fvals = NodeValues()  # the series' antiderivative at the nodes (unweighted only)
+    nev += 15.0
+    for j in range(15):
+        t = mid + half * q.gk_x[j]
+        if unweighted == 1:
+            vf = clenshaw_and_integral(coeffs, base, deg, wp.clamp((t - mid_seg) / half_seg, -1.0, 1.0))
+            svals[j] = vf[0]
+            fvals[j] = half_seg * vf[1]
+        else:
+            svals[j] = restriction_at(coeffs, base, deg, a, b, t)
+    # the transfer function's pieces at the panel's middle value (node 7 is the middle)
+    fm = svals[7]
+    pd = linear_piece(tf.density_s, tf.density_tau, fm)
+    pr = piece_ends(tf.color_s, fm)
+    lin = unweighted
+    for j in range(15):
+        if svals[j] < wp.max(pd[2], pr[0]) or svals[j] > wp.min(pd[3], pr[1]):
+            lin = 0
+    ek = wp.vec3(0.0, 0.0, 0.0)
+    eg = wp.vec3(0.0, 0.0, 0.0)
+    dk = float(0.0)
+    dg = float(0.0)
+    if lin == 1:
+        # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
+        # held to [-1, 1] like every evaluation of the series: on a segment a few ulps long,
+        # the rounded l and r can map to |s| = 2, where a degree-30 series' noise grows by
+        # 2^30 (H100: one pixel's optical depth of -inf, a NaN image)
+        f_l = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((l - mid_seg) / half_seg, -1.0, 1.0))
+        f_r = half_seg * clenshaw_integral(coeffs, base, deg, wp.clamp((r - mid_seg) / half_seg, -1.0, 1.0))
+        nev += 2.0
+        dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
+        dg = dk
+        if emitting == 1:
+            for j in range(15):
+                t = mid + half * q.gk_x[j]
+                sv = svals[j]
+                inner = pd[0] * (t - l) + pd[1] * (fvals[j] - f_l)
+                g, hint_c = node_emission(tf, sv, pd[0] + pd[1] * sv, inner, hint_c)
+                ek += q.gk_wk[j] * g
+                eg += q.gk_wg[j] * g
+    else:
+        taus = NodeValues()
+        for j in range(15):
+            td = tf_density_at(tf, svals[j], hint_d)
+            taus[j] = td[0]
+            hint_d = int(td[1])
+            dk += q.gk_wk[j] * taus[j]
+            dg += q.gk_wg[j] * taus[j]
+        dk = dk * half
+        dg = dg * half
+        if emitting == 1:
+            run = float(0.0)
+            for j in range(15):
+                inner = float(0.0)
+                if q.inner == 0:
+                    for i in range(15):
+                        inner += q.gk_s[j, i] * taus[i]
+                    inner = inner * half
+                else:
+                    # trapezoid over the nodes; first node from the panel start with tau_0
+                    if j == 0:
+                        run = taus[0] * half * (q.gk_x[0] + 1.0)
+                    else:
+                        run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
+                    inner = run
+                g, hint_c = node_emission(tf, svals[j], taus[j], inner, hint_c)
+                ek += q.gk_wk[j] * g
+                eg += q.gk_wg[j] * g
+    p = Panel()
+    p.emission = ek
+    p.emission_gauss = eg
+    p.depth = dk
+    p.depth_gauss = dg
+    return p, nev, hint_d, hint_c
+
+
 @wp.func
 def gauss_kronrod_smooth(
-    tf: TransferArgs, q: QuadArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: vecst
-) -> vecst:
+    tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, emitting: int, state: RayIntegral
+) -> RayIntegral:
     """Adaptive G7/K15 over [lo, hi] (inside segment [a, b]) where kappa and tau are smooth.
 
     Depth-first, left half first, so panels finish front to back and each panel starts
@@ -253,14 +366,14 @@ def gauss_kronrod_smooth(
     the paper's trapezoid rule over the nodes) and the panel's error adds T times the G7/K15
     difference of its optical depth. Loops are not unrolled: the nodes' values go through a
     local array, which keeps this kernel's registers down."""
-    col = wp.vec3(state[0], state[1], state[2])
-    T = state[3]
-    nev = state[4]
-    depth_t = state[5]
-    err_sum = state[6]
-    stack_l = vecs()
-    stack_r = vecs()
-    stack_d = vecsi()
+    col = state.color
+    T = state.transmittance
+    nev = state.restriction_evals
+    depth_t = state.depth
+    err_sum = state.error
+    stack_l = PanelEnds()
+    stack_r = PanelEnds()
+    stack_d = PanelDepths()
     stack_l[0] = lo
     stack_r[0] = hi
     stack_d[0] = 0
@@ -268,7 +381,7 @@ def gauss_kronrod_smooth(
     hint_d = int(-1)  # the breakpoint segments of the last lookups (between breakpoints: all of them)
     hint_c = int(-1)
     unweighted = int(0)  # f is the series (w = 1): its antiderivative gives exact optical depths
-    if c[cb + MAX_SAMPLES - 2] == 1.0 and c[cb + MAX_SAMPLES - 1] == 1.0:
+    if coeffs[base + MAX_SAMPLES - 2] == 1.0 and coeffs[base + MAX_SAMPLES - 1] == 1.0:
         unweighted = 1
     half_seg = 0.5 * (b - a)
     mid_seg = 0.5 * (a + b)
@@ -280,90 +393,19 @@ def gauss_kronrod_smooth(
         depth = stack_d[top]
         half = 0.5 * (r - l)
         mid = 0.5 * (r + l)
-        svals = vec15()
-        fvals = vec15()  # the series' antiderivative at the nodes (unweighted only)
-        nev += 15.0
-        for j in range(15):
-            t = mid + half * q.gk_x[j]
-            if unweighted == 1:
-                vf = clenshaw_and_integral(c, cb, deg, wp.clamp((t - mid_seg) / half_seg, -1.0, 1.0))
-                svals[j] = vf[0]
-                fvals[j] = half_seg * vf[1]
-            else:
-                svals[j] = restriction_at(c, cb, deg, a, b, t)
-        # the transfer function's pieces at the panel's middle value (node 7 is the middle)
-        fm = svals[7]
-        pd = linear_piece(tf.density_s, tf.density_tau, fm)
-        pr = piece_ends(tf.color_s, fm)
-        lin = unweighted
-        for j in range(15):
-            if svals[j] < wp.max(pd[2], pr[0]) or svals[j] > wp.min(pd[3], pr[1]):
-                lin = 0
-        ek = wp.vec3(0.0, 0.0, 0.0)
-        eg = wp.vec3(0.0, 0.0, 0.0)
-        dk = float(0.0)
-        dg = float(0.0)
-        if lin == 1:
-            # tau = pd0 + pd1 f, so int_l^t tau = pd0 (t - l) + pd1 (F(t) - F(l)), F' = f
-            # held to [-1, 1] like every evaluation of the series: on a segment a few ulps long,
-            # the rounded l and r can map to |s| = 2, where a degree-30 series' noise grows by
-            # 2^30 (H100: one pixel's optical depth of -inf, a NaN image)
-            f_l = half_seg * clenshaw_integral(c, cb, deg, wp.clamp((l - mid_seg) / half_seg, -1.0, 1.0))
-            f_r = half_seg * clenshaw_integral(c, cb, deg, wp.clamp((r - mid_seg) / half_seg, -1.0, 1.0))
-            nev += 2.0
-            dk = pd[0] * (r - l) + pd[1] * (f_r - f_l)
-            dg = dk
-            if emitting == 1:
-                for j in range(15):
-                    t = mid + half * q.gk_x[j]
-                    sv = svals[j]
-                    inner = pd[0] * (t - l) + pd[1] * (fvals[j] - f_l)
-                    tc = tf_color_at(tf, sv, hint_c)
-                    hint_c = int(tc[3])
-                    g = (pd[0] + pd[1] * sv) * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
-                    ek += q.gk_wk[j] * g
-                    eg += q.gk_wg[j] * g
-        else:
-            taus = vec15()
-            for j in range(15):
-                td = tf_density_at(tf, svals[j], hint_d)
-                taus[j] = td[0]
-                hint_d = int(td[1])
-                dk += q.gk_wk[j] * taus[j]
-                dg += q.gk_wg[j] * taus[j]
-            dk = dk * half
-            dg = dg * half
-            if emitting == 1:
-                run = float(0.0)
-                for j in range(15):
-                    inner = float(0.0)
-                    if q.inner == 0:
-                        for i in range(15):
-                            inner += q.gk_s[j, i] * taus[i]
-                        inner = inner * half
-                    else:
-                        # trapezoid over the nodes; first node from the panel start with tau_0
-                        if j == 0:
-                            run = taus[0] * half * (q.gk_x[0] + 1.0)
-                        else:
-                            run += 0.5 * half * (q.gk_x[j] - q.gk_x[j - 1]) * (taus[j] + taus[j - 1])
-                        inner = run
-                    tc = tf_color_at(tf, svals[j], hint_c)
-                    hint_c = int(tc[3])
-                    g = taus[j] * wp.exp(-inner) * wp.vec3(tc[0], tc[1], tc[2])
-                    ek += q.gk_wk[j] * g
-                    eg += q.gk_wg[j] * g
-        ek = ek * (T * half)
-        eg = eg * (T * half)
+        p, nev, hint_d, hint_c = gauss_kronrod_panel(tf, q, coeffs, base, deg, a, b, l, r, half, mid, unweighted,
+                                                     half_seg, mid_seg, emitting, nev, hint_d, hint_c)
+        ek = p.emission * (T * half)
+        eg = p.emission_gauss * (T * half)
         diff = ek - eg
-        err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(dk - dg)
+        err = wp.max(wp.max(wp.abs(diff[0]), wp.abs(diff[1])), wp.abs(diff[2])) + T * wp.abs(p.depth - p.depth_gauss)
         panels += 1
         # a panel is accepted when converged, at the depth limit, or when the segment's panel
         # budget is spent or the estimate is not a number (NaN never compares below tol, and
         # 2^GK_MAX_DEPTH panels of one segment would hold the ray for minutes)
         if err <= q.tol or depth >= GK_MAX_DEPTH or top + 2 > GK_STACK or panels >= GK_MAX_PANELS or wp.isnan(err):
             col += ek
-            T1 = T * wp.exp(-dk)
+            T1 = T * wp.exp(-p.depth)
             depth_t = depth_update(depth_t, l, r, T, T1)
             err_sum += err
             T = T1
@@ -377,14 +419,20 @@ def gauss_kronrod_smooth(
             stack_r[top + 1] = mid
             stack_d[top + 1] = depth + 1
             top += 2
-    return vecst(col[0], col[1], col[2], T, nev, depth_t, err_sum)
+    out = RayIntegral()
+    out.color = col
+    out.transmittance = T
+    out.restriction_evals = nev
+    out.depth = depth_t
+    out.error = err_sum
+    return out
 
 
 # ------------------------------------------------------------------- breakpoint cuts
 
 
 @wp.func
-def level_crossing(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t0: float, t1: float, f0: float, f1: float,
+def level_crossing(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, t0: float, t1: float, f0: float, f1: float,
                    lvl: float) -> wp.vec2:
     """(t, evaluations): t in [t0, t1] where the restriction crosses `lvl` (f0, f1 on opposite
     sides). Illinois regula falsi: bracketing like bisection, superlinear on a monotone piece."""
@@ -399,7 +447,7 @@ def level_crossing(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b
         m = 0.5 * (lo + hi)
         if fhi != flo:
             m = wp.clamp((lo * fhi - hi * flo) / (fhi - flo), lo, hi)
-        fm = restriction_at(c, cb, deg, a, b, m) - lvl
+        fm = restriction_at(coeffs, base, deg, a, b, m) - lvl
         nev += 1.0
         if fm == 0.0:
             break
@@ -422,26 +470,26 @@ def level_crossing(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b
 
 
 @wp.func
-def value_and_slope_sign(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
+def value_and_slope_sign(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> wp.vec2:
     """(f, a quantity with the sign of df/ds) at s in [-1, 1], for f = g / w^2 (w linear)."""
-    wa = c[cb + MAX_SAMPLES - 2]
-    wb = c[cb + MAX_SAMPLES - 1]
+    wa = coeffs[base + MAX_SAMPLES - 2]
+    wb = coeffs[base + MAX_SAMPLES - 1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
-    gs = clenshaw_with_slope(c, cb, deg, s)
+    gs = clenshaw_with_slope(coeffs, base, deg, s)
     return wp.vec2(gs[0] / (w * w), gs[1] * w - gs[0] * (wb - wa))
 
 
 @wp.func
-def first_crossing(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, p: float, q_: float, fp: float,
-                   fq: float, t_after: float) -> wp.vec2:
-    """(t, evaluations): the first t in (t_after, q_] where f crosses a breakpoint level on the
-    monotone piece [p, q_] (f(p) = fp, f(q_) = fq); q_ itself if none."""
-    best = q_
+def first_crossing(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, f_lo: float,
+                   f_hi: float, t_after: float) -> wp.vec2:
+    """(t, evaluations): the first t in (t_after, hi] where f crosses a breakpoint level on the
+    monotone piece [lo, hi] (f(lo) = f_lo, f(hi) = f_hi); hi itself if none."""
+    best = hi
     nev = float(0.0)
     for k in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
         lvl = level(tf, k)
-        if (fp - lvl) * (fq - lvl) < 0.0:
-            bc = level_crossing(c, cb, deg, a, b, p, q_, fp, fq, lvl)
+        if (f_lo - lvl) * (f_hi - lvl) < 0.0:
+            bc = level_crossing(coeffs, base, deg, a, b, lo, hi, f_lo, f_hi, lvl)
             nev += bc[1]
             if bc[0] > t_after and bc[0] < best:
                 best = bc[0]
@@ -459,7 +507,7 @@ def level_near(tf: TransferArgs, lo: float, hi: float) -> int:
 
 
 @wp.func
-def next_cut(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t_from: float) -> wp.vec2:
+def next_cut(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, t_from: float) -> wp.vec2:
     """(t, evaluations): the first breakpoint crossing of f beyond t_from on [a, b], or b.
     The segment is scanned in SCAN_PER_DEGREE * deg + 4 equal cells. Where f = g (no pyramid
     weight), M = sum k^2 |c_k| bounds |g'| (Markov), so a cell whose end values stay farther than
@@ -475,20 +523,20 @@ def next_cut(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int,
     half = 0.5 * (b - a)
     mid = 0.5 * (a + b)
     margin = float(1.0e30)  # M h / 2, or no filter (pyramids)
-    if c[cb + MAX_SAMPLES - 2] == c[cb + MAX_SAMPLES - 1]:
-        w2 = c[cb + MAX_SAMPLES - 2] * c[cb + MAX_SAMPLES - 2]
+    if coeffs[base + MAX_SAMPLES - 2] == coeffs[base + MAX_SAMPLES - 1]:
+        w2 = coeffs[base + MAX_SAMPLES - 2] * coeffs[base + MAX_SAMPLES - 2]
         lip = float(0.0)
         for k in range(1, deg + 1):
-            lip += float(k * k) * wp.abs(c[cb + k])
+            lip += float(k * k) * wp.abs(coeffs[base + k])
         margin = lip / (w2 * float(n_cells)) * 1.0001
     s_from = wp.clamp((t_from - mid) / half, -1.0, 1.0)
     i = wp.min(int((s_from + 1.0) * 0.5 * float(n_cells)), n_cells - 1)
     su = s_from
-    fu = value_and_slope_sign(c, cb, deg, su)
+    fu = value_and_slope_sign(coeffs, base, deg, su)
     nev += 1.0
     while i < n_cells:
         sv = -1.0 + 2.0 * float(i + 1) / float(n_cells)
-        fv = value_and_slope_sign(c, cb, deg, sv)
+        fv = value_and_slope_sign(coeffs, base, deg, sv)
         nev += 1.0
         if sv > su and level_near(tf, wp.min(fu[0], fv[0]) - margin, wp.max(fu[0], fv[0]) + margin) == 1:
             # a critical point inside: bisect the slope's sign to it
@@ -500,7 +548,7 @@ def next_cut(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int,
                 glo = fu[1]
                 for it in range(40):
                     m = 0.5 * (lo + hi)
-                    gm = value_and_slope_sign(c, cb, deg, m)
+                    gm = value_and_slope_sign(coeffs, base, deg, m)
                     nev += 1.0
                     if (gm[1] < 0.0) == (glo < 0.0):
                         lo = m
@@ -508,15 +556,15 @@ def next_cut(tf: TransferArgs, c: wp.array(dtype=wp.float32), cb: int, deg: int,
                     else:
                         hi = m
                 sc = 0.5 * (lo + hi)
-                fc = value_and_slope_sign(c, cb, deg, sc)
+                fc = value_and_slope_sign(coeffs, base, deg, sc)
                 nev += 1.0
             # the monotone pieces [su, sc] and [sc, sv]
-            r = first_crossing(tf, c, cb, deg, a, b, mid + half * su, mid + half * sc, fu[0], fc[0], t_after)
+            r = first_crossing(tf, coeffs, base, deg, a, b, mid + half * su, mid + half * sc, fu[0], fc[0], t_after)
             nev += r[1]
             if r[0] < mid + half * sc:
                 return wp.vec2(r[0], nev)
             if sc < sv:
-                r = first_crossing(tf, c, cb, deg, a, b, mid + half * sc, mid + half * sv, fc[0], fv[0], t_after)
+                r = first_crossing(tf, coeffs, base, deg, a, b, mid + half * sc, mid + half * sv, fc[0], fv[0], t_after)
                 nev += r[1]
                 if r[0] < mid + half * sv:
                     return wp.vec2(r[0], nev)

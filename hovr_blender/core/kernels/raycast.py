@@ -26,14 +26,14 @@ from __future__ import annotations
 
 import warp as wp
 
-from . import element as el_k
-from . import geometry as geo
-from . import quadrature as qd
-from . import restriction as rs
+from . import element
+from . import geometry
+from . import quadrature
+from . import restriction
 from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
                    STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, Segments, TransferArgs)
-from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, vecst
+from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
 wp.set_module_options({"enable_backward": False})
 
@@ -49,6 +49,7 @@ SEARCH_PASSES = 4
 # walked to. A curved element just left is searched again only from 1/LEAVE_FRACTION of its box
 # chord beyond (inside it, a rounding error past its exit still counts as inside)
 STRETCH_RTOL = 1.0e-5
+STRETCH_RTOL_FLOAT64 = 1.0e-11  # in the float64 twin (kernels/precision.py)
 LEAVE_FRACTION = 64.0
 MAX_ZERO_STEPS = 3  # zero-length walks in a row (a ray through an edge) before searching instead
 PYRAMID_W_RATIO = 2.0  # a pyramid's segment is cut where its weight w changes by more than this
@@ -63,9 +64,9 @@ STEPS_PER_ROUND = 64 * SEGMENTS_PER_ROUND  # walking steps a ray may take in one
 MAX_REGISTERS = 128
 SAMPLE_MAX_REGISTERS = 64
 
-vecw = wp.types.vector(length=WINDOW, dtype=wp.float32)
-vecwi = wp.types.vector(length=WINDOW, dtype=wp.int32)
-vecli = wp.types.vector(length=LOCATED, dtype=wp.int32)
+WindowKeys = wp.types.vector(length=WINDOW, dtype=wp.float32)
+WindowElements = wp.types.vector(length=WINDOW, dtype=wp.int32)
+LocatedElements = wp.types.vector(length=LOCATED, dtype=wp.int32)
 
 
 @wp.func
@@ -104,7 +105,7 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
 
 
 @wp.func
-def in_list(ids: vecli, n: int, e: int) -> int:
+def in_list(ids: wp.ref[LocatedElements], n: int, e: int) -> int:
     for k in range(n):
         if ids[k] == e:
             return 1
@@ -115,14 +116,16 @@ def in_list(ids: vecli, n: int, e: int) -> int:
 def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
     """(hit, t0, t1, exit face) of the ray in affine element e: the clip in reference space."""
     A = mesh.ref_a[e]
-    return el_k.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
+    return element.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
 
 
 @wp.func
 def pyramid_piece_end(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float) -> float:
     """Where the first piece of affine pyramid e's segment [a, b] ends: w = (1 - xi_3) / 2 is
     linear along the ray, and the piece goes on while w stays within a factor
-    PYRAMID_W_RATIO of w(a)."""
+    PYRAMID_W_RATIO of w(a). A pyramid's restriction is f w^2: its rounding is amplified by
+    1 / w^2 where w is small, near the apex; in such pieces it stays within PYRAMID_W_RATIO^2
+    of the rest of the segment."""
     A = mesh.ref_a[e]
     wa = 0.5 * (1.0 - (A * (o + a * d) + mesh.ref_b[e])[2])
     wb = 0.5 * (1.0 - (A * (o + b * d) + mesh.ref_b[e])[2])
@@ -137,121 +140,274 @@ def pyramid_piece_end(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, 
     return a + (b - a) * (target - wa) / (wb - wa)
 
 
-def _make_walk_kernels(CURVED: bool):
-    # The curved kernel inlines Newton solves at several call sites: unrolling their fixed
-    # loops costs NVRTC time, not speed (bench/results/h100/compile_unroll.json).
-    opts = {"max_unroll": 4} if CURVED else {}
+# ------------------------------------------------------------------ the entry search
 
+
+@wp.struct
+class Entry:
+    """Where a ray enters an element (the entry search's best candidate so far)."""
+
+    element: wp.int32  # -1: none
+    span: wp.vec3  # (t0, t1, exit face); a curved element's t1 and face are curved_exit's to find
+    r: wp.vec4  # curved: the solution at t0 (r[3] > 0: valid)
+    dv: wp.vec4  # ... and the velocity there
+
+
+@wp.func
+def no_entry(t_end: float) -> Entry:
+    """No element before t_end."""
+    entry = Entry()
+    entry.element = -1
+    entry.span = wp.vec3(t_end, t_end, -1.0)
+    entry.r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    entry.dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    return entry
+
+
+@wp.func
+def affine_candidate(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, eps: float,
+                     best: Entry) -> Entry:
+    """best, or affine element e where its stretch starts first beyond t_from and reaches past
+    t_from + eps."""
+    entry = best
+    cl = affine_stretch(mesh, e, o, d)
+    a0 = wp.max(cl[1], t_from)
+    b0 = wp.min(cl[2], t_end)
+    if cl[0] > 0.0 and b0 > t_from + eps and a0 < entry.span[0]:
+        entry.element = e
+        entry.span = wp.vec3(a0, b0, cl[3])
+        entry.r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    return entry
+
+
+@wp.func
+def window_offer(keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], count: int, thresh: float, key: float,
+                 e: int):
+    """Curved candidate e with box entry `key` into the window of the WINDOW smallest keys, kept
+    in order: returns the window's new count and thresh, the smallest key left out of it."""
+    if count == WINDOW and key >= keys[WINDOW - 1]:
+        return count, wp.min(thresh, key)
+    left_out = thresh
+    if count == WINDOW:
+        left_out = wp.min(thresh, keys[WINDOW - 1])
+    k = wp.min(count, WINDOW - 1)
+    while k > 0 and keys[k - 1] > key:
+        keys[k] = keys[k - 1]
+        elements[k] = elements[k - 1]
+        k -= 1
+    keys[k] = key
+    elements[k] = e
+    return wp.min(count + 1, WINDOW), left_out
+
+
+@wp.func
+def inside_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_near: float, left: int, keys: wp.ref[WindowKeys],
+                  elements: wp.ref[WindowElements], count: int, nloc: int):
+    """Is the ray just past t_from (at t_near) inside one of the window's candidates (but `left`)?
+    Where a walk stopped at a face without a neighbour, e.g. a hexahedron's face against two
+    tetrahedra, the element beyond holds the ray there. One Newton solve each; elements do not
+    overlap, so that element's stretch comes first. Returns it as an Entry (element -1: none),
+    and nloc counting the solves."""
+    found = Entry()
+    found.element = -1
+    for w in range(count):
+        e = elements[w]
+        if e != left and keys[w] <= t_near:
+            nloc += 1
+            r, dv = geometry.curved_inside(mesh, e, o, d, t_near, geometry.start_guess(mesh, e, o + t_near * d))
+            if r[3] > 0.0:
+                found.element = e
+                found.span = wp.vec3(t_near, t_near, -1.0)
+                found.r = r
+                found.dv = dv
+                return found, nloc
+    return found, nloc
+
+
+@wp.func
+def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: float, left: int,
+                  keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], count: int,
+                  located: wp.ref[LocatedElements], n_listed: int, best: Entry, nloc: int):
+    """The window's candidates located in order (curved_entry) while they can still come first:
+    returns best updated, n_listed (each is remembered in `located`) and nloc counting. The
+    element just left is searched only from 1/LEAVE_FRACTION of its box chord beyond t_from."""
+    entry = best
+    for w in range(count):
+        if keys[w] < entry.span[0]:
+            e = elements[w]
+            nloc += 1
+            if n_listed < LOCATED:
+                located[n_listed] = e
+                n_listed += 1
+            bx = geometry.box_interval(mesh, e, o, d)
+            t_look = t_from + eps
+            if e == left:
+                t_look = t_from + (bx[1] - bx[0]) / LEAVE_FRACTION
+            ent, r, dv = geometry.curved_entry(mesh, e, o, d, t_look)
+            if ent[0] > 0.0 and ent[1] < entry.span[0]:
+                entry.element = e
+                entry.span = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
+                entry.r = r
+                entry.dv = dv
+    return entry, n_listed, nloc
+
+
+def _walk_options(CURVED: bool) -> dict:
+    # The curved kernels inline Newton solves at several call sites: unrolling their fixed
+    # loops costs NVRTC time, not speed (bench/results/h100/compile_unroll.json).
+    return {"max_unroll": 4} if CURVED else {}
+
+
+def _make_search_entry(CURVED: bool):
     @wp.func
     def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int):
         """The element whose stretch of the ray starts first beyond t_from (and reaches past
-        t_from + eps): element (or -1), (t0, t1, exit face) (a curved element's t1 and face are
-        left for curved_exit), the curved solution and velocity at t0, and the number of
-        curved candidates located. Each BVH pass takes the smallest exact
-        entry among affine candidates and gathers the WINDOW curved candidates with the
-        smallest box entries, then locates those in order while they can still come first;
-        another pass follows only if a curved candidate left out of the window could. `left`:
-        the element the ray has just left (or -1)."""
+        t_from + eps), as an Entry, and the number of curved candidates located. Each BVH pass
+        takes the smallest exact entry among affine candidates and gathers the WINDOW curved
+        candidates with the smallest box entries, then locates those in order while they can
+        still come first; another pass follows only if a curved candidate left out of the
+        window could. `left`: the element the ray has just left (or -1)."""
         eps = STRETCH_RTOL * wp.abs(t_from)
         q0 = t_from - eps
-        best_e = int(-1)
-        best = wp.vec3(t_end, t_end, -1.0)  # t0, t1, exit face
-        best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        best_dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        located = vecli()  # the curved candidates already located (curved_entry), n_listed of them
+        best = no_entry(t_end)
+        located = LocatedElements()  # the curved candidates already located (curved_entry), n_listed of them
         n_listed = int(0)
         nloc = int(0)  # Newton locations of any kind (the statistics' count)
         for p in range(SEARCH_PASSES):
-            win_key = vecw()
-            win_e = vecwi()
+            win_key = WindowKeys()
+            win_e = WindowElements()
             nwin = int(0)
             thresh = float(1.0e30)
             # the query starts at t_from (less eps): boxes wholly behind it are culled in the tree
             # (from the camera, a ray leaving the mesh walked every box along its way again)
             query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d)
             cand = int(0)
-            while wp.bvh_query_next(query, cand, best[0] - q0):
+            while wp.bvh_query_next(query, cand, best.span[0] - q0):
                 if mesh.affine[cand] == 1:
                     if p == 0:
-                        cl = affine_stretch(mesh, cand, o, d)
-                        a0 = wp.max(cl[1], t_from)
-                        b0 = wp.min(cl[2], t_end)
-                        if cl[0] > 0.0 and b0 > t_from + eps and a0 < best[0]:
-                            best_e = cand
-                            best = wp.vec3(a0, b0, cl[3])
-                            best_r = wp.vec4(0.0, 0.0, 0.0, -1.0)
-                else:
-                    if wp.static(CURVED):
-                        bx = geo.box_interval(mesh, cand, o, d)
-                        key = wp.max(bx[0], t_from)
-                        if bx[1] > t_from + eps and key < best[0]:
-                            if in_list(located, n_listed, cand) == 0:
-                                if nwin == WINDOW and key >= win_key[WINDOW - 1]:
-                                    thresh = wp.min(thresh, key)
-                                else:
-                                    if nwin == WINDOW:
-                                        thresh = wp.min(thresh, win_key[WINDOW - 1])
-                                    k = wp.min(nwin, WINDOW - 1)
-                                    while k > 0 and win_key[k - 1] > key:
-                                        win_key[k] = win_key[k - 1]
-                                        win_e[k] = win_e[k - 1]
-                                        k -= 1
-                                    win_key[k] = key
-                                    win_e[k] = cand
-                                    nwin = wp.min(nwin + 1, WINDOW)
+                        best = affine_candidate(mesh, cand, o, d, t_from, t_end, eps, best)
+                elif wp.static(CURVED):
+                    bx = geometry.box_interval(mesh, cand, o, d)
+                    key = wp.max(bx[0], t_from)
+                    if bx[1] > t_from + eps and key < best.span[0] and in_list(located, n_listed, cand) == 0:
+                        nwin, thresh = window_offer(win_key, win_e, nwin, thresh, key, cand)
             if wp.static(CURVED):
-                # first, is the ray inside one of the candidates just past t_from? (where a walk
-                # stopped at a face without a neighbour, e.g. a hexahedron's face against two
-                # tetrahedra, the element beyond holds the ray there.) One Newton solve each;
-                # elements do not overlap, so that element's stretch comes first
                 t_near = t_from + eps
-                if p == 0 and best[0] > t_near:
-                    for w in range(nwin):
-                        cand = win_e[w]
-                        if cand != left and win_key[w] <= t_near:
-                            nloc += 1
-                            r, dv = geo.curved_inside(mesh, cand, o, d, t_near, geo.start_guess(mesh, cand, o + t_near * d))
-                            if r[3] > 0.0:
-                                return cand, wp.vec3(t_near, t_near, -1.0), r, dv, nloc
-                for w in range(nwin):
-                    if win_key[w] < best[0]:
-                        cand = win_e[w]
-                        nloc += 1
-                        if n_listed < LOCATED:
-                            located[n_listed] = cand
-                            n_listed += 1
-                        bx = geo.box_interval(mesh, cand, o, d)
-                        t_look = t_from + eps
-                        if cand == left:
-                            t_look = t_from + (bx[1] - bx[0]) / LEAVE_FRACTION
-                        ent, r, dv = geo.curved_entry(mesh, cand, o, d, t_look)
-                        if ent[0] > 0.0 and ent[1] < best[0]:
-                            best_e = cand
-                            best = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
-                            best_r = r
-                            best_dv = dv
-            if thresh >= best[0]:
+                if p == 0 and best.span[0] > t_near:
+                    inside, nloc = inside_window(mesh, o, d, t_near, left, win_key, win_e, nwin, nloc)
+                    if inside.element >= 0:
+                        return inside, nloc
+                best, n_listed, nloc = locate_window(mesh, o, d, t_from, eps, left, win_key, win_e, nwin, located,
+                                                     n_listed, best, nloc)
+            if thresh >= best.span[0]:
                 break
-        return best_e, best, best_r, best_dv, nloc
+        return best, nloc
 
-    @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=MAX_REGISTERS)
+    return search_entry
+
+
+def _make_search_kernel(CURVED: bool):
+    search_entry = _make_search_entry(CURVED)
+
+    @wp.kernel(enable_backward=False, module="unique", module_options=_walk_options(CURVED),
+               cuda_max_registers=MAX_REGISTERS)
     def search(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
         i = rays.active[wp.tid()]
         if rays.phase[i] != 0 or rays.next_element[i] >= 0:
             return
         pixel = i + pixel_offset
         o, d = camera_ray(cam, pixel)
-        e, found, r, dv, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
+        entry, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
         rays.stats[pixel, STAT_LOCATES] += nl
-        if e < 0:
+        if entry.element < 0:
             rays.phase[i] = 1
         else:
-            rays.next_element[i] = e
-            rays.t_cur[i] = wp.max(rays.t_cur[i], found[0])
-            rays.entry_r[i] = r
-            rays.entry_dv[i] = dv
+            rays.next_element[i] = entry.element
+            rays.t_cur[i] = wp.max(rays.t_cur[i], entry.span[0])
+            rays.entry_r[i] = entry.r
+            rays.entry_dv[i] = entry.dv
 
-    @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=MAX_REGISTERS)
+    return search
+
+
+# ------------------------------------------------------------------ the walk
+
+
+@wp.func
+def affine_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float) -> wp.vec3:
+    """(inside, b, exit face) of the ray entering affine element e at a: inside 0 where its clip
+    starts beyond a (more than STRETCH_RTOL of |a| and its chord)."""
+    cl = affine_stretch(mesh, e, o, d)
+    if cl[0] <= 0.0 or cl[1] > a + STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
+        return wp.vec3(0.0, a, -1.0)
+    return wp.vec3(1.0, wp.max(a, wp.min(cl[2], t_end)), cl[3])
+
+
+@wp.func
+def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float, r_entry: wp.vec4,
+                     dv_entry: wp.vec4):
+    """(inside, b, exit face) of the ray entering curved element e at a, and the solutions and
+    velocities at a and b: Newton at a (or the search's solution r_entry, where valid), then
+    geometry.curved_exit up to the element's box or t_end."""
+    r_a = r_entry
+    dv_a = dv_entry
+    if r_entry[3] <= 0.0:
+        r_a, dv_a = geometry.curved_inside(mesh, e, o, d, a, geometry.start_guess(mesh, e, o + a * d))
+    if r_a[3] <= 0.0:
+        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a
+    bx = geometry.box_interval(mesh, e, o, d)
+    ex, r_b, dv_b = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+    return wp.vec3(1.0, wp.max(a, ex[0]), ex[1]), r_a, dv_a, r_b, dv_b
+
+
+@wp.func
+def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b: float, curved: int,
+                  uses_restriction: int, r_a: wp.vec4, dv_a: wp.vec4, r_b: wp.vec4, dv_b: wp.vec4) -> int:
+    """Segment [a, b] of element e into `slot`, on the sample kernel's list unless the baselines
+    evaluate the (affine) element themselves; returns its samples (field evaluations)."""
+    segs.element[slot] = e
+    segs.t0[slot] = a
+    segs.t1[slot] = b
+    segs.tail[slot] = 0.0
+    if curved == 0 and uses_restriction == 0:
+        segs.degree[slot] = -1
+        segs.flags[slot] = SEG_EVALUATE
+        return 0
+    deg = int(0)
+    if curved == 1:
+        deg = restriction.curved_base_degree(mesh, e)
+        segs.xi0[slot] = wp.vec3(r_a[0], r_a[1], r_a[2])
+        segs.v0[slot] = wp.vec3(dv_a[0], dv_a[1], dv_a[2])
+        segs.xi1[slot] = wp.vec3(r_b[0], r_b[1], r_b[2])
+        segs.v1[slot] = wp.vec3(dv_b[0], dv_b[1], dv_b[2])
+    else:
+        deg = restriction.restriction_degree(mesh, e)
+    segs.degree[slot] = deg
+    segs.flags[slot] = curved * SEG_CURVED
+    segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
+    return deg + 1
+
+
+@wp.func
+def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int, t: float, e: int, left: int,
+               r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int):
+    """Where ray i's walk got this round (its n segments, the counters) into the ray state."""
+    if finished == 1:
+        rays.phase[i] = 1
+    rays.t_cur[i] = t
+    rays.next_element[i] = e
+    rays.left_element[i] = left
+    rays.entry_r[i] = r_entry
+    segs.count[i] = n
+    rays.stats[pixel, STAT_FIELD_EVALS] += n_field
+    rays.stats[pixel, STAT_SEGMENTS] += n_seg
+    rays.stats[pixel, STAT_EMPTY] += n_empty
+    rays.stats[pixel, STAT_WALKS] += n_walk
+
+
+def _make_traverse_kernel(CURVED: bool):
+    @wp.kernel(enable_backward=False, module="unique", module_options=_walk_options(CURVED),
+               cuda_max_registers=MAX_REGISTERS)
     def traverse(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
                  rays: RayState, segs: Segments):
         i = rays.active[wp.tid()]
@@ -266,9 +422,9 @@ def _make_walk_kernels(CURVED: bool):
         e = rays.next_element[i]
         r_entry = rays.entry_r[i]  # the search's solution in a curved e at t (margin > 0: valid)
         dv_entry = rays.entry_dv[i]
-        restriction = int(0)  # classified and split integrate the restriction; skip empty elements
+        uses_restriction = int(0)  # classified and split integrate the restriction; skip empty elements
         if q.method >= METHOD_CLASSIFIED:
-            restriction = 1
+            uses_restriction = 1
         n_field = int(0)
         n_seg = int(0)
         n_empty = int(0)
@@ -282,51 +438,27 @@ def _make_walk_kernels(CURVED: bool):
             if t >= t_end:
                 finished = 1
                 break
+            if e < 0:
+                break  # the next round's search finds where the ray goes on
             a = t
-            b = t
-            face = int(-1)
-            r_a = wp.vec4(0.0, 0.0, 0.0, -1.0)
+            n_walk += 1
+            stretch = wp.vec3(1.0, a, -1.0)  # (inside, b, exit face)
+            r_a = wp.vec4(0.0, 0.0, 0.0, -1.0)  # curved: the solutions and velocities at a and b
             dv_a = wp.vec4(0.0, 0.0, 0.0, 0.0)
             r_b = r_a
             dv_b = dv_a
-            need_exit = int(0)  # a curved element entered at a (solution r_a): find where it leaves
-            if e < 0:
-                break  # the next round's search finds where the ray goes on
-            n_walk += 1
-            inside = int(1)
             if mesh.affine[e] == 1:
-                cl = affine_stretch(mesh, e, o, d)
-                if cl[0] <= 0.0 or cl[1] > a + STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
-                    inside = 0
-                else:
-                    b = wp.max(a, wp.min(cl[2], t_end))
-                    face = int(cl[3])
-            else:
-                if wp.static(CURVED):
-                    if r_entry[3] > 0.0:
-                        r_a = r_entry
-                        dv_a = dv_entry
-                        r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)
-                    else:
-                        r_a, dv_a = geo.curved_inside(mesh, e, o, d, a, geo.start_guess(mesh, e, o + a * d))
-                    if r_a[3] <= 0.0:
-                        inside = 0
-                    else:
-                        need_exit = 1
-            if inside == 0:
+                stretch = affine_walk_step(mesh, e, o, d, a, t_end)
+            elif wp.static(CURVED):
+                stretch, r_a, dv_a, r_b, dv_b = curved_walk_step(mesh, e, o, d, a, t_end, r_entry, dv_entry)
+                r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
+            if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
                 break
-            if wp.static(CURVED):
-                if need_exit == 1:
-                    bx = geo.box_interval(mesh, e, o, d)
-                    ex, r_b, dv_b = geo.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
-                    b = wp.max(a, ex[0])
-                    face = int(ex[1])
+            b = stretch[1]
+            face = int(stretch[2])
             stay = int(0)
-            if restriction == 1 and mesh.shape[e] == el_k.PYR and mesh.affine[e] == 1 and b > a:
-                # a pyramid's restriction is f w^2 (w linear): its rounding is amplified by
-                # 1 / w^2 where w is small, near the apex. Pieces where w changes by at most
-                # PYRAMID_W_RATIO keep that within PYRAMID_W_RATIO^2 of the rest of the segment.
+            if uses_restriction == 1 and mesh.shape[e] == element.PYR and mesh.affine[e] == 1 and b > a:
                 cut = pyramid_piece_end(mesh, e, o, d, a, b)
                 if cut < b:
                     b = cut
@@ -334,34 +466,14 @@ def _make_walk_kernels(CURVED: bool):
             if b > a:
                 zero_steps = 0
                 n_seg += 1
-                if restriction == 1 and qd.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
+                if uses_restriction == 1 and quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
                     n_empty += 1  # the element's whole range is transparent: no samples
                 else:
-                    slot = i * SEGMENTS_PER_ROUND + n
-                    segs.element[slot] = e
-                    segs.t0[slot] = a
-                    segs.t1[slot] = b
-                    segs.tail[slot] = 0.0
                     curved = int(0)  # a constant in the affine kernel: the sample kernel's Newton compiles out
                     if wp.static(CURVED):
                         curved = int(1) - mesh.affine[e]
-                    if curved == 0 and restriction == 0:
-                        segs.degree[slot] = -1  # the baselines evaluate affine elements themselves
-                        segs.flags[slot] = SEG_EVALUATE
-                    else:
-                        deg = int(0)
-                        if curved == 1:
-                            deg = rs.curved_base_degree(mesh, e)
-                            segs.xi0[slot] = wp.vec3(r_a[0], r_a[1], r_a[2])
-                            segs.v0[slot] = wp.vec3(dv_a[0], dv_a[1], dv_a[2])
-                            segs.xi1[slot] = wp.vec3(r_b[0], r_b[1], r_b[2])
-                            segs.v1[slot] = wp.vec3(dv_b[0], dv_b[1], dv_b[2])
-                        else:
-                            deg = rs.restriction_degree(mesh, e)
-                        segs.degree[slot] = deg
-                        segs.flags[slot] = curved * SEG_CURVED
-                        segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
-                        n_field += deg + 1
+                    n_field += write_segment(mesh, segs, i * SEGMENTS_PER_ROUND + n, e, a, b, curved,
+                                             uses_restriction, r_a, dv_a, r_b, dv_b)
                     n += 1
             else:
                 zero_steps += 1
@@ -373,26 +485,16 @@ def _make_walk_kernels(CURVED: bool):
                 e = mesh.neighbour[e * 6 + face]
             else:
                 e = -1
-        if finished == 1:
-            rays.phase[i] = 1
-        rays.t_cur[i] = t
-        rays.next_element[i] = e
-        rays.left_element[i] = left
-        rays.entry_r[i] = r_entry
-        segs.count[i] = n
-        rays.stats[pixel, STAT_FIELD_EVALS] += n_field
-        rays.stats[pixel, STAT_SEGMENTS] += n_seg
-        rays.stats[pixel, STAT_EMPTY] += n_empty
-        rays.stats[pixel, STAT_WALKS] += n_walk
+        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, n, n_field, n_seg, n_empty, n_walk)
 
-    return search, traverse
+    return traverse
 
 
 def _make_sample_kernel(CURVED: bool, MODES: int):
     # MODES > 0: hexahedra and prisms of (MODES,) * 3 modes evaluate through the unrolled
     # element.static_evaluator (its loops need max_unroll >= MODES)
     opts = {"max_unroll": max(4, MODES)} if CURVED or MODES else {}
-    evaluate = el_k.static_evaluator(MODES) if MODES else el_k.eval_element
+    evaluate = element.static_evaluator(MODES) if MODES else element.eval_element
 
     @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=SAMPLE_MAX_REGISTERS if CURVED else None)
     def sample(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, segs: Segments, slots: wp.array(dtype=wp.int32),
@@ -413,12 +515,12 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        xi, w = rs.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
         e = segs.element[slot]
         f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         segs.samples[slot * MAX_SAMPLES + j] = f * w * w
         if j == 0:
-            ends = rs.end_weights(mesh, o, d, segs, slot, curved)
+            ends = restriction.end_weights(mesh, o, d, segs, slot, curved)
             segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 2] = ends[0]
             segs.samples[slot * MAX_SAMPLES + MAX_SAMPLES - 1] = ends[1]
 
@@ -438,7 +540,7 @@ def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int
     base = slot * MAX_SAMPLES
     kk = k
     while kk <= deg:
-        segs.coeffs[base + kk] = rs.chebyshev_coefficient(segs, slot, kk, deg)
+        segs.coeffs[base + kk] = restriction.chebyshev_coefficient(segs, slot, kk, deg)
         kk += stride
     if k == 0:
         segs.coeffs[base + MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
@@ -458,7 +560,7 @@ def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.arr
     slot = slots[idx]
     if (segs.flags[slot] & SEG_CURVED) == 0:
         return
-    if rs.refine_degree(segs, slot, allow) == 1:
+    if restriction.refine_degree(segs, slot, allow) == 1:
         again[wp.atomic_add(again_count, 0, 1)] = slot
         rays.stats[slot // SEGMENTS_PER_ROUND + pixel_offset, STAT_FIELD_EVALS] += segs.degree[slot] // 2
 
@@ -474,7 +576,7 @@ def walk_kernels(curved: bool, modes: int = 0):
     hexahedra and prisms of N modes unrolled."""
     key = bool(curved)
     if key not in _WALK:
-        _WALK[key] = _make_walk_kernels(key)
+        _WALK[key] = (_make_search_kernel(key), _make_traverse_kernel(key))
     skey = (key, int(modes))
     if skey not in _SAMPLE:
         _SAMPLE[skey] = _make_sample_kernel(*skey)
@@ -483,12 +585,12 @@ def walk_kernels(curved: bool, modes: int = 0):
 
 @wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
-                      b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: vecst):
+                      b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: RayIntegral):
     """One segment into the ray state; returns the new state and (element evaluations,
     restriction evaluations, class: 1 empty, 2 smooth, 3 piecewise-smooth, 0 unclassified)."""
     state = state_in
-    c = segs.coeffs
-    cb = slot * MAX_SAMPLES
+    coeffs = segs.coeffs
+    base = slot * MAX_SAMPLES
     evaluate = int(0)
     xo = wp.vec3(0.0, 0.0, 0.0)
     xd = wp.vec3(0.0, 0.0, 0.0)
@@ -511,32 +613,32 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
             # of it (split integrates the interpolant itself, so its bounds decide there)
             bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
         else:
-            bnd = rs.segment_bounds(c, cb, deg, mesh.field_err[e])
+            bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
         emitting = int(0)
-        if qd.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
+        if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
             emitting = 1
-        piecewise = qd.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
-        if emitting == 1 and qd.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
+        piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
+        if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
             piecewise = 1
-        if qd.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
+        if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
             counts[2] = 1.0
             return state, counts
         counts[2] = 2.0 + float(piecewise)
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
-        state, nev = qd.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, c, cb, deg, a, b, state)
+        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
         piece = a
-        while piece < b and state[3] >= q.min_transmittance:
+        while piece < b and state.transmittance >= q.min_transmittance:
             cut = b
             if piecewise == 1:
-                nc = qd.next_cut(tf, c, cb, deg, a, b, piece)
+                nc = quadrature.next_cut(tf, coeffs, base, deg, a, b, piece)
                 cut = nc[0]
                 counts[1] = counts[1] + nc[1]
-            state = qd.gauss_kronrod_smooth(tf, q, c, cb, deg, a, b, piece, cut, emitting, state)
+            state = quadrature.gauss_kronrod_smooth(tf, q, coeffs, base, deg, a, b, piece, cut, emitting, state)
             piece = cut
     return state, counts
 
@@ -551,17 +653,22 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
     o, d = camera_ray(cam, pixel)
     ct = rays.color_t[i]
     de = rays.depth_err[i]
-    state = vecst(ct[0], ct[1], ct[2], ct[3], 0.0, de[0], de[1])
+    state = RayIntegral()
+    state.color = wp.vec3(ct[0], ct[1], ct[2])
+    state.transmittance = ct[3]
+    state.restriction_evals = 0.0
+    state.depth = de[0]
+    state.error = de[1]
     n_field = int(0)
     n_restr = float(0.0)
     n_empty = int(0)
     n_smooth = int(0)
     n_pw = int(0)
     for k in range(segs.count[i]):
-        if state[3] < q.min_transmittance:
+        if state.transmittance < q.min_transmittance:
             break
         slot = i * SEGMENTS_PER_ROUND + k
-        state[6] = state[6] + segs.tail[slot]
+        state.error = state.error + segs.tail[slot]
         state, counts = integrate_segment(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
                                           segs.degree[slot], segs.flags[slot], segs, slot, state)
         n_field += int(counts[0])
@@ -573,14 +680,14 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
             n_smooth += 1
         elif cls == 3:
             n_pw += 1
-    rays.color_t[i] = wp.vec4(state[0], state[1], state[2], state[3])
-    rays.depth_err[i] = wp.vec2(state[5], state[6])
+    rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
+    rays.depth_err[i] = wp.vec2(state.depth, state.error)
     rays.stats[pixel, STAT_FIELD_EVALS] += n_field
-    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(n_restr + state[4])
+    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(n_restr + state.restriction_evals)
     rays.stats[pixel, STAT_EMPTY] += n_empty
     rays.stats[pixel, STAT_SMOOTH] += n_smooth
     rays.stats[pixel, STAT_PIECEWISE] += n_pw
-    if state[3] < q.min_transmittance or rays.phase[i] == 1:
+    if state.transmittance < q.min_transmittance or rays.phase[i] == 1:
         rays.phase[i] = 2
     else:
         rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i

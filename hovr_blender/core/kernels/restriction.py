@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import warp as wp
 
-from . import element as el_k
-from . import geometry as geo
+from . import element
+from . import geometry
 from .args import MAX_SAMPLES, MeshArgs, Segments
 
 wp.set_module_options({"enable_backward": False})
 
-CURVED_TAIL_RTOL = 1.0e-6
+CURVED_TAIL_RTOL = 1.0e-6  # a curved interpolant's tail against its samples' size (refine_degree)
+CURVED_TAIL_RTOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
 
 
 @wp.func
@@ -56,21 +57,21 @@ def chebyshev_coefficient(segs: Segments, slot: int, k: int, deg: int) -> float:
 
 
 @wp.func
-def clenshaw(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> float:
-    """The series c[cb .. cb + deg] at s in [-1, 1]."""
+def clenshaw(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> float:
+    """The series coeffs[base .. base + deg] at s in [-1, 1]."""
     b1 = float(0.0)
     b2 = float(0.0)
     k = deg
     while k >= 1:
-        b0 = c[cb + k] + 2.0 * s * b1 - b2
+        b0 = coeffs[base + k] + 2.0 * s * b1 - b2
         b2 = b1
         b1 = b0
         k -= 1
-    return c[cb] + s * b1 - b2
+    return coeffs[base] + s * b1 - b2
 
 
 @wp.func
-def clenshaw_with_slope(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
+def clenshaw_with_slope(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> wp.vec2:
     """(g(s), g'(s)) of the series in one pass (the recurrence differentiated in s)."""
     b1 = float(0.0)
     b2 = float(0.0)
@@ -78,29 +79,29 @@ def clenshaw_with_slope(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: flo
     d2 = float(0.0)
     k = deg
     while k >= 1:
-        b0 = c[cb + k] + 2.0 * s * b1 - b2
+        b0 = coeffs[base + k] + 2.0 * s * b1 - b2
         d0 = 2.0 * b1 + 2.0 * s * d1 - d2
         b2 = b1
         b1 = b0
         d2 = d1
         d1 = d0
         k -= 1
-    return wp.vec2(c[cb] + s * b1 - b2, b1 + s * d1 - d2)
+    return wp.vec2(coeffs[base] + s * b1 - b2, b1 + s * d1 - d2)
 
 
 @wp.func
-def clenshaw_and_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> wp.vec2:
+def clenshaw_and_integral(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> wp.vec2:
     """(the series at s, clenshaw_integral at s) in one pass: both recurrences share each
     coefficient's load, which is what a Gauss-Kronrod node with exact optical depth needs."""
     b1 = float(0.0)  # value recurrence
     b2 = float(0.0)
     i1 = float(0.0)  # antiderivative recurrence
     i2 = float(0.0)
-    c_k = float(0.0)  # c[k] and c[k + 1] of the step before, loaded once
+    c_k = float(0.0)  # coeffs[k] and coeffs[k + 1] of the step before, loaded once
     c_kp = float(0.0)
     k = deg + 1
     while k >= 1:
-        cm = c[cb + k - 1]
+        cm = coeffs[base + k - 1]
         g = float(0.0)
         if k == 1:
             g = cm - 0.5 * c_kp
@@ -119,38 +120,38 @@ def clenshaw_and_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: f
 
 
 @wp.func
-def clenshaw_integral(c: wp.array(dtype=wp.float32), cb: int, deg: int, s: float) -> float:
-    """An antiderivative in s of the series c[cb .. cb + deg]: sum_{k>=1} G_k T_k(s) with
+def clenshaw_integral(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> float:
+    """An antiderivative in s of the series coeffs[base .. base + deg]: sum_{k>=1} G_k T_k(s) with
     G_1 = c_0 - c_2 / 2 and G_k = (c_k-1 - c_k+1) / (2 k) (c_0 already halved)."""
-    return clenshaw_and_integral(c, cb, deg, s)[1]
+    return clenshaw_and_integral(coeffs, base, deg, s)[1]
 
 
 @wp.func
-def restriction_at(c: wp.array(dtype=wp.float32), cb: int, deg: int, a: float, b: float, t: float) -> float:
+def restriction_at(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, t: float) -> float:
     """f(t) = g(s) / w(s)^2 (w = 1 but for pyramids), s the position of t in [a, b]; the
-    series at c[cb ..], the weights w(a), w(b) in its last two slots."""
+    series at coeffs[base ..], the weights w(a), w(b) in its last two slots."""
     s = wp.clamp((2.0 * t - a - b) / (b - a), -1.0, 1.0)
-    wa = c[cb + MAX_SAMPLES - 2]
-    wb = c[cb + MAX_SAMPLES - 1]
+    wa = coeffs[base + MAX_SAMPLES - 2]
+    wb = coeffs[base + MAX_SAMPLES - 1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
-    return clenshaw(c, cb, deg, s) / (w * w)
+    return clenshaw(coeffs, base, deg, s) / (w * w)
 
 
 @wp.func
-def segment_bounds(c: wp.array(dtype=wp.float32), cb: int, deg: int, err: float) -> wp.vec2:
+def segment_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, err: float) -> wp.vec2:
     """(lo, hi) enclosing f on the whole segment: |g - c_0| <= sum |c_k| (with a float32
     rounding margin), widened by `err` (the samples' rounding, mesh.field_err scaled by the
     Lebesgue constant of the points), divided by w^2 in interval arithmetic (w linear and
     positive)."""
     rad = float(0.0)
     for k in range(1, deg + 1):
-        rad += wp.abs(c[cb + k])
-    rad = rad * 1.000001 + 1.0e-6 * wp.abs(c[cb]) + err
-    glo = c[cb] - rad
-    ghi = c[cb] + rad
+        rad += wp.abs(coeffs[base + k])
+    rad = rad * 1.000001 + 1.0e-6 * wp.abs(coeffs[base]) + err
+    glo = coeffs[base] - rad
+    ghi = coeffs[base] + rad
     # w as restriction_at evaluates it: held to >= 1e-6 (both ends 0: a segment at the apex)
-    w2lo = wp.max(wp.min(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1]), 1.0e-6)
-    w2hi = wp.max(wp.max(c[cb + MAX_SAMPLES - 2], c[cb + MAX_SAMPLES - 1]), 1.0e-6)
+    w2lo = wp.max(wp.min(coeffs[base + MAX_SAMPLES - 2], coeffs[base + MAX_SAMPLES - 1]), 1.0e-6)
+    w2hi = wp.max(wp.max(coeffs[base + MAX_SAMPLES - 2], coeffs[base + MAX_SAMPLES - 1]), 1.0e-6)
     w2lo = w2lo * w2lo
     w2hi = w2hi * w2hi
     return wp.vec2(wp.min(glo / w2lo, glo / w2hi), wp.max(ghi / w2lo, ghi / w2hi))
@@ -162,12 +163,12 @@ def segment_bounds(c: wp.array(dtype=wp.float32), cb: int, deg: int, err: float)
 @wp.func
 def eval_field(mesh: MeshArgs, e: int, xi: wp.vec3) -> float:
     """Field of element e at reference point xi (any shape; element.py)."""
-    return el_k.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
+    return element.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
 
 
 @wp.func
 def restriction_degree(mesh: MeshArgs, e: int) -> int:
-    return el_k.polynomial_degree(mesh.shape[e], mesh.modes[e])
+    return element.polynomial_degree(mesh.shape[e], mesh.modes[e])
 
 
 @wp.func
@@ -177,7 +178,7 @@ def curved_base_degree(mesh: MeshArgs, e: int) -> int:
     are a small part of their element and pass at half: paper-scale curved at 240x135 on the CPU,
     field evaluations per ray 76.6 -> 41.2 and the error against the float64 reference no worse.
     Where the doubled degree would not fit MAX_SAMPLES, the full degree at once."""
-    full = wp.min(el_k.polynomial_degree(mesh.shape[e], mesh.modes[e]) + mesh.geo_degree[e], MAX_SAMPLES - 5)
+    full = wp.min(element.polynomial_degree(mesh.shape[e], mesh.modes[e]) + mesh.geo_degree[e], MAX_SAMPLES - 5)
     half = (full + 1) // 2
     if 2 * half > MAX_SAMPLES - 5:
         half = full
@@ -220,15 +221,15 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
         p = o + t * d
         start = hermite_start(segs, slot, t)
         for attempt in range(2):
-            r, Jinv = geo.invert_point(mesh, e, p, start)
+            r, Jinv = geometry.invert_point(mesh, e, p, start)
             xi = wp.vec3(r[0], r[1], r[2])
             if r[3] > 0.0:
                 break
-            start = geo.start_guess(mesh, e, p)
+            start = geometry.start_guess(mesh, e, p)
     else:
         A = mesh.ref_a[e]
         xi = A * (o + t * d) + mesh.ref_b[e]
-        w = el_k.restriction_weight(mesh.shape[e], xi)
+        w = element.restriction_weight(mesh.shape[e], xi)
     return xi, w
 
 
@@ -248,8 +249,8 @@ def end_weights(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: in
     e = segs.element[slot]
     A = mesh.ref_a[e]
     sh = mesh.shape[e]
-    return wp.vec2(el_k.restriction_weight(sh, A * (o + segs.t0[slot] * d) + mesh.ref_b[e]),
-                   el_k.restriction_weight(sh, A * (o + segs.t1[slot] * d) + mesh.ref_b[e]))
+    return wp.vec2(element.restriction_weight(sh, A * (o + segs.t0[slot] * d) + mesh.ref_b[e]),
+                   element.restriction_weight(sh, A * (o + segs.t1[slot] * d) + mesh.ref_b[e]))
 
 
 @wp.func
