@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import limits
+from . import limits, shapes
 from .adjacency import face_neighbours, vertex_affine_guess
 from .camera import RayCamera
 from .kernels import quadrature_tables
@@ -105,8 +105,8 @@ def _check_float32_range(mesh: VolumeMesh):
 def polynomial_degree(shape, modes):
     """Degree along a straight line of an element's (weighted) expansion: kernels/element.py's."""
     d = np.maximum(np.asarray(modes) - 1, 1)
-    return np.select([shape == 2, shape == 1, shape == 3], [d.max(axis=1), np.maximum(d[:, 0], d[:, 2]) + d[:, 1],
-                                                            d.sum(axis=1) + 2], d.sum(axis=1))
+    return np.select([shape == shapes.TET, shape == shapes.PRISM, shape == shapes.PYR],
+                     [d.max(axis=1), np.maximum(d[:, 0], d[:, 2]) + d[:, 1], d.sum(axis=1) + 2], d.sum(axis=1))
 
 
 def geometry_rounding(geo_offset, geo_coeffs, geo_centre, eps: float) -> np.ndarray:

@@ -9,7 +9,7 @@ from hovr_blender.core.adjacency import face_neighbours, vertex_affine_guess
 from hovr_blender.core.shapes import FACE_PLANES
 from hovr_blender.core.shapes import plane_vertices as face_vertices
 from hovr_blender.core.camera import RayCamera
-from hovr_blender.core.kernels import element as el_k
+from hovr_blender.core.kernels import element
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions
@@ -19,7 +19,7 @@ from hovr_blender.io.synthetic import brick, mixed_cube
 @wp.kernel
 def _planes(out: wp.array(dtype=wp.vec4)):
     i = wp.tid()
-    out[i] = el_k.face_plane(i // 6, i % 6)
+    out[i] = element.face_plane(i // 6, i % 6)
 
 
 def test_kernel_face_planes_match_the_host_table():

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.core.kernels import args
-from hovr_blender.core.kernels import restriction as rs
+from hovr_blender.core.kernels import restriction
 from hovr_blender.core.mesh import VolumeMesh, element_field_ranges
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.io.synthetic import straight_geometry
@@ -165,17 +165,17 @@ def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.arr
     segs.element[i] = 0
     segs.t0[i] = ab[i][0]
     segs.t1[i] = ab[i][1]
-    deg = rs.restriction_degree(mesh, 0)
+    deg = restriction.restriction_degree(mesh, 0)
     for j in range(deg + 1):
-        segs.samples[i * args.MAX_SAMPLES + j] = rs.sample_at(mesh, xo[i], xd[i], segs, i, j, deg, 0)
-    w = rs.end_weights(mesh, xo[i], xd[i], segs, i, 0)
+        segs.samples[i * args.MAX_SAMPLES + j] = restriction.sample_at(mesh, xo[i], xd[i], segs, i, j, deg, 0)
+    w = restriction.end_weights(mesh, xo[i], xd[i], segs, i, 0)
     segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
     segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
     for k in range(deg + 1):
-        segs.coeffs[i * args.MAX_SAMPLES + k] = rs.chebyshev_coefficient(segs, i, k, deg)
+        segs.coeffs[i * args.MAX_SAMPLES + k] = restriction.chebyshev_coefficient(segs, i, k, deg)
     segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
     segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
-    out[i] = rs.segment_bounds(segs.coeffs, i * args.MAX_SAMPLES, deg, mesh.field_err[0])
+    out[i] = restriction.segment_bounds(segs.coeffs, i * args.MAX_SAMPLES, deg, mesh.field_err[0])
 
 
 def segment_bounds(mesh_args, xo, xd, ab):

@@ -23,13 +23,6 @@ BLENDER_MODULES = ("bpy", "gpu", "blf", "bmesh", "mathutils", "bpy_extras", "add
 ABOVE_CORE = ("hovr_blender.io", "hovr_blender.blender", "hovr_blender.cli")
 BLOCKED_AT_RUNTIME = ("bpy", "gpu", "blf", "hovr_blender.io", "hovr_blender.blender")
 
-# Modules allowed to edit sys.path, and why. Each entry is a debt: the check fails for any other.
-SYS_PATH_EDITS = {
-    # puts the generated float64 twin package (a cache folder) on sys.path to import it; loading
-    # it through importlib.util.spec_from_file_location would need no sys.path entry
-    "hovr_blender/core/kernels/precision.py":
-        "the float64 kernels are generated into a cache folder and imported from there",
-}
 
 _IMPORT_EVERY_CORE_MODULE = r"""
 import importlib, importlib.abc, json, pkgutil, sys
@@ -162,8 +155,7 @@ def _edits_sys_path(tree):
 def test_no_module_of_the_package_edits_sys_path():
     found = {str(path.relative_to(REPO)): lines for path, _, _, tree in _modules(PACKAGE)
              if (lines := sorted(set(_edits_sys_path(tree))))}
-    unexpected = {k: v for k, v in found.items() if k not in SYS_PATH_EDITS}
-    assert unexpected == {}, f"sys.path edited at {unexpected}: import through the package instead"
+    assert found == {}, f"sys.path edited at {found}: import through the package instead"
 
 
 @pytest.mark.parametrize("source,expect", [
