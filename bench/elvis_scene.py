@@ -1,6 +1,6 @@
 """ElVis's Nektar++ volume-rendering regression scene, ours beside its two baselines.
 
-Scene (spec/formats.md, "ElVis test scene"): one hexahedron [-1,1]x[-1,1]x[-4,-2] read from
+Scene (docs/spec/formats.md, "ElVis test scene"): one hexahedron [-1,1]x[-1,1]x[-4,-2] read from
 Hex_01_01_01_03Modes_x2_Offset3.{xml,fld}, p = x^2+y^2+z^2, 1024x1024, eye at the origin
 looking down -z, three tent spikes. Writes ours (npy/png), the float64 reference, the
 error against it, and a side-by-side figure with ElVis's baselines.

@@ -9,7 +9,7 @@ with trilinear interpolation (as VTK's GPU ray caster does), against the pixel-e
    evaluated there, vectorised over (point, element) pairs. Points in no element are NaN
    (empty; no extra memory).
 2. ``march(grid, camera, tf, background, step)``: a Warp kernel (cpu or cuda), one thread per
-   pixel, the contract's rays (render-contract.md §4) clipped to the grid's box, front to
+   pixel, the contract's rays (docs/spec/render-contract.md §4) clipped to the grid's box, front to
    back with step = h_g / 2 by default: at each step's midpoint the trilinear value s gives
    tau(s), kappa(s) from the exact piecewise-linear transfer function (not a lookup table,
    so only the resampling and the step are measured), alpha = 1 - exp(-tau dt),

@@ -9,7 +9,7 @@
       platform's warp-lang wheel (downloaded with pip into build/wheels/, not committed) and
       a manifest with `platforms` and `wheels` filled in (as Blender's --split-platforms does).
   python scripts/build_extension.py validate PATH
-      checks the manifest fields (notes §2.1) and the archive layout, then runs Blender's own
+      checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
 The repository keeps blender_manifest.toml at the top and the add-on in hovr_blender/;

@@ -2,7 +2,7 @@
 
 Blender already folds lens, sensor fit, shift, ortho scale and pixel aspect into the
 projection matrix of ``Object.calc_matrix_camera``; unprojecting NDC points through it
-(notes §3.5) avoids re-deriving that model by hand. The contract's u, v relate to NDC by
+avoids re-deriving that model by hand. The contract's u, v relate to NDC by
 x_ndc = u H / W and y_ndc = v, and both projections are affine in (x_ndc, y_ndc), so
 three unprojected points give the RayCamera's o0, ou, ov, d0, du, dv exactly.
 """
@@ -202,7 +202,7 @@ def sub_camera(cam: RayCamera, x0: int, y0_top: int, width: int, height: int) ->
 
 
 def ray_camera_from_view(window_matrix, view_matrix, width: int, height: int) -> RayCamera:
-    """Viewport rays (notes §3.5): rv3d.window_matrix already holds the lens, zoom, camera-view
+    """Viewport rays: rv3d.window_matrix already holds the lens, zoom, camera-view
     offset and clip range, rv3d.view_matrix is world -> view; clip planes applied (taken from
     the float32 matrix: the far plane is good to ~1e-3 relative, the near one to ~1e-7)."""
     view = _as_matrix(view_matrix, "view matrix")

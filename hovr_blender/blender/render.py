@@ -236,7 +236,7 @@ def viewport_request(context, depsgraph):
 
 def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
     """All of view_draw except the GPU upload: detect changes (view changes arrive only
-    here, notes §1.9), do a bounded amount of work, return the frame to show."""
+    here: moving the view does not call view_update), do a bounded amount of work, return the frame to show."""
     renderer, request = viewport_request(context, depsgraph)
     state.sync(renderer, request)
     state.step(budget)

@@ -1,4 +1,4 @@
-"""Progressive viewport rendering, without bpy (notes §3.4, §1.8).
+"""Progressive viewport rendering, without bpy.
 
 The viewport must answer any change (view, transfer function, object, settings) with a
 picture quickly and never block Blender's UI, yet end at the quality of F12. The

@@ -2,7 +2,7 @@
 
 THE CONTRACT (implemented by this module, used by importers, the reference and the tests;
 the Warp kernels implement the same polynomials independently and are tested against it).
-Conventions are those of ../shared/spec/formats.md §2.8-2.12 (Nektar++):
+Conventions are those of docs/spec/formats.md §2.8-2.12 (Nektar++):
 
 Shapes: HEX = 0, PRISM = 1, TET = 2, PYR = 3; reference coordinates xi in [-1, 1]^3 with the
 vertex numbering of §2.8 (VERTICES).

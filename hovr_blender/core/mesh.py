@@ -2,7 +2,7 @@
 
 Struct-of-arrays so it uploads to Warp unchanged. One row per element:
 - ``shape``: element shape id (HEX for now; prisms, tets, pyramids share the container);
-- geometry: the 8 vertices (local numbering of spec/formats.md §2.8) and, for affine
+- geometry: the 8 vertices (local numbering of docs/spec/formats.md §2.8) and, for affine
   elements, the exact world->reference map xi = A x + b (the traversal's fast path);
 - field: per-direction mode counts, basis id, offset into one flat coefficient array.
 """

@@ -1,7 +1,7 @@
 """core/expansions.py: Nektar++'s MODIFIED expansions of all four shapes (numpy oracle).
 
 Properties of the bases, exact reproduction of the spaces, fitting, gradients, the inverse map,
-and real Nektar++ data (spec/formats.md §2.15) that only the corrected tet/prism bases reproduce.
+and real Nektar++ data (docs/spec/formats.md §2.15) that only the corrected tet/prism bases reproduce.
 """
 from __future__ import annotations
 

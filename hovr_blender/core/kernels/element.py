@@ -1,7 +1,7 @@
 """Element expansions on the device: Nektar++'s MODIFIED family for all four shapes.
 
 Independent of the numpy oracle (core/expansions.py); tests compare the two. Conventions:
-spec/formats.md §2.8-2.10 (collapsed coordinates, mode storage order, and the collapsed-
+docs/spec/formats.md §2.8-2.10 (collapsed coordinates, mode storage order, and the collapsed-
 vertex corrections without which tets are off by 0.17 and prisms jump across faces).
 """
 from __future__ import annotations
