@@ -24,7 +24,7 @@ def test_one_volume_the_function_of_the_data_is_unchanged(seed, offset, span):
     f = rng.uniform(offset - span, offset + 2 * span, 200)
     g = fr.apply(f)
     band = np.concatenate([mapped.color_s, mapped.density_s])
-    np.testing.assert_allclose([band.min(), band.max()], [-0.5, 0.5], atol=1e-9)  # the band at unit width around 0
+    np.testing.assert_allclose([band.min(), band.max()], [-0.5, 0.5], atol=1e-6)  # the band at unit width around 0
     # float64 rounding of the map: ~1e-16 x |data| / span, far below an image's 1e-3
     np.testing.assert_allclose(mapped.density(g), tf.density(f), atol=1e-6 * tf.density_tau.max())
     np.testing.assert_allclose(mapped.color(g), tf.color(f), atol=1e-6)
