@@ -143,18 +143,53 @@ def segment_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, err:
     rounding margin), widened by `err` (the samples' rounding, mesh.field_err scaled by the
     Lebesgue constant of the points), divided by w^2 in interval arithmetic (w linear and
     positive)."""
+    wa = coeffs[base + MAX_SAMPLES - 2]
+    wb = coeffs[base + MAX_SAMPLES - 1]
+    if wa == 1.0 and wb == 1.0:  # no pyramid weight: f = g
+        rad = float(0.0)
+        for k in range(1, deg + 1):
+            rad += wp.abs(coeffs[base + k])
+        rad = rad * 1.000001 + 1.0e-6 * wp.abs(coeffs[base]) + err
+        return wp.vec2(coeffs[base] - rad, coeffs[base] + rad)
+    return pyramid_segment_bounds(coeffs, base, deg, err, wa, wb)
+
+
+@wp.func
+def pyramid_segment_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, err: float, wa: float,
+                           wb: float) -> wp.vec2:
+    """segment_bounds where f = g / w^2: f = m + (g - m w^2) / w^2 with m the value at the
+    middle, so the interval division acts on the variation only and the bound moves with the
+    field when a constant is added to it (a bound of g / w^2 itself grows with the field's offset).
+    w = alpha + beta s, so w^2 = (alpha^2 + beta^2 / 2) T_0 + 2 alpha beta T_1 + beta^2 / 2 T_2."""
+    alpha = 0.5 * (wa + wb)
+    beta = 0.5 * (wb - wa)
+    m = float(0.0)
+    if alpha > 1.0e-3:
+        m = clenshaw(coeffs, base, deg, 0.0) / (alpha * alpha)
+    w2_1 = 2.0 * alpha * beta
+    w2_2 = 0.5 * beta * beta
+    centre = coeffs[base] - m * (alpha * alpha + w2_2)
     rad = float(0.0)
     for k in range(1, deg + 1):
-        rad += wp.abs(coeffs[base + k])
-    rad = rad * 1.000001 + 1.0e-6 * wp.abs(coeffs[base]) + err
-    glo = coeffs[base] - rad
-    ghi = coeffs[base] + rad
+        c = coeffs[base + k]
+        if k == 1:
+            c = c - m * w2_1
+        if k == 2:
+            c = c - m * w2_2
+        rad += wp.abs(c)
+    if deg < 2:
+        rad += wp.abs(m * w2_2)
+    if deg < 1:
+        rad += wp.abs(m * w2_1)
+    rad = rad * 1.000001 + 1.0e-6 * (wp.abs(coeffs[base]) + wp.abs(m) * (alpha * alpha + beta * beta)) + err
+    glo = centre - rad
+    ghi = centre + rad
     # w as restriction_at evaluates it: held to >= 1e-6 (both ends 0: a segment at the apex)
-    w2lo = wp.max(wp.min(coeffs[base + MAX_SAMPLES - 2], coeffs[base + MAX_SAMPLES - 1]), 1.0e-6)
-    w2hi = wp.max(wp.max(coeffs[base + MAX_SAMPLES - 2], coeffs[base + MAX_SAMPLES - 1]), 1.0e-6)
+    w2lo = wp.max(wp.min(wa, wb), 1.0e-6)
+    w2hi = wp.max(wp.max(wa, wb), 1.0e-6)
     w2lo = w2lo * w2lo
     w2hi = w2hi * w2hi
-    return wp.vec2(wp.min(glo / w2lo, glo / w2hi), wp.max(ghi / w2lo, ghi / w2hi))
+    return wp.vec2(wp.min(glo / w2lo, glo / w2hi) + m, wp.max(ghi / w2lo, ghi / w2hi) + m)
 
 
 # ------------------------------------------------------------------ writing samples
