@@ -87,6 +87,9 @@ class VolumeMesh:
     # (lo (N,), hi (N,)) that element_field_ranges must also enclose: a derived field (io/derived.py)
     # is rendered through a polynomial fit, and its true values may leave the fit's own range
     field_range_hull: tuple | None = None
+    # (N,) which volume each element belongs to (0..V-1), for meshes that merge several volumes
+    # (concatenate); None: all one volume
+    volume: np.ndarray | None = None
 
     def __post_init__(self):
         n = self.shape.shape[0]
@@ -254,7 +257,7 @@ class VolumeMesh:
                 geoms.append(g)
             out = VolumeMesh.from_elements(self.shape, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],
                                            self.geom_modes, geoms, field_name=self.field_name, source=self.source)
-            for attr in ("warnings", "has_field", "element_ids", "field_range_hull"):
+            for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume"):
                 if hasattr(self, attr):
                     setattr(out, attr, getattr(self, attr))
             return out
@@ -264,6 +267,7 @@ class VolumeMesh:
             basis=int(self.basis[0]), field_name=self.field_name, source=self.source,
         )
         out.basis = self.basis.copy()
+        out.volume = self.volume
         return out
 
 
@@ -319,14 +323,76 @@ def _grouped_ranges(shapes, modes, offsets, flat):
     return _per_group(shapes, modes, offsets, flat, _modal_ranges)
 
 
-def element_coefficient_scale(mesh: "VolumeMesh") -> np.ndarray:
+def element_coefficient_scale(mesh: "VolumeMesh", coeffs: np.ndarray | None = None) -> np.ndarray:
     """(N,) sum_m |c_m| max|phi_m|: the size of the terms an evaluation of the element's field
-    adds up, so its rounding error is about this times the precision's epsilon."""
+    adds up, so its rounding error is about this times the precision's epsilon (of the mesh's
+    coefficients, or of `coeffs` laid out as they are)."""
     def scale(shape, modes, C):
         B, _ = mode_bounds(shape, modes)
         return ((np.abs(C) * B).sum(axis=1),)
 
-    return _per_group(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs, scale)[0]
+    flat = mesh.coeffs if coeffs is None else coeffs
+    return _per_group(mesh.shape, mesh.modes, mesh.coeff_offset, flat, scale)[0]
+
+
+def element_volumes(mesh: "VolumeMesh") -> np.ndarray:
+    """(N,) the volume of each element (all 0 for a mesh of one volume)."""
+    return np.zeros(mesh.num_elements, np.int64) if mesh.volume is None else np.asarray(mesh.volume, np.int64)
+
+
+def mapped_coefficients(mesh: "VolumeMesh", scale: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The coefficients of f' = scale[e] f + shift[e] on each element e: every mode scales, and
+    the shift goes onto the vertex modes alone, which sum to one on every shape."""
+    out = mesh.coeffs.copy()
+    keys = np.concatenate([mesh.shape[:, None], mesh.modes], axis=1)
+    for key in np.unique(keys, axis=0):
+        sh, m = int(key[0]), tuple(int(v) for v in key[1:])
+        idx = np.nonzero((keys == key).all(axis=1))[0]
+        if np.any(shift[idx] != 0) and min(m) < 2:
+            raise MeshError(f"element {int(idx[0])}: {list(m)} modes cannot hold a constant, so its field "
+                            "cannot be shifted; render with precision float64")
+        gather = mesh.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(sh, m))[None, :]
+        out[gather] = mesh.coeffs[gather] * scale[idx][:, None]
+        if min(m) >= 2:
+            out[mesh.coeff_offset[idx][:, None] + ex.vertex_mode_indices(sh, m)[None, :]] += shift[idx][:, None]
+    return out
+
+
+def concatenate(meshes) -> "VolumeMesh":
+    """One mesh of several volumes, element e of meshes[k] tagged volume k (VolumeMesh.volume):
+    one BVH and one pass render them together, each through its own transfer function."""
+    meshes = list(meshes)
+    if len(meshes) == 1:
+        return meshes[0]
+    curved = any(m.geom_coeffs is not None for m in meshes)
+    if curved and not all(m.geom_coeffs is not None for m in meshes):
+        raise MeshError("cannot merge meshes built with and without geometry expansions")
+
+    def cat(name):
+        return np.concatenate([getattr(m, name) for m in meshes])
+
+    def offsets(name, values):
+        starts = np.cumsum([0] + [len(getattr(m, values)) for m in meshes[:-1]])
+        return np.concatenate([getattr(m, name) + s for m, s in zip(meshes, starts)])
+
+    hulls = [m.field_range_hull for m in meshes]
+    if any(h is not None for h in hulls):
+        lo_hi = [h if h is not None else element_field_ranges(m) for m, h in zip(meshes, hulls)]
+        hull = (np.concatenate([h[0] for h in lo_hi]), np.concatenate([h[1] for h in lo_hi]))
+    else:
+        hull = None
+    return VolumeMesh(
+        shape=cat("shape"), vertices=cat("vertices"), ref_from_world=cat("ref_from_world"), modes=cat("modes"),
+        basis=cat("basis"), coeff_offset=offsets("coeff_offset", "coeffs"), coeffs=cat("coeffs"),
+        field_name=" + ".join(dict.fromkeys(m.field_name for m in meshes)),
+        source=" + ".join(m.source for m in meshes if m.source),
+        geom_modes=cat("geom_modes") if curved else None,
+        geom_offset=offsets("geom_offset", "geom_coeffs") if curved else None,
+        geom_coeffs=cat("geom_coeffs") if curved else None,
+        affine=np.concatenate([np.ones(m.num_elements, bool) if m.affine is None else m.affine for m in meshes]),
+        field_range_hull=hull,
+        volume=np.concatenate([np.full(m.num_elements, k, np.int32) for k, m in enumerate(meshes)]),
+    )
 
 
 def element_field_ranges(mesh: "VolumeMesh"):

@@ -11,14 +11,15 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from . import limits, shapes
+from . import field_frame, limits, shapes
 from .adjacency import face_neighbours, vertex_affine_guess
 from .camera import RayCamera
 from .kernels import quadrature_tables
 from .kernels.args import MAX_SAMPLES
 from .kernels.element import static_modes
 from .kernels.precision import Precision
-from .mesh import VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges
+from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
+                   element_volumes, mapped_coefficients)
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
 from .view import RenderOptions, View
@@ -89,17 +90,23 @@ MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
 
-def _check_float32_range(mesh: VolumeMesh):
+def _check_float32_range(what: str, values, offsets):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
-    for what, values, offsets in (("field coefficients", mesh.coeffs, mesh.coeff_offset),
-                                  ("geometry", mesh.geom_coeffs, mesh.geom_offset)):
-        if values is None or values.size == 0:
-            continue
-        big = np.abs(values.reshape(len(values), -1)).max(axis=1) > FLOAT32_LIMIT
-        if big.any():
-            e = int(np.searchsorted(offsets, int(np.argmax(big)), side="right") - 1)
-            raise RenderError(f"element {e}: {what} exceed the float32 kernels' range (|value| > {FLOAT32_LIMIT:.0e}); "
-                              f"render with precision float64 or rescale the data")
+    if values is None or values.size == 0:
+        return
+    big = np.abs(values.reshape(len(values), -1)).max(axis=1) > FLOAT32_LIMIT
+    if big.any():
+        e = int(np.searchsorted(offsets, int(np.argmax(big)), side="right") - 1)
+        raise RenderError(f"element {e}: {what} exceed the float32 kernels' range (|value| > {FLOAT32_LIMIT:.0e}); "
+                          f"render with precision float64 or rescale the data")
+
+
+def _outward(lo, hi, dtype):
+    """lo, hi cast to dtype, rounded outward (a certified range stays one)."""
+    lo_c, hi_c = lo.astype(dtype), hi.astype(dtype)
+    lo_c = np.where(lo_c > lo, np.nextafter(lo_c, dtype.type(-np.inf)), lo_c)
+    hi_c = np.where(hi_c < hi, np.nextafter(hi_c, dtype.type(np.inf)), hi_c)
+    return lo_c, hi_c
 
 
 def polynomial_degree(shape, modes):
@@ -145,6 +152,14 @@ class Renderer:
         self.mesh = mesh
         self._curved = not bool(mesh.affine is None or mesh.affine.all())
         self._uploads = {}  # precision name -> _Upload
+        # the field's frame (core/field_frame.py) follows the transfer functions: the float64
+        # data stays here, the device holds it mapped into the last frame rendered
+        self._volume = element_volumes(mesh)
+        self.volumes = int(self._volume.max()) + 1
+        self._field_lo, self._field_hi = element_field_ranges(mesh)
+        self._coeff_scale = element_coefficient_scale(mesh)
+        self.data_ranges = [(float(self._field_lo[self._volume == k].min()), float(self._field_hi[self._volume == k].max()))
+                            for k in range(self.volumes)]
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
@@ -257,8 +272,11 @@ class Renderer:
                            f"a {width}x{height} image in {options.precision}")
 
     def mesh_args(self, precision: str = "float32"):
-        """The uploaded MeshArgs struct (for kernels that evaluate the mesh, e.g. tests)."""
-        return self._upload(precision).mesh_args
+        """The uploaded MeshArgs struct with the field in its own units (for kernels that
+        evaluate the mesh, e.g. tests)."""
+        upload = self._upload(precision)
+        self._set_field(upload, self.identity_frame())
+        return upload.mesh_args
 
     def _upload(self, name: str) -> _Upload:
         """Mesh arrays and kernels for the precision called `name` (float64 on first use)."""
@@ -268,7 +286,7 @@ class Renderer:
         raycast = prec.kernels
         mesh = self.mesh
         if name == "float32":
-            _check_float32_range(mesh)
+            _check_float32_range("geometry", mesh.geom_coeffs, mesh.geom_offset)
         fdt, v3, m33, scalar = prec.dtype, prec.vec3, prec.mat33, prec.scalar
         with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
@@ -284,14 +302,6 @@ class Renderer:
             if mesh.coeffs.size >= 2**31:
                 raise RenderError("field too large for 32-bit coefficient offsets")
             m.coeff_offset = wp.array(mesh.coeff_offset.astype(np.int32), dtype=wp.int32)
-            m.coeffs = wp.array(mesh.coeffs.astype(fdt), dtype=scalar)
-            flo, fhi = element_field_ranges(mesh)
-            m.field_lo = wp.array(flo.astype(fdt), dtype=scalar)
-            m.field_hi = wp.array(fhi.astype(fdt), dtype=scalar)
-            # a sample is a sum of terms of this size: its rounding error, and the interpolant's
-            # (Lebesgue constant of <= 48 Chebyshev-Lobatto points < 4) times a few ulps per term
-            err = EVAL_ERROR_FACTOR * prec.eps * element_coefficient_scale(mesh)
-            m.field_err = wp.array(err.astype(fdt), dtype=scalar)
             n = mesh.num_elements
             affine = np.ones(n, np.int32) if mesh.affine is None else mesh.affine.astype(np.int32)
             m.affine = wp.array(affine, dtype=wp.int32)
@@ -315,9 +325,57 @@ class Renderer:
         self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
         return self._uploads[name]
 
-    def render(self, camera: RayCamera, tf: TransferFunction, background, options: RenderOptions,
+    def identity_frame(self) -> field_frame.FieldFrame:
+        return field_frame.FieldFrame(np.ones(self.volumes), np.zeros(self.volumes))
+
+    def _set_field(self, upload: _Upload, fr: field_frame.FieldFrame):
+        """The field on the device mapped into frame `fr`: coefficients, certified ranges and
+        rounding sizes (kept while the frame stays the same)."""
+        if upload.field_key == fr.key:
+            return
+        prec, m, mesh = upload.precision, upload.mesh_args, self.mesh
+        a, b = fr.scale[self._volume], fr.shift[self._volume]
+        try:
+            coeffs = mapped_coefficients(mesh, a, b)
+        except MeshError as exc:
+            raise RenderError(str(exc)) from exc
+        if prec.name == "float32":
+            _check_float32_range("field coefficients", coeffs, mesh.coeff_offset)
+        # the map of a certified range, widened by the map's rounding, then cast outward
+        eps64 = float(np.finfo(np.float64).eps)
+        lo, hi = a * self._field_lo + b, a * self._field_hi + b
+        pad = 2 * eps64 * (a * np.maximum(np.abs(self._field_lo), np.abs(self._field_hi)) + np.abs(b))
+        flo, fhi = _outward(lo - pad, hi + pad, prec.dtype)
+        # a sample is a sum of terms of this size: its rounding error, and the interpolant's
+        # (Lebesgue constant of <= 48 Chebyshev-Lobatto points < 4) times a few ulps per term;
+        # plus the map's own rounding of the coefficients (b on each of at most 8 vertex modes)
+        rounding = prec.eps * element_coefficient_scale(mesh, coeffs) + eps64 * (a * self._coeff_scale + 8 * np.abs(b))
+        with wp.ScopedDevice(self.device):
+            m.coeffs = wp.array(coeffs.astype(prec.dtype), dtype=prec.scalar)
+            m.field_lo = wp.array(flo, dtype=prec.scalar)
+            m.field_hi = wp.array(fhi, dtype=prec.scalar)
+            m.field_err = wp.array((EVAL_ERROR_FACTOR * rounding).astype(prec.dtype), dtype=prec.scalar)
+        upload.field_key = fr.key
+        upload.field = (lo, hi, rounding)
+
+    def field_frame(self, tfs, precision: str = "float32"):
+        """(frame, transfer function in frame units, warnings) for transfer functions `tfs` (one
+        per volume), with the field on the device mapped into that frame."""
+        tfs = [tfs] if isinstance(tfs, TransferFunction) else list(tfs)
+        if len(tfs) != self.volumes:
+            raise RenderError(f"{len(tfs)} transfer functions for {self.volumes} volumes")
+        upload = self._upload(precision)
+        fr, tf = field_frame.frame(tfs, self.data_ranges)
+        self._set_field(upload, fr)
+        lo, hi, rounding = upload.field
+        warnings = field_frame.resolution_warnings(tfs, fr, self._volume, lo, hi, rounding, precision)
+        return fr, tf, warnings
+
+    def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
-        """Render one image. With `progress`, the image is launched in tiles of `tile_pixels`
+        """Render one image through `tf`, a TransferFunction or a list of one per volume
+        (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
+        transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
         pixels and progress(fraction_done) is called after each; returning False cancels
         (the result then has cancelled=True and only the finished tiles filled in). With `profile`,
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
@@ -327,9 +385,10 @@ class Renderer:
         kernels = prec.kernels
         W, H = int(camera.width), int(camera.height)
         total = W * H
+        _, tf_frame, warnings = self.field_frame(tf, options.precision)
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
-            transfer = _transfer_args(prec, tf)
+            transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = total if progress is None else max(1, int(tile_pixels or 65536))
@@ -370,7 +429,7 @@ class Renderer:
         info = {"device": self.device, "render_seconds": seconds, "width": W, "height": H, "method": options.method,
                 "parameters": options.as_dict(), **_counter_stats(kernels, counts, W * H), "rounds": rounds,
                 **({"kernel_seconds": launch.seconds} if profile else {}),
-                "elements": self.mesh.num_elements, "precision": options.precision}
+                "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
                             stats=info)
 
@@ -436,6 +495,8 @@ class _Upload:
     search: object
     traverse: object
     sample: object
+    field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
+    field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
 
 
 @dataclass

@@ -113,21 +113,27 @@ def test_float64_watertight_curved_brick(device):
 
 
 def test_float32_overflow_is_named_and_float64_renders(device):
-    """A field beyond float32's range: float32 renders stop with a clear error naming the
-    element (not inf pixels); the float64 kernels render the same data."""
+    """A field beyond float32's range, read through a transfer function at unit scale: float32
+    renders stop with a clear error naming the element (not inf pixels); the float64 kernels
+    render the same data. Through a transfer function at the field's own scale, the field's
+    frame (core/field_frame.py) brings it into range and float32 renders it too."""
     from hovr_blender.core.renderer import RenderError
 
     mesh = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0e300)
-    tf = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],
-                                         "density": [[0, 0.0], [0.5e300, 2.0], [2e300, 2.0]]})
+    unit = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2, 1, 1, 1]],
+                                           "density": [[0, 0.0], [0.5, 2.0], [2, 2.0]]})
     cam = RayCamera.from_contract(UNIT_CUBE_CAM, 12, 9)
     r = Renderer(mesh, device)
     with pytest.raises(RenderError, match="element 0: field coefficients exceed the float32"):
-        r.render(cam, tf, [0, 0, 0], RenderOptions(method="split"))
-    res = r.render(cam, tf, [0, 0, 0], RenderOptions(method="split", min_transmittance=0, precision="float64"))
+        r.render(cam, unit, [0, 0, 0], RenderOptions(method="split"))
     o, d = cam.rays()
     L = box_chord(o, d, np.zeros(3), np.ones(3))
+    res = r.render(cam, unit, [0, 0, 0], RenderOptions(method="split", min_transmittance=0, precision="float64"))
     np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-9, atol=1e-12)
+    own = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],
+                                          "density": [[0, 0.0], [0.5e300, 2.0], [2e300, 2.0]]})
+    res = r.render(cam, own, [0, 0, 0], RenderOptions(method="split", min_transmittance=0))
+    np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.slow
