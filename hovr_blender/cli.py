@@ -119,6 +119,8 @@ def _run(args) -> str:
             )
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats
+            for warning in stats.get("warnings", []):
+                print(f"hovr: warning: {warning}", file=sys.stderr)
         else:
             from .core.reference import reference_render
 

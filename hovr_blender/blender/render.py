@@ -303,6 +303,8 @@ def final_render(engine, api, depsgraph):
     if result.cancelled or api.test_break():
         api.update_stats("", "HOVR | cancelled")
         return
+    for w in result.stats.get("warnings", []):
+        api.report({'WARNING'}, f"HOVR: {w}")
 
     res = engine.begin_result(0, 0, job.width, job.height)
     if (res.resolution_x, res.resolution_y) != (job.width, job.height):

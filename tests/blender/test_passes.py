@@ -149,6 +149,7 @@ class _Recorder:
         self._engine.update_stats(a, b)
 
     def report(self, kind, msg):
+        self._calls.setdefault("reports", []).append((set(kind), msg))
         self._engine.report(kind, msg)
 
     def test_break(self):
@@ -181,3 +182,16 @@ def test_progress_stats_and_cancel_latency(scene, tmp_path, monkeypatch):
     print(f"cancel latency {latency * 1000:.1f} ms after {len(calls['progress'])} tiles; "
           f"cancelled render {t1 - t0:.2f} s in all")
     assert latency < 0.5 and max(calls["progress"]) < 0.5 and calls["stats"][-1] == "HOVR | cancelled"
+
+
+def test_a_transfer_function_float32_cannot_resolve_is_reported(scene, tmp_path, monkeypatch):
+    """The renderer's precision warning (core/field_frame.py) reaches the user as a WARNING
+    report of F12; the image is still written."""
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method="split")
+    scene.hovr.value_min, scene.hovr.value_max = 5.0, 5.000001
+    calls = {"progress": [], "stats": [], "break_at": None, "cancel_after": None, "end": None}
+    monkeypatch.setattr(render_engine, "_engine_api", lambda engine: _Recorder(engine, calls))
+    bpy.ops.render.render(write_still=False)
+    warned = [m for kind, m in calls.get("reports", []) if kind == {'WARNING'} and "float64" in m]
+    assert len(warned) == 1 and warned[0].startswith("HOVR: float32 rounds the field")
+    assert calls["progress"][-1] == 1.0

@@ -229,3 +229,18 @@ def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, ca
     assert err.startswith("hovr: error: unexpected KeyError") and "Traceback" not in err
     assert cli.main(["--debug", "render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
     assert "Traceback" in capsys.readouterr().err
+
+
+def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, capsys):
+    """Breakpoints a millionth apart where the sphere's field is ~10: float32 rounds the field by
+    more than that, even in the transfer function's frame (core/field_frame.py): the render
+    still runs, and says to use float64; in float64 it says nothing."""
+    view = json.loads(json.dumps(VIEW))
+    view["transfer_function"] = {"color": [[5, 1, 1, 1], [5.000002, 1, 0, 0]],
+                                 "density": [[5, 0], [5.000001, 3], [5.000002, 0]]}
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "a.npy")]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("hovr: warning: ") and "precision float64" in err
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
+    assert capsys.readouterr().err == ""
