@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from hovr_blender.audit.chords import box_chord  # noqa: F401  (the tests' slab test: one home)
 from hovr_blender.core import expansions as ex
 from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
@@ -65,15 +66,6 @@ class data_dir:  # noqa: N801  (reads as a function: DATA = data_dir("nektar"))
 
 # the unit cube (mixed_cube and bricks over [0, 1]^3) seen from a corner
 UNIT_CUBE_CAM = {"eye": [3.1, 2.3, 2.6], "target": [0.5, 0.45, 0.5], "up": [0, 0, 1], "fov_y_deg": 35}
-
-
-def box_chord(o, d, lo, hi):
-    """Length of the rays o + t d (t >= 0) inside the box [lo, hi] (slab test, no engine code)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - o) / d, (hi - o) / d
-    t0 = np.nanmax(np.minimum(ta, tb), axis=-1)
-    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
-    return np.clip(t1 - np.maximum(t0, 0.0), 0.0, None)
 
 
 def mesh_bounds(mesh: VolumeMesh):

@@ -4,9 +4,10 @@ curved RotPerBcs3D_Annulus.xml (60 hexahedra with curved quad faces) gives T = e
 L the exact chord through the domain, computed here without engine code:
 
 - the cube: the slab test against the unit cube;
-- the annulus: every intersection of the ray with the domain's boundary faces (faces of one
-  element only), each a polynomial patch x(u, v) of the element map, solved by float64
-  Newton on (u, v, t) from a grid of starts; the chord is the sum of the in/out intervals.
+- the annulus and the ball: every intersection of the ray with the domain's boundary faces
+  (faces of one element only), each a polynomial patch x(u, v) of the element map, solved by
+  float64 Newton on (u, v, t) from a grid of starts; the chord is the sum of the in/out
+  intervals (hovr_blender/audit/chords.py).
 
 Rays: orthographic views whose pixel centres lie on the cube's 1/6 grid (rays along grid
 lines: through vertices, along edges and faces, between elements of different shapes),
@@ -16,16 +17,17 @@ Budgets (issue 3): max relative error of T <= 1e-6 with float64 kernels, <= 1e-4
 import numpy as np
 import pytest
 
-from hovr_blender.core import expansions as ex
+from hovr_blender.audit import chords
 from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
+from hovr_blender.core.mesh import VolumeMesh
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.nektar import read_nektar
 from hovr_blender.io.synthetic import with_field
 
-from ..helpers import data_file
+from ..helpers import box_chord, data_file
 
 BUDGET = {"float64": 1e-6, "float32": 1e-4}
 
@@ -45,16 +47,6 @@ def relative_T_error(res, L, tau):
     want = np.exp(-tau * L)
     rel = np.abs(T - want) / want
     return float(rel.max()), np.unravel_index(int(rel.argmax()), rel.shape)
-
-
-def box_chord(o, d, lo=0.0, hi=1.0):
-    """Length of each ray (o + t d, t >= 0) inside the box [lo, hi]^3, float64."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta = (lo - o) / d
-        tb = (hi - o) / d
-    t0 = np.where(d == 0, np.where((o >= lo) & (o <= hi), -np.inf, np.inf), np.minimum(ta, tb)).max(axis=-1)
-    t1 = np.where(d == 0, np.where((o >= lo) & (o <= hi), np.inf, -np.inf), np.maximum(ta, tb)).min(axis=-1)
-    return np.clip(t1 - np.maximum(t0, 0.0), 0.0, None)
 
 
 def cube_cameras():
@@ -93,7 +85,7 @@ def test_cube_all_elements_is_watertight(device, precision):
     rays, worst = 0, (0.0, None)
     for i, cam in enumerate(cube_cameras()):
         o, d = cam.rays()
-        L = box_chord(o, d)
+        L = box_chord(o, d, 0.0, 1.0)
         res = r.render(cam, tf(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
                                                               precision=precision))
         err, at = relative_T_error(res, L, tau)
@@ -105,121 +97,12 @@ def test_cube_all_elements_is_watertight(device, precision):
 
 # ------------------------------------------------------------------------------- annulus
 
-HEX_FACES = [(0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0), (2, -1.0), (2, 1.0)]  # xi_axis = value
-
-
-def boundary_faces(mesh):
-    """(element, axis, value) of every hexahedron face that no other element shares (faces keyed
-    by their four corner vertices, rounded)."""
-    V = shapes.VERTICES[shapes.HEX]
-    count, where = {}, {}
-    for e in range(mesh.num_elements):
-        for axis, val in HEX_FACES:
-            corners = mesh.vertices[e, :8][np.isclose(V[:, axis], val)]
-            key = tuple(sorted(map(tuple, np.round(corners, 9))))
-            count[key] = count.get(key, 0) + 1
-            where[key] = (e, axis, val)
-    return [where[k] for k, c in count.items() if c == 1]
-
-
-def face_patch(mesh, face):
-    """The face's map x(u, v) as a tensor power series: (C (n, n, 3), n), x = sum C_ab u^a v^b,
-    fitted exactly (n = the geometry's modes) to the oracle's element map on the face."""
-    e, axis, val = face
-    gm = tuple(int(v) for v in mesh.geom_modes[e])
-    G = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(shapes.HEX, gm)]
-    n = max(gm)
-    s = np.cos(np.pi * np.arange(n) / (n - 1))
-    U, Vv = np.meshgrid(s, s, indexing="ij")
-    xi = np.zeros((n * n, 3))
-    xi[:, axis] = val
-    xi[:, [k for k in range(3) if k != axis]] = np.stack([U.ravel(), Vv.ravel()], axis=1)
-    X = ex.eval_modal(shapes.HEX, gm, G, xi)
-    P = np.einsum("pa,pb->pab", U.ravel()[:, None] ** np.arange(n), Vv.ravel()[:, None] ** np.arange(n)).reshape(n * n, -1)
-    C = np.linalg.solve(P, X).reshape(n, n, 3)
-    # the same polynomial: check at other points of the face
-    rng = np.random.default_rng(1)
-    uv = rng.uniform(-1, 1, (20, 2))
-    xi = np.zeros((20, 3))
-    xi[:, axis] = val
-    xi[:, [k for k in range(3) if k != axis]] = uv
-    assert np.allclose(patch_eval(C, uv[:, 0], uv[:, 1])[0], ex.eval_modal(shapes.HEX, gm, G, xi), atol=1e-13)
-    return C
-
-
-def patch_eval(C, u, v):
-    """x, dx/du, dx/dv of the patch at (u, v)."""
-    n = C.shape[0]
-    k = np.arange(n)
-    pu, pv = u[:, None] ** k, v[:, None] ** k
-    du = np.zeros_like(pu)
-    dv = np.zeros_like(pv)
-    du[:, 1:] = k[1:] * u[:, None] ** k[:-1]
-    dv[:, 1:] = k[1:] * v[:, None] ** k[:-1]
-    return (np.einsum("pa,pb,abc->pc", pu, pv, C), np.einsum("pa,pb,abc->pc", du, pv, C),
-            np.einsum("pa,pb,abc->pc", pu, dv, C))
-
-
-def face_hits(C, o, d, starts=3, iters=30):
-    """t of every intersection of the rays with one patch (NaN where none): Newton on (u, v, t)
-    in float64 from a starts x starts grid of (u, v); a root found from several starts once."""
-    n = len(o)
-    hits = []
-    for su in np.linspace(-0.67, 0.67, starts):
-        for sv in np.linspace(-0.67, 0.67, starts):
-            u, v = np.full(n, su), np.full(n, sv)
-            t = np.einsum("ij,ij->i", patch_eval(C, u, v)[0] - o, d)
-            for _ in range(iters):
-                x, xu, xv = patch_eval(C, u, v)
-                F = x - o - t[:, None] * d
-                M = np.stack([xu, xv, -d], axis=2)
-                with np.errstate(all="ignore"):
-                    step = np.linalg.solve(M, F[..., None])[..., 0]
-                step = np.nan_to_num(step, nan=0.0, posinf=0.0, neginf=0.0)
-                u, v, t = np.clip(u - step[:, 0], -1.5, 1.5), np.clip(v - step[:, 1], -1.5, 1.5), t - step[:, 2]
-            F = patch_eval(C, u, v)[0] - o - t[:, None] * d
-            ok = (np.abs(F).max(axis=1) < 1e-12) & (np.maximum(np.abs(u), np.abs(v)) <= 1.0 + 1e-12) & (t >= 0)
-            hits.append(np.where(ok, t, np.nan))
-    H = np.sort(np.stack(hits, axis=1), axis=1)
-    dup = np.zeros_like(H, dtype=bool)
-    dup[:, 1:] = np.abs(np.diff(H, axis=1)) < 1e-9
-    return np.where(dup, np.nan, H)
-
-
-def patch_box(C, pad=1e-6):
-    s = np.linspace(-1, 1, 9)
-    U, V = np.meshgrid(s, s, indexing="ij")
-    X = patch_eval(C, U.ravel(), V.ravel())[0]
-    ext = X.max(axis=0) - X.min(axis=0)
-    return X.min(axis=0) - 0.1 * ext - pad, X.max(axis=0) + 0.1 * ext + pad  # curved between samples: margin
-
 
 def annulus_chord(mesh, o, d):
-    """Chord through the union of the elements: boundary hits sorted per ray, alternately
-    entering and leaving (hits on two faces at one edge count once)."""
-    o = o.reshape(-1, 3)
-    d = d.reshape(-1, 3)
-    cols = []
-    for f in boundary_faces(mesh):
-        C = face_patch(mesh, f)
-        lo, hi = patch_box(C)
-        near = box_chord(o, d, lo, hi) > 0  # only rays that meet the patch's box
-        col = np.full((len(o), 9), np.nan)
-        if near.any():
-            col[near] = face_hits(C, o[near], d[near])
-        cols.append(col)
-    H = np.concatenate(cols, axis=1)
-    H = np.sort(H, axis=1)
-    dup = np.zeros_like(H, dtype=bool)
-    dup[:, 1:] = np.abs(np.diff(H, axis=1)) < 1e-9
-    H = np.where(dup, np.nan, H)
-    H = np.sort(H, axis=1)  # NaN last
-    count = np.isfinite(H).sum(axis=1)
-    assert np.all(count % 2 == 0), f"odd number of boundary crossings on {np.sum(count % 2)} rays"
-    L = np.zeros(len(o))
-    for k in range(0, H.shape[1] - 1, 2):
-        seg = H[:, k + 1] - H[:, k]
-        L += np.where(np.isfinite(seg), seg, 0.0)
+    """Chord through the union of the elements, from the boundary patches alone
+    (hovr_blender/audit/chords.py, float64 Newton; nothing shared with the renderer)."""
+    L = chords.chords_numpy(chords.Boundary(mesh), o, d).ravel()
+    assert not np.isnan(L).any(), f"odd number of boundary crossings on {int(np.isnan(L).sum())} rays"
     return L
 
 
@@ -256,3 +139,63 @@ def test_curved_annulus_is_watertight(device, precision):
         worst = max(worst, (err, (i, at)))
     assert rays >= 4000 and hit >= 2000
     assert worst[0] <= BUDGET[precision], f"max relative error of T {worst[0]:.3g} at camera/pixel {worst[1]}"
+
+
+# ------------------------------------------------------------------------- NGSolve's ball
+# Rays through cells of NGSolve's ball (tests/data/vtu/ngsolve_ball_cells.npz: 7 of its 512
+# curved order-6 hexahedra) where the traversal lost length. Several of these cells meet the
+# sphere along an edge where their Jacobian vanishes, so the polynomial map folds beyond the
+# element and Newton converges slowly near that edge. Each case is one ray through a few cells,
+# against the chord of their boundary patches (audit/chords.py).
+
+BALL_CASES = {
+    # Newton from the warm start, and from the affine guess, converged to a second preimage
+    # outside the element while the point was inside it; the entry search then stepped between
+    # that point and one before the element until it gave up: the whole cell was lost (0.127)
+    "fold_preimage": ([263], [3.170559384880784, -2.536447507905304, 2.2193915694182023],
+                      [-0.7905058502238961, 0.4723825902804268, -0.38981430086869534]),
+    # a stretch thinner than the entry search's step: its step back went to the last point
+    # before the cell, and the same forward step followed, until the search gave up (0.021)
+    "thin_stretch_cycle": ([455], [3.170559384880784, -2.536447507905304, 2.2193915694182023],
+                           [-0.7032702207633706, 0.5530913006441861, -0.446655359017624]),
+    # a corner of 455 clipped where Newton fails at every step outside it: the search found the
+    # next cell, 391, entered through the face it shares with 455 (walk_back recovers 455)
+    "missed_corner": ([391, 455], [3.170559384880784, -2.536447507905304, 2.2193915694182023],
+                      [-0.7352563723897302, 0.5216633514281788, -0.43274174126956466]),
+    # entry next to a degenerate edge: Newton converges linearly there and failed inside the
+    # cell after 12 iterations, so the entry's bracket closed on that failure, 6.7e-7 late
+    "slow_newton": ([6], [3.2462921240039577e-13, 0.004627276768408309, 4.627276769346219],
+                    [-0.14914929282198647, -0.15012671915347914, -0.9773517568649037]),
+    # float32: at the face between 4 and 5 Newton's margin in 5 was below -INSIDE_TOL, the walk
+    # stopped and the search went on STRETCH_RTOL |t| further (5.5e-5 lost)
+    "face_rounding": ([4, 5], [1.3058933991591901, 4.352977997195282, -0.8705955994373628],
+                      [-0.3630723832793927, -0.9134496300175227, 0.18381571728411278]),
+}
+
+
+def ball_cells(cells):
+    """The cells of tests/data/vtu/ngsolve_ball_cells.npz named, as one mesh (constant field)."""
+    data = np.load(data_file("vtu", "ngsolve_ball_cells.npz"))
+    pick = [int(np.nonzero(data["cells"] == c)[0][0]) for c in cells]
+    mesh = VolumeMesh.from_elements(data["shape"][pick], (2, 2, 2), [np.ones(8)] * len(pick), data["geom_modes"][pick],
+                                    [data["geom"][k] for k in pick])
+    return constant(mesh)
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+@pytest.mark.parametrize("case", sorted(BALL_CASES))
+def test_ngsolve_ball_rays_keep_their_length(device, case, precision):
+    cells, o, d = BALL_CASES[case]
+    mesh = ball_cells(cells)
+    assert not mesh.affine.any() and np.all(mesh.shape == shapes.HEX)
+    o, d = np.array(o), np.array(d)
+    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
+    co, cd = cam.rays()
+    L = annulus_chord(mesh, co, cd)
+    assert L[0] > 0.0
+    tau = 1.1
+    res = Renderer(mesh, device).render(cam, tf(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
+                                                                                 min_transmittance=0.0,
+                                                                                 precision=precision))
+    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
+    assert err <= BUDGET[precision], f"{case}: relative error of T {err:.3g} (chord {L[0]:.6f})"

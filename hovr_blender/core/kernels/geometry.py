@@ -32,6 +32,9 @@ NEWTON_STEP_TOL_FLOAT64 = 1.0e-8
 NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
 ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
 ROOT_RTOL_FLOAT64 = 1.0e-13
+# Newton's iterations at most: quadratic convergence needs a few, but next to an edge where
+# the element's Jacobian vanishes (NGSolve's ball) it converges linearly, about a bit a step
+NEWTON_ITERATIONS = 40
 NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
 ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit
@@ -138,7 +141,7 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
     ok = float(0.0)
     Jinv = wp.identity(n=3, dtype=float)
     held_count = int(0)
-    for it in range(12):
+    for it in range(NEWTON_ITERATIONS):
         x, J = geometry_with_jacobian(mesh, e, xi)
         det = wp.determinant(J)
         if wp.abs(det) < 1.0e-30:
@@ -198,28 +201,65 @@ def margin_and_face(shape: int, xi: wp.vec3) -> wp.vec2:
 
 
 @wp.func
+def solved_margin(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
+    """invert_point from xi0 and the solution's margin + INSIDE_TOL (NEWTON_FAILED where Newton
+    did not converge), with the inverse Jacobian and the nearest face."""
+    r, Jinv = invert_point(mesh, e, p, xi0)
+    m = float(NEWTON_FAILED)
+    face = float(0.0)
+    if r[3] > 0.0:
+        mf = margin_and_face(mesh.shape[e], wp.vec3(r[0], r[1], r[2]))
+        m = mf[0] + INSIDE_TOL
+        face = mf[1]
+    return wp.vec3(r[0], r[1], r[2]), m, face, Jinv
+
+
+@wp.func
+def reference_centre(shape: int) -> wp.vec3:
+    """The mean of the reference element's vertices (core/shapes.py VERTICES)."""
+    if shape == element.PRISM:
+        return wp.vec3(-1.0 / 3.0, 0.0, -1.0 / 3.0)
+    if shape == element.TET:
+        return wp.vec3(-0.5, -0.5, -0.5)
+    if shape == element.PYR:
+        return wp.vec3(-0.2, -0.2, -0.6)
+    return wp.vec3(0.0, 0.0, 0.0)
+
+
+@wp.func
 def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3):
     """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; NEWTON_FAILED where Newton does
-    not converge; and
-    (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on the margin. A
-    warm start that fails is retried once from the affine guess."""
+    not converge; and (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on
+    the margin. A warm start that fails, or that lands outside the element, is retried from the
+    affine guess and then from the element's centre; the best answer is kept.
+
+    Beyond the element the polynomial map can fold (an element whose Jacobian vanishes along an
+    edge, as where NGSolve's ball puts a hexahedron's edge on the sphere with its faces at 180
+    degrees), so Newton can converge to a second preimage of p outside the reference element
+    while p lies inside: from the extrapolated warm start, and from the affine guess too, whose
+    straight-sided twin of that element reaches past the edge. Without the retries the entry
+    search stepped between such a point and one before the element until it gave up, and the
+    ray lost the element."""
     p = o + t * d
-    r = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    Jinv = wp.identity(n=3, dtype=float)
-    start = xi0
-    for attempt in range(2):
-        r, Jinv = invert_point(mesh, e, p, start)
-        if r[3] > 0.0:
-            break
-        start = start_guess(mesh, e, p)
-    xi = wp.vec3(r[0], r[1], r[2])
+    xi, m, face, Jinv = solved_margin(mesh, e, p, xi0)
+    if m <= 0.0:
+        xi2, m2, face2, Jinv2 = solved_margin(mesh, e, p, start_guess(mesh, e, p))
+        if m2 > m:
+            xi = xi2
+            m = m2
+            face = face2
+            Jinv = Jinv2
+    if m <= 0.0:
+        xi3, m3, face3, Jinv3 = solved_margin(mesh, e, p, reference_centre(mesh.shape[e]))
+        if m3 > m:
+            xi = xi3
+            m = m3
+            face = face3
+            Jinv = Jinv3
     v = Jinv * d
-    m = float(NEWTON_FAILED)
     slope = float(0.0)
-    if r[3] > 0.0:
-        mf = margin_and_face(mesh.shape[e], xi)
-        m = mf[0] + INSIDE_TOL
-        pl = element.face_plane(mesh.shape[e], int(mf[1]))
+    if m > NEWTON_FAILED:
+        pl = element.face_plane(mesh.shape[e], int(face))
         slope = -(pl[0] * v[0] + pl[1] * v[1] + pl[2] * v[2])
     return wp.vec4(xi[0], xi[1], xi[2], m), wp.vec4(v[0], v[1], v[2], slope)
 
@@ -434,9 +474,9 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     predict the stretch where the ray is inside the reference element; the next point is just
     past its entry (at most its middle, so that a thin clip is landed in), or back to its middle
     where the stretch lies behind (the last step overshot a clip thinner than the prediction's
-    error). Where the tangent misses (or Newton fails far outside), the step is 1/ENTRY_STEPS of
-    the box interval, so a curved ray that clips the element near its tangent's miss is still
-    met by a later tangent. The first point inside closes a bracket with the last point known
+    error), at most halfway back to the last point before the element. Where the tangent misses
+    (or Newton fails far outside), the step is 1/ENTRY_STEPS of the box interval, so a curved
+    ray that clips the element near its tangent's miss is still met by a later tangent. The first point inside closes a bracket with the last point known
     to lie before the element, located to ROOT_RTOL relative. A clip thinner than the steps can
     be missed; the traversal asks again beyond its t, so a later re-entry is still found."""
     none = wp.vec4(0.0, 0.0, 0.0, -1.0)
@@ -477,8 +517,11 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
             clip = tangent_clip(shape, wp.vec3(rq[0], rq[1], rq[2]), wp.vec3(dvq[0], dvq[1], dvq[2]))
             if clip[0] <= clip[1]:
                 if clip[1] <= 0.0:
+                    # back to the stretch's predicted middle, but at most halfway to the last
+                    # point before the element: going back to that point itself repeats the
+                    # same forward step, a cycle when the stretch is thinner than the step
                     behind = 1
-                    step = wp.max(0.5 * (clip[0] + clip[1]), t_lo - tq)
+                    step = wp.max(0.5 * (clip[0] + clip[1]), 0.5 * (t_lo - tq))
                 else:
                     s_in = wp.max(clip[0], 0.0)
                     step = wp.min(s_in + wp.min(EXIT_OVERSHOOT * s_in + 1.0e-4 * span, 0.5 * (clip[1] - s_in)),

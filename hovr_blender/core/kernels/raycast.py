@@ -44,6 +44,9 @@ __all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Se
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
 SEARCH_PASSES = 4
+BACK_STEPS = 16  # elements walk_back may step back through before it keeps what it has
+SHARED_FACE_TOL = 1.0e-3  # a point this close to a curved element's face (reference units) is on it
+SHARED_FACE_TOL_FLOAT64 = 1.0e-8
 # a stretch beyond t must reach past t + STRETCH_RTOL |t| to count (rounding of the exit just
 # left); an affine neighbour's entry may lie STRETCH_RTOL (|t| + its chord) beyond the exit it is
 # walked to. A curved element just left is searched again only from 1/LEAVE_FRACTION of its box
@@ -306,6 +309,65 @@ def _make_search_entry(CURVED: bool):
     return search_entry
 
 
+@wp.func
+def entry_face(mesh: MeshArgs, entry: Entry, o: wp.vec3, d: wp.vec3) -> int:
+    """The face of entry.element the ray comes in through: the reference face nearest the entry
+    point (curved: the search's solution there; affine: the exact map)."""
+    e = entry.element
+    xi = wp.vec3(entry.r[0], entry.r[1], entry.r[2])
+    if mesh.affine[e] == 1:
+        xi = mesh.ref_a[e] * (o + entry.span[0] * d) + mesh.ref_b[e]
+    return int(geometry.margin_and_face(mesh.shape[e], xi)[1])
+
+
+@wp.func
+def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, found: Entry, nloc: int):
+    """The search's entry, moved back to where the ray really comes in. An element entered
+    through a face that has a neighbour was entered from that neighbour: the ray was inside it
+    just before, so the search missed it (a curved element's entry search can step over a
+    stretch thinner than its steps where Newton has nothing to predict with outside the element,
+    e.g. a corner clipped on a ball's surface). Walked backwards from the shared face (the
+    reversed ray, inside the neighbour, to its exit, as the forward walk finds exits), element
+    by element, until a face without a neighbour or t_from."""
+    entry = found
+    eps = STRETCH_RTOL * wp.abs(t_from)
+    for k in range(BACK_STEPS):
+        if entry.element < 0 or entry.span[0] <= t_from + eps:
+            break
+        if mesh.affine[entry.element] == 0 and entry.r[3] <= 0.0:
+            break  # no solution at the entry to name its face
+        n = mesh.neighbour[entry.element * 6 + entry_face(mesh, entry, o, d)]
+        if n < 0:
+            break
+        t_e = entry.span[0]
+        back = -d
+        t_in = t_from  # where the ray enters n (forward), unless it does so after t_from
+        r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+        dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if mesh.affine[n] == 1:
+            cl = affine_stretch(mesh, n, o, back)
+            if cl[0] <= 0.0:
+                break
+            t_in = wp.max(-cl[2], t_from)
+        else:
+            nloc += 1
+            r_b, dv_b = geometry.curved_inside(mesh, n, o, back, -t_e, geometry.start_guess(mesh, n, o + t_e * d))
+            # on the shared face n's margin is 0 up to Newton's rounding either way
+            if r_b[3] <= -SHARED_FACE_TOL:
+                break  # not on n's face after all: keep the search's entry
+            r_b[3] = wp.max(r_b[3], 0.5 * geometry.INSIDE_TOL)
+            bx = geometry.box_interval(mesh, n, o, back)
+            ex, r_x, dv_x = geometry.curved_exit(mesh, n, o, back, -t_e, r_b, dv_b, wp.min(bx[1], -t_from))
+            t_in = wp.max(-ex[0], t_from)
+            # the forward solution where the ray enters n, for the walk (and this loop's face)
+            r, dv = geometry.curved_inside(mesh, n, o, d, t_in, wp.vec3(r_x[0], r_x[1], r_x[2]))
+        entry.element = n
+        entry.span = wp.vec3(t_in, t_in, -1.0)
+        entry.r = r
+        entry.dv = dv
+    return entry, nloc
+
+
 def _make_search_kernel(CURVED: bool):
     search_entry = _make_search_entry(CURVED)
 
@@ -318,6 +380,8 @@ def _make_search_kernel(CURVED: bool):
         pixel = i + pixel_offset
         o, d = camera_ray(cam, pixel)
         entry, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
+        if wp.static(CURVED):
+            entry, nl = walk_back(mesh, o, d, rays.t_cur[i], entry, nl)
         rays.stats[pixel, STAT_LOCATES] += nl
         if entry.element < 0:
             rays.phase[i] = 1
@@ -353,8 +417,11 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     dv_a = dv_entry
     if r_entry[3] <= 0.0:
         r_a, dv_a = geometry.curved_inside(mesh, e, o, d, a, geometry.start_guess(mesh, e, o + a * d))
-    if r_a[3] <= 0.0:
+    # a is on e's entry face: its margin is 0 up to Newton's rounding either way (float32 next
+    # to a degenerate edge: beyond INSIDE_TOL, and the search then skipped STRETCH_RTOL |t|)
+    if r_a[3] <= -SHARED_FACE_TOL:
         return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a
+    r_a[3] = wp.max(r_a[3], 0.5 * geometry.INSIDE_TOL)
     bx = geometry.box_interval(mesh, e, o, d)
     ex, r_b, dv_b = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
     return wp.vec3(1.0, wp.max(a, ex[0]), ex[1]), r_a, dv_a, r_b, dv_b

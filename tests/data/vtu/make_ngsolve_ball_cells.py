@@ -1,0 +1,28 @@
+"""Writes ngsolve_ball_cells.npz: the geometry of a few cells of NGSolve's ball
+(../shared/data/vtu/ngsolve_ball_poisson_hex_p6.vtu, 512 curved order-6 hexahedra), as the
+VTU reader turns them into modal expansions (core/expansions), for the watertightness
+regressions in tests/core/test_watertight_real.py. The cells are those the regression rays
+cross where the traversal lost length; several meet the sphere along an edge where their
+Jacobian vanishes.
+
+    python tests/data/vtu/make_ngsolve_ball_cells.py
+"""
+from pathlib import Path
+
+import numpy as np
+
+CELLS = [4, 5, 6, 199, 263, 391, 455]
+
+if __name__ == "__main__":
+    import sys
+
+    here = Path(__file__).resolve().parent
+    sys.path.insert(0, str(here.parents[2]))
+    from hovr_blender.core import expansions as ex
+    from hovr_blender.io.vtu import read_vtu
+
+    mesh = read_vtu(here.parents[3] / "shared" / "data" / "vtu" / "ngsolve_ball_poisson_hex_p6.vtu", "u")
+    geom = [mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
+            for e in CELLS]
+    np.savez_compressed(here / "ngsolve_ball_cells.npz", cells=np.array(CELLS), shape=mesh.shape[CELLS],
+                        geom_modes=mesh.geom_modes[CELLS], geom=np.stack(geom))
