@@ -100,6 +100,27 @@ def tents(lo, hi, colors, density) -> TransferFunction:
     return TransferFunction(np.array(cs), np.array(col), np.array(cs), np.array(dens))
 
 
+def constant_field(mesh: VolumeMesh) -> VolumeMesh:
+    """The mesh with the field 1 everywhere: with constant_density, images measure geometry."""
+    from hovr_blender.io.synthetic import with_field
+
+    return with_field(mesh, lambda x, y, z: 0.0 * x + 1.0, 2)
+
+
+def constant_density(tau) -> TransferFunction:
+    """Density tau at every value (T = exp(-tau L) over a chord L), one colour."""
+    return TransferFunction.from_contract({"color": [[-9, 0.3, 0.6, 0.9], [9, 0.3, 0.6, 0.9]],
+                                           "density": [[-9, tau], [9, tau]]})
+
+
+PASCALS = 101_325.0
+
+
+def pascals(x, y, z):
+    """A pressure field in pascals: +-5 Pa around one atmosphere (a field far from zero)."""
+    return PASCALS + 5.0 * np.sin(3 * x + 1) * np.cos(2 * y - z) + 2.0 * z * z
+
+
 def curved_mixed_scene(cells: int):
     """(mesh, transfer function, camera(w, h)) of io/synthetic.curved_cube(cells): three tents
     over the field's 2..98 % range, framed from the default direction, BACKGROUND behind. The

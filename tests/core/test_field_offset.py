@@ -13,7 +13,7 @@ from hovr_blender.core.mesh import concatenate
 from hovr_blender.core.renderer import Renderer
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.synthetic import mixed_cube
-from tests.helpers import BACKGROUND, COLORS, data_file, framing, tents
+from tests.helpers import BACKGROUND, COLORS, data_file, framing, pascals, tents
 
 W, H = 32, 24
 
@@ -52,17 +52,9 @@ def test_offset_and_units_do_not_change_the_float32_image(seed, log_a, ratio, me
     assert img_g.stats["warnings"] == []
 
 
-PASCALS = 101_325.0
-
-
-def pressure(x, y, z):
-    """A pressure field in pascals: +-5 Pa around one atmosphere."""
-    return PASCALS + 5.0 * np.sin(3 * x + 1) * np.cos(2 * y - z) + 2.0 * z * z
-
-
 @pytest.mark.parametrize("method", ["split", "classified"])
 def test_pressure_in_pascals_renders_in_float32_within_1e3_of_float64(method):
-    mesh = mixed_cube(2, 5, pressure)
+    mesh = mixed_cube(2, 5, pascals)
     lo, hi = np.percentile(mesh.field_samples(4), [2, 98])
     tf = tents(lo, hi, COLORS, 8.0)
     camera = framing(mesh, W, H)
@@ -88,7 +80,7 @@ def test_two_volumes_render_through_their_own_transfer_functions():
     """Two cubes side by side, one in pascals and one near zero, merged into one mesh and
     rendered in one pass each through its own transfer function: every pixel equals the render
     of the cube it sees, alone (the cubes do not overlap on screen from the front)."""
-    left = mixed_cube(2, 4, pressure, lower=(0.0, 0.0, 0.0))
+    left = mixed_cube(2, 4, pascals, lower=(0.0, 0.0, 0.0))
     right = mixed_cube(2, 4, lambda x, y, z: np.sin(4 * x) * y, lower=(1.5, 0.0, 0.0))
     tfs = []
     for m in (left, right):

@@ -22,23 +22,12 @@ from hovr_blender.core import shapes
 from hovr_blender.core.camera import RayCamera
 from hovr_blender.core.mesh import VolumeMesh
 from hovr_blender.core.renderer import Renderer
-from hovr_blender.core.transfer_function import TransferFunction
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io.nektar import read_nektar
-from hovr_blender.io.synthetic import with_field
 
-from ..helpers import box_chord, data_file
+from ..helpers import box_chord, constant_density, constant_field, data_file
 
 BUDGET = {"float64": 1e-6, "float32": 1e-4}
-
-
-def constant(mesh):
-    return with_field(mesh, lambda x, y, z: 0.0 * x + 1.0, 2)
-
-
-def tf(tau):
-    return TransferFunction.from_contract({"color": [[-9, 0.3, 0.6, 0.9], [9, 0.3, 0.6, 0.9]],
-                                           "density": [[-9, tau], [9, tau]]})
 
 
 def relative_T_error(res, L, tau):
@@ -78,7 +67,7 @@ def cube_cameras():
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_cube_all_elements_is_watertight(device, precision):
-    mesh = constant(read_nektar(data_file("nektar", "CubeAllElements.xml")))
+    mesh = constant_field(read_nektar(data_file("nektar", "CubeAllElements.xml")))
     assert np.bincount(mesh.shape, minlength=4).tolist() == [10, 36, 66, 69]
     r = Renderer(mesh, device)
     tau = 1.3
@@ -86,7 +75,7 @@ def test_cube_all_elements_is_watertight(device, precision):
     for i, cam in enumerate(cube_cameras()):
         o, d = cam.rays()
         L = box_chord(o, d, 0.0, 1.0)
-        res = r.render(cam, tf(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
+        res = r.render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
                                                               precision=precision))
         err, at = relative_T_error(res, L, tau)
         rays += L.size
@@ -123,7 +112,7 @@ def annulus_cameras():
 @pytest.mark.slow
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_curved_annulus_is_watertight(device, precision):
-    mesh = constant(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
+    mesh = constant_field(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
     assert mesh.num_elements == 60 and not mesh.affine.any()
     r = Renderer(mesh, device)
     tau = 1.1
@@ -131,7 +120,7 @@ def test_curved_annulus_is_watertight(device, precision):
     for i, cam in enumerate(annulus_cameras()):
         o, d = cam.rays()
         L = annulus_chord(mesh, o, d).reshape(cam.height, cam.width)
-        res = r.render(cam, tf(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
+        res = r.render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
                                                               precision=precision))
         err, at = relative_T_error(res, L, tau)
         rays += L.size
@@ -179,7 +168,7 @@ def ball_cells(cells):
     pick = [int(np.nonzero(data["cells"] == c)[0][0]) for c in cells]
     mesh = VolumeMesh.from_elements(data["shape"][pick], (2, 2, 2), [np.ones(8)] * len(pick), data["geom_modes"][pick],
                                     [data["geom"][k] for k in pick])
-    return constant(mesh)
+    return constant_field(mesh)
 
 
 @pytest.mark.parametrize("precision", ["float64", "float32"])
@@ -194,8 +183,34 @@ def test_ngsolve_ball_rays_keep_their_length(device, case, precision):
     L = annulus_chord(mesh, co, cd)
     assert L[0] > 0.0
     tau = 1.1
-    res = Renderer(mesh, device).render(cam, tf(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
+    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
                                                                                  min_transmittance=0.0,
                                                                                  precision=precision))
     err, _ = relative_T_error(res, L.reshape(1, 1), tau)
     assert err <= BUDGET[precision], f"{case}: relative error of T {err:.3g} (chord {L[0]:.6f})"
+
+
+# Entries and exits are brackets on margin + INSIDE_TOL: on the domain's boundary they lay
+# INSIDE_TOL / |dmargin/dt| outside the face, which grows as a ray grazes it. This ray, aimed at
+# an edge middle of the annulus, leaves through the inner wall and comes back 0.05 later at a
+# shallow angle: in float32 each of the two crossings added 1.2e-4 to a chord of 1.05 (relative
+# error of T 2.7e-4 against the budget's 1e-4). The walk moves boundary crossings to the face.
+GRAZING_WALL = ([-0.7249903826556429, 0.8492962254006307, 3.1933457737643107],
+                [0.346923649549536, -0.2334735175233966, -0.9083689217484727])
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_annulus_ray_grazing_its_inner_wall_keeps_its_length(device, precision):
+    mesh = constant_field(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
+    o, d = (np.array(v) for v in GRAZING_WALL)
+    cam = RayCamera.from_contract({"projection": "orthographic", "eye": o.tolist(), "target": (o + d).tolist(),
+                                   "up": [0, 0, 1], "height": 1e-9}, 1, 1)
+    co, cd = cam.rays()
+    L = annulus_chord(mesh, co, cd)
+    assert abs(L[0] - 1.0509368) < 1e-6
+    tau = 1.1
+    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
+                                                                                 min_transmittance=0.0,
+                                                                                 precision=precision))
+    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
+    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"

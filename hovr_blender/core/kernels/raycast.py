@@ -408,11 +408,33 @@ def affine_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
 
 
 @wp.func
+def on_boundary_face(mesh: MeshArgs, e: int, r: wp.vec4) -> int:
+    """1 where the face of e nearest the solution r has no neighbour (the domain's boundary)."""
+    face = int(geometry.margin_and_face(mesh.shape[e], wp.vec3(r[0], r[1], r[2]))[1])
+    if mesh.neighbour[e * 6 + face] < 0:
+        return 1
+    return 0
+
+
+@wp.func
+def to_face(r: wp.vec4, dv: wp.vec4, dt: float) -> wp.vec4:
+    """The solution r moved dt along the ray (its velocity dv), to first order."""
+    return r + dt * dv
+
+
+@wp.func
 def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float, r_entry: wp.vec4,
                      dv_entry: wp.vec4):
-    """(inside, b, exit face) of the ray entering curved element e at a, and the solutions and
-    velocities at a and b: Newton at a (or the search's solution r_entry, where valid), then
-    geometry.curved_exit up to the element's box or t_end."""
+    """(inside, b, exit face) of the ray entering curved element e at a, the solutions and
+    velocities at a and b, and a: Newton at a (or the search's solution r_entry, where valid),
+    then geometry.curved_exit up to the element's box or t_end.
+
+    Entries and exits are brackets on margin + INSIDE_TOL, so they lie INSIDE_TOL (reference
+    units) outside the face. Between two elements that costs nothing (the neighbour takes over
+    at the same t); on the domain's boundary it lengthens the chord by INSIDE_TOL / |dmargin/dt|
+    at each end, which grows as the ray grazes the face (float32, the annulus' inner wall:
+    2.4e-4 of a unit chord). There a and b move to the face itself along the margin's tangent,
+    at most half the stretch each."""
     r_a = r_entry
     dv_a = dv_entry
     if r_entry[3] <= 0.0:
@@ -420,11 +442,24 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     # a is on e's entry face: its margin is 0 up to Newton's rounding either way (float32 next
     # to a degenerate edge: beyond INSIDE_TOL, and the search then skipped STRETCH_RTOL |t|)
     if r_a[3] <= -SHARED_FACE_TOL:
-        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a
+        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a
+    shift_a = float(0.0)  # only the search's entries can come from outside the domain
+    if r_entry[3] > 0.0 and dv_a[3] > 0.0 and r_a[3] < geometry.INSIDE_TOL and on_boundary_face(mesh, e, r_a) == 1:
+        shift_a = (geometry.INSIDE_TOL - r_a[3]) / dv_a[3]
     r_a[3] = wp.max(r_a[3], 0.5 * geometry.INSIDE_TOL)
     bx = geometry.box_interval(mesh, e, o, d)
     ex, r_b, dv_b = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
-    return wp.vec3(1.0, wp.max(a, ex[0]), ex[1]), r_a, dv_a, r_b, dv_b
+    b = wp.max(a, ex[0])
+    shift_b = float(0.0)
+    if ex[1] >= 0.0 and dv_b[3] < 0.0 and r_b[3] < geometry.INSIDE_TOL:
+        if mesh.neighbour[e * 6 + int(ex[1])] < 0:
+            shift_b = wp.max((geometry.INSIDE_TOL - r_b[3]) / dv_b[3], -0.5 * (b - a))
+    shift_a = wp.min(shift_a, 0.5 * (b - a))
+    if shift_a > 0.0:
+        r_a = to_face(r_a, dv_a, shift_a)
+    if shift_b < 0.0:
+        r_b = to_face(r_b, dv_b, shift_b)
+    return wp.vec3(1.0, b + shift_b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a
 
 
 @wp.func
@@ -517,7 +552,7 @@ def _make_traverse_kernel(CURVED: bool):
             if mesh.affine[e] == 1:
                 stretch = affine_walk_step(mesh, e, o, d, a, t_end)
             elif wp.static(CURVED):
-                stretch, r_a, dv_a, r_b, dv_b = curved_walk_step(mesh, e, o, d, a, t_end, r_entry, dv_entry)
+                stretch, r_a, dv_a, r_b, dv_b, a = curved_walk_step(mesh, e, o, d, a, t_end, r_entry, dv_entry)
                 r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
             if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
