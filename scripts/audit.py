@@ -30,7 +30,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-SHARED = REPO.parent / "shared" / "data"
+SHARED = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))  # HOVR_DATA: elsewhere (GPU machine)
 GAP = 1e-4  # float32 against float64: pixels listed for checking
 WRONG = 1e-3  # against the reference: a wrong pixel (the project's target)
 
@@ -149,7 +149,7 @@ def render_stage(args):
             print(f"{name} {vname}: {len(gj)} pixels differ by > {GAP} (max {gap.max():.2e}); "
                   f"{len(pixels)} listed; {secs['float32']:.2f} / {secs['float64']:.2f} s", flush=True)
         out["datasets"][name] = entry
-    Path(args.out).write_text(json.dumps(out) + "\n")
+        Path(args.out).write_text(json.dumps(out) + "\n")  # after each dataset: a cut-off run keeps what it did
 
 
 def _pyramid_boxes(mesh):
