@@ -35,13 +35,17 @@ BUDGET = {"float64": 1e-6, "float32": 1e-4}
 DISPLACE = 4.0 * 2.0 ** -24  # relative to the eye's distance from the mesh's centre
 
 
-def meshes():
+def meshes(names=("RotPerBcs3D_Annulus", "ngsolve_ball")):
     from hovr_blender.io.nektar import read_nektar
     from hovr_blender.io.vtu import read_vtu
 
-    out = {"RotPerBcs3D_Annulus": constant_field(read_nektar(str(REPO / "tests/data/nektar/RotPerBcs3D_Annulus.xml")))}
+    out = {}
+    if "RotPerBcs3D_Annulus" in names:
+        out["RotPerBcs3D_Annulus"] = constant_field(read_nektar(str(REPO / "tests/data/nektar/RotPerBcs3D_Annulus.xml")))
     ball = DATA / "vtu" / "ngsolve_ball_poisson_hex_p6.vtu"
-    if ball.exists():
+    if "ngsolve_ball" not in names:
+        pass
+    elif ball.exists():
         out["ngsolve_ball"] = constant_field(read_vtu(str(ball), "u"))
     else:
         print(f"ngsolve_ball: skipped, missing {ball}", flush=True)
@@ -135,7 +139,7 @@ def run(args):
     W, H = map(int, args.size.split("x"))
     report = {"size": [W, H], "device": args.device, "tau": TAU, "budget": BUDGET, "displace": DISPLACE,
               "meshes": {}}
-    for name, mesh in meshes().items():
+    for name, mesh in meshes(args.meshes.split(",")).items():
         c, r = bounds(mesh)
         t0 = time.perf_counter()
         boundary = chords.Boundary(mesh)
@@ -202,6 +206,7 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=5)
     ap.add_argument("--targets", type=int, default=400, help="aimed cameras per kind (vertex, edge, face) and mesh")
     ap.add_argument("--seed", type=int, default=15)
+    ap.add_argument("--meshes", default="RotPerBcs3D_Annulus,ngsolve_ball")
     ap.add_argument("--out", required=True)
     run(ap.parse_args(argv))
 

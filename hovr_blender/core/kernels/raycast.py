@@ -433,8 +433,10 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     units) outside the face. Between two elements that costs nothing (the neighbour takes over
     at the same t); on the domain's boundary it lengthens the chord by INSIDE_TOL / |dmargin/dt|
     at each end, which grows as the ray grazes the face (float32, the annulus' inner wall:
-    2.4e-4 of a unit chord). There a and b move to the face itself along the margin's tangent,
-    at most half the stretch each."""
+    2.4e-4 of a unit chord). There the segment's ends (the last two values returned) move to the
+    face itself along the margin's tangent, at most half the stretch each; the walk still goes on
+    from b, so that the next search does not start inside the band just left (it would find the
+    element there again, and again, without end)."""
     r_a = r_entry
     dv_a = dv_entry
     if r_entry[3] <= 0.0:
@@ -442,7 +444,7 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     # a is on e's entry face: its margin is 0 up to Newton's rounding either way (float32 next
     # to a degenerate edge: beyond INSIDE_TOL, and the search then skipped STRETCH_RTOL |t|)
     if r_a[3] <= -SHARED_FACE_TOL:
-        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a
+        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a, a
     shift_a = float(0.0)  # only the search's entries can come from outside the domain
     if r_entry[3] > 0.0 and dv_a[3] > 0.0 and r_a[3] < geometry.INSIDE_TOL and on_boundary_face(mesh, e, r_a) == 1:
         shift_a = (geometry.INSIDE_TOL - r_a[3]) / dv_a[3]
@@ -459,7 +461,7 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
         r_a = to_face(r_a, dv_a, shift_a)
     if shift_b < 0.0:
         r_b = to_face(r_b, dv_b, shift_b)
-    return wp.vec3(1.0, b + shift_b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a
+    return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b
 
 
 @wp.func
@@ -545,6 +547,8 @@ def _make_traverse_kernel(CURVED: bool):
             a = t
             n_walk += 1
             stretch = wp.vec3(1.0, a, -1.0)  # (inside, b, exit face)
+            seg_a = a  # the segment integrated: [a, b] but where a curved step moves its ends
+            seg_b = a
             r_a = wp.vec4(0.0, 0.0, 0.0, -1.0)  # curved: the solutions and velocities at a and b
             dv_a = wp.vec4(0.0, 0.0, 0.0, 0.0)
             r_b = r_a
@@ -552,18 +556,22 @@ def _make_traverse_kernel(CURVED: bool):
             if mesh.affine[e] == 1:
                 stretch = affine_walk_step(mesh, e, o, d, a, t_end)
             elif wp.static(CURVED):
-                stretch, r_a, dv_a, r_b, dv_b, a = curved_walk_step(mesh, e, o, d, a, t_end, r_entry, dv_entry)
+                stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b = curved_walk_step(mesh, e, o, d, a, t_end, r_entry,
+                                                                               dv_entry)
                 r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
             if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
                 break
             b = stretch[1]
+            if mesh.affine[e] == 1:
+                seg_b = b
             face = int(stretch[2])
             stay = int(0)
             if uses_restriction == 1 and mesh.shape[e] == element.PYR and mesh.affine[e] == 1 and b > a:
                 cut = pyramid_piece_end(mesh, e, o, d, a, b)
                 if cut < b:
                     b = cut
+                    seg_b = cut
                     stay = 1
             if b > a:
                 zero_steps = 0
@@ -574,7 +582,7 @@ def _make_traverse_kernel(CURVED: bool):
                     curved = int(0)  # a constant in the affine kernel: the sample kernel's Newton compiles out
                     if wp.static(CURVED):
                         curved = int(1) - mesh.affine[e]
-                    n_field += write_segment(mesh, segs, i * SEGMENTS_PER_ROUND + n, e, a, b, curved,
+                    n_field += write_segment(mesh, segs, i * SEGMENTS_PER_ROUND + n, e, seg_a, seg_b, curved,
                                              uses_restriction, r_a, dv_a, r_b, dv_b)
                     n += 1
             else:
