@@ -63,10 +63,10 @@ def merge_results(parts, width: int, height: int, seconds: float) -> RenderResul
 
 
 def _serve(conn, mesh, device, max_tile_rays):
-    """A device's process: a Renderer of `mesh` on `device`, rendering the bands it is sent."""
+    """A device's process: a Renderer of `mesh` on `device`, rendering what it is sent."""
     try:
         renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
-        conn.send(("ready", renderer.upload_seconds))
+        conn.send(("ok", renderer.upload_seconds))
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
@@ -81,12 +81,66 @@ def _serve(conn, mesh, device, max_tile_rays):
             if msg[0] == "field":
                 renderer.replace_field(msg[1])
                 conn.send(("ok", None))
+            elif msg[0] == "data_ranges":
+                renderer.data_ranges = msg[1]
+                conn.send(("ok", None))
             else:
                 _, camera, tf, background, options, rows = msg
                 res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
                 conn.send(("ok", res))
         except BaseException as exc:  # noqa: BLE001
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class DeviceProcess:
+    """A process holding a Renderer of one mesh on one device (_serve). send() a request, then
+    reply() its answer: requests to several processes run at once."""
+
+    def __init__(self, mesh, device: str, max_tile_rays: int | None = None):
+        ctx = multiprocessing.get_context("spawn")
+        self.device = device
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, mesh, device, max_tile_rays), daemon=True,
+                                 name=f"hovr-{device}")
+        self._proc.start()
+        child.close()
+
+    def send(self, *msg):
+        self._conn.send(msg)
+
+    def reply(self):
+        try:
+            kind, value = self._conn.recv()
+        except EOFError as exc:
+            raise RenderError(f"the process rendering on {self.device} ended unexpectedly") from exc
+        if kind == "error":
+            raise RenderError(f"{self.device}: {value}")
+        return value
+
+    def close(self):
+        try:
+            self._conn.send(("close",))
+            self._conn.close()
+        except OSError:
+            pass
+        self._proc.join(timeout=10)
+        if self._proc.is_alive():
+            self._proc.kill()
+
+
+def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
+    """A DeviceProcess for each (mesh, device), started together; waits until each has uploaded."""
+    procs = []
+    try:
+        for mesh, dev in zip(meshes, devices):
+            procs.append(DeviceProcess(mesh, dev, max_tile_rays))
+        for p in procs:
+            p.upload_seconds = p.reply()
+    except BaseException:
+        for p in procs:
+            p.close()
+        raise
+    return procs
 
 
 class MultiDeviceRenderer:
@@ -99,39 +153,16 @@ class MultiDeviceRenderer:
         self.mesh = mesh
         self._row_cost = None  # the last frame's cost per row, for the next split
         self._speeds = np.ones(len(self.devices))  # cost per second, per device
-        ctx = multiprocessing.get_context("spawn")
-        self._conns, self._procs = [], []
         t0 = time.perf_counter()
-        try:
-            for dev in self.devices:
-                parent, child = ctx.Pipe()
-                proc = ctx.Process(target=_serve, args=(child, mesh, dev, max_tile_rays), daemon=True,
-                                   name=f"hovr-{dev}")
-                proc.start()
-                child.close()
-                self._conns.append(parent)
-                self._procs.append(proc)
-            self.device_upload_seconds = [self._reply(k) for k in range(len(self.devices))]
-        except BaseException:
-            self.close()
-            raise
+        self._procs = start_processes([mesh] * len(self.devices), self.devices, max_tile_rays)
         self.upload_seconds = time.perf_counter() - t0
-
-    def _reply(self, k):
-        try:
-            kind, value = self._conns[k].recv()
-        except EOFError as exc:
-            raise RenderError(f"the process rendering on {self.devices[k]} ended unexpectedly") from exc
-        if kind == "error":
-            raise RenderError(f"{self.devices[k]}: {value}")
-        return value
 
     def replace_field(self, mesh):
         """A new field on the same geometry, sent to every device (Renderer.replace_field)."""
-        for conn in self._conns:
-            conn.send(("field", mesh))
-        for k in range(len(self._conns)):
-            self._reply(k)
+        for p in self._procs:
+            p.send("field", mesh)
+        for p in self._procs:
+            p.reply()
         self.mesh = mesh
 
     def split(self, height: int) -> list[tuple[int, int]]:
@@ -145,14 +176,15 @@ class MultiDeviceRenderer:
         W, H = int(camera.width), int(camera.height)
         bands = self.split(H)
         t0 = time.perf_counter()
-        for k, band in enumerate(bands):
-            self._conns[k].send(("render", camera, tf, background, options, band))
-        parts = [(band, self._reply(k)) for k, band in enumerate(bands)]
+        for p, band in zip(self._procs, bands):
+            p.send("render", camera, tf, background, options, band)
+        parts = [(band, p.reply()) for p, band in zip(self._procs, bands)]
         seconds = time.perf_counter() - t0
         result = merge_results(parts, W, H, seconds)
         # each device's speed: the geometric mean of what it had and what this frame measured
         # (one frame's timing is noisy, and a band's fixed costs do not scale with its rows)
         speeds = np.array([max(float(r.row_cost.sum()), 1e-9) / max(r.stats["render_seconds"], 1e-6) for _, r in parts])
+        speeds = np.concatenate([speeds, self._speeds[len(speeds):]])
         self._speeds = speeds if self._row_cost is None else np.sqrt(self._speeds * speeds)
         self._speeds /= self._speeds.max()
         self._row_cost = result.row_cost
@@ -161,17 +193,9 @@ class MultiDeviceRenderer:
         return result
 
     def close(self):
-        for conn in self._conns:
-            try:
-                conn.send(("close",))
-                conn.close()
-            except OSError:
-                pass
-        for proc in self._procs:
-            proc.join(timeout=10)
-            if proc.is_alive():
-                proc.kill()
-        self._conns, self._procs = [], []
+        for p in getattr(self, "_procs", []):
+            p.close()
+        self._procs = []
 
     def __enter__(self):
         return self
@@ -180,8 +204,7 @@ class MultiDeviceRenderer:
         self.close()
 
     def __del__(self):
-        if getattr(self, "_procs", None):
-            self.close()
+        self.close()
 
 
 def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None):

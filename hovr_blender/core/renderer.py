@@ -186,8 +186,7 @@ class Renderer:
         self.volumes = int(self._volume.max()) + 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
-        self.data_ranges = [(float(self._field_lo[self._volume == k].min()), float(self._field_hi[self._volume == k].max()))
-                            for k in range(self.volumes)]
+        self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
@@ -208,6 +207,16 @@ class Renderer:
         except RenderError:
             pass  # data float32 cannot hold: render() says so, unless asked for float64
         self.upload_seconds = time.perf_counter() - t0
+
+    @staticmethod
+    def volume_ranges(mesh: VolumeMesh, lo=None, hi=None) -> list[tuple[float, float]]:
+        """(min, max) of the field per volume: what the field's frame is chosen from
+        (core/field_frame.py; a part of a mesh rendered apart takes the whole mesh's, so that
+        every part rounds alike: core/sort_last.py)."""
+        if lo is None:
+            lo, hi = element_field_ranges(mesh)
+        volume = element_volumes(mesh)
+        return [(float(lo[volume == k].min()), float(hi[volume == k].max())) for k in range(int(volume.max()) + 1)]
 
     def same_geometry(self, mesh: VolumeMesh) -> bool:
         """Whether `mesh` has this renderer's elements, geometry and field layout (shapes, modes,
@@ -232,8 +241,7 @@ class Renderer:
         self.mesh = mesh
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
-        self.data_ranges = [(float(self._field_lo[self._volume == k].min()), float(self._field_hi[self._volume == k].max()))
-                            for k in range(self.volumes)]
+        self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         for upload in self._uploads.values():
             upload.field_key = None  # _set_field maps and uploads the new coefficients
 
