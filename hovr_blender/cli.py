@@ -79,6 +79,15 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
     s.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic")
     s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    b = sub.add_parser("render-blend", help="render a saved .blend's frames with headless Blenders over a Dask "
+                       "cluster, into the files `blender -b FILE -a` writes")
+    b.add_argument("blend", help="the .blend (its output path and frame range as saved)")
+    b.add_argument("--frames", required=True, help="frame numbers: 1-250, 1-250:2, 3,5,8-10")
+    b.add_argument("--blender", help="Blender binary with the add-on enabled (default: this Python, with bpy)")
+    b.add_argument("--scheduler", help="address of a running Dask scheduler, or a scheduler file (.json)")
+    b.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
+                   "else one per CPU core)")
+    b.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return p
 
 
@@ -165,6 +174,59 @@ def _run(args) -> str:
             f"on {stats['device']} -> {out}")
 
 
+class _dask_client:  # noqa: N801  (a context manager read as a function)
+    """The Dask client of --scheduler (an address or a scheduler file), else of a local cluster."""
+
+    def __init__(self, args, device="auto"):
+        from distributed import Client
+
+        from .distributed import series
+
+        self.cluster = None
+        if args.scheduler:
+            self.client = (Client(scheduler_file=args.scheduler) if args.scheduler.endswith(".json")
+                           else Client(args.scheduler))
+        else:
+            self.cluster = series.local_cluster(args.workers, device)
+            self.client = Client(self.cluster)
+
+    def __enter__(self):
+        return self.client
+
+    def __exit__(self, *exc):
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def _progress_bar(t0):
+    """progress(done, total, record): one line on stderr, redrawn, with a bar over the frames."""
+    def progress(done, total, rec):
+        rate = done / (time.perf_counter() - t0)
+        bar = "#" * (30 * done // total) + "." * (30 - 30 * done // total)
+        print(f"\rhovr: [{bar}] {done}/{total} frames, {rate:.2f} frames/s (frame {rec['frame']}: {rec['status']})",
+              end="" if done < total else "\n", file=sys.stderr, flush=True)
+
+    return progress
+
+
+def _run_blend(args) -> str:
+    """render-blend: a .blend's frames over a Dask cluster (distributed/blender_frames.py)."""
+    from .distributed import blender_frames, series
+
+    blend = os.path.abspath(args.blend)
+    if not os.path.isfile(blend):
+        raise OutputError(f"{args.blend}: no such .blend file")
+    frames = series.parse_frames(args.frames)
+    t0 = time.perf_counter()
+    with _dask_client(args, "cpu" if args.workers else "auto") as client:
+        records = blender_frames.render_animation(blend, frames, client, blender=args.blender,
+                                                  progress=_progress_bar(t0))
+    written = sum(1 for r in records if r["status"] == "written")
+    return (f"hovr: {written} frames written, {len(records) - written} were already there, in "
+            f"{time.perf_counter() - t0:.1f} s")
+
+
 def _run_series(args) -> str:
     """render-series: the frames not yet written, over a Dask cluster (distributed/series.py)."""
     from .core.view import View
@@ -195,27 +257,9 @@ def _run_series(args) -> str:
     todo = series.pending_frames(job)
     if not todo:
         return f"hovr: all {len(frames)} frames are written already ({job.npy(frames[0])} ...)"
-    from distributed import Client
-
-    cluster = None
-    if args.scheduler:
-        client = Client(scheduler_file=args.scheduler) if args.scheduler.endswith(".json") else Client(args.scheduler)
-    else:
-        cluster = series.local_cluster(args.workers, args.device)
-        client = Client(cluster)
     t0 = time.perf_counter()
-
-    def progress(done, total, rec):
-        rate = done / (time.perf_counter() - t0)
-        print(f"\rhovr: {done}/{total} frames, {rate:.2f} frames/s (frame {rec['frame']}: {rec['status']})",
-              end="" if done < total else "\n", file=sys.stderr, flush=True)
-
-    try:
-        records = series.render_series(job, client, progress=progress)
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+    with _dask_client(args, args.device) as client:
+        records = series.render_series(job, client, progress=_progress_bar(t0))
     seconds = time.perf_counter() - t0
     written = [r for r in records if r["status"] == "written"]
     load = sum(r["load_seconds"] for r in written) / max(len(written), 1)
@@ -226,7 +270,7 @@ def _run_series(args) -> str:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        message = _run_series(args) if args.command == "render-series" else _run(args)
+        message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
         print("hovr: interrupted", file=sys.stderr)
         return 130

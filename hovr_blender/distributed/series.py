@@ -147,9 +147,18 @@ def _renderer_for(mesh, device):
     return _WORKER["renderer"], "uploaded"
 
 
+def link_file(tmp: str, path: str) -> bool:
+    """Hard-link the finished file `tmp` to `path`: False (nothing written) if `path` exists
+    (os.link never replaces a file, so two tasks of one frame cannot both write it)."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        return False
+    return True
+
+
 def _link_into_place(path: str, writer) -> bool:
-    """Write via a temporary file and hard-link it to `path`; False (nothing written) if `path`
-    exists already."""
+    """Write via a temporary file beside `path` and link it there (link_file)."""
     folder = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
     try:
@@ -157,11 +166,7 @@ def _link_into_place(path: str, writer) -> bool:
             writer(fh)
             fh.flush()
             os.fsync(fh.fileno())
-        try:
-            os.link(tmp, path)
-        except FileExistsError:
-            return False
-        return True
+        return link_file(tmp, path)
     finally:
         os.unlink(tmp)
 
