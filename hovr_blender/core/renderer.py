@@ -81,6 +81,12 @@ def resolve_device(device: str) -> str:
         raise RenderError(f"Warp device {device!r} is not available here (available: {avail})") from exc
 
 
+def cuda_devices() -> list[str]:
+    """The names of the CUDA devices here ("cuda:0", ...); empty without a GPU."""
+    _init_warp()
+    return [str(d) for d in wp.get_devices() if d.is_cuda]
+
+
 def expand_devices(devices) -> list[str]:
     """A device list: "cpu", "cuda:1", "cuda:0,cuda:1" (or a list of names), or "cuda:all" / "all"
     for every CUDA device here; each name resolved (RenderError for one that is not here)."""
@@ -90,8 +96,7 @@ def expand_devices(devices) -> list[str]:
     out = []
     for name in names:
         if name in ("all", "cuda:all"):
-            _init_warp()
-            cuda = [str(d) for d in wp.get_devices() if d.is_cuda]
+            cuda = cuda_devices()
             if not cuda:
                 raise RenderError(f"{name!r}: there is no CUDA device here")
             out.extend(cuda)

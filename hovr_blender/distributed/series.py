@@ -113,12 +113,9 @@ def worker_device(requested: str = "auto") -> str:
     cuda:0), or cpu where there is none."""
     if requested != "auto":
         return requested
-    from ..core.renderer import _init_warp
+    from ..core.renderer import cuda_devices
 
-    import warp as wp
-
-    _init_warp()
-    cuda = [str(d) for d in wp.get_devices() if d.is_cuda]
+    cuda = cuda_devices()
     if not cuda:
         return "cpu"
     try:
@@ -274,12 +271,9 @@ def local_cluster(workers: int | None = None, device: str = "auto"):
     if workers is None:
         workers = 1
         if device in ("auto", "cuda:all"):
-            from ..core.renderer import _init_warp
+            from ..core.renderer import cuda_devices
 
-            import warp as wp
-
-            _init_warp()
-            workers = sum(1 for d in wp.get_devices() if d.is_cuda)
+            workers = len(cuda_devices())
         if workers == 0 or device == "cpu":
             workers = os.cpu_count() or 1
     return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
