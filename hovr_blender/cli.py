@@ -1,8 +1,11 @@
 """`hovr`: render a view file exactly per the render contract, without Blender.
 
     hovr render VIEW.json -o out.npy [--png out.png] [--stats stats.json]
-                [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cuda:0]
+                [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cuda:0|cuda:0,cuda:1|cuda:all]
     hovr reference VIEW.json -o ref.npy [--png ref.png]    (float64 certifying reference)
+    hovr render-series VIEW.json -o out/frame_####.npy --frames 1-100 [--png] [--orbit DEG]
+                [--camera-path cams.json] [--scheduler ADDRESS | --workers N] [--device auto|cpu|cuda:0]
+                                                           (frames over a Dask cluster)
 
 Every failure ends with `hovr: error: ...` and exit code 2 (--debug adds the traceback).
 Outputs are written to temporary files in their folders and renamed into place only when
@@ -47,12 +50,44 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
     r.add_argument("--min-transmittance", type=float, help="early ray termination threshold")
     r.add_argument("--inner", choices=("spectral", "trapezoid"), help="inner integral on smooth segments")
-    r.add_argument("--device", help="Warp device: cpu or cuda:0")
+    r.add_argument("--device", help="Warp device: cpu, cuda:0, a list (cuda:0,cuda:1: the frame's rows split "
+                   "over them) or cuda:all (every CUDA device here)")
     r.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic (default float32)")
     r.add_argument("--max-samples-per-ray", type=int, help="fixed-step methods: refuse a step h that takes more "
                    "samples across the data (default 100000, or HOVR_MAX_SAMPLES_PER_RAY)")
     f = sub.add_parser("reference", help="render the float64 reference (affine hexahedra)")
     common(f)
+    s = sub.add_parser("render-series", help="render numbered frames (a field series, a camera path, or both) "
+                       "over a Dask cluster (docs/distributed.md)")
+    s.add_argument("view", help="view JSON; a run of '#' in data.path or data.solution is the frame number")
+    s.add_argument("-o", "--output", required=True, help="output pattern with a run of '#', ending in .npy "
+                   "(out/frame_####.npy); its folder must exist")
+    s.add_argument("--frames", required=True, help="frame numbers: 1-100, 1-100:2, 3,5,8-10")
+    s.add_argument("--png", action="store_true", help="also write frame_####.png")
+    s.add_argument("--stats", action="store_true", help="also write frame_####.json (render and load times)")
+    s.add_argument("--camera-path", help="JSON: {\"first_frame\": N, \"cameras\": [camera, ...]} (contract cameras)")
+    s.add_argument("--orbit", type=float, help="turn the view's camera about its up axis by this many degrees "
+                   "over the frames")
+    s.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:8786) or a scheduler "
+                   "file (.json); default: a local cluster")
+    s.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
+                   "else one per CPU core)")
+    s.add_argument("--device", default="auto", help="each worker's device: auto (a local worker k: cuda:k; "
+                   "else cuda:0, or cpu without CUDA), cpu or cuda:N")
+    s.add_argument("--method", choices=METHODS, help="quadrature (default: the view's)")
+    s.add_argument("--h", type=float, help="step in world units")
+    s.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
+    s.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic")
+    s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    b = sub.add_parser("render-blend", help="render a saved .blend's frames with headless Blenders over a Dask "
+                       "cluster, into the files `blender -b FILE -a` writes")
+    b.add_argument("blend", help="the .blend (its output path and frame range as saved)")
+    b.add_argument("--frames", required=True, help="frame numbers: 1-250, 1-250:2, 3,5,8-10")
+    b.add_argument("--blender", help="Blender binary with the add-on enabled (default: this Python, with bpy)")
+    b.add_argument("--scheduler", help="address of a running Dask scheduler, or a scheduler file (.json)")
+    b.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
+                   "else one per CPU core)")
+    b.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return p
 
 
@@ -139,10 +174,103 @@ def _run(args) -> str:
             f"on {stats['device']} -> {out}")
 
 
+class _dask_client:  # noqa: N801  (a context manager read as a function)
+    """The Dask client of --scheduler (an address or a scheduler file), else of a local cluster."""
+
+    def __init__(self, args, device="auto"):
+        from distributed import Client
+
+        from .distributed import series
+
+        self.cluster = None
+        if args.scheduler:
+            self.client = (Client(scheduler_file=args.scheduler) if args.scheduler.endswith(".json")
+                           else Client(args.scheduler))
+        else:
+            self.cluster = series.local_cluster(args.workers, device)
+            self.client = Client(self.cluster)
+
+    def __enter__(self):
+        return self.client
+
+    def __exit__(self, *exc):
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def _progress_bar(t0):
+    """progress(done, total, record): one line on stderr, redrawn, with a bar over the frames."""
+    def progress(done, total, rec):
+        rate = done / (time.perf_counter() - t0)
+        bar = "#" * (30 * done // total) + "." * (30 - 30 * done // total)
+        print(f"\rhovr: [{bar}] {done}/{total} frames, {rate:.2f} frames/s (frame {rec['frame']}: {rec['status']})",
+              end="" if done < total else "\n", file=sys.stderr, flush=True)
+
+    return progress
+
+
+def _run_blend(args) -> str:
+    """render-blend: a .blend's frames over a Dask cluster (distributed/blender_frames.py)."""
+    from .distributed import blender_frames, series
+
+    blend = os.path.abspath(args.blend)
+    if not os.path.isfile(blend):
+        raise OutputError(f"{args.blend}: no such .blend file")
+    frames = series.parse_frames(args.frames)
+    t0 = time.perf_counter()
+    with _dask_client(args, "cpu" if args.workers else "auto") as client:
+        records = blender_frames.render_animation(blend, frames, client, blender=args.blender,
+                                                  progress=_progress_bar(t0))
+    written = sum(1 for r in records if r["status"] == "written")
+    return (f"hovr: {written} frames written, {len(records) - written} were already there, in "
+            f"{time.perf_counter() - t0:.1f} s")
+
+
+def _run_series(args) -> str:
+    """render-series: the frames not yet written, over a Dask cluster (distributed/series.py)."""
+    from .core.view import View
+    from .distributed import series
+
+    if "#" not in args.output:
+        raise OutputError(f"-o {args.output!r} needs a run of '#' for the frame number (out/frame_####.npy)")
+    _output_path(args.output, ".npy", "-o")
+    frames = series.parse_frames(args.frames)
+    view_path = os.path.abspath(args.view)
+    view = View.load(view_path)
+    if args.camera_path and args.orbit is not None:
+        raise ValueError("give --camera-path or --orbit, not both")
+    cameras = {}
+    if args.camera_path:
+        cameras = series.read_camera_path(args.camera_path, frames)
+    elif args.orbit is not None:
+        import json
+
+        with open(view_path) as fh:
+            cameras = series.orbit_cameras(json.load(fh)["camera"], frames, args.orbit)
+    options = {k: v for k, v in (("method", args.method), ("h", args.h), ("tolerance", args.tolerance),
+                                 ("precision", args.precision)) if v is not None}
+    view.options.with_(**options)  # checked here, before any worker starts
+    device = "auto" if args.device == "cuda:all" else args.device
+    job = series.SeriesJob(view=view_path, frames=frames, output=os.path.abspath(args.output), png=args.png,
+                           stats=args.stats, cameras=cameras, options=options, device=device)
+    todo = series.pending_frames(job)
+    if not todo:
+        return f"hovr: all {len(frames)} frames are written already ({job.npy(frames[0])} ...)"
+    t0 = time.perf_counter()
+    with _dask_client(args, args.device) as client:
+        records = series.render_series(job, client, progress=_progress_bar(t0))
+    seconds = time.perf_counter() - t0
+    written = [r for r in records if r["status"] == "written"]
+    load = sum(r["load_seconds"] for r in written) / max(len(written), 1)
+    return (f"hovr: {len(written)} frames written ({len(frames) - len(todo)} were already there) in {seconds:.1f} s, "
+            f"{len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> {os.path.dirname(job.npy(frames[0]))}")
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
-        message = _run(args)
+        message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
         print("hovr: interrupted", file=sys.stderr)
         return 130

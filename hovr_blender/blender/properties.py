@@ -17,6 +17,8 @@ PRECISION_ITEMS = (
 DEVICE_ITEMS = (
     ("cpu", "CPU", "Run the Warp kernels on the CPU", 0),
     ("cuda:0", "CUDA GPU 0", "Run the Warp kernels on the first CUDA device", 1),
+    ("cuda:all", "All GPUs", "Split each frame's rows over every CUDA device (one process a device, "
+     "rows balanced by the last frame's cost)", 2),
 )
 
 

@@ -98,10 +98,10 @@ def _renderer(source: VolumeSource, matrix: tuple, device: str):
     object-space mesh comes from io.sources.cached_volume, so a moved object or another
     device uploads again without reading the file."""
     def upload():
-        from ..core.renderer import Renderer
+        from ..core.multi_device import make_renderer  # "cuda:all": every GPU (core/multi_device.py)
 
         mesh = cached_volume(source).transformed(np.array(matrix).reshape(4, 4))
-        return Renderer(mesh, device=device), mesh.num_elements
+        return make_renderer(mesh, device), mesh.num_elements
 
     return RENDERERS.get((source.key, matrix, device), upload)
 

@@ -395,6 +395,32 @@ def concatenate(meshes) -> "VolumeMesh":
     )
 
 
+def subset(mesh: "VolumeMesh", elements) -> "VolumeMesh":
+    """The mesh of `elements` (indices, in this order): their shapes, geometry and field, each
+    element's coefficients unchanged (core/sort_last.py gives each device one such part)."""
+    e = np.asarray(elements, dtype=np.int64)
+    if e.size == 0:
+        raise MeshError("a part of a mesh needs at least one element")
+
+    def gather(offset, values):
+        ends = np.append(offset[1:], len(values))
+        lengths = ends[e] - offset[e]
+        index = np.concatenate([np.arange(offset[k], offset[k] + n) for k, n in zip(e, lengths)])
+        return np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(offset.dtype), values[index]
+
+    coeff_offset, coeffs = gather(mesh.coeff_offset, mesh.coeffs)
+    curved = mesh.geom_coeffs is not None
+    geom_offset, geom_coeffs = gather(mesh.geom_offset, mesh.geom_coeffs) if curved else (None, None)
+    hull = None if mesh.field_range_hull is None else (mesh.field_range_hull[0][e], mesh.field_range_hull[1][e])
+    return VolumeMesh(
+        shape=mesh.shape[e], vertices=mesh.vertices[e], ref_from_world=mesh.ref_from_world[e], modes=mesh.modes[e],
+        basis=mesh.basis[e], coeff_offset=coeff_offset, coeffs=coeffs, field_name=mesh.field_name, source=mesh.source,
+        geom_modes=mesh.geom_modes[e] if curved else None, geom_offset=geom_offset, geom_coeffs=geom_coeffs,
+        affine=None if mesh.affine is None else mesh.affine[e], field_range_hull=hull,
+        volume=None if mesh.volume is None else mesh.volume[e],
+    )
+
+
 def element_field_ranges(mesh: "VolumeMesh"):
     lo, hi = _grouped_ranges(mesh.shape, mesh.modes, mesh.coeff_offset, mesh.coeffs)
     if mesh.field_range_hull is not None:

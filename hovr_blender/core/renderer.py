@@ -39,6 +39,9 @@ class RenderResult:
     depth: np.ndarray | None = None  # (H, W) t where 1 - T first reaches 0.5, else the far value
     error: np.ndarray | None = None  # (H, W) sum of the Gauss-Kronrod panel error estimates
     cancelled: bool = False
+    # (H,) the work each row took (ray_cost of its pixels' counters): what a render split over
+    # several devices balances its rows by (core/multi_device.py)
+    row_cost: np.ndarray | None = None
 
 
 _WARP_READY = False
@@ -78,6 +81,30 @@ def resolve_device(device: str) -> str:
         raise RenderError(f"Warp device {device!r} is not available here (available: {avail})") from exc
 
 
+def cuda_devices() -> list[str]:
+    """The names of the CUDA devices here ("cuda:0", ...); empty without a GPU."""
+    _init_warp()
+    return [str(d) for d in wp.get_devices() if d.is_cuda]
+
+
+def expand_devices(devices) -> list[str]:
+    """A device list: "cpu", "cuda:1", "cuda:0,cuda:1" (or a list of names), or "cuda:all" / "all"
+    for every CUDA device here; each name resolved (RenderError for one that is not here)."""
+    names = [d.strip() for d in (devices.split(",") if isinstance(devices, str) else devices) if d.strip()]
+    if not names:
+        raise RenderError("no device named")
+    out = []
+    for name in names:
+        if name in ("all", "cuda:all"):
+            cuda = cuda_devices()
+            if not cuda:
+                raise RenderError(f"{name!r}: there is no CUDA device here")
+            out.extend(cuda)
+        else:
+            out.append(resolve_device(name))
+    return out
+
+
 FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
@@ -89,6 +116,12 @@ TILE_MEMORY_FRACTION = 0.25
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
+# a ray's work in the units of one field evaluation, from its counters (kernels/args.py STAT_*):
+# each element segment and each curved location costs about a Newton solve's evaluations, and a
+# ray a few for its search and finalize. A load-balancing estimate, not a timing model.
+RAY_COST_BASE = 8.0
+RAY_COST_SEGMENT = 16.0
+RAY_COST_LOCATE = 16.0
 
 def _check_float32_range(what: str, values, offsets):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
@@ -158,8 +191,7 @@ class Renderer:
         self.volumes = int(self._volume.max()) + 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
-        self.data_ranges = [(float(self._field_lo[self._volume == k].min()), float(self._field_hi[self._volume == k].max()))
-                            for k in range(self.volumes)]
+        self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
@@ -180,6 +212,43 @@ class Renderer:
         except RenderError:
             pass  # data float32 cannot hold: render() says so, unless asked for float64
         self.upload_seconds = time.perf_counter() - t0
+
+    @staticmethod
+    def volume_ranges(mesh: VolumeMesh, lo=None, hi=None) -> list[tuple[float, float]]:
+        """(min, max) of the field per volume: what the field's frame is chosen from
+        (core/field_frame.py; a part of a mesh rendered apart takes the whole mesh's, so that
+        every part rounds alike: core/sort_last.py)."""
+        if lo is None:
+            lo, hi = element_field_ranges(mesh)
+        volume = element_volumes(mesh)
+        return [(float(lo[volume == k].min()), float(hi[volume == k].max())) for k in range(int(volume.max()) + 1)]
+
+    def same_geometry(self, mesh: VolumeMesh) -> bool:
+        """Whether `mesh` has this renderer's elements, geometry and field layout (shapes, modes,
+        bases, coefficient offsets, volumes): then replace_field takes its field without a new
+        upload of the geometry and BVH (a series of snapshots on one mesh)."""
+        old = self.mesh
+        if mesh is old:
+            return True
+
+        def same(a, b):
+            return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+        return all(same(getattr(mesh, k), getattr(old, k)) for k in (
+            "shape", "modes", "basis", "coeff_offset", "geom_modes", "geom_offset", "geom_coeffs", "affine", "volume"))
+
+    def replace_field(self, mesh: VolumeMesh):
+        """Render `mesh`'s field from now on; its geometry must be this renderer's (same_geometry).
+        Only the field goes to the device, on the next render (the BVH, geometry and compiled
+        kernels stay)."""
+        if not self.same_geometry(mesh):
+            raise RenderError("replace_field needs the same elements and geometry; make a new Renderer")
+        self.mesh = mesh
+        self._field_lo, self._field_hi = element_field_ranges(mesh)
+        self._coeff_scale = element_coefficient_scale(mesh)
+        self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
+        for upload in self._uploads.values():
+            upload.field_key = None  # _set_field maps and uploads the new coefficients
 
     def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
@@ -372,27 +441,34 @@ class Renderer:
         return fr, tf, warnings
 
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
-               progress=None, tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
+               progress=None, tile_pixels: int | None = None, profile: bool = False,
+               rows: tuple[int, int] | None = None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
         pixels and progress(fraction_done) is called after each; returning False cancels
         (the result then has cancelled=True and only the finished tiles filled in). With `profile`,
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
-        waits add a little to render_seconds)."""
+        waits add a little to render_seconds). With `rows` = (first, end), only the image rows
+        first .. end - 1 are traced and the result holds those rows (each pixel exactly as in the
+        whole image: a ray is the same ray whichever launch traces it)."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
         W, H = int(camera.width), int(camera.height)
         total = W * H
+        row0, row1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
+        if not 0 <= row0 < row1 <= H:
+            raise RenderError(f"rows {row0}..{row1} are not inside a {W}x{H} image")
+        first, end = row0 * W, row1 * W
         _, tf_frame, warnings = self.field_frame(tf, options.precision)
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
-            tile = total if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self._tile_limit(prec), total)
+            tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
+            tile = min(tile, self._tile_limit(prec), end - first)
             self.check_limits(W, H, options, tile)
             try:
                 rgba = wp.zeros(total, dtype=prec.vec4)
@@ -410,28 +486,31 @@ class Renderer:
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
-            for start in range(0, total, tile):
-                n = min(tile, total - start)
+            for start in range(first, end, tile):
+                n = min(tile, end - start)
                 rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n)
                 launch("finalize", kernels.finalize, n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
-                    if progress((start + n) / total) is False:
+                    if progress((start + n - first) / (end - first)) is False:
                         cancelled = True
                         break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
-            img = rgba.numpy().reshape(H, W, 4).astype(prec.dtype)
-            depth_err = aux.numpy().reshape(H, W, 2)
-            counts = stats.numpy().astype(np.int64).sum(axis=0)
+            img = rgba.numpy()[first:end].reshape(row1 - row0, W, 4).astype(prec.dtype)
+            depth_err = aux.numpy()[first:end].reshape(row1 - row0, W, 2)
+            per_ray = stats.numpy()[first:end].astype(np.int64)
+            counts = per_ray.sum(axis=0)
+            row_cost = ray_cost(kernels, per_ray.reshape(row1 - row0, W, -1).sum(axis=1), W)
         if not np.all(np.isfinite(img)):
             raise RenderError("the render produced non-finite pixels (NaN/Inf in the data or transfer function?)")
         info = {"device": self.device, "render_seconds": seconds, "width": W, "height": H, "method": options.method,
-                "parameters": options.as_dict(), **_counter_stats(kernels, counts, W * H), "rounds": rounds,
+                "parameters": options.as_dict(), **_counter_stats(kernels, counts, end - first), "rounds": rounds,
+                **({"rows": [row0, row1]} if rows is not None else {}),
                 **({"kernel_seconds": launch.seconds} if profile else {}),
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
-                            stats=info)
+                            stats=info, row_cost=row_cost)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
                     n: int) -> int:
@@ -563,6 +642,15 @@ def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upl
     return quad
 
 
+def ray_cost(kernels, counts: np.ndarray, rays: int | np.ndarray = 1) -> np.ndarray:
+    """The work of `rays` rays whose counters summed to `counts` (..., NUM_STATS), in field
+    evaluations (RAY_COST_*)."""
+    counts = np.asarray(counts, dtype=np.float64)
+    return (counts[..., kernels.STAT_FIELD_EVALS] + counts[..., kernels.STAT_RESTRICTION_EVALS]
+            + RAY_COST_SEGMENT * counts[..., kernels.STAT_SEGMENTS] + RAY_COST_LOCATE * counts[..., kernels.STAT_LOCATES]
+            + RAY_COST_BASE * np.asarray(rays, dtype=np.float64))
+
+
 def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
     """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
     return {
@@ -579,5 +667,12 @@ def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
 
 
 def render_view(view: View, mesh: VolumeMesh) -> RenderResult:
-    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data)."""
-    return Renderer(mesh, view.options.device).render(view.camera, view.transfer_function, view.background, view.options)
+    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
+    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
+    devices = expand_devices(view.options.device)
+    if len(devices) > 1:
+        from .multi_device import MultiDeviceRenderer
+
+        with MultiDeviceRenderer(mesh, devices) as r:
+            return r.render(view.camera, view.transfer_function, view.background, view.options)
+    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options)

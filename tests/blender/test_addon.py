@@ -65,7 +65,7 @@ def test_properties_defaults_and_enum_indices(scene):
     props = type(settings).bl_rna.properties
     methods = {i.identifier: i.value for i in props["method"].enum_items}
     assert methods == {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
-    assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1}
+    assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1, "cuda:all": 2}
     assert props["transfer_function"].fixed_type.identifier == "Texture"
     for name in ("h", "tolerance", "min_transmittance", "density_scale", "value_min", "value_max"):
         assert props[name].type == 'FLOAT'

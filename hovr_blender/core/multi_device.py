@@ -1,0 +1,215 @@
+"""One frame over several Warp devices of one host: the image's rows split in contiguous bands,
+one band a device, balanced by the cost each row took in the previous frame and by each device's
+measured speed; the bands stacked into the one image a single device renders (each pixel is the
+same ray whichever device traces it: Renderer.render's `rows`).
+
+Each device is served by its own process (Warp's default device is one per process, so threads
+would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
+kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
+not survive a fork). The renderer module is imported at the top: the CLI and the add-on import
+this module only when they render, as they do the renderer.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import time
+
+import numpy as np
+
+from .renderer import Renderer, RenderError, RenderResult, expand_devices
+
+SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
+                "segments_piecewise_smooth", "curved_locates", "walks")
+
+
+def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
+    """Contiguous bands (first, end) of len(row_cost) rows, one per device, each device's share of
+    the summed cost proportional to its speed; every band has at least one row (so at most
+    len(row_cost) devices get one)."""
+    cost = np.maximum(np.asarray(row_cost, dtype=np.float64), 1e-12)
+    speeds = np.asarray(speeds, dtype=np.float64)[: len(cost)]
+    H, n = len(cost), len(speeds)
+    cum = np.concatenate([[0.0], np.cumsum(cost)])
+    targets = cum[-1] * np.cumsum(speeds)[:-1] / speeds.sum()
+    cuts = np.searchsorted(cum, targets, side="left")
+    # round each cut to the nearer row boundary, keep them strictly increasing inside 1..H-1
+    cuts = [int(c - 1) if c > 0 and (cum[c] - t) > (t - cum[c - 1]) else int(c) for c, t in zip(cuts, targets)]
+    edges = [0]
+    for k, c in enumerate(cuts):
+        edges.append(int(np.clip(c, edges[-1] + 1, H - (n - 1 - k))))
+    edges.append(H)
+    return [(edges[k], edges[k + 1]) for k in range(n)]
+
+
+def merge_results(parts, width: int, height: int, seconds: float) -> RenderResult:
+    """The image of row bands rendered apart: (band (first, end), RenderResult) in row order."""
+    results = [r for _, r in parts]
+    rgba = np.concatenate([r.rgba for r in results], axis=0)
+    depth = np.concatenate([r.depth for r in results], axis=0)
+    error = np.concatenate([r.error for r in results], axis=0)
+    row_cost = np.concatenate([r.row_cost for r in results], axis=0)
+    first = results[0].stats
+    stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
+    for k in SUMMED_STATS:
+        stats[k] = int(sum(r.stats[k] for r in results))
+    stats.update(width=width, height=height, render_seconds=seconds,
+                 device=",".join(r.stats["device"] for r in results),
+                 samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / (width * height),
+                 rounds=max(r.stats["rounds"] for r in results),
+                 warnings=sorted({w for r in results for w in r.stats.get("warnings", [])}),
+                 devices=[{"device": r.stats["device"], "rows": list(band), "render_seconds": r.stats["render_seconds"],
+                           "cost": float(r.row_cost.sum())} for band, r in parts])
+    return RenderResult(rgba=rgba, stats=stats, depth=depth, error=error, row_cost=row_cost)
+
+
+def _serve(conn, mesh, device, max_tile_rays):
+    """A device's process: a Renderer of `mesh` on `device`, rendering what it is sent."""
+    try:
+        renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
+        conn.send(("ok", renderer.upload_seconds))
+    except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    while True:
+        try:
+            msg = conn.recv()
+        except EOFError:
+            return
+        if msg[0] == "close":
+            return
+        try:
+            if msg[0] == "field":
+                renderer.replace_field(msg[1])
+                conn.send(("ok", None))
+            elif msg[0] == "data_ranges":
+                renderer.data_ranges = msg[1]
+                conn.send(("ok", None))
+            else:
+                _, camera, tf, background, options, rows = msg
+                res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
+                conn.send(("ok", res))
+        except BaseException as exc:  # noqa: BLE001
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+
+
+class DeviceProcess:
+    """A process holding a Renderer of one mesh on one device (_serve). send() a request, then
+    reply() its answer: requests to several processes run at once."""
+
+    def __init__(self, mesh, device: str, max_tile_rays: int | None = None):
+        ctx = multiprocessing.get_context("spawn")
+        self.device = device
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, mesh, device, max_tile_rays), daemon=True,
+                                 name=f"hovr-{device}")
+        self._proc.start()
+        child.close()
+
+    def send(self, *msg):
+        self._conn.send(msg)
+
+    def reply(self):
+        try:
+            kind, value = self._conn.recv()
+        except EOFError as exc:
+            raise RenderError(f"the process rendering on {self.device} ended unexpectedly") from exc
+        if kind == "error":
+            raise RenderError(f"{self.device}: {value}")
+        return value
+
+    def close(self):
+        try:
+            self._conn.send(("close",))
+            self._conn.close()
+        except OSError:
+            pass
+        self._proc.join(timeout=10)
+        if self._proc.is_alive():
+            self._proc.kill()
+
+
+def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
+    """A DeviceProcess for each (mesh, device), started together; waits until each has uploaded."""
+    procs = []
+    try:
+        for mesh, dev in zip(meshes, devices):
+            procs.append(DeviceProcess(mesh, dev, max_tile_rays))
+        for p in procs:
+            p.upload_seconds = p.reply()
+    except BaseException:
+        for p in procs:
+            p.close()
+        raise
+    return procs
+
+
+class MultiDeviceRenderer:
+    """Renderer's render() over several devices (e.g. every CUDA device of the host): one process
+    a device, each holding the mesh; close() (or `with`) stops them."""
+
+    def __init__(self, mesh, devices, max_tile_rays: int | None = None):
+        self.devices = expand_devices(devices)
+        self.device = ",".join(self.devices)
+        self.mesh = mesh
+        self._row_cost = None  # the last frame's cost per row, for the next split
+        self._speeds = np.ones(len(self.devices))  # cost per second, per device
+        t0 = time.perf_counter()
+        self._procs = start_processes([mesh] * len(self.devices), self.devices, max_tile_rays)
+        self.upload_seconds = time.perf_counter() - t0
+
+    def replace_field(self, mesh):
+        """A new field on the same geometry, sent to every device (Renderer.replace_field)."""
+        for p in self._procs:
+            p.send("field", mesh)
+        for p in self._procs:
+            p.reply()
+        self.mesh = mesh
+
+    def split(self, height: int) -> list[tuple[int, int]]:
+        """The row bands of the next frame: the last frame's row costs if it had this height,
+        else equal rows, over the devices' measured speeds."""
+        cost = self._row_cost if self._row_cost is not None and len(self._row_cost) == height else np.ones(height)
+        return balanced_rows(cost, self._speeds)
+
+    def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False) -> RenderResult:
+        """Renderer.render over the devices (progress is called once, at the end; profile is ignored)."""
+        W, H = int(camera.width), int(camera.height)
+        bands = self.split(H)
+        t0 = time.perf_counter()
+        for p, band in zip(self._procs, bands):
+            p.send("render", camera, tf, background, options, band)
+        parts = [(band, p.reply()) for p, band in zip(self._procs, bands)]
+        seconds = time.perf_counter() - t0
+        result = merge_results(parts, W, H, seconds)
+        # each device's speed: the geometric mean of what it had and what this frame measured
+        # (one frame's timing is noisy, and a band's fixed costs do not scale with its rows)
+        speeds = np.array([max(float(r.row_cost.sum()), 1e-9) / max(r.stats["render_seconds"], 1e-6) for _, r in parts])
+        speeds = np.concatenate([speeds, self._speeds[len(speeds):]])
+        self._speeds = speeds if self._row_cost is None else np.sqrt(self._speeds * speeds)
+        self._speeds /= self._speeds.max()
+        self._row_cost = result.row_cost
+        if progress is not None:
+            progress(1.0)
+        return result
+
+    def close(self):
+        for p in getattr(self, "_procs", []):
+            p.close()
+        self._procs = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __del__(self):
+        self.close()
+
+
+def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None):
+    """A Renderer for one device, a MultiDeviceRenderer for a list ("cuda:0,cuda:1", "cuda:all")."""
+    devices = expand_devices(device)
+    if len(devices) == 1:
+        return Renderer(mesh, devices[0], max_tile_rays=max_tile_rays)
+    return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays)
