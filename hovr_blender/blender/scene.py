@@ -76,7 +76,7 @@ def _tents(spec, width):
     return sorted(stops, key=lambda s: s[0])
 
 
-DEFAULT_PRESET = "TENTS"  # a new transfer function's ramp
+DEFAULT_PRESET = "SMOOTH"  # a new transfer function's ramp: shows any field once its range is fitted
 TF_PRESETS = {
     "TENTS": ("Three Tents", "Three thin coloured tents (isosurface-like shells)",
               _tents(((0.2, (1.0, 0.2, 0.1)), (0.5, (0.1, 1.0, 0.2)), (0.8, (0.2, 0.3, 1.0))), 0.04)),
