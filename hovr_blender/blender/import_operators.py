@@ -52,7 +52,10 @@ def _absolute(path: str, base_dir: str) -> str:
 
 
 def _fail(op, path, exc) -> set:
-    what = str(exc) if isinstance(exc, (ValueError, OSError)) else f"unexpected {type(exc).__name__}: {exc}"
+    if isinstance(exc, ImportError):
+        what = failure_text(exc)
+    else:
+        what = str(exc) if isinstance(exc, (ValueError, OSError)) else f"unexpected {type(exc).__name__}: {exc}"
     op.report({'ERROR'}, f"HOVR: cannot import {os.path.basename(path)}: {what}")
     return {'CANCELLED'}
 

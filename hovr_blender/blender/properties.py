@@ -137,12 +137,75 @@ class HovrViewLayerSettings(bpy.types.PropertyGroup):
         del bpy.types.ViewLayer.hovr
 
 
-classes = (HovrRenderSettings, HovrObjectSettings, HovrViewLayerSettings)
+def _addon_package() -> str:
+    """The add-on's module name: "hovr_blender", or bl_ext.<repo>.hovr_blender as an extension."""
+    return __package__.rpartition(".")[0]
+
+
+def _debug_changed(self, _context):
+    import os
+
+    if self.debug_output:
+        os.environ["HOVR_DEBUG"] = "1"
+    else:
+        os.environ.pop("HOVR_DEBUG", None)
+
+
+class HovrPreferences(bpy.types.AddonPreferences):
+    """Edit > Preferences > Add-ons > HOVR: which dependencies are installed, debug output."""
+
+    bl_idname = _addon_package()
+
+    debug_output: BoolProperty(name="Debug Output", default=False, update=_debug_changed,
+                               description="Let Warp print its start-up, CUDA and module-load lines to the console "
+                                           "(from the next Blender session on; silent otherwise)")
+
+    def draw(self, context):
+        from .dependencies import DEPENDENCIES, missing, report_lines
+
+        layout = self.layout
+        absent = missing()
+        col = layout.column(align=True)
+        for module, package, purpose, _required in DEPENDENCIES:
+            ok = all(m != module for m, *_ in absent)
+            col.label(text=f"{package}: {'installed' if ok else 'MISSING'} ({purpose})",
+                      icon='CHECKMARK' if ok else 'ERROR')
+        for line in report_lines(absent)[len(absent):]:
+            box = layout.box()
+            for k in range(0, len(line), 90):
+                box.label(text=line[k:k + 90])
+        layout.prop(self, "debug_output")
+
+
+def report_missing_dependencies():
+    """At enable time: say which dependencies are missing and what to do, on the console (the
+    Preferences entry shows the same); never first at render time."""
+    from .dependencies import missing, report_lines
+
+    lines = report_lines(missing())
+    for line in lines:
+        print(line, flush=True)
+    if lines and not bpy.app.background:
+        def popup():
+            wm = bpy.context.window_manager
+            if wm is not None:
+                wm.popup_menu(lambda self, _ctx: [self.layout.label(text=t) for t in lines],
+                              title="HOVR: missing dependencies", icon='ERROR')
+            return None
+
+        bpy.app.timers.register(popup, first_interval=0.5)
+
+
+classes = (HovrRenderSettings, HovrObjectSettings, HovrViewLayerSettings, HovrPreferences)
 
 
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    prefs = bpy.context.preferences.addons.get(HovrPreferences.bl_idname) if bpy.context.preferences else None
+    if prefs is not None and prefs.preferences is not None and prefs.preferences.debug_output:
+        _debug_changed(prefs.preferences, None)
+    report_missing_dependencies()
 
 
 def unregister():

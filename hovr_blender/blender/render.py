@@ -224,7 +224,7 @@ def volume_inputs(obj, hovr, scene) -> VolumeInputs:
     except ValueError as exc:
         raise SceneError(f"{obj.name!r}: {exc}") from exc
     if not (np.isfinite(look.density) and look.density >= 0):
-        raise SceneError(f"{obj.name!r}: density must be >= 0, got {look.density}")
+        raise SceneError(f"{obj.name!r}: density must be >= 0, got {look.density:.6g}")
     return VolumeInputs(name=obj.name, source=source, object_matrix=_matrix_tuple(obj.matrix_world),
                         transfer_function=tf, density=float(look.density), density_units=look.density_units)
 
@@ -295,6 +295,12 @@ def failure_text(exc: BaseException) -> str:
     if isinstance(exc, MemoryError):
         return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
                "what this machine has so that such a render is refused before it starts)"
+    if isinstance(exc, ImportError) and getattr(exc, "name", None):
+        from .dependencies import DEPENDENCIES, report_lines
+
+        dep = [d for d in DEPENDENCIES if d[0] == exc.name.split(".")[0]]
+        if dep:
+            return " ".join(report_lines(dep)).replace("HOVR: ", "")
     if isinstance(exc, (ValueError, OSError)):
         return str(exc)
     return f"{type(exc).__name__}: {exc}"
@@ -479,6 +485,11 @@ def view_draw(engine, context, depsgraph):
         engine.tag_redraw()  # keep view_draw coming until the final image is drawn
     if frame.pixels is not None:
         draw_pixels(engine, depsgraph.scene, context.region, frame)
+    text = engine.viewport.status_text()
+    if text != getattr(engine, "viewport_status", None):
+        engine.viewport_status = text
+        engine.update_stats("", text)  # Blender shows it in the viewport's corner, as Cycles' samples
+
 
 
 def draw_pixels(engine, scene, region, frame):

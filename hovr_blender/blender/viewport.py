@@ -127,6 +127,14 @@ class ProgressiveViewport:
             return "preview"
         return "converged" if self.converged else "refining"
 
+    def status_text(self) -> str:
+        """The viewport's progress in words (the engine's stats, shown in the viewport's corner)."""
+        if self.stage == "preview":
+            return "HOVR | preview (the first one in a session compiles the kernels)"
+        if self.stage == "refining":
+            return f"HOVR | refining {100 * self.progress():.0f}%"
+        return "HOVR | done"
+
     def progress(self) -> float:
         req = self._request
         return 1.0 if self.converged else (0.0 if req is None else self._next_row / req.camera.height)

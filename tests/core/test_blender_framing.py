@@ -121,3 +121,15 @@ def test_no_guess_among_unrelated_files(folder):
         p.unlink()
     picked, why, others = nektar.pick_solution(d / "mesh.xml")
     assert picked is None and others == [] and "no .fld" in why
+
+
+def test_missing_dependencies_are_named_with_what_to_do():
+    from hovr_blender.blender import dependencies
+
+    assert dependencies.missing(lambda name: object()) == []
+    assert dependencies.report_lines([]) == []
+    absent = dependencies.missing(lambda name: None if name in ("meshio", "h5py") else object())
+    assert [m for m, *_ in absent] == ["meshio", "h5py"]
+    lines = dependencies.report_lines(absent, python="/blender/python")
+    assert "meshio is missing" in lines[0] and "VTU" in lines[0]
+    assert '"/blender/python" -m pip install meshio h5py' in lines[-1] and "extension zip" in lines[-1]
