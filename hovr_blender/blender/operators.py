@@ -90,10 +90,9 @@ def create_volume_object(context, name, mesh, source, solution="", field="", com
     me = obj = None
     try:
         me = bpy.data.meshes.new(name)
-        me.vertices.add(len(verts))
-        me.vertices.foreach_set("co", verts.astype("float32").ravel())
-        me.edges.add(len(edges))
-        me.edges.foreach_set("vertices", edges.astype("int32").ravel())
+        # from_pydata, not foreach_set + update(): it marks the edges as loose edges, which
+        # Blender 3.x/4.1 need to draw an edges-only mesh at all (the outline was invisible)
+        me.from_pydata(verts.astype("float64").tolist(), edges.astype("int64").tolist(), [])
         me.update()
         obj = bpy.data.objects.new(name, me)
         obj.display_type = 'WIRE'
@@ -221,6 +220,8 @@ def frame_volumes(context, objects, margin: float = 1.1):
         cam.data.ortho_scale *= height / (2.0 * tan_y)
     cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
     cam.data.clip_start, cam.data.clip_end = clip_planes(near, far)
+    size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
+    cam.data.display_size = max(0.2 * size, 1e-4)  # the default 1 m wire camera would dwarf a 2 cm volume
     _frame_3d_views(context, corners)
     return cam
 

@@ -106,8 +106,8 @@ class HovrObjectSettings(bpy.types.PropertyGroup):
     transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
                                        description="Texture whose colour ramp (RGB, alpha) is this volume's transfer "
                                                    "function: colour = ramp RGB, density = ramp alpha x Density")
-    value_min: FloatProperty(name="Value Min", default=0.0, description="Field value at ramp position 0")
-    value_max: FloatProperty(name="Value Max", default=1.0, description="Field value at ramp position 1")
+    value_min: FloatProperty(name="Value Min", default=0.0, precision=4, description="Field value at ramp position 0")
+    value_max: FloatProperty(name="Value Max", default=1.0, precision=4, description="Field value at ramp position 1")
     density: FloatProperty(name="Density", default=4.0, min=0.0, soft_max=100.0,
                            description="Extinction at ramp alpha 1, in the units below")
     density_units: EnumProperty(name="Units", items=DENSITY_UNIT_ITEMS, default="RELATIVE",
