@@ -6,8 +6,10 @@
       importable in Blender's Python); fast, used by the tests.
   python scripts/build_extension.py --wheels [--platforms linux-x64,windows-x64,macos-arm64]
       one zip per platform, dist/hovr_blender-<version>-<platform>.zip, each carrying that
-      platform's warp-lang wheel (downloaded with pip into build/wheels/, not committed) and
-      a manifest with `platforms` and `wheels` filled in (as Blender's --split-platforms does).
+      platform's wheels of every runtime dependency (RUNTIME_REQUIREMENTS and what they need,
+      numpy excepted: Blender ships it; downloaded with pip into build/wheels/<platform>/, not
+      committed) and a manifest with `platforms` and `wheels` filled in (as Blender's
+      --split-platforms does). Installed, such a zip needs nothing else.
   python scripts/build_extension.py validate PATH
       checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
@@ -35,8 +37,14 @@ SKIP_DIRS = {"__pycache__", "tests"}
 SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
-# Blender platform -> the pip platform tag of warp-lang's wheel (one py3-none wheel per platform
-# serves Blender's Python 3.11 and 3.13). numpy is not bundled: Blender ships its own.
+# Everything the add-on imports beyond Blender (blender/dependencies.py checks the same list at
+# enable time): Warp renders, meshio reads VTU (and needs rich at import), h5py reads HDF5
+# solution files. pip resolves their dependencies; numpy is left out: Blender ships its own, and
+# a second copy in the extension's site-packages would shadow it.
+RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "meshio==5.3.5", "h5py==3.16.0")
+NOT_BUNDLED = {"numpy"}
+PYTHON_VERSION = "3.11"  # Blender 4.2 to 5.0; h5py's wheels are per Python version
+# Blender platform -> the pip platform tag of the wheels. numpy is not bundled: Blender ships its own.
 WHEEL_PLATFORMS = {
     "linux-x64": "manylinux_2_28_x86_64",
     "windows-x64": "win_amd64",
@@ -91,18 +99,38 @@ def _write_zip(out: Path, manifest_text: str, wheels=()):
             zf.write(wheel, f"wheels/{wheel.name}", compress_type=zipfile.ZIP_STORED)  # already compressed
 
 
-def download_wheel(platform: str, cache: Path = WHEEL_CACHE) -> Path:
-    """warp-lang's wheel for a Blender platform, from PyPI through pip (cached in build/wheels)."""
+def _wheel_project(path: Path) -> str:
+    return path.name.split("-", 1)[0].lower().replace("_", "-")
+
+
+def download_wheels(platform: str, cache: Path = WHEEL_CACHE) -> list[Path]:
+    """Wheels of RUNTIME_REQUIREMENTS and their dependencies for a Blender platform, numpy
+    excepted, from the package index through pip (cached in build/wheels/<platform>/)."""
     tag = WHEEL_PLATFORMS[platform]
-    cache.mkdir(parents=True, exist_ok=True)
-    found = sorted(cache.glob(f"warp_lang-{WARP_VERSION}-*{tag}*.whl"))
-    if not found:
-        subprocess.run([sys.executable, "-m", "pip", "download", f"warp-lang=={WARP_VERSION}", "--only-binary=:all:",
-                        "--no-deps", "--platform", tag, "--python-version", "3.11", "-d", str(cache)], check=True)
-        found = sorted(cache.glob(f"warp_lang-{WARP_VERSION}-*{tag}*.whl"))
-    if not found:
-        raise SystemExit(f"pip downloaded no warp-lang {WARP_VERSION} wheel for {tag}")
-    return found[-1]
+    dest = cache / platform
+    dest.mkdir(parents=True, exist_ok=True)
+    subprocess.run([sys.executable, "-m", "pip", "download", *RUNTIME_REQUIREMENTS, "--only-binary=:all:",
+                    "--platform", tag, "--python-version", PYTHON_VERSION, "--implementation", "cp",
+                    "--quiet", "-d", str(dest)], check=True)
+    wanted = {r.split("==")[0] for r in RUNTIME_REQUIREMENTS}
+    wheels = sorted(w for w in dest.glob("*.whl") if _wheel_project(w) not in NOT_BUNDLED)
+    latest = {}  # one wheel per project: the cache may hold older pins
+    for w in wheels:
+        latest[_wheel_project(w)] = w
+    missing = wanted - set(latest)
+    if missing:
+        raise SystemExit(f"pip downloaded no wheel of {', '.join(sorted(missing))} for {tag}")
+    pinned = {r.split("==")[0]: r.split("==")[1] for r in RUNTIME_REQUIREMENTS}
+    for project, version in pinned.items():
+        match = [w for w in wheels if _wheel_project(w) == project and w.name.split("-")[1] == version]
+        if match:
+            latest[project] = match[-1]
+    return sorted(latest.values())
+
+
+def download_wheel(platform: str, cache: Path = WHEEL_CACHE) -> Path:
+    """warp-lang's wheel for a Blender platform (download_wheels fetches it with the others)."""
+    return next(w for w in download_wheels(platform, cache) if _wheel_project(w) == "warp-lang")
 
 
 def build(output_dir: Path) -> Path:
@@ -120,10 +148,11 @@ def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path
     for platform in platforms:
         if platform not in WHEEL_PLATFORMS:
             raise SystemExit(f"no warp-lang wheel known for platform {platform!r} (one of {', '.join(WHEEL_PLATFORMS)})")
-        wheel = download_wheel(platform, cache)
-        lines = [f'platforms = ["{platform}"]', f'wheels = ["./wheels/{wheel.name}"]']
+        wheels = download_wheels(platform, cache)
+        listed = ", ".join(f'"./wheels/{w.name}"' for w in wheels)
+        lines = [f'platforms = ["{platform}"]', f"wheels = [{listed}]"]
         out = output_dir / f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"
-        _write_zip(out, _with_keys(text, lines), [wheel])
+        _write_zip(out, _with_keys(text, lines), wheels)
         outs.append(out)
     return outs
 
@@ -247,7 +276,7 @@ def main(argv=None) -> int:
         return 1 if errors else 0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--output-dir", type=Path, default=REPO / "dist", help="where to write the zip (default: dist/)")
-    p.add_argument("--wheels", action="store_true", help="one zip per platform with warp-lang's wheel bundled")
+    p.add_argument("--wheels", action="store_true", help="one zip per platform with the wheels of every runtime dependency bundled")
     p.add_argument("--platforms", default=",".join(DEFAULT_PLATFORMS),
                    help=f"with --wheels: comma-separated Blender platforms (default {','.join(DEFAULT_PLATFORMS)})")
     args = p.parse_args(argv)

@@ -27,6 +27,7 @@ class HovrRenderEngine(bpy.types.RenderEngine):
         render.VIEWPORTS.add(self.viewport)
         self.texture = None  # (version, GPUTexture) of the viewport's last frame
         self.viewport_error = None
+        self.viewport_status = None  # the stats text last shown in the viewport
 
     def __del__(self):
         # Nothing per instance to free (uploads are cached at module level); chain to the

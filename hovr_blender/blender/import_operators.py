@@ -1,8 +1,10 @@
 """File > Import > HOVR Nektar++ (.xml) / HOVR VTU (.vtu): a finite-element volume as an object.
 
 The file is read first; only a successful read creates anything (the outline mesh, the
-object, a transfer function if the scene has none), so a malformed file leaves the .blend as
-it was and the error names the file (and the element or record where the reader can tell).
+object and its own look: a transfer function, the field's range, a density relative to its
+size), so a malformed file leaves the .blend as it was and the error names the file (and the
+element or record where the reader can tell). Importing never changes another volume. By
+default the scene camera (made if there is none) then frames the new volume.
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
 that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
 remapping does not see add-on properties).
@@ -17,6 +19,7 @@ from bpy_extras.io_utils import ImportHelper
 from ..io import nektar, vtu
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
+from .render import failure_text
 from .scene import field_samples
 
 
@@ -49,7 +52,10 @@ def _absolute(path: str, base_dir: str) -> str:
 
 
 def _fail(op, path, exc) -> set:
-    what = str(exc) if isinstance(exc, (ValueError, OSError)) else f"unexpected {type(exc).__name__}: {exc}"
+    if isinstance(exc, ImportError):
+        what = failure_text(exc)
+    else:
+        what = str(exc) if isinstance(exc, (ValueError, OSError)) else f"unexpected {type(exc).__name__}: {exc}"
     op.report({'ERROR'}, f"HOVR: cannot import {os.path.basename(path)}: {what}")
     return {'CANCELLED'}
 
@@ -58,18 +64,31 @@ class _ImportVolume(ImportHelper):
     bl_options = {'REGISTER', 'UNDO', 'PRESET'}
 
     fit_range: BoolProperty(name="Fit Value Range", default=True,
-                            description="Set the scene's Value Min/Max to the imported field's range")
+                            description="Set the new volume's Value Min/Max to its field's range")
+    frame: BoolProperty(name="Frame Camera", default=True,
+                        description="Point the scene camera (a new one if there is none) at the HOVR volumes and "
+                                    "set its clip start/end from their size")
 
     def resolve(self, path):
-        """(solution, field, component, notes) to store; raises ValueError for bad settings."""
+        """(solution, field, component, notes, warnings) to store; raises ValueError for bad settings."""
         raise NotImplementedError
 
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
+        wm = context.window_manager
+        wm.progress_begin(0, 3)
         try:
-            solution, field, component, notes = self.resolve(path)
+            return self._execute(context, path, wm)
+        finally:
+            wm.progress_end()
+
+    def _execute(self, context, path, wm):
+        try:
+            solution, field, component, notes, warnings = self.resolve(path)
+            wm.progress_update(1)
             source = VolumeSource.resolve(path, solution, field, context.scene.frame_current, component=component)
             mesh = cached_volume(source)  # the first render finds it here
+            wm.progress_update(2)
             values = field_samples(mesh) if self.fit_range else None
         except Exception as exc:  # a reader bug must not leave a traceback instead of a message
             return _fail(self, path, exc)
@@ -79,25 +98,51 @@ class _ImportVolume(ImportHelper):
                                                  field, component)
         except Exception as exc:
             return _fail(self, path, exc)
-        settings = context.scene.hovr
-        if settings.transfer_function is None:
-            settings.transfer_function = operators.new_transfer_function_texture()
         if values is not None and values.size:
-            operators.SAMPLES.put(source.key, values)
-            lo, hi = float(values.min()), float(values.max())
-            if hi <= lo:  # a constant field (no solution: zero): a range around it
-                lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
-            settings.value_min, settings.value_max = lo, hi
+            operators.fit_value_range(obj, context.scene, values)
+        if getattr(mesh, "has_field", True) is False:
+            warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
         for w in getattr(mesh, "warnings", [])[:5]:
             notes.append(w)
+        if self.frame:
+            try:
+                operators.frame_volumes(context, [o for o in context.scene.objects
+                                                  if o.hovr.is_volume and o.visible_get()] or [obj])
+            except Exception as exc:  # framing is a convenience: the import itself succeeded
+                notes.append(f"camera not framed: {failure_text(exc)}")
         label = f" field {mesh.field_name}" if mesh.field_name else ""
         self.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}"
                               + "".join(f"; {n}" for n in notes))
+        for w in warnings:
+            self.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
         return {'FINISHED'}
 
 
+# The file browser redraws the operator's panel often: field-file scans per folder and field
+# names per file are remembered (by modification time) so drawing stays cheap.
+_SCAN_CACHE: dict = {}
+
+
+def _cached(key, stamp_path, compute):
+    try:
+        stamp = os.stat(stamp_path).st_mtime_ns
+    except OSError:
+        return None
+    hit = _SCAN_CACHE.get(key)
+    if hit is not None and hit[0] == stamp:
+        return hit[1]
+    try:
+        value = compute()
+    except Exception:
+        value = None
+    if len(_SCAN_CACHE) > 64:
+        _SCAN_CACHE.clear()
+    _SCAN_CACHE[key] = (stamp, value)
+    return value
+
+
 class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
-    """Import a Nektar++ mesh (.xml) and optionally its solution (.fld/.chk/.rst) as a HOVR volume"""
+    """Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume"""
 
     bl_idname = "import_scene.hovr_nektar"
     bl_label = "Import Nektar++ Volume"
@@ -106,15 +151,27 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
     filter_glob: StringProperty(default="*.xml", options={'HIDDEN'})
     solution: StringProperty(name="Solution", default="",
                              description="Field file (.fld/.chk/.rst or a .fld/ folder), relative to the mesh's "
-                                         "folder; empty: the mesh's name with .fld/.chk/.rst beside it, if any")
+                                         "folder; empty: the likeliest field file in the mesh's folder (its name "
+                                         "like the mesh's, the latest of a numbered series), as listed below")
     field: StringProperty(name="Field", default="",
                           description='Field to render; "|u,v,w|" is the magnitude of u, v, w. '
                                       "Empty: the file's first field")
 
     def resolve(self, path):
         folder = os.path.dirname(path)
-        solution = _absolute(self.solution, folder) or str(nektar.find_solution(path) or "")
-        field, notes = self.field.strip(), []
+        notes, warnings = [], []
+        solution = _absolute(self.solution, folder)
+        if not solution:
+            picked, why, others = nektar.pick_solution(path)
+            if picked is not None:
+                solution = str(picked)
+                rest = [p.name for p in others if p != picked]
+                notes.append(f"solution {picked.name} ({why})"
+                             + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
+                                if rest else ""))
+            elif others:
+                warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
+        field = self.field.strip()
         if solution and not field:
             names = nektar.list_fields(solution)
             if not names:
@@ -122,12 +179,10 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
             field = names[0]
             if len(names) > 1:
                 notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
-        if not solution:
-            if field:
-                raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
-                                         "found beside the mesh")
-            notes.append("no solution file: geometry only, a zero field")
-        return solution, field, "", notes
+        if not solution and field:
+            raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
+                                     "found beside the mesh")
+        return solution, field, "", notes, warnings
 
     def draw(self, context):
         layout = self.layout
@@ -135,6 +190,29 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
         layout.prop(self, "solution")
         layout.prop(self, "field")
         layout.prop(self, "fit_range")
+        layout.prop(self, "frame")
+        path = bpy.path.abspath(self.filepath)
+        if self.solution.strip() or not path.lower().endswith(".xml"):
+            return
+        folder = os.path.dirname(path) or "."
+        found = _cached(("scan", path), folder, lambda: nektar.pick_solution(path))
+        box = layout.box()
+        if not found:
+            return
+        picked, why, others = found
+        if picked is None:
+            box.label(text="No solution picked:", icon='ERROR')
+            box.label(text="geometry only (zero field)")
+            for p in others[:6]:
+                box.label(text=p.name, icon='FILE')
+            return
+        box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
+        box.label(text=why[:60])
+        fields = _cached(("fields", str(picked)), str(picked), lambda: nektar.list_fields(picked))
+        if fields:
+            box.label(text="Fields: " + ", ".join(fields[:8]))
+        for p in [p for p in others if p != picked][:5]:
+            box.label(text=f"also: {p.name}", icon='FILE')
 
 
 class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
@@ -153,13 +231,15 @@ class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
 
     def resolve(self, path):
         parse_component(self.component)  # a bad entry is reported before the file is read
-        field = self.field.strip()
+        field, notes = self.field.strip(), []
         if not field:
             names = list(vtu.list_fields(path))
             if not names:
                 raise vtu.VtuError(f"{path}: no point-data array to render")
             field = names[0]
-        return "", field, self.component.strip(), []
+            if len(names) > 1:
+                notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+        return "", field, self.component.strip(), notes, []
 
     def draw(self, context):
         layout = self.layout
@@ -167,6 +247,7 @@ class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
         layout.prop(self, "field")
         layout.prop(self, "component")
         layout.prop(self, "fit_range")
+        layout.prop(self, "frame")
 
 
 def menu_import(self, _context):

@@ -1,6 +1,9 @@
 """Operators: add the built-in sphere volume, create a transfer function, apply a preset,
-fit the value range to the data (which also gives the panel its histogram)."""
+fit the value range to the data (which also gives the panel its histogram), frame the
+volumes with the scene camera. Each acts on one volume's own look (Object.hovr), never
+on another volume's."""
 import bpy
+import numpy as np
 
 from ..core.cache import LRUCache
 from ..core.outline import outline_edges
@@ -21,10 +24,13 @@ HISTOGRAM_BINS = 16
 
 
 def _volume_object(context):
+    """The volume the look operators act on: the active object if it is a volume, else the
+    scene's only volume (with several, the user picks one by making it active)."""
     obj = context.object
     if obj is not None and obj.hovr.is_volume:
         return obj
-    return next((o for o in context.scene.objects if o.hovr.is_volume), None)
+    volumes = [o for o in context.scene.objects if o.hovr.is_volume]
+    return volumes[0] if len(volumes) == 1 else None
 
 
 def _source_of(obj, scene):
@@ -32,9 +38,9 @@ def _source_of(obj, scene):
                                 abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
 
 
-def histogram_for(context):
-    """Fractions per bin of [value_min, value_max] for the scene's volume, if sampled."""
-    obj = _volume_object(context)
+def histogram_for(context, obj=None):
+    """Fractions per bin of the volume's [value_min, value_max], if its data was sampled."""
+    obj = obj or _volume_object(context)
     if obj is None:
         return None
     try:
@@ -44,8 +50,16 @@ def histogram_for(context):
     values = SAMPLES.get(key)
     if values is None:
         return None
-    s = context.scene.hovr
-    return value_histogram(values, s.value_min, s.value_max, HISTOGRAM_BINS)
+    h = obj.hovr
+    return value_histogram(values, h.value_min, h.value_max, HISTOGRAM_BINS)
+
+
+def value_range(values) -> tuple[float, float]:
+    """(Value Min, Value Max) for sampled field values; a constant field gets a range around it."""
+    lo, hi = float(values.min()), float(values.max())
+    if hi <= lo:
+        lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
+    return lo, hi
 
 
 def set_ramp_stops(ramp, stops):
@@ -60,11 +74,12 @@ def set_ramp_stops(ramp, stops):
         ramp.elements.new(pos).color = rgba
 
 
-def new_transfer_function_texture(name: str = "HOVR Transfer Function"):
-    """A Blend texture whose linear RGB ramp holds the default preset (three thin tents)."""
+def new_transfer_function_texture(name: str = "HOVR Transfer Function", preset: str = DEFAULT_PRESET):
+    """A Blend texture whose linear RGB ramp holds a preset (default: the smooth ramp, opacity
+    rising with the value, which shows something for any field once its range is fitted)."""
     tex = bpy.data.textures.new(name, type='BLEND')
     tex.use_color_ramp = True
-    set_ramp_stops(tex.color_ramp, TF_PRESETS[DEFAULT_PRESET][2])
+    set_ramp_stops(tex.color_ramp, TF_PRESETS[preset][2])
     return tex
 
 
@@ -75,10 +90,9 @@ def create_volume_object(context, name, mesh, source, solution="", field="", com
     me = obj = None
     try:
         me = bpy.data.meshes.new(name)
-        me.vertices.add(len(verts))
-        me.vertices.foreach_set("co", verts.astype("float32").ravel())
-        me.edges.add(len(edges))
-        me.edges.foreach_set("vertices", edges.astype("int32").ravel())
+        # from_pydata, not foreach_set + update(): it marks the edges as loose edges, which
+        # Blender 3.x/4.1 need to draw an edges-only mesh at all (the outline was invisible)
+        me.from_pydata(verts.astype("float64").tolist(), edges.astype("int64").tolist(), [])
         me.update()
         obj = bpy.data.objects.new(name, me)
         obj.display_type = 'WIRE'
@@ -101,19 +115,39 @@ def create_volume_object(context, name, mesh, source, solution="", field="", com
 
 
 class HOVR_OT_new_transfer_function(bpy.types.Operator):
-    """Create a transfer-function texture (three coloured tents) for the scene"""
+    """Give the active HOVR volume a new transfer function of its own (a smooth ramp)"""
 
     bl_idname = "hovr.new_transfer_function"
     bl_label = "New Transfer Function"
     bl_options = {'REGISTER', 'UNDO'}
 
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _volume_object(context) is not None
+
     def execute(self, context):
-        context.scene.hovr.transfer_function = new_transfer_function_texture()
+        obj = _volume_object(context)
+        obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
         return {'FINISHED'}
 
 
+def fit_value_range(obj, scene, values=None):
+    """Set the volume's Value Min/Max to its field's sampled range; returns (lo, hi, samples)."""
+    source = _source_of(obj, scene)
+    if values is None:
+        values = SAMPLES.get(source.key)
+    if values is None:
+        values = field_samples(cached_volume(source))
+    if values.size == 0:
+        raise ValueError(f"{obj.name!r} has no finite field values")
+    SAMPLES.put(source.key, values)
+    lo, hi = value_range(values)
+    obj.hovr.value_min, obj.hovr.value_max = lo, hi
+    return lo, hi, values.size
+
+
 class HOVR_OT_fit_value_range(bpy.types.Operator):
-    """Set Value Min/Max to the range of the volume's field (sampled in every element)"""
+    """Set the volume's Value Min/Max to the range of its field (sampled in every element)"""
 
     bl_idname = "hovr.fit_value_range"
     bl_label = "Fit to Data Range"
@@ -126,23 +160,117 @@ class HOVR_OT_fit_value_range(bpy.types.Operator):
     def execute(self, context):
         obj = _volume_object(context)
         try:
-            source = _source_of(obj, context.scene)
-            values = SAMPLES.get(source.key)
-            if values is None:
-                values = field_samples(cached_volume(source))
+            lo, hi, n = fit_value_range(obj, context.scene)
         except (ValueError, OSError, MemoryError) as exc:
             self.report({'ERROR'}, f"HOVR: cannot read {obj.name!r}: {exc}")
             return {'CANCELLED'}
-        if values.size == 0:
-            self.report({'ERROR'}, f"HOVR: {obj.name!r} has no finite field values")
+        self.report({'INFO'}, f"HOVR: {obj.name}: value range [{lo:.4g}, {hi:.4g}] from {n} samples")
+        return {'FINISHED'}
+
+
+# ------------------------------------------------------------------------------------ framing
+
+# Blender's default camera looks at the origin from (7.36, -6.93, 4.96): new cameras keep that view.
+DEFAULT_VIEW = (-7.36, 6.93, -4.96)
+
+
+def volume_points(obj, scene):
+    """World points that outline a volume: its elements' corners (from its data, read once and
+    cached), or the corners of the object's own bounds when the data cannot be read."""
+    from .framing import transform_points
+    from .render import volume_points as data_points
+
+    M = np.array(obj.matrix_world)
+    try:
+        return transform_points(data_points(_source_of(obj, scene)), M)
+    except Exception:
+        return transform_points(np.array([tuple(c) for c in obj.bound_box]), M)
+
+
+def frame_volumes(context, objects, margin: float = 1.1):
+    """Point the scene camera (made if there is none) at `objects` from its current direction,
+    near enough that they fill the frame, with clip start/end set from their size; the 3D
+    views' clip range and view follow. Returns the camera object."""
+    from mathutils import Matrix
+
+    from .camera import ray_camera_from_blender
+    from .framing import clip_planes, fit_view, look_at_matrix
+
+    scene = context.scene
+    corners = np.concatenate([volume_points(o, scene) for o in objects])
+    cam = scene.camera
+    if cam is None or cam.type != 'CAMERA':
+        cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+        scene.collection.objects.link(cam)
+        scene.camera = cam
+        forward = np.array(DEFAULT_VIEW, float)
+        cam.matrix_world = Matrix(look_at_matrix(np.zeros(3), forward, (0, 0, 1)).tolist())
+    else:
+        forward = -np.array(cam.matrix_world.to_3x3().col[2])
+    depsgraph = context.evaluated_depsgraph_get()
+    cam.data.clip_start, cam.data.clip_end = 1e-3, 1e3  # any valid range: only the angles are read
+    depsgraph.update()
+    rays = ray_camera_from_blender(cam, depsgraph, scene.render)
+    aspect = rays.width / rays.height
+    ortho = rays.projection == "orthographic"
+    basis = (rays.ou, rays.ov) if ortho else (rays.du, rays.dv)
+    tan_x, tan_y = float(np.linalg.norm(basis[0])) * aspect, float(np.linalg.norm(basis[1]))
+    eye, height, near, far = fit_view(corners, forward, (0, 0, 1), tan_x, tan_y, ortho, margin)
+    if ortho:
+        cam.data.ortho_scale *= height / (2.0 * tan_y)
+    cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
+    cam.data.clip_start, cam.data.clip_end = clip_planes(near, far)
+    size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
+    cam.data.display_size = max(0.2 * size, 1e-4)  # the default 1 m wire camera would dwarf a 2 cm volume
+    _frame_3d_views(context, corners)
+    return cam
+
+
+def _frame_3d_views(context, corners):
+    """Every 3D view: a clip range that holds the volume, and (outside camera view) the view
+    centred on it. Background mode has no windows; nothing to do there."""
+    size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0))) or 1.0
+    centre = 0.5 * (corners.min(axis=0) + corners.max(axis=0))
+    wm = getattr(context, "window_manager", None)
+    for window in (wm.windows if wm is not None else ()):
+        for area in window.screen.areas:
+            if area.type != 'VIEW_3D':
+                continue
+            space = area.spaces.active
+            space.clip_start = min(space.clip_start, max(1e-3 * size, 1e-6))
+            space.clip_end = max(space.clip_end, 100.0 * size)
+            r3d = space.region_3d
+            if r3d is not None and r3d.view_perspective != 'CAMERA':
+                r3d.view_location = centre.tolist()
+                r3d.view_distance = 1.5 * size
+            area.tag_redraw()
+
+
+class HOVR_OT_frame_volume(bpy.types.Operator):
+    """Move the scene camera (or a new one) so the selected HOVR volumes, or all of them, fill
+    the frame, and set its clip start/end from their size"""
+
+    bl_idname = "hovr.frame_volume"
+    bl_label = "Frame HOVR Volume"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    margin: bpy.props.FloatProperty(name="Margin", default=1.1, min=1.0, soft_max=3.0,
+                                    description="Room around the volumes (1: they touch the frame's edge)")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and any(o.hovr.is_volume for o in context.scene.objects)
+
+    def execute(self, context):
+        selected = [o for o in context.selected_objects if o.hovr.is_volume] if hasattr(context, "selected_objects") \
+            else []
+        objects = selected or [o for o in context.scene.objects if o.hovr.is_volume and o.visible_get()]
+        if not objects:
+            self.report({'ERROR'}, "HOVR: no visible HOVR volume to frame")
             return {'CANCELLED'}
-        SAMPLES.put(source.key, values)
-        lo, hi = float(values.min()), float(values.max())
-        if hi <= lo:  # a constant field: a range around it keeps Value Max > Value Min
-            lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
-        s = context.scene.hovr
-        s.value_min, s.value_max = lo, hi
-        self.report({'INFO'}, f"HOVR: value range [{lo:.4g}, {hi:.4g}] from {values.size} samples")
+        cam = frame_volumes(context, objects, self.margin)
+        self.report({'INFO'}, f"HOVR: {cam.name} frames {', '.join(o.name for o in objects)} "
+                              f"(clip {cam.data.clip_start:.3g}-{cam.data.clip_end:.3g} m)")
         return {'FINISHED'}
 
 
@@ -159,11 +287,15 @@ class HOVR_OT_transfer_function_preset(bpy.types.Operator):
 
     preset: bpy.props.EnumProperty(name="Preset", items=PRESET_ITEMS)
 
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _volume_object(context) is not None
+
     def execute(self, context):
-        settings = context.scene.hovr
-        if settings.transfer_function is None:
-            settings.transfer_function = new_transfer_function_texture()
-        texture = settings.transfer_function
+        obj = _volume_object(context)
+        if obj.hovr.transfer_function is None:
+            obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
+        texture = obj.hovr.transfer_function
         texture.use_color_ramp = True
         set_ramp_stops(texture.color_ramp, TF_PRESETS[self.preset][2])
         return {'FINISHED'}
@@ -180,13 +312,10 @@ class HOVR_OT_add_sphere_volume(bpy.types.Operator):
 
     def execute(self, context):
         volume = load_volume(VolumeSource.resolve(self.source))
-        create_volume_object(context, "HOVR Sphere", volume, self.source, location=context.scene.cursor.location)
-
-        settings = context.scene.hovr
-        if settings.transfer_function is None:
-            settings.transfer_function = new_transfer_function_texture()
-            settings.value_min, settings.value_max = field_range(volume)
-            self.report({'INFO'}, f"HOVR: new transfer function over [{settings.value_min:.3g}, {settings.value_max:.3g}]")
+        obj = create_volume_object(context, "HOVR Sphere", volume, self.source, location=context.scene.cursor.location)
+        obj.hovr.value_min, obj.hovr.value_max = field_range(volume)
+        self.report({'INFO'}, f"HOVR: {obj.name}: transfer function over "
+                              f"[{obj.hovr.value_min:.3g}, {obj.hovr.value_max:.3g}]")
         return {'FINISHED'}
 
 
@@ -194,17 +323,23 @@ def menu_add(self, _context):
     self.layout.operator(HOVR_OT_add_sphere_volume.bl_idname, icon='VOLUME_DATA')
 
 
+def menu_view(self, _context):
+    self.layout.operator(HOVR_OT_frame_volume.bl_idname, icon='VIEW_CAMERA')
+
+
 classes = (HOVR_OT_new_transfer_function, HOVR_OT_fit_value_range, HOVR_OT_transfer_function_preset,
-           HOVR_OT_add_sphere_volume)
+           HOVR_OT_add_sphere_volume, HOVR_OT_frame_volume)
 
 
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.VIEW3D_MT_add.append(menu_add)
+    bpy.types.VIEW3D_MT_view.append(menu_view)
 
 
 def unregister():
+    bpy.types.VIEW3D_MT_view.remove(menu_view)
     bpy.types.VIEW3D_MT_add.remove(menu_add)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -2,22 +2,22 @@
 import bpy
 
 
-def draw_histogram(layout, context):
+def draw_histogram(layout, context, obj):
     """The field's distribution over Value Min..Max (bottom row = Value Min), one bar per
-    bin, after Fit to Data Range has sampled the data."""
+    bin, after the volume's data was sampled (on import, or by Fit to Data Range)."""
     from .operators import histogram_for
 
-    hist = histogram_for(context)
+    hist = histogram_for(context, obj)
     if hist is None:
         return
     box = layout.box()
-    box.label(text="Field histogram (share of samples per bin)")
+    box.label(text="Share of samples per value")
     col = box.column(align=True)
     peak = float(hist.max()) if hist.size and hist.max() > 0 else 1.0
-    s = context.scene.hovr
-    width = (s.value_max - s.value_min) / hist.size
+    h = obj.hovr
+    width = (h.value_max - h.value_min) / hist.size
     for k in reversed(range(hist.size)):  # largest values on top, like the ramp's right end
-        frac, lo = float(hist[k]), s.value_min + k * width
+        frac, lo = float(hist[k]), h.value_min + k * width
         row = col.row(align=True)
         row.scale_y = 0.5
         text = f"{lo:.3g}"
@@ -52,39 +52,6 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         layout.prop(settings, "min_transmittance")
         layout.prop(settings, "device")
         layout.prop(settings, "precision")
-
-
-class HOVR_RENDER_PT_transfer_function(HovrButtonsPanel, bpy.types.Panel):
-    bl_label = "Transfer Function"
-    bl_context = "render"
-
-    def draw(self, context):
-        layout = self.layout
-        settings = context.scene.hovr
-        row = layout.row(align=True)
-        row.prop(settings, "transfer_function", text="")
-        row.operator("hovr.new_transfer_function", text="", icon='ADD')
-        texture = settings.transfer_function
-        if texture is None:
-            layout.label(text="Colour = ramp RGB, density = ramp alpha x scale", icon='INFO')
-        elif not texture.use_color_ramp:
-            layout.prop(texture, "use_color_ramp", text="Use Colour Ramp")
-        else:
-            layout.template_color_ramp(texture, "color_ramp", expand=True)
-            if texture.color_ramp.interpolation != 'LINEAR' or texture.color_ramp.color_mode != 'RGB':
-                layout.label(text="HOVR needs RGB mode with Linear interpolation", icon='ERROR')
-        layout.operator_menu_enum("hovr.transfer_function_preset", "preset", text="Presets", icon='PRESET')
-        col = layout.column()
-        col.use_property_split = True
-        col.use_property_decorate = False
-        col.prop(settings, "density_scale")
-        sub = col.column(align=True)
-        sub.prop(settings, "value_min", text="Value Min")
-        sub.prop(settings, "value_max", text="Max")
-        col.operator("hovr.fit_value_range", icon='FULLSCREEN_ENTER')
-        if settings.value_max <= settings.value_min:
-            col.label(text="Value Max must exceed Value Min", icon='ERROR')
-        draw_histogram(layout, context)
 
 
 class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
@@ -124,11 +91,64 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
             is_vtu = hovr.source.lower().endswith(".vtu")
             if not is_vtu:
                 layout.prop(hovr, "solution")
+                if not hovr.solution.strip() and hovr.source.strip():
+                    layout.label(text="No solution: geometry only", icon='ERROR')
             layout.prop(hovr, "field")
             if is_vtu:
                 layout.prop(hovr, "component")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')
+        layout.operator("hovr.frame_volume", icon='VIEW_CAMERA')
+
+
+class HOVR_OBJECT_PT_look(HovrButtonsPanel, bpy.types.Panel):
+    """The volume's own transfer function, value range and density: each volume has its own."""
+
+    bl_label = "Look"
+    bl_context = "object"
+    bl_parent_id = "HOVR_OBJECT_PT_volume"
+
+    @classmethod
+    def poll(cls, context):
+        return super().poll(context) and context.object is not None
+
+    def draw(self, context):
+        from .versioning import volume_look
+
+        layout = self.layout
+        obj = context.object
+        hovr = obj.hovr
+        layout.active = hovr.is_volume
+        if volume_look(hovr, context.scene).legacy:
+            layout.label(text="Uses the scene's old look (reopen the file to convert)", icon='INFO')
+        row = layout.row(align=True)
+        row.template_ID(hovr, "transfer_function", new="hovr.new_transfer_function")
+        texture = hovr.transfer_function
+        if texture is None:
+            layout.label(text="Colour = ramp RGB, density = alpha x Density", icon='INFO')
+        elif not texture.use_color_ramp:
+            layout.prop(texture, "use_color_ramp", text="Use Colour Ramp")
+        else:
+            layout.template_color_ramp(texture, "color_ramp", expand=True)
+            ramp = texture.color_ramp
+            if ramp.interpolation != 'LINEAR' or ramp.color_mode != 'RGB':
+                col = layout.column(align=True)
+                col.label(text="Ramp must be Linear, RGB", icon='ERROR')
+                col.label(text="(set both in the ramp's menus)")
+        layout.operator_menu_enum("hovr.transfer_function_preset", "preset", text="Presets", icon='PRESET')
+        col = layout.column()
+        col.use_property_split = True
+        col.use_property_decorate = False
+        row = col.row(align=True)
+        row.prop(hovr, "density")
+        col.prop(hovr, "density_units")
+        sub = col.column(align=True)
+        sub.prop(hovr, "value_min", text="Value Min")
+        sub.prop(hovr, "value_max", text="Max")
+        col.operator("hovr.fit_value_range", icon='FULLSCREEN_ENTER')
+        if hovr.value_max <= hovr.value_min:
+            col.label(text="Value Max must exceed Min", icon='ERROR')
+        draw_histogram(layout, context, obj)
 
 
 class HOVR_VIEWLAYER_PT_passes(HovrButtonsPanel, bpy.types.Panel):
@@ -170,7 +190,7 @@ def get_panels():
 # (several stock panels share one COMPAT_ENGINES set).
 _added_to = []
 
-classes = (HOVR_RENDER_PT_quadrature, HOVR_RENDER_PT_transfer_function, HOVR_RENDER_PT_film, HOVR_OBJECT_PT_volume,
+classes = (HOVR_RENDER_PT_quadrature, HOVR_RENDER_PT_film, HOVR_OBJECT_PT_volume, HOVR_OBJECT_PT_look,
            HOVR_VIEWLAYER_PT_passes)
 
 

@@ -5,10 +5,13 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty
 
 # Explicit indices so items can be renamed or reordered without breaking saved .blend files.
 METHOD_ITEMS = (
-    ("riemann", "Riemann", "Left Riemann sum with fixed step h", 0),
-    ("trapezoid", "Trapezoid", "Trapezoidal rule with fixed step h", 1),
-    ("classified", "Classified", "Segment each ray at transfer-function breakpoints, adaptive quadrature per segment", 2),
-    ("split", "Split", "Split each ray into smooth segments before integrating", 3),
+    ("riemann", "Riemann", "Left Riemann sum with a fixed Step: the classic ray marcher, for comparison", 0),
+    ("trapezoid", "Trapezoid", "Trapezoidal rule with a fixed Step: for comparison with other renderers", 1),
+    ("classified", "Classified", "The paper's Algorithm 1: skips ray segments the transfer function leaves empty, "
+                                 "integrates smooth ones adaptively to Tolerance and marches the rest with Step. "
+                                 "The default", 2),
+    ("split", "Split", "Cuts each ray where the field crosses a ramp stop, so every piece is smooth, and integrates "
+                       "each adaptively to Tolerance (Step unused). Best for sharp, spiky ramps", 3),
 )
 PRECISION_ITEMS = (
     ("float32", "Float32", "Single-precision kernels: fastest; about 1e-5 relative error", 0),
@@ -33,32 +36,47 @@ def _path_options() -> set:
 PATH_OPTIONS = _path_options()
 
 
-def _is_blend_texture(_self, texture):
-    return texture.type == 'BLEND'
+DENSITY_UNIT_ITEMS = (
+    ("RELATIVE", "Across Volume", "Density is the optical depth along the volume's bounding-box diagonal at ramp "
+                                  "alpha 1: the same look at any size", 0),
+    ("WORLD", "Per World Unit", "Density is the extinction per world unit at ramp alpha 1 (the render contract's "
+                                "own unit)", 1),
+)
+
+
+def _volume_ticked(self, context):
+    """Ticking HOVR Volume gives the object the transfer function it needs."""
+    if self.is_volume and self.transfer_function is None:
+        from .operators import new_transfer_function_texture
+
+        self.transfer_function = new_transfer_function_texture(f"{self.id_data.name} Transfer Function")
 
 
 class HovrRenderSettings(bpy.types.PropertyGroup):
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="classified",
                          description="Quadrature along each ray")
     h: FloatProperty(name="Step", default=0.01, min=1e-6, soft_max=1.0, precision=4, step=0.1,
-                     description="Step length in world units (Riemann, trapezoid, smooth segments)")
+                     description="Step length in world units: Riemann and Trapezoid, and Classified where the "
+                                 "ramp bends inside a segment (Split ignores it)")
     tolerance: FloatProperty(name="Tolerance", default=1e-5, min=1e-12, soft_max=1e-1, precision=7,
-                             description="Absolute error target of each adaptive panel")
-    min_transmittance: FloatProperty(name="Min Transmittance", default=1e-5, min=0.0, max=0.999, precision=6,
-                                     description="Stop a ray once its transmittance falls below this")
+                             description="Error target of each adaptive panel (Classified and Split; the baselines ignore it)")
+    min_transmittance: FloatProperty(name="Cut-off",  default=1e-5, min=0.0, max=0.999, precision=6,
+                                     description="Minimum transmittance: stop a ray once the light left through it falls below this")
     device: EnumProperty(name="Device", items=DEVICE_ITEMS, default="cpu",
                          description="Warp device the kernels run on")
     precision: EnumProperty(name="Precision", items=PRECISION_ITEMS, default="float32",
                             description="Arithmetic of the ray kernels")
-    density_scale: FloatProperty(name="Density Scale", default=1.0, min=0.0, soft_max=100.0,
-                                 description="Extinction per world unit at ramp alpha 1")
-    value_min: FloatProperty(name="Value Min", default=0.0,
-                             description="Field value at ramp position 0")
-    value_max: FloatProperty(name="Value Max", default=1.0,
-                             description="Field value at ramp position 1")
-    # Python cannot define a ColorRamp property, so a Blend texture owns the ramp.
-    transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture, poll=_is_blend_texture,
-                                       description="Blend texture whose colour ramp (RGB, alpha) is the transfer function")
+    # Before 0.2 the look was the scene's, shared by every volume. Kept registered (never drawn)
+    # so old .blend files keep their values: versioning.py moves them onto the volumes, and
+    # render.py reads them for a volume that has no look of its own yet.
+    density_scale: FloatProperty(name="Density Scale (legacy)", default=1.0, min=0.0,
+                                 description="Before per-volume looks: extinction per world unit at ramp alpha 1")
+    value_min: FloatProperty(name="Value Min (legacy)", default=0.0,
+                             description="Before per-volume looks: field value at ramp position 0")
+    value_max: FloatProperty(name="Value Max (legacy)", default=1.0,
+                             description="Before per-volume looks: field value at ramp position 1")
+    transfer_function: PointerProperty(name="Transfer Function (legacy)", type=bpy.types.Texture,
+                                       description="Before per-volume looks: the scene's transfer function")
 
     @classmethod
     def register(cls):
@@ -70,7 +88,10 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
 
 
 class HovrObjectSettings(bpy.types.PropertyGroup):
-    is_volume: BoolProperty(name="HOVR Volume", default=False,
+    """A volume: its data (source, solution, field) and its look (transfer function, value range,
+    density). Each volume has its own look, so importing or editing one never changes another."""
+
+    is_volume: BoolProperty(name="HOVR Volume", default=False, update=_volume_ticked,
                             description="Render this object's finite-element data with HOVR")
     source: StringProperty(name="Source", default="", subtype='FILE_PATH', options=PATH_OPTIONS,
                            description='"builtin:sphere", or a Nektar++ .xml / .vtu file; a run of # is replaced by '
@@ -83,6 +104,16 @@ class HovrObjectSettings(bpy.types.PropertyGroup):
     component: StringProperty(name="Component", default="",
                               description="VTU vector arrays: empty or \"magnitude\" renders the vector's magnitude, "
                                           "an index (0, 1, 2, ...) that component")
+    # Python cannot define a ColorRamp property, so a Blend texture owns the ramp.
+    transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
+                                       description="Texture whose colour ramp (RGB, alpha) is this volume's transfer "
+                                                   "function: colour = ramp RGB, density = ramp alpha x Density")
+    value_min: FloatProperty(name="Value Min", default=0.0, precision=4, description="Field value at ramp position 0")
+    value_max: FloatProperty(name="Value Max", default=1.0, precision=4, description="Field value at ramp position 1")
+    density: FloatProperty(name="Density", default=4.0, min=0.0, soft_max=100.0,
+                           description="Extinction at ramp alpha 1, in the units below")
+    density_units: EnumProperty(name="Units", items=DENSITY_UNIT_ITEMS, default="RELATIVE",
+                                description="What Density is measured in")
 
     @classmethod
     def register(cls):
@@ -108,12 +139,75 @@ class HovrViewLayerSettings(bpy.types.PropertyGroup):
         del bpy.types.ViewLayer.hovr
 
 
-classes = (HovrRenderSettings, HovrObjectSettings, HovrViewLayerSettings)
+def _addon_package() -> str:
+    """The add-on's module name: "hovr_blender", or bl_ext.<repo>.hovr_blender as an extension."""
+    return __package__.rpartition(".")[0]
+
+
+def _debug_changed(self, _context):
+    import os
+
+    if self.debug_output:
+        os.environ["HOVR_DEBUG"] = "1"
+    else:
+        os.environ.pop("HOVR_DEBUG", None)
+
+
+class HovrPreferences(bpy.types.AddonPreferences):
+    """Edit > Preferences > Add-ons > HOVR: which dependencies are installed, debug output."""
+
+    bl_idname = _addon_package()
+
+    debug_output: BoolProperty(name="Debug Output", default=False, update=_debug_changed,
+                               description="Let Warp print its start-up, CUDA and module-load lines to the console "
+                                           "(from the next Blender session on; silent otherwise)")
+
+    def draw(self, context):
+        from .dependencies import DEPENDENCIES, missing, report_lines
+
+        layout = self.layout
+        absent = missing()
+        col = layout.column(align=True)
+        for module, package, purpose, _required in DEPENDENCIES:
+            ok = all(m != module for m, *_ in absent)
+            col.label(text=f"{package}: {'installed' if ok else 'MISSING'} ({purpose})",
+                      icon='CHECKMARK' if ok else 'ERROR')
+        for line in report_lines(absent)[len(absent):]:
+            box = layout.box()
+            for k in range(0, len(line), 90):
+                box.label(text=line[k:k + 90])
+        layout.prop(self, "debug_output")
+
+
+def report_missing_dependencies():
+    """At enable time: say which dependencies are missing and what to do, on the console (the
+    Preferences entry shows the same); never first at render time."""
+    from .dependencies import missing, report_lines
+
+    lines = report_lines(missing())
+    for line in lines:
+        print(line, flush=True)
+    if lines and not bpy.app.background:
+        def popup():
+            wm = bpy.context.window_manager
+            if wm is not None:
+                wm.popup_menu(lambda self, _ctx: [self.layout.label(text=t) for t in lines],
+                              title="HOVR: missing dependencies", icon='ERROR')
+            return None
+
+        bpy.app.timers.register(popup, first_interval=0.5)
+
+
+classes = (HovrRenderSettings, HovrObjectSettings, HovrViewLayerSettings, HovrPreferences)
 
 
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    prefs = bpy.context.preferences.addons.get(HovrPreferences.bl_idname) if bpy.context.preferences else None
+    if prefs is not None and prefs.preferences is not None and prefs.preferences.debug_output:
+        _debug_changed(prefs.preferences, None)
+    report_missing_dependencies()
 
 
 def unregister():

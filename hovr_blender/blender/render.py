@@ -41,20 +41,43 @@ class SceneError(ValueError):
 
 
 @dataclass
-class SceneInputs:
-    """What a final render and the viewport share: data, transfer function, settings."""
+class VolumeInputs:
+    """One HOVR volume: its data, where it is, and its look as the contract's transfer function
+    still to be scaled: `density` in `density_units` (framing.density_per_world_unit)."""
 
-    transfer_function: object  # TransferFunction
-    background: np.ndarray
-    film_transparent: bool
-    options: object  # RenderOptions
+    name: str
     source: VolumeSource
     object_matrix: tuple
-    warnings: list = field(default_factory=list)
+    transfer_function: object  # TransferFunction with density scale 1 (ramp alpha)
+    density: float
+    density_units: str
 
     @property
     def data_key(self) -> tuple:
-        return (self.source.key, self.object_matrix, self.options.device)
+        return (self.source.key, self.object_matrix)
+
+
+@dataclass
+class SceneInputs:
+    """What a final render and the viewport share: the volumes, settings, background."""
+
+    volumes: list  # [VolumeInputs], sorted by object name
+    background: np.ndarray
+    film_transparent: bool
+    options: object  # RenderOptions
+    warnings: list = field(default_factory=list)
+    transfer_functions: list | None = None  # per volume, per world unit: resolve_looks() sets it
+
+    @property
+    def data_key(self) -> tuple:
+        return (tuple(v.data_key for v in self.volumes), self.options.device)
+
+    @property
+    def transfer_function(self):
+        """The core's argument: one TransferFunction per volume (resolve_looks first)."""
+        if self.transfer_functions is None:
+            raise RuntimeError("resolve_looks() has not run")
+        return self.transfer_functions
 
 
 @dataclass
@@ -90,24 +113,76 @@ class RenderJob:
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
+# Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
+EXTENTS = LRUCache(16)
 
 
-def _renderer(source: VolumeSource, matrix: tuple, device: str):
-    """(Renderer, number of elements) for a volume source placed by an object matrix.
-    A file is re-read only when its path (the frame's file), size or mtime changes: the
-    object-space mesh comes from io.sources.cached_volume, so a moved object or another
-    device uploads again without reading the file."""
+def volume_extent(source: VolumeSource) -> tuple:
+    """(lo, hi) object-space bounding box of a volume's elements (their corner vertices)."""
+    def measure():
+        v = cached_volume(source).vertices.reshape(-1, 3)
+        return v.min(axis=0), v.max(axis=0)
+
+    return EXTENTS.get(source.key, measure)
+
+
+POINTS = LRUCache(8)
+MAX_FRAMING_POINTS = 50_000
+
+
+def volume_points(source: VolumeSource) -> np.ndarray:
+    """(n, 3) object-space element corners of a volume (at most ~MAX_FRAMING_POINTS, evenly
+    strided): what framing fits, tighter than the bounding box for round domains."""
+    def collect():
+        v = np.unique(cached_volume(source).vertices.reshape(-1, 3), axis=0)
+        step = max(1, len(v) // MAX_FRAMING_POINTS)
+        return v[::step]
+
+    return POINTS.get(source.key, collect)
+
+
+def _renderer(volumes, device: str):
+    """(Renderer, number of elements) of the volumes (VolumeInputs), each placed by its object
+    matrix and merged into one mesh (core.mesh.concatenate: element e tagged with its volume,
+    one BVH, one pass). A file is re-read only when its path (the frame's file), size or
+    mtime changes: the object-space meshes come from io.sources.cached_volume, so a moved
+    object or another device uploads again without reading the file."""
     def upload():
+        from ..core.mesh import concatenate
         from ..core.multi_device import make_renderer  # "cuda:all": every GPU (core/multi_device.py)
 
-        mesh = cached_volume(source).transformed(np.array(matrix).reshape(4, 4))
+        meshes = [cached_volume(v.source).transformed(np.array(v.object_matrix).reshape(4, 4)) for v in volumes]
+        mesh = concatenate(meshes)
         return make_renderer(mesh, device), mesh.num_elements
 
-    return RENDERERS.get((source.key, matrix, device), upload)
+    return RENDERERS.get((tuple(v.data_key for v in volumes), device), upload)
+
+
+def resolve_looks(inputs: SceneInputs) -> list:
+    """Each volume's transfer function in the contract's units (extinction per world unit):
+    a relative density becomes density / the volume's bounding-box diagonal (which needs the
+    data, read once and cached). Sets and returns inputs.transfer_functions."""
+    from dataclasses import replace
+
+    from .framing import density_per_world_unit, volume_diagonal
+
+    tfs = []
+    for v in inputs.volumes:
+        diag = 0.0
+        if v.density_units != "WORLD":
+            lo, hi = volume_extent(v.source)
+            diag = volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+        scale = density_per_world_unit(v.density, v.density_units, diag)
+        tf = v.transfer_function
+        tfs.append(replace(tf, density_tau=np.asarray(tf.density_tau, dtype=np.float64) * scale))
+    inputs.transfer_functions = tfs
+    return tfs
 
 
 def clear_cache():
     RENDERERS.clear()
+    EXTENTS.clear()
+    POINTS.clear()
     clear_mesh_cache()
 
 
@@ -115,65 +190,78 @@ def _matrix_tuple(m) -> tuple:
     return tuple(float(x) for row in m for x in row)
 
 
+def volume_objects(depsgraph, original: bool = False) -> list:
+    """The HOVR volumes the depsgraph shows, by name (a stable order: volume k of the merged mesh)."""
+    def hovr_of(o):
+        return o.original.hovr if original else o.hovr
+
+    return sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
+
+
+def volume_inputs(obj, hovr, scene) -> VolumeInputs:
+    """One volume's record: its data source at the scene's frame and its look."""
+    from .versioning import volume_look
+
+    library = obj.original.library if obj.original is not None else None
+    if not hovr.source.strip():
+        raise SceneError(f"the HOVR volume {obj.name!r} has no source: set Object > HOVR Volume > Source")
+    source = VolumeSource.resolve(hovr.source, hovr.solution, hovr.field, scene.frame_current,
+                                  abspath=lambda p: bpy.path.abspath(p, library=library), component=hovr.component)
+    look = volume_look(hovr, scene)
+    texture = look.texture
+    if texture is None:
+        raise SceneError(f"the HOVR volume {obj.name!r} has no transfer function: create one in "
+                         "Object > HOVR Volume > Look")
+    if not texture.use_color_ramp or texture.color_ramp is None:
+        raise SceneError(f"transfer function texture {texture.name!r} of {obj.name!r} has no colour ramp enabled")
+    ramp = texture.color_ramp
+    try:
+        tf = transfer_function_from_ramp(
+            ramp.interpolation, ramp.color_mode,
+            [e.position for e in ramp.elements], [tuple(e.color) for e in ramp.elements],
+            1.0, look.value_min, look.value_max,
+        )
+    except ValueError as exc:
+        raise SceneError(f"{obj.name!r}: {exc}") from exc
+    if not (np.isfinite(look.density) and look.density >= 0):
+        raise SceneError(f"{obj.name!r}: density must be >= 0, got {look.density:.6g}")
+    return VolumeInputs(name=obj.name, source=source, object_matrix=_matrix_tuple(obj.matrix_world),
+                        transfer_function=tf, density=float(look.density), density_units=look.density_units)
+
+
 def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
-    """The data, transfer function and settings of the scene, as plain records.
+    """The volumes, their looks and the settings of the scene, as plain records.
 
     F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
     depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
     it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects."""
+    come from the evaluated objects. Call resolve_looks() before using the transfer functions."""
     from ..core.view import RenderOptions
 
     scene = depsgraph.scene if original else depsgraph.scene_eval
     render = scene.render
     settings = scene.hovr
-    warnings = []
-
-    def hovr_of(o):
-        return o.original.hovr if original else o.hovr
-
-    volumes = sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
-    if not volumes:
-        raise SceneError("no HOVR volume in the scene: add one with Add > HOVR Sphere Volume")
-    if len(volumes) > 1:
-        warnings.append(f"{len(volumes)} HOVR volumes; rendering only {volumes[0].name!r}")
-    volume = volumes[0]
-    library = volume.original.library if volume.original is not None else None
-    vh = hovr_of(volume)
-    if not vh.source.strip():
-        raise SceneError(f"the HOVR volume {volume.name!r} has no source: set Object > HOVR Volume > Source")
-    source = VolumeSource.resolve(vh.source, vh.solution, vh.field, scene.frame_current,
-                                  abspath=lambda p: bpy.path.abspath(p, library=library), component=vh.component)
-
-    texture = settings.transfer_function
-    if texture is None:
-        raise SceneError("no transfer function: pick or create one in Render Properties > Transfer Function")
-    if not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"transfer function texture {texture.name!r} has no colour ramp enabled")
-    ramp = texture.color_ramp
-    tf = transfer_function_from_ramp(
-        ramp.interpolation, ramp.color_mode,
-        [e.position for e in ramp.elements], [tuple(e.color) for e in ramp.elements],
-        settings.density_scale, settings.value_min, settings.value_max,
-    )
+    objects = volume_objects(depsgraph, original)
+    if not objects:
+        raise SceneError("no HOVR volume in the scene: import one (File > Import > HOVR ...) or add one with "
+                         "Add > HOVR Sphere Volume")
+    volumes = [volume_inputs(o, o.original.hovr if original else o.hovr, scene) for o in objects]
     world_color = tuple(scene.world.color) if scene.world is not None else None
     options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
                             min_transmittance=settings.min_transmittance, device=settings.device,
                             precision=settings.precision)
-    return SceneInputs(
-        transfer_function=tf, background=render_background(world_color, render.film_transparent),
-        film_transparent=bool(render.film_transparent), options=options, source=source,
-        object_matrix=_matrix_tuple(volume.matrix_world), warnings=warnings,
-    )
+    return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
+                       film_transparent=bool(render.film_transparent), options=options)
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
-    """Everything render() needs, as plain data, read from the evaluated depsgraph."""
+    """Everything render() needs, as plain data, read from the evaluated depsgraph. Adds
+    a warning for each volume the camera's clip planes hide in whole or in part."""
     scene = depsgraph.scene_eval
     render = scene.render
     cam = engine.camera_override or scene.camera
     if cam is None:
-        raise SceneError("no camera: set the scene's active camera")
+        raise SceneError("no camera: set the scene's active camera (or use Frame Volume, which makes one)")
     camera = ray_camera_from_blender(cam, depsgraph, render)
     inputs = scene_inputs(depsgraph)
     width, height = render_size(render)
@@ -184,12 +272,35 @@ def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
     return RenderJob(width=w, height=h, camera=camera, inputs=inputs, region=(x0, y0, w, h))
 
 
+def clip_warnings(job: RenderJob, camera_name: str) -> list:
+    """The volumes (data loaded) that the camera's clip planes hide, in words."""
+    from .framing import box_corners, clip_warning, transform_points
+
+    near, far = job.camera.extra.get("clip", (0.0, float("inf")))
+    eye = np.asarray(job.camera.extra.get("eye", job.camera.o0), dtype=np.float64)
+    fwd = np.asarray(job.camera.extra.get("forward", job.camera.d0), dtype=np.float64)
+    out = []
+    for v in job.inputs.volumes:
+        lo, hi = volume_extent(v.source)
+        corners = transform_points(box_corners(lo, hi), np.array(v.object_matrix).reshape(4, 4))
+        w = clip_warning(corners, eye, fwd, near, far, camera=f"camera {camera_name!r}")
+        if w:
+            out.append(f"HOVR: {v.name}: {w}")
+    return out
+
+
 def failure_text(exc: BaseException) -> str:
     """One line for the user: the message of an error the code raises on purpose (the readers'
     and the resource policy's ValueErrors, a device failure), the type as well otherwise."""
     if isinstance(exc, MemoryError):
         return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
                "what this machine has so that such a render is refused before it starts)"
+    if isinstance(exc, ImportError) and getattr(exc, "name", None):
+        from .dependencies import DEPENDENCIES, report_lines
+
+        dep = [d for d in DEPENDENCIES if d[0] == exc.name.split(".")[0]]
+        if dep:
+            return " ".join(report_lines(dep)).replace("HOVR: ", "")
     if isinstance(exc, (ValueError, OSError)):
         return str(exc)
     return f"{type(exc).__name__}: {exc}"
@@ -199,8 +310,8 @@ def tile_pixels(device: str) -> int:
     return TILE_PIXELS.get(device, TILE_PIXELS_GPU)
 
 
-def render_stats(stats: dict, n_elements: int, seconds: float, device: str) -> str:
-    """Status-line text: elements, samples per ray, time."""
+def render_stats(stats: dict, n_elements: int, seconds: float, device: str, load_seconds: float = 0.0) -> str:
+    """Status-line text: elements, samples per ray, time (tracing, and reading if it took long)."""
     n = int(stats.get("elements", n_elements))
     parts = [f"{n} element{'s' if n != 1 else ''}"]
     if "samples_per_ray" in stats:
@@ -208,6 +319,8 @@ def render_stats(stats: dict, n_elements: int, seconds: float, device: str) -> s
     if "field_evaluations" in stats:
         parts.append(f"{int(stats['field_evaluations']):,} field evaluations")
     parts.append(f"{seconds:.2f} s on {device}")
+    if load_seconds >= 0.5:
+        parts.append(f"{load_seconds:.1f} s reading data and compiling")
     return "HOVR | " + " | ".join(parts)
 
 
@@ -227,7 +340,8 @@ def viewport_request(context, depsgraph):
     region, rv3d = context.region, context.region_data
     camera = ray_camera_from_view(rv3d.window_matrix, rv3d.view_matrix, region.width, region.height)
     inputs = scene_inputs(depsgraph, original=True)
-    renderer, _n = _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
+    renderer, _n = _renderer(inputs.volumes, inputs.options.device)
+    resolve_looks(inputs)
     request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
                               background=inputs.background, options=inputs.options,
                               film_transparent=inputs.film_transparent, data_key=inputs.data_key)
@@ -277,20 +391,29 @@ def final_render(engine, api, depsgraph):
         api.report({'WARNING'}, w)
 
     device = job.options.device
-    api.update_stats("", "HOVR | loading data")
+    names = ", ".join(v.name for v in job.inputs.volumes)
+    api.update_stats("", f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
-        renderer, n_elements = _renderer(job.inputs.source, job.inputs.object_matrix, device)
+        renderer, n_elements = _renderer(job.inputs.volumes, device)
+        resolve_looks(job.inputs)
     except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
+    cam_name = (engine.camera_override or depsgraph.scene_eval.camera).name
+    warnings = clip_warnings(job, cam_name)
+    for w in warnings:
+        api.report({'WARNING'}, w)
     if api.test_break():
         return
+    # the kernels compile on their first use in a Blender session (tens of seconds on a CPU)
+    api.update_stats("", f"HOVR | {n_elements} elements | preparing kernels (the first render compiles them)")
+    t1 = time.perf_counter()
 
     def progress(fraction):
         api.update_progress(fraction)
-        api.update_stats("", f"HOVR | {n_elements} elements | {100 * fraction:.0f}% | "
-                              f"{time.perf_counter() - t0:.1f} s")
+        api.update_stats("", f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
+                              f"{time.perf_counter() - t1:.1f} s")
         return not api.test_break()
 
     try:
@@ -305,6 +428,12 @@ def final_render(engine, api, depsgraph):
         return
     for w in result.stats.get("warnings", []):
         api.report({'WARNING'}, f"HOVR: {w}")
+    from .framing import image_warning
+
+    empty = image_warning(result.rgba[..., 3], result.stats)
+    if empty:
+        api.report({'WARNING'}, f"HOVR: {empty}")
+        warnings.append(f"HOVR: {empty}")
 
     res = engine.begin_result(0, 0, job.width, job.height)
     if (res.resolution_x, res.resolution_y) != (job.width, job.height):
@@ -322,8 +451,11 @@ def final_render(engine, api, depsgraph):
         write_pass_pixels(passes["HOVR Error"], flip_rows(result.error))
     engine.end_result(res)
     api.update_progress(1.0)
-    api.update_stats("", render_stats(result.stats, n_elements,
-                                      result.stats.get("render_seconds", time.perf_counter() - t0), device))
+    text = render_stats(result.stats, n_elements, result.stats.get("render_seconds", time.perf_counter() - t1), device,
+                        load_seconds=t1 - t0)
+    if warnings:  # the status line keeps the last word: say the picture is suspect there too
+        text += f" | WARNING: {warnings[-1].removeprefix('HOVR: ')}"
+    api.update_stats("", text)
 
 
 def view_update(engine, context, depsgraph):
@@ -331,7 +463,7 @@ def view_update(engine, context, depsgraph):
     make sure the mesh upload (and Warp start-up) happens outside view_draw."""
     try:
         inputs = scene_inputs(depsgraph, original=True)
-        _renderer(inputs.source, inputs.object_matrix, inputs.options.device)
+        _renderer(inputs.volumes, inputs.options.device)
     except Exception:
         pass  # view_draw shows the message
     engine.tag_redraw()
@@ -353,6 +485,11 @@ def view_draw(engine, context, depsgraph):
         engine.tag_redraw()  # keep view_draw coming until the final image is drawn
     if frame.pixels is not None:
         draw_pixels(engine, depsgraph.scene, context.region, frame)
+    text = engine.viewport.status_text()
+    if text != getattr(engine, "viewport_status", None):
+        engine.viewport_status = text
+        engine.update_stats("", text)  # Blender shows it in the viewport's corner, as Cycles' samples
+
 
 
 def draw_pixels(engine, scene, region, frame):

@@ -19,7 +19,7 @@ def transfer_function_from_ramp(interpolation: str, color_mode: str, positions, 
     if color_mode != "RGB":
         raise TransferFunctionError(f"transfer function ramp must interpolate in RGB, not {color_mode}")
     if not (np.isfinite(density_scale) and density_scale >= 0):
-        raise TransferFunctionError(f"density scale must be >= 0, got {density_scale}")
+        raise TransferFunctionError(f"density scale must be >= 0, got {density_scale:.6g}")
     if len(positions) == 0:
         raise TransferFunctionError("transfer function ramp has no colour stops")
     return TransferFunction.from_rgba_ramp(positions, rgba, density_scale, value_min, value_max)
@@ -76,7 +76,7 @@ def _tents(spec, width):
     return sorted(stops, key=lambda s: s[0])
 
 
-DEFAULT_PRESET = "TENTS"  # a new transfer function's ramp
+DEFAULT_PRESET = "SMOOTH"  # a new transfer function's ramp: shows any field once its range is fitted
 TF_PRESETS = {
     "TENTS": ("Three Tents", "Three thin coloured tents (isosurface-like shells)",
               _tents(((0.2, (1.0, 0.2, 0.1)), (0.5, (0.1, 1.0, 0.2)), (0.8, (0.2, 0.3, 1.0))), 0.04)),

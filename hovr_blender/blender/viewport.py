@@ -39,16 +39,18 @@ class ViewportRequest:
     """Everything that determines the viewport image."""
 
     camera: RayCamera  # full region resolution
-    transfer_function: TransferFunction
+    transfer_function: TransferFunction | list  # one per volume (core Renderer.render)
     background: np.ndarray
     options: RenderOptions
     film_transparent: bool
     data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device)
 
     def signature(self) -> tuple:
-        c, tf = self.camera, self.transfer_function
+        c = self.camera
         cam = tuple(np.concatenate([c.o0, c.ou, c.ov, c.d0, c.du, c.dv]).tolist())
-        tfs = tuple(np.concatenate([tf.color_s, tf.color_rgb.ravel(), tf.density_s, tf.density_tau]).tolist())
+        tf_list = self.transfer_function if isinstance(self.transfer_function, (list, tuple)) else [self.transfer_function]
+        tfs = tuple(tuple(np.concatenate([tf.color_s, tf.color_rgb.ravel(), tf.density_s, tf.density_tau]).tolist())
+                    for tf in tf_list)
         return (cam, c.width, c.height, c.t_min, c.t_max, c.projection, tfs,
                 tuple(np.asarray(self.background, dtype=np.float64).tolist()),
                 tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key)
@@ -124,6 +126,14 @@ class ProgressiveViewport:
         if self.display is None:
             return "preview"
         return "converged" if self.converged else "refining"
+
+    def status_text(self) -> str:
+        """The viewport's progress in words (the engine's stats, shown in the viewport's corner)."""
+        if self.stage == "preview":
+            return "HOVR | preview (the first one in a session compiles the kernels)"
+        if self.stage == "refining":
+            return f"HOVR | refining {100 * self.progress():.0f}%"
+        return "HOVR | done"
 
     def progress(self) -> float:
         req = self._request

@@ -358,6 +358,29 @@ def mapped_coefficients(mesh: "VolumeMesh", scale: np.ndarray, shift: np.ndarray
     return out
 
 
+def with_geometry_expansion(mesh: "VolumeMesh") -> "VolumeMesh":
+    """A mesh of affine hexahedra (from_affine_hexes: no geometry expansion) as the general
+    container: trilinear geometry whose vertex modes are the vertices (exact for a
+    parallelepiped), the same field, so it can be merged with curved meshes."""
+    if mesh.geom_coeffs is not None:
+        return mesh
+    if np.any(mesh.shape != HEX) or np.any(mesh.basis != MODIFIED_A):
+        raise MeshError("cannot merge meshes built with and without geometry expansions "
+                        "(only modified-basis hexahedra convert)")
+    idx = ex.vertex_mode_indices(HEX, (2, 2, 2))
+    geoms = []
+    for e in range(mesh.num_elements):
+        g = np.zeros((8, 3))
+        g[idx] = mesh.vertices[e]
+        geoms.append(g)
+    out = VolumeMesh.from_elements(mesh.shape, mesh.modes, [mesh.element_coeffs(e) for e in range(mesh.num_elements)],
+                                   (2, 2, 2), geoms, field_name=mesh.field_name, source=mesh.source)
+    for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume"):
+        if hasattr(mesh, attr):
+            setattr(out, attr, getattr(mesh, attr))
+    return out
+
+
 def concatenate(meshes) -> "VolumeMesh":
     """One mesh of several volumes, element e of meshes[k] tagged volume k (VolumeMesh.volume):
     one BVH and one pass render them together, each through its own transfer function."""
@@ -365,8 +388,8 @@ def concatenate(meshes) -> "VolumeMesh":
     if len(meshes) == 1:
         return meshes[0]
     curved = any(m.geom_coeffs is not None for m in meshes)
-    if curved and not all(m.geom_coeffs is not None for m in meshes):
-        raise MeshError("cannot merge meshes built with and without geometry expansions")
+    if curved:
+        meshes = [m if m.geom_coeffs is not None else with_geometry_expansion(m) for m in meshes]
 
     def cat(name):
         return np.concatenate([getattr(m, name) for m in meshes])

@@ -18,7 +18,8 @@ def _check_breakpoints(name: str, s: np.ndarray) -> None:
     if not np.all(np.isfinite(s)):
         raise TransferFunctionError(f"{name}: breakpoint values must be finite")
     if np.any(np.diff(s) <= 0):
-        raise TransferFunctionError(f"{name}: breakpoint values must be strictly increasing, got {s.tolist()}")
+        raise TransferFunctionError(f"{name}: breakpoint values must be strictly increasing, got "
+                                    f"[{', '.join(f'{v:.6g}' for v in s)}]")
 
 
 @dataclass(frozen=True)

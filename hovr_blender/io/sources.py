@@ -141,7 +141,7 @@ def load_view_data(view) -> VolumeMesh:
 
 # Loaded meshes (object space) by VolumeSource.key: moving the object, another device or the
 # viewport and F12 share one read; a changed file (size or mtime) has another key.
-_MESHES = LRUCache(2)
+_MESHES = LRUCache(6)  # several volumes in one scene, each with its previous frame
 
 
 def cached_volume(source: VolumeSource) -> VolumeMesh:

@@ -103,9 +103,21 @@ def build_sphere_scene(scene, contract, width, height, stops, value_range, densi
     bpy.ops.hovr.add_sphere_volume()
     obj = bpy.context.active_object
     obj.location, obj.rotation_euler = location, (0.0, 0.0, angle_z)
+    set_look(obj, stops, value_range, density_scale)
     s = scene.hovr
-    set_ramp(s.transfer_function, stops)
-    s.value_min, s.value_max = value_range
-    s.density_scale = density_scale
     s.method, s.h, s.tolerance, s.device = method, 0.01, 1e-6, "cpu"
     return obj
+
+
+def set_look(obj, stops, value_range, density_scale, units="WORLD"):
+    """A volume's own look: ramp, value range and a density in the contract's units (per world unit)."""
+    h = obj.hovr
+    set_ramp(h.transfer_function, stops)
+    h.value_min, h.value_max = value_range
+    h.density_units = units
+    h.density = density_scale
+
+
+def volume(scene, k=0):
+    """The k-th HOVR volume of the scene, by name (the render order)."""
+    return sorted((o for o in scene.objects if o.hovr.is_volume), key=lambda o: o.name)[k]

@@ -66,9 +66,16 @@ def test_properties_defaults_and_enum_indices(scene):
     methods = {i.identifier: i.value for i in props["method"].enum_items}
     assert methods == {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
     assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1, "cuda:all": 2}
-    assert props["transfer_function"].fixed_type.identifier == "Texture"
-    for name in ("h", "tolerance", "min_transmittance", "density_scale", "value_min", "value_max"):
+    for name in ("h", "tolerance", "min_transmittance"):
         assert props[name].type == 'FLOAT'
+    # the look is each volume's own; the scene keeps the old names only to read old files
+    oprops = bpy.types.Object.bl_rna.properties["hovr"].fixed_type.properties
+    assert oprops["transfer_function"].fixed_type.identifier == "Texture"
+    for name in ("density", "value_min", "value_max"):
+        assert oprops[name].type == 'FLOAT'
+    assert {i.identifier: i.value for i in oprops["density_units"].enum_items} == {"RELATIVE": 0, "WORLD": 1}
+    assert oprops["density_units"].default == "RELATIVE"
+    assert {"transfer_function", "density_scale", "value_min", "value_max"} <= set(props.keys())
     # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI.
     from hovr_blender.core.view import RenderOptions
 
@@ -102,28 +109,38 @@ def test_add_sphere_volume_operator(scene):
     v = co.reshape(-1, 3)
     assert all(np.count_nonzero(np.abs(v[a] - v[b]) > 1e-6) == 1 for a, b in edges)
 
-    tex = scene.hovr.transfer_function
+    tex = obj.hovr.transfer_function
     assert tex is not None and tex.type == 'BLEND' and tex.use_color_ramp
     assert tex.color_ramp.interpolation == 'LINEAR' and len(tex.color_ramp.elements) == len(TF_PRESETS[DEFAULT_PRESET][2])
     # The default value range covers the field: max at the far corners, min near the origin.
     corners = builtin.sphere().vertices[0]
-    assert scene.hovr.value_max == pytest.approx(builtin.sphere_field(*corners.T).max())
-    assert 0.0 <= scene.hovr.value_min < 0.5
+    assert obj.hovr.value_max == pytest.approx(builtin.sphere_field(*corners.T).max())
+    assert 0.0 <= obj.hovr.value_min < 0.5
 
-    # A second volume reuses the scene's transfer function instead of replacing it.
+    # A second volume gets a look of its own; the first one's is left as the user set it.
     tex.color_ramp.elements[0].color = (0.5, 0.5, 0.5, 0.0)
+    obj.hovr.value_min = -1.0
     bpy.ops.hovr.add_sphere_volume()
-    assert scene.hovr.transfer_function == tex and len(bpy.data.textures) == 1
+    second = bpy.context.active_object
+    assert second != obj and second.hovr.transfer_function not in (None, tex) and len(bpy.data.textures) == 2
+    assert obj.hovr.transfer_function == tex and obj.hovr.value_min == -1.0
     assert tuple(tex.color_ramp.elements[0].color) == (0.5, 0.5, 0.5, 0.0)
     assert sum(o.hovr.is_volume for o in scene.objects) == 2
 
 
 def test_new_transfer_function_operator(scene):
-    assert scene.hovr.transfer_function is None
+    assert not bpy.ops.hovr.new_transfer_function.poll()  # no volume to give it to
+    obj = bpy.data.objects.new("o", None)
+    scene.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    obj.hovr.is_volume = True  # ticking HOVR Volume gives it the transfer function it needs
+    first = obj.hovr.transfer_function
+    assert first is not None and first.use_color_ramp and len(bpy.data.textures) == 1
     bpy.ops.hovr.new_transfer_function()
-    first = scene.hovr.transfer_function
-    bpy.ops.hovr.new_transfer_function()
-    assert scene.hovr.transfer_function != first and len(bpy.data.textures) == 2
+    assert obj.hovr.transfer_function not in (None, first) and len(bpy.data.textures) == 2
+    obj.hovr.is_volume = False
+    obj.hovr.is_volume = True  # ticking again keeps the one it has
+    assert len(bpy.data.textures) == 2
 
 
 def test_panels_follow_the_engine(scene):
@@ -159,7 +176,9 @@ def test_panels_draw_existing_properties(scene, with_tf):
 
     if with_tf:
         bpy.ops.hovr.add_sphere_volume()
-    obj = bpy.data.objects.new("o", None)
+        obj = bpy.context.active_object
+    else:
+        obj = bpy.data.objects.new("o", None)
     context = SimpleNamespace(scene=scene, object=obj, engine=scene.render.engine, view_layer=bpy.context.view_layer)
     drawn = []
     for cls in panels.classes:
@@ -169,7 +188,8 @@ def test_panels_draw_existing_properties(scene, with_tf):
             cls.draw_header(panel, context)
         cls.draw(panel, context)
     names = {n for _, n in drawn}
-    assert {"method", "h", "tolerance", "min_transmittance", "device", "density_scale", "value_min", "value_max"} <= names
+    assert {"method", "h", "tolerance", "min_transmittance", "device", "density", "density_units", "value_min",
+            "value_max"} <= names
     assert ("color_ramp" in names) == with_tf
     context.engine = 'CYCLES'
     assert not any(cls.poll(context) for cls in panels.classes)

@@ -52,14 +52,14 @@ def build(scene, folder: Path):
     set_contract_camera(scene, CONTRACT, W, H)
     scene.world = bpy.data.worlds.new("World")
     scene.world.color = (0.0625, 0.0625, 0.125)
-    bpy.ops.hovr.new_transfer_function()
-    set_ramp(scene.hovr.transfer_function, STOPS)
-    s = scene.hovr
-    s.value_min, s.value_max, s.density_scale, s.method = 4.0, 24.0, 1.0, "classified"
+    scene.hovr.method = "classified"
     obj = bpy.data.objects.new("Flow", None)
     scene.collection.objects.link(obj)
-    obj.hovr.is_volume = True
+    obj.hovr.is_volume = True  # ticking it gives the volume a transfer function
     obj.hovr.source, obj.hovr.solution, obj.hovr.field = "//m.xml", "//m_####.fld", "p"
+    set_ramp(obj.hovr.transfer_function, STOPS)
+    h = obj.hovr
+    h.value_min, h.value_max, h.density_units, h.density = 4.0, 24.0, 'WORLD', 1.0
     bpy.ops.wm.save_as_mainfile(filepath=str(folder / "series.blend"))  # '//' is this folder
     return obj
 

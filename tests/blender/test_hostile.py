@@ -68,7 +68,7 @@ def datablock_counts():
 @pytest.mark.parametrize("kind", list(IMPORTS))
 def test_hostile_import_is_refused_quickly_and_changes_nothing(scene, tmp_path, kind):
     bpy.ops.hovr.add_sphere_volume()
-    s = scene.hovr
+    s = bpy.context.active_object.hovr  # the user's volume: an import must not touch its look
     s.value_min, s.value_max = -3.0, 7.0
     blend = tmp_path / "before.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))

@@ -78,7 +78,7 @@ def test_menu_operators_and_save_handlers_come_and_go(addon):
 def test_import_nektar_magnitude(scene, tmp_path):
     xml = copy_tet(tmp_path)
     before = datablock_counts()
-    assert bpy.ops.import_scene.hovr_nektar(filepath=str(xml), field="|u,v,w|") == {'FINISHED'}
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(xml), field="|u,v,w|", frame=False) == {'FINISHED'}
     obj = bpy.context.active_object
     after = datablock_counts()
     assert after["objects"] == before["objects"] + 1 and after["meshes"] == before["meshes"] + 1
@@ -96,8 +96,8 @@ def test_import_nektar_magnitude(scene, tmp_path):
     np.testing.assert_allclose(co, verts, atol=1e-6)
     assert {tuple(sorted(e)) for e in ed.tolist()} == {tuple(e) for e in edges.tolist()}
     assert len(obj.data.polygons) == 0 and obj.display_type == 'WIRE'
-    # a transfer function over the field's range
-    s = scene.hovr
+    # its own transfer function over the field's range
+    s = obj.hovr
     assert s.transfer_function is not None
     lo, hi = blender_scene.field_samples(mesh).min(), blender_scene.field_samples(mesh).max()
     assert s.value_min == pytest.approx(lo, abs=1e-6) and s.value_max == pytest.approx(hi, rel=1e-6)
@@ -123,7 +123,7 @@ def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(mfem)) == {'FINISHED'}
     obj = bpy.context.active_object
     assert obj.hovr.source == str(mfem) and obj.hovr.field == "u" and len(obj.data.edges) > 0
-    assert scene.hovr.value_max == pytest.approx(0.1515, abs=2e-3)  # info.json: u_max 0.15155
+    assert obj.hovr.value_max == pytest.approx(0.1515, abs=2e-3)  # info.json: u_max 0.15155
 
     path = vector_vtu(tmp_path / "vec.vtu")
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(path), field="vel", component="1") == {'FINISHED'}
@@ -131,7 +131,7 @@ def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
     assert obj.hovr.component == "1"
     src = sources.VolumeSource.resolve(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
     assert sources.cached_volume(src).field_name == "vel[1]"
-    assert scene.hovr.value_min == pytest.approx(1.0) and scene.hovr.value_max == pytest.approx(2.0)
+    assert obj.hovr.value_min == pytest.approx(1.0) and obj.hovr.value_max == pytest.approx(2.0)
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(path), field="vel") == {'FINISHED'}
     obj = bpy.context.active_object
     src = sources.VolumeSource.resolve(obj.hovr.source, "", obj.hovr.field, 1, component=obj.hovr.component)
@@ -191,8 +191,10 @@ def corrupt_tet(folder: Path, kind: str):
                                   "truncated vtu", "bad component", "component out of range"])
 def test_failed_import_names_the_file_and_changes_nothing(scene, tmp_path, kind):
     op, kwargs, expected = corrupt_tet(tmp_path, kind)
-    s = scene.hovr
+    bpy.ops.hovr.add_sphere_volume()  # the user's volume: a failed import must not touch its look
+    s = bpy.context.active_object.hovr
     s.value_min, s.value_max = -3.0, 7.0
+    tex = s.transfer_function
     before = datablock_counts()
     active = bpy.context.view_layer.objects.active
     with pytest.raises(RuntimeError) as info:
@@ -202,7 +204,8 @@ def test_failed_import_names_the_file_and_changes_nothing(scene, tmp_path, kind)
     for part in expected:
         assert part in message, message
     assert datablock_counts() == before
-    assert s.transfer_function is None and (s.value_min, s.value_max) == (-3.0, 7.0)
+    assert s.transfer_function == tex and (s.value_min, s.value_max) == (-3.0, 7.0)
+    assert scene.camera is None  # nothing was framed either
     assert bpy.context.view_layer.objects.active == active
 
 
@@ -268,14 +271,15 @@ def test_imported_volume_renders_like_the_core(scene, tmp_path):
     set_contract_camera(scene, CONTRACT, W, H)
     scene.world = bpy.data.worlds.new("World")
     scene.world.color = (0.0625, 0.0625, 0.125)
-    s = scene.hovr
-    s.density_scale, s.method, s.h = 8.0, "classified", 0.01
+    s, h = scene.hovr, obj.hovr
+    h.density_units, h.density = 'WORLD', 8.0
+    s.method, s.h = "classified", 0.01
     img = render_to_exr(scene, tmp_path / "f12.exr")
 
-    ramp = s.transfer_function.color_ramp
+    ramp = h.transfer_function.color_ramp
     tf = blender_scene.transfer_function_from_ramp(
         ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
-        [tuple(e.color) for e in ramp.elements], s.density_scale, s.value_min, s.value_max)
+        [tuple(e.color) for e in ramp.elements], h.density, h.value_min, h.value_max)
     mesh = read_nektar_field(xml, xml.with_suffix(".fld"), "|u,v,w|").transformed(np.array(obj.matrix_world))
     cam = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
     core = Renderer(mesh, "cpu").render(cam, tf, np.array([0.0625, 0.0625, 0.125]),
@@ -296,7 +300,7 @@ def test_render_cache_reuses_the_mesh_and_rereads_changed_files(scene, tmp_path,
     obj = bpy.context.active_object
     add_camera(scene)
     set_contract_camera(scene, CONTRACT, W, H)
-    scene.hovr.density_scale = 5.0
+    obj.hovr.density = 5.0
     imported = dict(sources._MESHES.items())
     assert len(imported) == 1
     (key, mesh), = imported.items()

@@ -187,8 +187,8 @@ def test_progress_stats_and_cancel_latency(scene, tmp_path, monkeypatch):
 def test_a_transfer_function_float32_cannot_resolve_is_reported(scene, tmp_path, monkeypatch):
     """The renderer's precision warning (core/field_frame.py) reaches the user as a WARNING
     report of F12; the image is still written."""
-    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method="split")
-    scene.hovr.value_min, scene.hovr.value_max = 5.0, 5.000001
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method="split")
+    obj.hovr.value_min, obj.hovr.value_max = 5.0, 5.000001
     calls = {"progress": [], "stats": [], "break_at": None, "cancel_after": None, "end": None}
     monkeypatch.setattr(render_engine, "_engine_api", lambda engine: _Recorder(engine, calls))
     bpy.ops.render.render(write_still=False)

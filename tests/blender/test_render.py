@@ -10,7 +10,7 @@ from hovr_blender.blender import render  # noqa: E402
 from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
-from .blender_helpers import render_to_exr  # noqa: E402
+from .blender_helpers import render_to_exr, volume  # noqa: E402
 
 
 @pytest.mark.parametrize("contract,method,film_transparent,percentage", [
@@ -48,7 +48,7 @@ def test_save_reload_renders_identically(scene, tmp_path):
     bpy.ops.wm.open_mainfile(filepath=path)
     loaded = bpy.context.scene
     assert loaded.render.engine == 'HOVR' and loaded.hovr.method == "classified"
-    assert loaded.hovr.transfer_function is not None
+    assert volume(loaded).hovr.transfer_function is not None
     assert [o.name for o in loaded.objects if o.hovr.is_volume] == ["HOVR Sphere"]
     second = render_to_exr(loaded, tmp_path / "b.exr")
     np.testing.assert_array_equal(first, second)
@@ -72,12 +72,16 @@ def test_renderer_is_cached_per_object_transform(scene, tmp_path):
 def _fingerprint(scene):
     """The user data a render must not touch."""
     s = scene.hovr
-    ramp = s.transfer_function.color_ramp if s.transfer_function else None
+
+    def look(h):
+        ramp = h.transfer_function.color_ramp if h.transfer_function else None
+        return (h.density, h.density_units, h.value_min, h.value_max,
+                ramp and (ramp.interpolation, [(e.position, tuple(e.color)) for e in ramp.elements]))
+
     return (
-        sorted((o.name, o.location[:], o.rotation_euler[:], o.scale[:], o.hovr.is_volume, o.hovr.source)
+        sorted((o.name, o.location[:], o.rotation_euler[:], o.scale[:], o.hovr.is_volume, o.hovr.source, look(o.hovr))
                for o in scene.objects),
-        (s.method, s.h, s.tolerance, s.min_transmittance, s.device, s.density_scale, s.value_min, s.value_max),
-        ramp and (ramp.interpolation, [(e.position, tuple(e.color)) for e in ramp.elements]),
+        (s.method, s.h, s.tolerance, s.min_transmittance, s.device),
         len(bpy.data.textures), len(bpy.data.meshes),
         len([i for i in bpy.data.images if i.type != 'RENDER_RESULT']),  # Blender adds its Render Result
     )
@@ -89,15 +93,15 @@ def _no_volume(scene):
 
 
 def _ease(scene):
-    scene.hovr.transfer_function.color_ramp.interpolation = 'EASE'
+    volume(scene).hovr.transfer_function.color_ramp.interpolation = 'EASE'
 
 
 def _empty_range(scene):
-    scene.hovr.value_max = scene.hovr.value_min
+    volume(scene).hovr.value_max = volume(scene).hovr.value_min
 
 
 def _no_tf(scene):
-    scene.hovr.transfer_function = None
+    volume(scene).hovr.transfer_function = None
 
 
 def _unknown_source(scene):
@@ -121,11 +125,136 @@ def test_errors_are_reported_and_leave_data_untouched(scene, tmp_path, breakage,
     assert _fingerprint(scene) == before
 
 
-def test_several_volumes_render_the_first_with_a_warning(scene, tmp_path, capfd):
-    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
-    bpy.ops.hovr.add_sphere_volume()  # a second volume at the origin, named "HOVR Sphere.001"
-    before = _fingerprint(scene)
-    got = render_to_exr(scene, tmp_path / "two.exr")
-    np.testing.assert_allclose(got[..., :3], SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)[..., :3], atol=1e-5)
-    assert _fingerprint(scene) == before
-    assert "2 HOVR volumes; rendering only 'HOVR Sphere'" in capfd.readouterr().out
+# Two spheres with different looks, side by side along x (not overlapping in space), seen from
+# the front (side by side in the image) and from the side (one behind the other).
+TWO_STOPS = [(0.0, (0.25, 0.5, 1.0, 0.0)), (0.25, (0.25, 0.5, 1.0, 1.0)), (0.5, (1.0, 1.0, 1.0, 0.0)),
+             (1.0, (0.0, 0.0, 0.0, 0.0))]
+FRONT = {"eye": [1.5, -9.0, 0.5], "target": [1.5, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov_y_deg": 30.0}
+SIDE = {"eye": [9.0, 0.6, 0.4], "target": [0.0, 0.0, 0.0], "up": [0.0, 0.0, 1.0], "fov_y_deg": 25.0}
+
+
+def _two_spheres(scene):
+    from .blender_helpers import add_camera, set_look
+
+    add_camera(scene)
+    scene.render.film_transparent = True
+    # float64: the merged mesh rounds in float32 a little differently from each alone (~4e-5)
+    scene.hovr.method, scene.hovr.tolerance, scene.hovr.precision = "classified", 1e-6, "float64"
+    bpy.ops.hovr.add_sphere_volume()
+    a = bpy.context.active_object
+    set_look(a, SPHERE.STOPS, SPHERE.VALUE_RANGE, SPHERE.DENSITY_SCALE)
+    bpy.ops.hovr.add_sphere_volume()
+    b = bpy.context.active_object
+    b.location = (3.0, 0.0, 0.0)
+    set_look(b, TWO_STOPS, (0.0, 2.0), 1.5)
+    return a, b
+
+
+def _render_alone(scene, keep, others, path):
+    for o in others:
+        o.hide_render = True
+    try:
+        return render_to_exr(scene, path)
+    finally:
+        for o in others:
+            o.hide_render = False
+
+
+def test_two_volumes_with_their_own_looks_render_together(scene, tmp_path):
+    """Each volume keeps its own transfer function; one pass renders both. Side by side, every
+    pixel equals the render of the volume alone where the other is absent; one behind the
+    other, the front volume is composited over the back one (C = C_f + T_f C_b)."""
+    from .blender_helpers import set_contract_camera
+
+    a, b = _two_spheres(scene)
+    assert a.hovr.transfer_function != b.hovr.transfer_function
+    for contract, name in ((FRONT, "front"), (SIDE, "side")):
+        set_contract_camera(scene, contract, 64, 40)
+        both = render_to_exr(scene, tmp_path / f"{name}_both.exr")
+        only_a = _render_alone(scene, a, [b], tmp_path / f"{name}_a.exr")
+        only_b = _render_alone(scene, b, [a], tmp_path / f"{name}_b.exr")
+        assert only_a[..., 3].max() > 0.2 and only_b[..., 3].max() > 0.2
+        if name == "front":
+            a_only, b_only = only_b[..., 3] == 0, only_a[..., 3] == 0
+            assert a_only.any() and b_only.any() and (only_a[..., 3] > 0)[a_only].any()
+            np.testing.assert_allclose(both[a_only], only_a[a_only], atol=1e-5)
+            np.testing.assert_allclose(both[b_only], only_b[b_only], atol=1e-5)
+            # the two looks differ: b's pixels are not a's ramp
+            assert np.abs(only_a.sum(axis=(0, 1)) - only_b.sum(axis=(0, 1))).max() > 1e-2
+        else:  # b (x = 3) is in front of a seen from +x
+            overlap = (only_a[..., 3] > 0.05) & (only_b[..., 3] > 0.05)
+            assert overlap.sum() > 20
+            t_front = 1.0 - only_b[..., 3:4]
+            over = only_b[..., :3] + t_front * only_a[..., :3]
+            np.testing.assert_allclose(both[..., :3][overlap], over[overlap], atol=2e-4)
+            np.testing.assert_allclose(both[..., 3][overlap], (1 - t_front[..., 0] * (1 - only_a[..., 3]))[overlap],
+                                       atol=2e-4)
+
+
+def test_editing_one_volume_look_leaves_the_other(scene, tmp_path):
+    from .blender_helpers import set_contract_camera
+
+    a, b = _two_spheres(scene)
+    set_contract_camera(scene, FRONT, 48, 30)
+    first = render_to_exr(scene, tmp_path / "1.exr")
+    b.hovr.density *= 2.0
+    b.hovr.transfer_function.color_ramp.elements[1].color = (1.0, 0.0, 0.0, 1.0)
+    second = render_to_exr(scene, tmp_path / "2.exr")
+    only_b = _render_alone(scene, b, [a], tmp_path / "b.exr")
+    a_side = only_b[..., 3] == 0
+    np.testing.assert_array_equal(second[a_side], first[a_side])
+    assert np.abs(second - first).max() > 1e-2
+
+
+def test_relative_density_is_optical_depth_across_the_volume(scene, tmp_path):
+    """Density in RELATIVE units is the contract's density times the bounding-box diagonal:
+    the same picture at any scale (a sphere scaled by 1/50 with its camera)."""
+    from .blender_helpers import set_contract_camera, set_look
+
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    world = render_to_exr(scene, tmp_path / "world.exr")
+    from hovr_blender.io import builtin
+
+    v = builtin.sphere().vertices.reshape(-1, 3)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))  # the box's diagonal (object scale 1)
+    set_look(obj, SPHERE.STOPS, SPHERE.VALUE_RANGE, SPHERE.DENSITY_SCALE * diag, units="RELATIVE")
+    relative = render_to_exr(scene, tmp_path / "relative.exr")
+    np.testing.assert_allclose(relative, world, atol=1e-5)
+    # 1/50 the size, camera scaled with it: the relative look is unchanged
+    s = 0.02
+    obj.location = [s * x for x in SPHERE.OBJECT_LOCATION]
+    obj.scale = (s, s, s)
+    c = dict(SPHERE.PERSPECTIVE, eye=[s * x for x in SPHERE.PERSPECTIVE["eye"]],
+             target=[s * x for x in SPHERE.PERSPECTIVE["target"]])
+    set_contract_camera(scene, c, SPHERE.W, SPHERE.H)
+    scene.camera.data.clip_start = 0.001
+    scene.hovr.h *= s  # Step is in world units (it sets accuracy, not the look)
+    small = render_to_exr(scene, tmp_path / "small.exr")
+    np.testing.assert_allclose(small, world, atol=2e-4)
+
+
+def test_a_file_saved_with_the_scene_look_renders_the_same(scene, tmp_path):
+    """tests/data/blender/legacy_scene_look.blend was saved before looks moved onto volumes (its
+    transfer function, value range and density per world unit are the scene's). Opened, its
+    volume gets that look (load_post) and F12 gives the image the old version gave."""
+    from hovr_blender.blender import versioning
+
+    from ..helpers import data_file
+
+    blend = data_file("blender", "legacy_scene_look.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    sc = bpy.context.scene
+    obj = volume(sc)
+    assert obj.hovr.transfer_function == sc.hovr.transfer_function is not None
+    assert obj.hovr.density_units == 'WORLD' and obj.hovr.density == pytest.approx(SPHERE.DENSITY_SCALE)
+    assert (obj.hovr.value_min, obj.hovr.value_max) == SPHERE.VALUE_RANGE
+    want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
+    got = render_to_exr(sc, tmp_path / "migrated.exr")
+    np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
+    # without the handler (the add-on enabled after the file was opened) the render reads the
+    # scene's look in place: the same image
+    obj.hovr.transfer_function = None
+    obj.hovr.density_units, obj.hovr.density = 'RELATIVE', 4.0
+    assert versioning.volume_look(obj.hovr, sc).legacy
+    fallback = render_to_exr(sc, tmp_path / "fallback.exr")
+    np.testing.assert_allclose(fallback, got, atol=0)

@@ -90,13 +90,13 @@ def test_any_change_restarts_the_viewport(scene):
     assert state.restarts == 1  # nothing changed: keep refining
 
     def ramp():
-        scene.hovr.transfer_function.color_ramp.elements[1].color = (0.5, 0.5, 0.5, 1.0)
+        obj.hovr.transfer_function.color_ramp.elements[1].color = (0.5, 0.5, 0.5, 1.0)
 
     def move():
         obj.location.x += 0.25
 
     def setting():
-        scene.hovr.density_scale = 3.0
+        obj.hovr.density = 3.0
 
     def world():
         scene.world.color = (0.5, 0.0, 0.0)
@@ -117,8 +117,8 @@ def test_any_change_restarts_the_viewport(scene):
 
 
 def test_viewport_errors_are_raised_for_view_draw_to_show(scene):
-    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
-    scene.hovr.transfer_function.color_ramp.interpolation = 'EASE'
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    obj.hovr.transfer_function.color_ramp.interpolation = 'EASE'
     ctx = camera_view(scene, 16, 12)
     with pytest.raises(ValueError, match="Linear"):
         render.viewport_step(ProgressiveViewport(), ctx, bpy.context.evaluated_depsgraph_get())

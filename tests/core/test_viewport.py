@@ -59,17 +59,21 @@ def test_progressive_frames_end_at_the_full_render(renderer):
     req = request()
     vp = ProgressiveViewport(first_frame_seconds=0.1)
     assert vp.sync(renderer, req) is True and vp.stage == "preview"
-    steps, t_steps = 0, []
+    assert vp.status_text().startswith("HOVR | preview")
+    steps, t_steps, said = 0, [], set()
     while not vp.converged:
         t0 = time.perf_counter()
         vp.step(0.05)
         t_steps.append(time.perf_counter() - t0)
+        said.add(vp.status_text())
         steps += 1
         if steps == 1:
             assert vp.display is not None  # something to show after the first call
             assert vp.log[0].kind == "preview" and vp.log[0].scale > 1 and vp.stage in ("refining", "converged")
         assert steps < 500
     assert vp.display.shape == (64, 96, 4) and vp.display.dtype == np.float32
+    assert vp.status_text() == "HOVR | done"
+    assert all(t == "HOVR | done" or t.startswith("HOVR | refining ") and t.endswith("%") for t in said)
     want = renderer.render(req.camera, TF, BG, req.options).rgba[::-1]  # bottom row first
     np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
     np.testing.assert_array_equal(vp.display[..., 3], 1.0)  # opaque film, as F12

@@ -27,7 +27,8 @@ Modules, each importing only those above it:
 """
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
-from .reader import NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, read_nektar
+from .reader import (NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, pick_solution, read_nektar,
+                     solution_candidates)
 
 __all__ = ["NO_FIELD", "SOLUTION_EXTENSIONS", "FieldFile", "NektarError", "find_solution", "list_fields",
            "read_field_file", "read_nektar"]

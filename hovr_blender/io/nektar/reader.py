@@ -45,6 +45,92 @@ def find_solution(mesh_path) -> Path | None:
     return next((p for p in (mesh_path.with_suffix(e) for e in SOLUTION_EXTENSIONS) if p.exists()), None)
 
 
+_NUMBERED = re.compile(r"^(.*?)[_\-.]?(\d+)$")
+
+
+def _series(stem: str) -> tuple[str, int | None]:
+    """("session", 123) for "session_123"; (stem, None) for a name without a trailing number."""
+    m = _NUMBERED.match(stem)
+    return (m.group(1), int(m.group(2))) if m and m.group(1) else (stem, None)
+
+
+def _name_prefixes(stem: str) -> set[str]:
+    """The stem and its starts that end before a separator: "hump3D_GLL" -> {"hump3d_gll", "hump3d"}."""
+    stem = stem.lower()
+    return {stem} | {stem[:k] for k, ch in enumerate(stem) if ch in "_-." and k > 0}
+
+
+def _shared_name(mesh_stem: str, p: Path) -> int:
+    """Length of the longest name part a field file shares with the mesh (its stem or its series
+    name equal to the mesh's stem or a separator-bounded start of it, or the other way round)."""
+    mine = _name_prefixes(mesh_stem)
+    base, _ = _series(p.stem)
+    theirs = {p.stem.lower(), base.lower()}
+    shared = [len(a) for a in theirs if a in mine] + [len(a) for a in mine if a in _name_prefixes(p.stem)]
+    return max(shared, default=0)
+
+
+def solution_candidates(mesh_path) -> list[tuple[Path, str]]:
+    """The field files in a mesh's folder (.fld/.chk/.rst files and .fld/ folders), likeliest
+    first, each with the reason in words. Likeliest: the mesh's own name (what find_solution
+    takes); then the longest name part shared with the mesh ("hump3D_GLL.xml" -> "hump3D.rst",
+    "session.xml" -> "session_123.chk"), the latest of a numbered series ("session_123.chk"
+    over "session_12.chk"), .fld before .chk before .rst."""
+    mesh_path = Path(mesh_path)
+    folder = mesh_path.parent
+    stem = mesh_path.stem
+    try:
+        entries = [p for p in folder.iterdir() if p.suffix.lower() in SOLUTION_EXTENSIONS
+                   and (p.is_file() or (p.is_dir() and (p / "Info.xml").exists()))]
+    except OSError:
+        return []
+    latest, count = {}, {}
+    for p in entries:
+        base, num = _series(p.stem)
+        if num is not None:
+            key = (base, p.suffix.lower())
+            count[key] = count.get(key, 0) + 1
+            latest[key] = max(latest.get(key, -1), num)
+
+    def rank(p: Path):
+        _, num = _series(p.stem)
+        return (p.stem == stem, _shared_name(stem, p), num if num is not None else -1,
+                -SOLUTION_EXTENSIONS.index(p.suffix.lower()), p.name)
+
+    out = []
+    for p in sorted(entries, key=rank, reverse=True):
+        base, num = _series(p.stem)
+        key = (base, p.suffix.lower())
+        shared = _shared_name(stem, p)
+        if p.stem == stem:
+            why = "named like the mesh"
+        elif shared:
+            why = f"its name shares {p.stem[:shared]!r} with the mesh's"
+        else:
+            why = ""
+        if num is not None and count.get(key, 0) > 1:
+            place = "the latest" if num == latest[key] else "one"
+            why = (why + "; " if why else "") + f"{place} of {count[key]} numbered files {base}_N{p.suffix}"
+        out.append((p, why or "in the same folder"))
+    return out
+
+
+def pick_solution(mesh_path) -> tuple[Path | None, str, list[Path]]:
+    """(the likeliest field file or None, why, all candidates) for a mesh (solution_candidates).
+    A file whose name shares nothing with the mesh's is taken only when it is the folder's
+    only field file: a folder of unrelated cases must not dress a mesh in another's field."""
+    cands = solution_candidates(mesh_path)
+    paths = [p for p, _ in cands]
+    if not cands:
+        return None, "no .fld, .chk or .rst file in the folder", paths
+    best, why = cands[0]
+    if best.stem == Path(mesh_path).stem or _shared_name(Path(mesh_path).stem, best):
+        return best, why, paths
+    if len(cands) == 1:
+        return best, "the only field file in the folder", paths
+    return None, f"{len(cands)} field files in the folder, none named like the mesh", paths
+
+
 def list_fields(solution_path) -> list[str]:
     """Names of the fields in a Nektar++ field file (.fld/.chk/.rst, XML or HDF5, or a .fld/ directory)."""
     return read_field_file(solution_path).names

@@ -1,0 +1,124 @@
+"""Issue 16's first hour: real data imported with the importer's defaults into a factory-fresh
+scene, then F12 through the scene camera, gives a picture (the volume covers >= 10% of the
+frame with visible opacity, no warning); Frame Volume; solution discovery; the warnings of an
+empty, faint or clipped render."""
+import shutil
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
+pytestmark = pytest.mark.blender
+
+import hovr_blender  # noqa: E402
+
+from ..helpers import data_file  # noqa: E402
+from .blender_helpers import render_to_exr, volume  # noqa: E402
+
+PERCENT = 5  # of Blender's default 1920 x 1080: 96 x 54 pixels
+
+
+@pytest.fixture
+def factory_scene():
+    """Blender's factory startup file (cube, light, camera, grey world), HOVR as the engine."""
+    bpy.ops.wm.read_factory_settings(use_empty=False)
+    hovr_blender.register()
+    try:
+        sc = bpy.context.scene
+        sc.render.engine = 'HOVR'
+        sc.render.resolution_percentage = PERCENT
+        yield sc
+    finally:
+        hovr_blender.unregister()
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+
+
+def coverage(img, background, threshold=0.02) -> float:
+    """Share of pixels whose colour differs from the background by more than `threshold`."""
+    return float((np.abs(img[..., :3] - np.asarray(background)[:3]).max(axis=2) > threshold).mean())
+
+
+def f12(scene, path, capfd):
+    capfd.readouterr()
+    img = render_to_exr(scene, path)
+    out = capfd.readouterr().out
+    return img, [line for line in out.splitlines() if line.startswith("Warning")]
+
+
+@pytest.mark.parametrize("kind,name,op", [
+    ("nektar", "hump3D_GLL.xml", "hovr_nektar"),  # solution named hump3D.rst: found, not by the mesh's name
+    ("vtu", "ngsolve_ball_poisson_hex_p6.vtu", "hovr_vtu"),
+])
+def test_import_defaults_then_f12_show_the_volume(factory_scene, tmp_path, capfd, kind, name, op):
+    path = data_file(kind, name)
+    scene = factory_scene
+    camera = scene.camera
+    assert getattr(bpy.ops.import_scene, op)(filepath=str(path)) == {'FINISHED'}
+    obj = bpy.context.active_object
+    if kind == "nektar":
+        assert obj.hovr.solution.endswith("hump3D.rst") and obj.hovr.field == "rho"
+    assert scene.camera == camera  # the scene's own camera, moved to frame the volume
+    img, warnings = f12(scene, tmp_path / "f12.exr", capfd)
+    share = coverage(img, scene.world.color)
+    contrast = float(np.abs(img[..., :3] - np.asarray(scene.world.color)[:3]).max())
+    print(f"{name}: volume covers {100 * share:.0f}% of the frame, largest contrast {contrast:.2f}")
+    assert share >= 0.10 and contrast > 0.1
+    assert warnings == []
+    # the clip planes hold the volume: the default 0.1 m clip start would hide hump3D (2 cm)
+    assert camera.data.clip_start < 0.1 or kind == "vtu"
+
+
+def test_frame_volume_brings_a_lost_volume_into_view(factory_scene, tmp_path, capfd):
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    obj.scale = (0.01, 0.01, 0.01)  # a 5 cm volume: inside the default camera's clip start at 10 cm...
+    cam = scene.camera
+    cam.location = (0.03, -0.03, 0.02)  # ...seen from 4 cm away
+    _, warnings = f12(scene, tmp_path / "before.exr", capfd)
+    assert any("Clip Start" in w for w in warnings), warnings
+    assert bpy.ops.hovr.frame_volume() == {'FINISHED'}
+    img, warnings = f12(scene, tmp_path / "after.exr", capfd)
+    assert warnings == [] and coverage(img, scene.world.color) >= 0.10
+    assert 0 < cam.data.clip_start < (cam.location - obj.location).length - 0.025 * np.sqrt(3)
+
+
+def test_empty_and_faint_renders_are_warnings(factory_scene, tmp_path, capfd):
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    bpy.ops.hovr.frame_volume()
+    obj.hovr.density = 1e-3
+    _, warnings = f12(scene, tmp_path / "faint.exr", capfd)
+    assert any("nearly transparent" in w for w in warnings), warnings
+    obj.hovr.density = 4.0
+    obj.location.x += 1000.0  # out of the camera's view
+    _, warnings = f12(scene, tmp_path / "empty.exr", capfd)
+    assert any("image is empty" in w for w in warnings), warnings
+
+
+def _tet_as(folder, mesh_name, solution_names):
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy(data_file("nektar", "Tet_channel_m3.xml"), folder / mesh_name)
+    for n in solution_names:
+        shutil.copy(data_file("nektar", "Tet_channel_m3.fld"), folder / n)
+    return folder / mesh_name
+
+
+def test_import_finds_the_latest_checkpoint_and_says_so(factory_scene, tmp_path, capfd):
+    xml = _tet_as(tmp_path, "session.xml", ["session_12.chk", "session_123.chk"])
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(xml)) == {'FINISHED'}
+    out = capfd.readouterr().out
+    obj = bpy.context.active_object
+    assert obj.hovr.solution.endswith("session_123.chk") and obj.hovr.field == "u"
+    assert "solution session_123.chk" in out and "latest of 2" in out and "session_12.chk" in out
+
+
+def test_geometry_only_import_is_a_warning(factory_scene, tmp_path, capfd):
+    xml = _tet_as(tmp_path, "lonely.xml", [])
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(xml)) == {'FINISHED'}
+    out = capfd.readouterr().out
+    assert "Warning: HOVR: lonely: no solution file: geometry only" in out
+    assert volume(factory_scene).hovr.solution == ""
