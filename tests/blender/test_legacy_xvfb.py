@@ -63,7 +63,9 @@ def test_viewport_screenshot_matches_f12(legacy_env):
     assert "error" not in report, report["error"]
     assert report["viewport_converged"], report["log"]
     kinds = [k for k, *_ in report["viewport_log"]]
-    assert kinds[0] == "preview" and "band" in kinds  # the progressive path ran in the window
+    # the progressive path ran in the window: a preview first (over its time budget on a busy
+    # machine: that is the scheduler's to adapt, not this test's to judge), then bands
+    assert kinds[0] in ("preview", "preview-overrun") and any(k.startswith("band") for k in kinds)
     shot = Image.open(report["screenshot"]).convert("RGB")
     f12 = np.asarray(Image.open(report["f12"]).convert("RGB")).astype(float)
     # The camera frame inside the region, from Blender's own projection of the frame corners

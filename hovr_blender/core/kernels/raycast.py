@@ -321,14 +321,17 @@ def entry_face(mesh: MeshArgs, entry: Entry, o: wp.vec3, d: wp.vec3) -> int:
 
 
 @wp.func
-def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, found: Entry, nloc: int):
+def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, found: Entry, nloc: int):
     """The search's entry, moved back to where the ray really comes in. An element entered
     through a face that has a neighbour was entered from that neighbour: the ray was inside it
     just before, so the search missed it (a curved element's entry search can step over a
     stretch thinner than its steps where Newton has nothing to predict with outside the element,
     e.g. a corner clipped on a ball's surface). Walked backwards from the shared face (the
     reversed ray, inside the neighbour, to its exit, as the forward walk finds exits), element
-    by element, until a face without a neighbour or t_from."""
+    by element, until a face without a neighbour or t_from. It does not step back into `left`,
+    the element the ray has just left, at t_from: where the forward walk left it through a face
+    it took for the boundary (next to an edge), the search would find it there again, and the
+    walk would leave it again, without end."""
     entry = found
     eps = STRETCH_RTOL * wp.abs(t_from)
     for k in range(BACK_STEPS):
@@ -349,6 +352,8 @@ def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, found: Entr
             if cl[0] <= 0.0:
                 break
             t_in = wp.max(-cl[2], t_from)
+            if n == left and t_in <= t_from + eps:
+                break  # the element the ray has just left, back to where it left: walked already
         else:
             nloc += 1
             r_b, dv_b = geometry.curved_inside(mesh, n, o, back, -t_e, geometry.start_guess(mesh, n, o + t_e * d))
@@ -359,6 +364,8 @@ def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, found: Entr
             bx = geometry.box_interval(mesh, n, o, back)
             ex, r_x, dv_x = geometry.curved_exit(mesh, n, o, back, -t_e, r_b, dv_b, wp.min(bx[1], -t_from))
             t_in = wp.max(-ex[0], t_from)
+            if n == left and t_in <= t_from + eps:
+                break  # the element the ray has just left, back to where it left: walked already
             # the forward solution where the ray enters n, for the walk (and this loop's face)
             r, dv = geometry.curved_inside(mesh, n, o, d, t_in, wp.vec3(r_x[0], r_x[1], r_x[2]))
         entry.element = n
@@ -381,7 +388,7 @@ def _make_search_kernel(CURVED: bool):
         o, d = camera_ray(cam, pixel)
         entry, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
         if wp.static(CURVED):
-            entry, nl = walk_back(mesh, o, d, rays.t_cur[i], entry, nl)
+            entry, nl = walk_back(mesh, o, d, rays.t_cur[i], rays.left_element[i], entry, nl)
         rays.stats[pixel, STAT_LOCATES] += nl
         if entry.element < 0:
             rays.phase[i] = 1
