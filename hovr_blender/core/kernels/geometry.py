@@ -476,9 +476,10 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     where the stretch lies behind (the last step overshot a clip thinner than the prediction's
     error), at most halfway back to the last point before the element. Where the tangent misses
     (or Newton fails far outside), the step is 1/ENTRY_STEPS of the box interval, so a curved
-    ray that clips the element near its tangent's miss is still met by a later tangent. The first point inside closes a bracket with the last point known
-    to lie before the element, located to ROOT_RTOL relative. A clip thinner than the steps can
-    be missed; the traversal asks again beyond its t, so a later re-entry is still found."""
+    ray that clips the element near its tangent's miss is still met by a later tangent. The
+    first point inside closes a bracket with the last point known to lie before the element,
+    located to ROOT_RTOL relative. A clip thinner than the steps can be missed; the traversal
+    asks again beyond its t, so a later re-entry is still found."""
     none = wp.vec4(0.0, 0.0, 0.0, -1.0)
     bi = box_interval(mesh, e, o, d)
     ta = wp.max(bi[0], t_from)
@@ -534,4 +535,8 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
         t_new = wp.min(tq + step, tb)
         start = ahead(rq, dvq, t_new - tq)
         tq = t_new
+    if bracketing == 1:
+        # out of steps before the bracket met ROOT_RTOL (float64's 1e-13 after a long search):
+        # its inside end is inside the element, the nearest point known so
+        return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb
     return wp.vec3(0.0, 0.0, 0.0), none, none
