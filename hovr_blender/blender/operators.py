@@ -114,16 +114,20 @@ def create_volume_object(context, name, mesh, source, solution="", field="", com
     return obj
 
 
-class HOVR_OT_new_transfer_function(bpy.types.Operator):
+class _OnVolume:
+    """Operators that act on the active HOVR volume: available only where there is one."""
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _volume_object(context) is not None
+
+
+class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
     """Give the active HOVR volume a new transfer function of its own (a smooth ramp)"""
 
     bl_idname = "hovr.new_transfer_function"
     bl_label = "New Transfer Function"
     bl_options = {'REGISTER', 'UNDO'}
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and _volume_object(context) is not None
 
     def execute(self, context):
         obj = _volume_object(context)
@@ -146,16 +150,12 @@ def fit_value_range(obj, scene, values=None):
     return lo, hi, values.size
 
 
-class HOVR_OT_fit_value_range(bpy.types.Operator):
+class HOVR_OT_fit_value_range(_OnVolume, bpy.types.Operator):
     """Set the volume's Value Min/Max to the range of its field (sampled in every element)"""
 
     bl_idname = "hovr.fit_value_range"
     bl_label = "Fit to Data Range"
     bl_options = {'REGISTER', 'UNDO'}
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and _volume_object(context) is not None
 
     def execute(self, context):
         obj = _volume_object(context)
@@ -278,7 +278,7 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
 PRESET_ITEMS = tuple((key, label, desc, i) for i, (key, (label, desc, _)) in enumerate(TF_PRESETS.items()))
 
 
-class HOVR_OT_transfer_function_preset(bpy.types.Operator):
+class HOVR_OT_transfer_function_preset(_OnVolume, bpy.types.Operator):
     """Replace the transfer function's colour ramp with a preset"""
 
     bl_idname = "hovr.transfer_function_preset"
@@ -286,10 +286,6 @@ class HOVR_OT_transfer_function_preset(bpy.types.Operator):
     bl_options = {'REGISTER', 'UNDO'}
 
     preset: bpy.props.EnumProperty(name="Preset", items=PRESET_ITEMS)
-
-    @classmethod
-    def poll(cls, context):
-        return context.scene is not None and _volume_object(context) is not None
 
     def execute(self, context):
         obj = _volume_object(context)
