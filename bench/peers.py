@@ -383,32 +383,55 @@ def _srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
-def figure(entry, images, ref, folder, device_name):
-    """docs/peers_<dataset>.png: ours, VTK's ParaView-default, best tessellation, finest grid;
-    below each, its difference to the float64 reference."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def figure_columns(entry, images):
+    """The figure's methods: ours (split), VTK's ParaView default (lattice, ray cast), its finest
+    tessellation, its finest grid."""
     done = [r for r in entry["rows"] if r["method"] in images]
 
     def pick(pred, key):
         c = [r for r in done if pred(r["method"])]
         return max(c, key=key)["method"] if c else None
 
-    cols = [m for m in (
+    return [m for m in (
         "ours-split" if "ours-split" in images else pick(lambda m: m.startswith("ours"), lambda r: 0),
         pick(lambda m: m.startswith("vtk-lattice"), lambda r: r["method"].endswith("raycast")),
         pick(lambda m: m.startswith("vtk-tess"), lambda r: (int(r["method"].split("-")[1][4:]), r["method"].endswith("raycast"))),
         pick(lambda m: m.startswith("vtk-resample"), lambda r: int(r["method"].split("-")[1][8:]))) if m]
-    rows = {r["method"]: r for r in done}
+
+
+def save_figure_images(entry, images, ref, folder, max_width=480):
+    """OUT/figure_images/<dataset>.npz: the figure's images and the reference, every k-th pixel
+    (k so the width is at most max_width), float16: what --plot draws from (a GPU machine
+    without matplotlib sends these back)."""
+    cols = figure_columns(entry, images)
+    k = max(1, int(np.ceil(ref.shape[1] / max_width)))
+    folder = Path(folder) / "figure_images"
+    folder.mkdir(parents=True, exist_ok=True)
+    p = folder / f"{entry['dataset']}.npz"
+    np.savez_compressed(p, columns=np.array(cols), reference=ref[::k, ::k].astype(np.float16),
+                        **{f"img{i}": images[m][::k, ::k].astype(np.float16) for i, m in enumerate(cols)})
+    return p
+
+
+def figure(entry, npz, folder, device_name):
+    """<folder>/peers_<dataset>.png from save_figure_images' file: each column's image and,
+    below it, its difference to the float64 reference (errors in the titles: full resolution)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    z = np.load(npz)
+    cols = [str(c) for c in z["columns"]]
+    ref = z["reference"].astype(np.float64)
+    rows = {r["method"]: r for r in entry["rows"]}
     H, W = ref.shape[:2]
     fig, axs = plt.subplots(2, len(cols), figsize=(2.6 * len(cols), 2.6 * 2 * H / W + 0.6), squeeze=False)
     for k, m in enumerate(cols):
-        axs[0, k].imshow(_srgb(images[m][..., :3]))
+        img = z[f"img{k}"].astype(np.float64)
+        axs[0, k].imshow(_srgb(img[..., :3]))
         axs[0, k].set_title(m, fontsize=7)
-        e = np.abs(images[m][..., :3] - ref[..., :3]).max(axis=-1)
+        e = np.abs(img[..., :3] - ref[..., :3]).max(axis=-1)
         im = axs[1, k].imshow(e, cmap="magma", vmin=0.0, vmax=max(float(e.max()), 1e-6))
         axs[1, k].set_title(f"|diff| max {rows[m]['max_error']:.1e}, mean {rows[m]['mean_error']:.1e}", fontsize=6)
         cb = fig.colorbar(im, ax=axs[1, k], fraction=0.046, pad=0.02)
@@ -422,6 +445,18 @@ def figure(entry, images, ref, folder, device_name):
     fig.savefig(p, dpi=72)
     plt.close(fig)
     return p
+
+
+def plot(json_path, folder):
+    """Figures again from a peers.json and its figure_images/ (e.g. those of a GPU run)."""
+    out = json.loads(Path(json_path).read_text())
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, entry in out["datasets"].items():
+        npz = Path(json_path).parent / "figure_images" / f"{name}.npz"
+        if npz.exists():
+            written.append(figure(entry, npz, folder, out["device_name"]))
+    return written
 
 
 def table(out):
@@ -476,7 +511,23 @@ def main(argv=None):
     ap.add_argument("--out", default=str(REPO / "bench" / "results" / "cpu" / "peers"))
     ap.add_argument("--figures", default=None, help="folder for peers_<dataset>.png (default: --out)")
     ap.add_argument("--save-images", action="store_true", help="also keep every image (npz) under OUT/images")
+    ap.add_argument("--plot", metavar="PEERS_JSON", help="only draw the figures of an earlier run (into --figures)")
+    ap.add_argument("--table", metavar="JSON[,JSON...]", help="only print the table of earlier runs, merged")
     args = ap.parse_args(argv)
+    if args.table:
+        merged = None
+        for path in args.table.split(","):
+            d = json.loads(Path(path).read_text())
+            if merged is None:
+                merged = d
+            else:
+                merged["datasets"].update(d["datasets"])
+        print(table(merged))
+        return
+    if args.plot:
+        for p in plot(args.plot, args.figures or Path(args.plot).parent):
+            print("wrote", p)
+        return
 
     import warp as wp
 
@@ -522,7 +573,11 @@ def main(argv=None):
             log(f"{name}: skipped, missing {exc}")
             continue
         images, ref = entry.pop("_images"), entry.pop("_ref")
-        entry["figure"] = str(figure(entry, images, ref, figs, out["device_name"]))
+        npz = save_figure_images(entry, images, ref, args.out)
+        try:
+            entry["figure"] = str(figure(entry, npz, figs, out["device_name"]))
+        except ImportError as exc:  # no matplotlib (a bare GPU machine): draw later with --plot
+            log(f"  no figure ({exc}); draw it later: python bench/peers.py --plot {args.out}/peers.json")
         out["datasets"][name] = entry
         out["wall_seconds"] = time.perf_counter() - t_start
         (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=suite._jsonable) + "\n")
