@@ -38,7 +38,11 @@ is not empty (alpha > 1/255). The reference is our renderer in float64
 (core/reference.pixel_exact_reference: split at 1e-9, no early termination); on --sample
 pixels of each dataset (seeded, where the volume shows) the independent VTK reference
 (hovr_blender/audit, float64, ~1 s a pixel) checks it, and the JSON records the largest
-difference between the two there and every method's error on those pixels against it.
+difference between the two there and every method's error on those pixels against it. Where
+our float32 (split) and float64 images differ by more than 1e-3, the independent reference
+decides the pixel and replaces the float64 value (up to --fix-gaps pixels, largest gaps
+first): on Hex_Mushroom the float64 preset returned empty pixels where float32 and the
+independent reference agree to 1e-4.
 VTK's pixels come from its 8-bit framebuffer: 0.5/255 = 2.0e-3 of rounding is in every VTK
 error (its floor).
 
@@ -71,7 +75,7 @@ import suite  # noqa: E402  (git helpers, JSON conversion)
 import vtk_peer as vp  # noqa: E402
 
 EMPTY = 1.0 / 255  # alpha below this: an empty pixel (for the mean error)
-DEFAULT_DATASETS = ["Hex_CurvedFace", "Hex_Mushroom", "ngsolve_ball", "mfem_fichera", "paper_scale", "hump3D",
+DEFAULT_DATASETS = ["Hex_CurvedFace", "Hex_Mushroom", "ngsolve_ball", "mfem_fichera", "hump3D", "paper_scale",
                     "ngsolve_post", "pyfr_tgv", "RotPerBcs3D_Annulus", "curved_mixed_cube", "Pyr_channel_m6", "scaleHO"]
 
 
@@ -324,6 +328,37 @@ def independent_sample(grid, camera_dict, W, H, tf, ref, k, seed, log):
     return pixels, np.array(values), est
 
 
+def fix_gaps(grid, camera_dict, W, H, tf, ref, f32, limit, log, gap=1e-3):
+    """Replace, in `ref` (in place), the float64 value of every pixel where float32 and float64
+    differ by more than `gap` by the independent reference's (the largest `limit` gaps; the
+    rest are counted). Returns what was done."""
+    from hovr_blender.audit import reference as R
+
+    e = np.abs(f32[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
+    jj, ii = np.nonzero(e > gap)
+    info = {"gap": gap, "pixels_over_gap": int(len(ii)), "replaced": 0, "float64_wrong": 0, "float32_wrong": 0,
+            "largest_float64_error": 0.0}
+    if len(ii) == 0:
+        return info
+    order = np.argsort(-e[jj, ii])[:limit]
+    ind = R.IndependentReference(grid, tf.color_s, tf.color_rgb, tf.density_s, tf.density_tau, tol=1e-10)
+    t0 = time.perf_counter()
+    for k in order:
+        i, j = int(ii[k]), int(jj[k])
+        o, d = R.contract_ray(camera_dict, W, H, i, j)
+        v = ind.pixel(o, d, np.zeros(3)).rgba
+        e64 = float(np.abs(ref[j, i, :3] - v[:3]).max())
+        info["float64_wrong"] += e64 > gap
+        info["float32_wrong"] += float(np.abs(f32[j, i, :3] - v[:3]).max()) > gap
+        info["largest_float64_error"] = max(info["largest_float64_error"], e64)
+        ref[j, i] = v
+        info["replaced"] += 1
+    log(f"  reference: {len(ii)} pixels where float32 and float64 differ by > {gap}; {info['replaced']} checked "
+        f"independently in {time.perf_counter() - t0:.1f} s: float64 wrong at {info['float64_wrong']} "
+        f"(up to {info['largest_float64_error']:.2g}), float32 at {info['float32_wrong']}")
+    return info
+
+
 # --------------------------------------------------------------------------------- one dataset
 
 def run_dataset(name, args, deadline, log):
@@ -353,6 +388,10 @@ def run_dataset(name, args, deadline, log):
         vrows, vimages = run_vtk(grid, cam, W, H, tf, vtk_methods(args, grid.GetNumberOfCells()), args, deadline, log)
         entry["rows"] += vrows
         images.update(vimages)
+    # where our float32 and float64 images differ by more than 1e-3 (the audit's rule), the
+    # independent reference decides the pixel: it replaces the float64 value there
+    if grid is not None and "ours-split" in images and args.fix_gaps > 0:
+        entry["reference_fixed"] = fix_gaps(grid, cam, W, H, tf, ref, images["ours-split"], args.fix_gaps, log)
     for row in entry["rows"]:
         if row["method"] in images:
             row["max_error"], row["mean_error"] = errors(images[row["method"]], ref)
@@ -508,6 +547,8 @@ def main(argv=None):
                     help="seconds a preparation (tessellation, resampling) may be estimated to take")
     ap.add_argument("--sample", type=int, default=6, help="pixels per dataset checked by the independent reference")
     ap.add_argument("--seed", type=int, default=19)
+    ap.add_argument("--fix-gaps", type=int, default=100,
+                    help="pixels (largest float32/float64 gaps > 1e-3 first) the independent reference decides")
     ap.add_argument("--out", default=str(REPO / "bench" / "results" / "cpu" / "peers"))
     ap.add_argument("--figures", default=None, help="folder for peers_<dataset>.png (default: --out)")
     ap.add_argument("--save-images", action="store_true", help="also keep every image (npz) under OUT/images")
