@@ -193,7 +193,10 @@ def vtk_grid(name, mesh, data):
         return vtk_volume.read_vtu(data["path"], data["field"]), None
     if np.any(mesh.shape == shapes.PYR):
         return None, "pyramids: VTK has no Lagrange pyramid in the same space (hovr_blender/audit/vtk_volume.py)"
-    return vtk_volume.from_mesh(mesh), None
+    try:
+        return vtk_volume.from_mesh(mesh), None
+    except (ValueError, RuntimeError) as exc:  # recorded, and the run goes on
+        return None, f"conversion to VTK failed: {exc}"
 
 
 def vtk_methods(args, n_cells):
