@@ -332,10 +332,10 @@ def independent_sample(grid, camera_dict, W, H, tf, ref, k, seed, log):
     return pixels, np.array(values), est
 
 
-def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, label="float32"):
+def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, label="float32", seconds=60.0):
     """Where `other` (an image) and `ref` differ by more than `threshold`, the independent
     reference decides: it is computed at the `limit` largest such pixels and replaces `ref`
-    there (in place). Returns the counts: pixels over the threshold, checked, where the float64
+    there (in place), for at most `seconds`. Returns the counts: pixels over the threshold, checked, where the float64
     value was wrong (> 1e-3 off the independent one) and where `other` was."""
     from hovr_blender.audit import reference as R
 
@@ -349,6 +349,9 @@ def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, 
     ind = R.IndependentReference(grid, tf.color_s, tf.color_rgb, tf.density_s, tf.density_tau, tol=1e-10)
     t0 = time.perf_counter()
     for k in order:
+        if time.perf_counter() - t0 > seconds:  # a time cap: the rest are counted, not checked
+            info["stopped_after_seconds"] = seconds
+            break
         i, j = int(ii[k]), int(jj[k])
         o, d = R.contract_ray(camera_dict, W, H, i, j)
         v = ind.pixel(o, d, np.zeros(3)).rgba
@@ -396,14 +399,16 @@ def run_dataset(name, args, deadline, log):
     # where our float32 and float64 images differ by more than 1e-3 (the audit's rule), the
     # independent reference decides the pixel: it replaces the float64 value there
     if grid is not None and "ours-split" in images and args.fix_gaps > 0:
-        entry["reference_checked"] = [decide(grid, cam, W, H, tf, ref, images["ours-split"], args.fix_gaps, log)]
+        entry["reference_checked"] = [decide(grid, cam, W, H, tf, ref, images["ours-split"], args.fix_gaps, log,
+                                             seconds=args.check_seconds)]
     # and where VTK's closest method (least mean error) is far off (> 0.05), in case both our
     # precisions share a fault there
     vt = [r for r in entry["rows"] if r["family"] == "vtk" and r["method"] in images]
     if grid is not None and vt and args.fix_disputed > 0:
         best = min(vt, key=lambda r: errors(images[r["method"]], ref)[1])["method"]
         entry.setdefault("reference_checked", []).append(
-            decide(grid, cam, W, H, tf, ref, images[best], args.fix_disputed, log, threshold=0.05, label=best))
+            decide(grid, cam, W, H, tf, ref, images[best], args.fix_disputed, log, threshold=0.05, label=best,
+                   seconds=args.check_seconds))
     for row in entry["rows"]:
         if row["method"] in images:
             row["max_error"], row["mean_error"] = errors(images[row["method"]], ref)
@@ -561,6 +566,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=19)
     ap.add_argument("--fix-gaps", type=int, default=100,
                     help="pixels (largest float32/float64 gaps > 1e-3 first) the independent reference decides")
+    ap.add_argument("--check-seconds", type=float, default=60.0,
+                    help="time cap of each of those two independent checks per dataset")
     ap.add_argument("--fix-disputed", type=int, default=30,
                     help="pixels where VTK's closest method is > 0.05 off the float64 image that it decides")
     ap.add_argument("--out", default=str(REPO / "bench" / "results" / "cpu" / "peers"))
