@@ -634,6 +634,11 @@ def main(argv=None):
         except FileNotFoundError as exc:
             log(f"{name}: skipped, missing {exc}")
             continue
+        except Exception as exc:  # noqa: BLE001  (a renderer's failure is a result: recorded, the run goes on)
+            out.setdefault("failed", {})[name] = f"{type(exc).__name__}: {exc}"
+            log(f"{name}: failed: {type(exc).__name__}: {exc}")
+            (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=suite._jsonable) + "\n")
+            continue
         images, ref = entry.pop("_images"), entry.pop("_ref")
         npz = save_figure_images(entry, images, ref, args.out)
         try:

@@ -13,6 +13,8 @@
 # them back home: python bench/peers.py --plot $OUT/peers-<group>/peers.json --figures docs).
 # If VTK finds no EGL there (install.sh lists the OpenGL libraries), peers.py says so and runs
 # our methods only: every VTK volume mapper, the CPU ray caster included, draws through OpenGL.
+# The JSON's "vtk_opengl" names the OpenGL renderer VTK got: it must name the NVIDIA GPU; if it
+# says llvmpipe, VTK rendered in software on the CPU and its times are not GPU times.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 group=${1:-small}; shift || true
