@@ -8,7 +8,10 @@
 #   OUT=$OUT bash scripts/peers_gpu.sh small        Hex_CurvedFace, Hex_Mushroom, mfem_fichera, pyfr_tgv
 #   OUT=$OUT bash scripts/peers_gpu.sh curved       ngsolve_ball, ngsolve_post, hump3D
 #   OUT=$OUT bash scripts/peers_gpu.sh paper        paper_scale
-# Extra arguments go to bench/peers.py (e.g. --size 1280x720). Results: $OUT/peers-<group>/
+# Extra arguments go to bench/peers.py (e.g. --size 1280x720). The tetrahedra go to the OpenGL
+# projected-tetrahedra mapper only by default: VTK's unstructured ray caster is a CPU mapper
+# (about 60 s a 1920x1080 frame of ngsolve_ball's lattice, from the CPU run); MAPPERS=raycast,projected
+# adds it (the small group fits). Results: $OUT/peers-<group>/
 # (peers.json, peers.md, figure_images/*.npz; figures too where matplotlib exists, else draw
 # them back home: python bench/peers.py --plot $OUT/peers-<group>/peers.json --figures docs).
 # If VTK finds no EGL there (install.sh lists the OpenGL libraries), peers.py says so and runs
@@ -32,4 +35,5 @@ python3 -c "import warp, vtk; print('warp', warp.__version__, 'vtk', vtk.vtkVers
 nvidia-smi -L 2>/dev/null || true
 HOVR_COMMIT=${HOVR_COMMIT:-$(git rev-parse --short HEAD 2>/dev/null)} \
   python3 bench/peers.py --device cuda:0 --size 1920x1080 --datasets "$sets" --out "$out" --figures "$out" \
-  --max-minutes 8 --budget 60 --sample 0 "$@" 2>&1 | tee "$out/peers.log"
+  --max-minutes 8 --budget 60 --sample 0 --check-seconds 20 --repeats 2 --mappers "${MAPPERS:-projected}" \
+  "$@" 2>&1 | tee "$out/peers.log"
