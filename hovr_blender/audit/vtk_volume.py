@@ -73,6 +73,8 @@ def _lattice(shape: int, degree: int) -> tuple[int, np.ndarray]:
     for i in range(n):
         cell.GetPointIds().SetId(i, i)
         cell.GetPoints().SetPoint(i, 0.0, 0.0, 0.0)
+    if hasattr(cell, "SetUniformOrderFromNumPoints"):  # VTK's wedge cannot tell its order from the
+        cell.SetUniformOrderFromNumPoints(n)  # count alone at some degrees (6: 196 nodes); say it
     cell.Initialize()
     return kind, np.array(cell.GetParametricCoords(), dtype=np.float64).reshape(n, 3)
 

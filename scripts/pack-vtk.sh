@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Pack VTK's wheel for a CUDA machine with Python 3.12 on x86-64 (no internet there) into parts
+# under 40 MB that travel one per remote command, the way ../shared/gpu/pack-warp.sh packs Warp.
+# Writes .gpu/vtk-1 .. .gpu/vtk-N (git-ignored). Run from inside the checkout:
+#
+#   bash scripts/pack-vtk.sh                  (VTK_VERSION=9.7.2 by default: pyproject's test pin)
+#
+# Then, on the CUDA machine, in order and close together (parts wait in $HOME/vtk-stash):
+#   bash .gpu/vtk-1/stash.sh                    (with .gpu/vtk-1 carried)
+#   ... the same for every part but the last ...
+#   source .gpu/vtk-N/install.sh                (with .gpu/vtk-N carried)
+# install.sh joins the wheel, unpacks it into /tmp/site-vtk, exports PYTHONPATH and reports
+# which OpenGL libraries VTK can use there (EGL needs libEGL.so.1 and NVIDIA's EGL vendor
+# library). While the machine stays up, later commands only need
+#   export PYTHONPATH=/tmp/site-vtk:$PYTHONPATH
+set -euo pipefail
+root=$(git rev-parse --show-toplevel)
+ver=${VTK_VERSION:-9.7.2}
+out=$root/.gpu
+part_mb=${VTK_PART_MB:-36}
+if ls "$out"/vtk-*/VERSION >/dev/null 2>&1 && [ "$(cat "$out"/vtk-*/VERSION)" = "$ver" ]; then
+  echo "already packed: vtk $ver under $out"; ls -d "$out"/vtk-*; exit 0
+fi
+tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+  --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+  -d "$tmp" "vtk==$ver"
+whl=$(ls "$tmp"/vtk-*.whl); name=$(basename "$whl")
+sum=$(sha256sum "$whl" | cut -d' ' -f1)
+(cd "$tmp" && split -b "${part_mb}M" -d -a 1 "$name" piece.)
+parts=$(ls "$tmp"/piece.* | wc -l)
+rm -rf "$out"/vtk-*; mkdir -p "$out"
+for i in $(seq 1 "$parts"); do
+  d=$out/vtk-$i; mkdir -p "$d"; mv "$tmp/piece.$((i - 1))" "$d/vtk.whl.$i"
+  printf '#!/usr/bin/env bash\nset -e; mkdir -p $HOME/vtk-stash; cp "$(dirname "$0")"/vtk.whl.%s $HOME/vtk-stash/; echo "stashed part %s of %s"\n' "$i" "$i" "$parts" > "$d/stash.sh"
+  chmod +x "$d/stash.sh"
+done
+last=$out/vtk-$parts
+echo "$ver" > "$last/VERSION"
+cat > "$last/install.sh" <<EOS
+# source me: joins VTK's wheel, unpacks it into /tmp/site-vtk, exports PYTHONPATH, reports OpenGL
+if [ ! -f /tmp/site-vtk/vtkmodules/__init__.py ]; then
+  here=\$(cd "\$(dirname "\${BASH_SOURCE[0]}")" && pwd)
+  mkdir -p \$HOME/vtk-stash && cp "\$here"/vtk.whl.$parts \$HOME/vtk-stash/
+  missing=0; for i in \$(seq 1 $parts); do [ -f \$HOME/vtk-stash/vtk.whl.\$i ] || { echo "part \$i missing: run .gpu/vtk-\$i/stash.sh first, on this same machine"; missing=1; }; done
+  if [ \$missing = 0 ]; then
+    for i in \$(seq 1 $parts); do cat \$HOME/vtk-stash/vtk.whl.\$i; done > /tmp/$name
+    if [ "\$(sha256sum /tmp/$name | cut -d' ' -f1)" = "$sum" ]; then
+      mkdir -p /tmp/site-vtk && python3 -m zipfile -e /tmp/$name /tmp/site-vtk && rm -f /tmp/$name
+    else
+      echo "vtk wheel checksum mismatch"; rm -f /tmp/$name
+    fi
+  fi
+fi
+if [ -f /tmp/site-vtk/vtkmodules/__init__.py ]; then
+  export PYTHONPATH=/tmp/site-vtk\${PYTHONPATH:+:\$PYTHONPATH}; echo "vtk $ver ready in /tmp/site-vtk"
+  echo "OpenGL libraries here (VTK needs libEGL.so.1 + an EGL vendor such as libEGL_nvidia, or libOSMesa):"
+  (ldconfig -p 2>/dev/null | grep -E 'libEGL|libOpenGL|libGLX|libOSMesa' || echo "  none found by ldconfig")
+  ls /usr/share/glvnd/egl_vendor.d/ 2>/dev/null || echo "  no /usr/share/glvnd/egl_vendor.d"
+else
+  false
+fi
+EOS
+du -sh "$out"/vtk-*
