@@ -6,12 +6,16 @@ same ray whichever device traces it: Renderer.render's `rows`).
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
 kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork). The renderer module is imported at the top: the CLI and the add-on import
+not survive a fork). Every process gets its request before any reply is waited for; each writes
+its rows into one shared-memory image (SharedImage, made once per image size) and answers with its
+stats and row costs only, and the parent copies each band out as it is answered. The renderer
+module is imported at the top: the CLI and the add-on import
 this module only when they render, as they do the renderer.
 """
 from __future__ import annotations
 
 import multiprocessing
+import multiprocessing.connection
 import time
 
 import numpy as np
@@ -41,12 +45,17 @@ def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
     return [(edges[k], edges[k + 1]) for k in range(n)]
 
 
-def merge_results(parts, width: int, height: int, seconds: float) -> RenderResult:
-    """The image of row bands rendered apart: (band (first, end), RenderResult) in row order."""
+def merge_results(parts, width: int, height: int, seconds: float, image=None) -> RenderResult:
+    """The image of row bands rendered apart: (band (first, end), RenderResult) in row order; with
+    `image` = (rgba, aux), the whole image already assembled (the bands' results carry no pixels)."""
     results = [r for _, r in parts]
-    rgba = np.concatenate([r.rgba for r in results], axis=0)
-    depth = np.concatenate([r.depth for r in results], axis=0)
-    error = np.concatenate([r.error for r in results], axis=0)
+    if image is None:
+        rgba = np.concatenate([r.rgba for r in results], axis=0)
+        depth = np.concatenate([r.depth for r in results], axis=0)
+        error = np.concatenate([r.error for r in results], axis=0)
+    else:
+        rgba, aux = image
+        depth, error = aux[..., 0], aux[..., 1]
     row_cost = np.concatenate([r.row_cost for r in results], axis=0)
     first = results[0].stats
     stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
@@ -58,8 +67,68 @@ def merge_results(parts, width: int, height: int, seconds: float) -> RenderResul
                  rounds=max(r.stats["rounds"] for r in results),
                  warnings=sorted({w for r in results for w in r.stats.get("warnings", [])}),
                  devices=[{"device": r.stats["device"], "rows": list(band), "render_seconds": r.stats["render_seconds"],
+                           **({"wall_seconds": r.stats["wall_seconds"]} if "wall_seconds" in r.stats else {}),
                            "cost": float(r.row_cost.sum())} for band, r in parts])
     return RenderResult(rgba=rgba, stats=stats, depth=depth, error=error, row_cost=row_cost)
+
+
+class SharedImage:
+    """A whole image's rgba (H, W, 4) and aux (H, W, 2: depth, error) in one shared memory block:
+    the devices' processes write their rows into it (Renderer.render's `out`), so only small
+    messages go through the pipes. The parent creates it (create=True) and unlinks it on close();
+    a process that attaches (by spec) only closes it. Should the parent die without close(),
+    multiprocessing's resource tracker unlinks the block when the parent and its processes are gone."""
+
+    def __init__(self, width: int, height: int, dtype, name: str | None = None):
+        from multiprocessing import shared_memory
+
+        self.width, self.height, self.dtype = int(width), int(height), np.dtype(dtype)
+        n = self.width * self.height * self.dtype.itemsize
+        self._owner = name is None
+        self._shm = shared_memory.SharedMemory(name=name, create=self._owner, size=6 * n if self._owner else 0)
+        self.rgba = np.ndarray((self.height, self.width, 4), self.dtype, self._shm.buf, 0)
+        self.aux = np.ndarray((self.height, self.width, 2), self.dtype, self._shm.buf, 4 * n)
+
+    @property
+    def name(self) -> str:
+        return self._shm.name
+
+    @property
+    def spec(self) -> tuple:
+        """What a process attaches with: SharedImage(*spec)."""
+        return (self.width, self.height, self.dtype.str, self._shm.name)
+
+    def close(self):
+        if self._shm is None:
+            return
+        self.rgba = self.aux = None  # the views go first: a mapping with views cannot close
+        shm, self._shm = self._shm, None
+        shm.close()
+        if self._owner:
+            try:
+                shm.unlink()
+            except FileNotFoundError:
+                pass
+
+
+def _attach(shared, spec):
+    """The SharedImage of `spec`: the one attached already, or a new one (the old one closed)."""
+    if shared is not None and shared.spec == spec:
+        return shared
+    if shared is not None:
+        shared.close()
+    return SharedImage(*spec)
+
+
+def _render_into(renderer, shared, msg) -> RenderResult:
+    """A "render_shared" request: the rows rendered into the shared image; the result without pixels."""
+    _, camera, tf, background, options, rows, _ = msg
+    t0 = time.perf_counter()
+    res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
+                          out=(shared.rgba, shared.aux))
+    res.stats["wall_seconds"] = time.perf_counter() - t0
+    res.rgba = res.depth = res.error = None
+    return res
 
 
 def _serve(conn, mesh, device, max_tile_rays):
@@ -70,26 +139,34 @@ def _serve(conn, mesh, device, max_tile_rays):
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    while True:
-        try:
-            msg = conn.recv()
-        except EOFError:
-            return
-        if msg[0] == "close":
-            return
-        try:
-            if msg[0] == "field":
-                renderer.replace_field(msg[1])
-                conn.send(("ok", None))
-            elif msg[0] == "data_ranges":
-                renderer.data_ranges = msg[1]
-                conn.send(("ok", None))
-            else:
-                _, camera, tf, background, options, rows = msg
-                res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
-                conn.send(("ok", res))
-        except BaseException as exc:  # noqa: BLE001
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    shared = None  # the SharedImage the last frame was written into
+    try:
+        while True:
+            try:
+                msg = conn.recv()
+            except EOFError:
+                return
+            if msg[0] == "close":
+                return
+            try:
+                if msg[0] == "field":
+                    renderer.replace_field(msg[1])
+                    conn.send(("ok", None))
+                elif msg[0] == "data_ranges":
+                    renderer.data_ranges = msg[1]
+                    conn.send(("ok", None))
+                elif msg[0] == "render_shared":
+                    shared = _attach(shared, msg[-1])
+                    conn.send(("ok", _render_into(renderer, shared, msg)))
+                else:
+                    _, camera, tf, background, options, rows = msg
+                    res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
+                    conn.send(("ok", res))
+            except BaseException as exc:  # noqa: BLE001
+                conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        if shared is not None:
+            shared.close()
 
 
 class DeviceProcess:
@@ -106,7 +183,14 @@ class DeviceProcess:
         child.close()
 
     def send(self, *msg):
-        self._conn.send(msg)
+        try:
+            self._conn.send(msg)
+        except OSError as exc:  # the process is gone (BrokenPipeError)
+            raise RenderError(f"the process rendering on {self.device} ended unexpectedly") from exc
+
+    def fileno(self):
+        """The pipe's end (multiprocessing.connection.wait waits on the processes themselves)."""
+        return self._conn.fileno()
 
     def reply(self):
         try:
@@ -154,6 +238,7 @@ class MultiDeviceRenderer:
         self._row_cost = None  # the last frame's cost per row, for the next split
         self._speeds = np.ones(len(self.devices))  # cost per second, per device
         t0 = time.perf_counter()
+        self._shared = None  # the SharedImage the devices write into (one per image size and dtype)
         self._procs = start_processes([mesh] * len(self.devices), self.devices, max_tile_rays)
         self.upload_seconds = time.perf_counter() - t0
 
@@ -176,11 +261,34 @@ class MultiDeviceRenderer:
         W, H = int(camera.width), int(camera.height)
         bands = self.split(H)
         t0 = time.perf_counter()
-        for p, band in zip(self._procs, bands):
-            p.send("render", camera, tf, background, options, band)
-        parts = [(band, p.reply()) for p, band in zip(self._procs, bands)]
+        shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
+        # every device gets its request before any reply is waited for; each writes its rows into
+        # the shared image and answers with its stats and row costs only
+        replies, errors, waiting = [None] * len(bands), [], {}
+        for k, (p, band) in enumerate(zip(self._procs, bands)):
+            try:
+                p.send("render_shared", camera, tf, background, options, band, shared.spec)
+                waiting[p.fileno()] = k
+            except RenderError as exc:
+                errors.append(exc)
+        rgba = np.empty_like(shared.rgba)
+        aux = np.empty_like(shared.aux)
+        while waiting:  # a band's rows are copied out while the others still render
+            for conn in multiprocessing.connection.wait([self._procs[k] for k in waiting.values()]):
+                k = waiting.pop(conn.fileno())
+                try:
+                    replies[k] = conn.reply()
+                except RenderError as exc:
+                    errors.append(exc)
+                    continue
+                b0, b1 = bands[k]
+                rgba[b0:b1] = shared.rgba[b0:b1]
+                aux[b0:b1] = shared.aux[b0:b1]
+        if errors:  # every device has answered: the pipes stay in step for the next frame
+            raise errors[0]
+        parts = list(zip(bands, replies))
         seconds = time.perf_counter() - t0
-        result = merge_results(parts, W, H, seconds)
+        result = merge_results(parts, W, H, seconds, image=(rgba, aux))
         # each device's speed: the geometric mean of what it had and what this frame measured
         # (one frame's timing is noisy, and a band's fixed costs do not scale with its rows)
         speeds = np.array([max(float(r.row_cost.sum()), 1e-9) / max(r.stats["render_seconds"], 1e-6) for _, r in parts])
@@ -192,10 +300,24 @@ class MultiDeviceRenderer:
             progress(1.0)
         return result
 
+    def _shared_image(self, width: int, height: int, dtype) -> SharedImage:
+        """The shared image of this size and dtype (the last frame's if it matches, else a new one;
+        the old one unlinked: a process still attached to it closes it on its next frame)."""
+        spec = (int(width), int(height), np.dtype(dtype).str)
+        if self._shared is None or self._shared.spec[:3] != spec:
+            if self._shared is not None:
+                self._shared.close()
+                self._shared = None
+            self._shared = SharedImage(width, height, dtype)
+        return self._shared
+
     def close(self):
         for p in getattr(self, "_procs", []):
             p.close()
         self._procs = []
+        shared, self._shared = getattr(self, "_shared", None), None
+        if shared is not None:
+            shared.close()
 
     def __enter__(self):
         return self

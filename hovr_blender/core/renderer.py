@@ -442,7 +442,7 @@ class Renderer:
 
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
-               rows: tuple[int, int] | None = None) -> RenderResult:
+               rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -451,7 +451,10 @@ class Renderer:
         every launch is waited for and stats["kernel_seconds"] gives the time per kernel (the
         waits add a little to render_seconds). With `rows` = (first, end), only the image rows
         first .. end - 1 are traced and the result holds those rows (each pixel exactly as in the
-        whole image: a ray is the same ray whichever launch traces it)."""
+        whole image: a ray is the same ray whichever launch traces it). With `out` = (rgba, aux),
+        host arrays of the whole image, (H, W, 4) and (H, W, 2) in the precision's dtype, the rows
+        are written into them (aux: depth, error) and the result's arrays are views of those rows
+        (core/multi_device.py: the devices' processes write into one shared image)."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -497,11 +500,20 @@ class Renderer:
                         break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
-            img = rgba.numpy()[first:end].reshape(row1 - row0, W, 4).astype(prec.dtype)
-            depth_err = aux.numpy()[first:end].reshape(row1 - row0, W, 2)
-            per_ray = stats.numpy()[first:end].astype(np.int64)
-            counts = per_ray.sum(axis=0)
-            row_cost = ray_cost(kernels, per_ray.reshape(row1 - row0, W, -1).sum(axis=1), W)
+            # only the rows traced come back from the device; the counters summed per row in int64
+            # without an int64 copy of them (the same integers: what the row costs and stats need)
+            img = rgba[first:end].numpy().reshape(row1 - row0, W, 4)
+            depth_err = aux[first:end].numpy().reshape(row1 - row0, W, 2)
+            row_counts = stats[first:end].numpy().reshape(row1 - row0, W, -1).sum(axis=1, dtype=np.int64)
+            counts = row_counts.sum(axis=0)
+            row_cost = ray_cost(kernels, row_counts, W)
+        if out is not None:
+            out_rgba, out_aux = out
+            np.copyto(out_rgba[row0:row1], img)
+            np.copyto(out_aux[row0:row1], depth_err)
+            img, depth_err = out_rgba[row0:row1], out_aux[row0:row1]
+        elif not wp.get_device(self.device).is_cuda:
+            img, depth_err = img.copy(), depth_err.copy()  # not views of Warp's arrays on the CPU
         if not np.all(np.isfinite(img)):
             raise RenderError("the render produced non-finite pixels (NaN/Inf in the data or transfer function?)")
         info = {"device": self.device, "render_seconds": seconds, "width": W, "height": H, "method": options.method,

@@ -1,12 +1,17 @@
 """One frame over several devices (issue 18), on CPU devices: rows split over processes give the
 one-device image bit for bit; the sort-last split of the elements into slabs composites to the
 one-device image within 1e-6 (core/sort_last.py says why it is exact up to quadrature)."""
+import os
+import subprocess
+import sys
+import time
+
 import numpy as np
 import pytest
 
 from hovr_blender.core.mesh import subset
 from hovr_blender.core.multi_device import MultiDeviceRenderer, balanced_rows
-from hovr_blender.core.renderer import Renderer
+from hovr_blender.core.renderer import Renderer, RenderError
 from hovr_blender.core.sort_last import SortLastRenderer, serves, slab_partition
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io import synthetic
@@ -94,3 +99,57 @@ def test_sort_last_repartitions_for_a_camera_behind():
     assert not serves(axis, back)
     sl.render(back, tf, BACKGROUND, RenderOptions())
     assert np.dot(axis, sl.axis) < 0
+
+
+def _segments():
+    return set(os.listdir("/dev/shm")) if os.path.isdir("/dev/shm") else set()
+
+
+@pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="POSIX shared memory in /dev/shm")
+def test_split_frame_shared_memory_is_freed_on_close_on_a_new_size_and_after_a_crash():
+    mesh, tf, camera = curved_mixed_scene(2)
+    before = _segments()
+    md = MultiDeviceRenderer(mesh, "cpu,cpu")
+    try:
+        first = md.render(camera(16, 12), tf, BACKGROUND, RenderOptions())
+        name = md._shared.name.lstrip("/")
+        assert name in _segments()
+        second = md.render(camera(W, H), tf, BACKGROUND, RenderOptions())  # another size: another block
+        assert name not in _segments() and md._shared.name.lstrip("/") in _segments()
+        assert first.rgba.shape == (12, 16, 4) and second.rgba.shape == (H, W, 4)
+        # the results are the caller's own arrays, not views of the shared image
+        third = md.render(camera(W, H), tf, BACKGROUND, RenderOptions(method="classified", h=0.5))
+        assert not np.shares_memory(second.rgba, third.rgba) and not np.array_equal(second.rgba, third.rgba)
+        # a device's process dies: the frame fails, the renderer still closes its memory
+        md._procs[1]._proc.kill()
+        md._procs[1]._proc.join()
+        with pytest.raises(RenderError, match="ended unexpectedly"):
+            md.render(camera(W, H), tf, BACKGROUND, RenderOptions())
+    finally:
+        md.close()
+    assert _segments() <= before
+
+
+@pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="POSIX shared memory in /dev/shm")
+def test_split_frame_shared_memory_is_freed_when_the_parent_dies():
+    """A parent killed without close(): the resource tracker unlinks its block once the parent
+    and its device processes are gone."""
+    script = (
+        "import os, sys\n"
+        "sys.path.insert(0, %r)\n"
+        "from tests.helpers import BACKGROUND, curved_mixed_scene\n"
+        "from hovr_blender.core.multi_device import MultiDeviceRenderer\n"
+        "from hovr_blender.core.view import RenderOptions\n"
+        "if __name__ == '__main__':\n"
+        "    mesh, tf, camera = curved_mixed_scene(2)\n"
+        "    md = MultiDeviceRenderer(mesh, 'cpu,cpu')\n"
+        "    md.render(camera(16, 12), tf, BACKGROUND, RenderOptions())\n"
+        "    print(md._shared.name, flush=True)\n"
+        "    os._exit(1)\n") % os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    name = proc.stdout.strip().lstrip("/")
+    assert proc.returncode == 1 and name, proc.stderr
+    deadline = time.monotonic() + 60
+    while name in _segments() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert name not in _segments()
