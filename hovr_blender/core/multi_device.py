@@ -85,8 +85,9 @@ def _serve(conn, mesh, device, max_tile_rays):
                 renderer.data_ranges = msg[1]
                 conn.send(("ok", None))
             else:
-                _, camera, tf, background, options, rows = msg
-                res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
+                _, camera, tf, background, options, rows, surface_t = msg
+                res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
+                                      surface_t=surface_t)
                 conn.send(("ok", res))
         except BaseException as exc:  # noqa: BLE001
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
@@ -171,13 +172,15 @@ class MultiDeviceRenderer:
         cost = self._row_cost if self._row_cost is not None and len(self._row_cost) == height else np.ones(height)
         return balanced_rows(cost, self._speeds)
 
-    def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False) -> RenderResult:
-        """Renderer.render over the devices (progress is called once, at the end; profile is ignored)."""
+    def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False,
+               surface_t=None) -> RenderResult:
+        """Renderer.render over the devices (progress is called once, at the end; profile is ignored;
+        surface_t, the whole image's, goes to every device, which reads its band's rows)."""
         W, H = int(camera.width), int(camera.height)
         bands = self.split(H)
         t0 = time.perf_counter()
         for p, band in zip(self._procs, bands):
-            p.send("render", camera, tf, background, options, band)
+            p.send("render", camera, tf, background, options, band, surface_t)
         parts = [(band, p.reply()) for p, band in zip(self._procs, bands)]
         seconds = time.perf_counter() - t0
         result = merge_results(parts, W, H, seconds)
