@@ -64,6 +64,7 @@ class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
         layout.use_property_decorate = False
         scene = context.scene
         layout.prop(scene.render, "film_transparent")
+        layout.prop(scene.hovr, "surfaces")
         if scene.world is not None:
             row = layout.row()
             row.active = not scene.render.film_transparent
