@@ -132,3 +132,34 @@ def test_hidden_in_renders_is_no_surface(scene, tmp_path):
     plain = render_to_exr(scene, tmp_path / "plain.exr")
     np.testing.assert_array_equal(got, plain)
     assert render.SURFACES is not None
+
+
+def test_compositing_over_cycles_is_the_alpha_over(scene, tmp_path):
+    """Set Up Compositing: F12 of the HOVR scene gives Alpha Over of HOVR's Combined pass (the
+    volume in front of the surfaces, premultiplied) on Cycles' render of the same objects,
+    against the two images rendered apart and laid over each other here (<= 1/255)."""
+    sphere_scene(scene)
+    add_plane(scene)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+    sun.rotation_euler = (0.4, 0.2, 0.3)
+    scene.collection.objects.link(sun)
+    bpy.ops.hovr.setup_compositing(engine="CYCLES")
+    other = bpy.data.scenes[scene.name + " Surfaces"]
+    assert other.render.engine == "CYCLES" and scene.hovr.surfaces == "HOLDOUT" and scene.render.film_transparent
+    assert {o.name for o in other.objects} >= {"Plane", "Sun", "HOVR Sphere"}  # shared, not copied
+    assert bpy.data.objects["Plane"].users_scene and len(bpy.data.objects) == 4
+    other.cycles.samples, other.cycles.use_denoising, other.cycles.device = 4, False, 'CPU'
+    other.cycles.seed = 7
+    composed = render_to_exr(scene, tmp_path / "composed.exr")
+
+    surfaces = render_to_exr(other, tmp_path / "cycles.exr")
+    scene.render.use_compositing = False
+    hovr = render_to_exr(scene, tmp_path / "hovr.exr")
+    assert 0.05 < hovr[..., 3].max() < 1.0 and surfaces[..., :3].max() > 0.05  # both contribute
+    want = hovr + (1.0 - hovr[..., 3:4]) * surfaces
+    assert np.abs(composed - hovr).max() > 0.05  # the compositor did lay HOVR over Cycles
+    np.testing.assert_allclose(composed, want, atol=1 / 255)
+    # and HOVR's pass is the reference's holdout image
+    want_h, t_s = ref.reference_image(RayCamera.from_contract(ref.CAMERAS["perspective"], ref.W, ref.H), holdout=True)
+    hit = np.isfinite(t_s)
+    np.testing.assert_allclose(hovr[hit], want_h[hit], atol=1e-4)
