@@ -69,6 +69,20 @@ def new_compositor(scene, name: str = "HOVR Compositor"):
     return tree, out.inputs["Image"]
 
 
+def alpha_over(tree):
+    """(node, background socket, foreground socket) of a new Alpha Over node computing
+    foreground + (1 - foreground alpha) background with a premultiplied foreground: 5.0 names
+    the inputs Background/Foreground (Straight Alpha off); 4.x has Image, Image_001 and
+    use_premultiply (Convert Premultiplied) off."""
+    node = tree.nodes.new("CompositorNodeAlphaOver")
+    if "Foreground" in node.inputs:  # 5.0+
+        if "Straight Alpha" in node.inputs:
+            node.inputs["Straight Alpha"].default_value = False
+        return node, node.inputs["Background"], node.inputs["Foreground"]
+    node.use_premultiply = False
+    return node, node.inputs[1], node.inputs[2]
+
+
 def still_image_output(image_settings) -> None:
     """Let image_settings take a still format (OPEN_EXR, PNG, ...)."""
     if hasattr(image_settings, "media_type"):  # 5.0+

@@ -315,6 +315,78 @@ class HOVR_OT_add_sphere_volume(bpy.types.Operator):
         return {'FINISHED'}
 
 
+SURFACES_SCENE_SUFFIX = " Surfaces"
+
+
+def setup_compositing(scene, engine: str = "CYCLES"):
+    """Make `scene` (rendered by HOVR) composite its volumes over another engine's render of
+    the same objects: a scene "<name> Surfaces" sharing the scene's objects (its collections and
+    objects linked, not copied; camera, world and resolution taken over) rendered by `engine`,
+    HOVR set to Holdout surfaces on a transparent film (its Combined pass: the volume in front of
+    the surfaces, premultiplied), and the compositor: Alpha Over of HOVR's image on the other's.
+    Re-running updates the same scene and replaces the compositor. Returns the surfaces scene."""
+    from .compat import alpha_over, new_compositor
+
+    name = scene.name + SURFACES_SCENE_SUFFIX
+    other = bpy.data.scenes.get(name) or bpy.data.scenes.new(name)
+    root = other.collection
+    for child in scene.collection.children:
+        if child.name not in root.children:
+            root.children.link(child)
+    for obj in scene.collection.objects:
+        if obj.name not in root.objects:
+            root.objects.link(obj)
+    other.camera, other.world = scene.camera, scene.world
+    other.frame_current = scene.frame_current
+    r, o = scene.render, other.render
+    o.resolution_x, o.resolution_y, o.resolution_percentage = r.resolution_x, r.resolution_y, r.resolution_percentage
+    o.pixel_aspect_x, o.pixel_aspect_y = r.pixel_aspect_x, r.pixel_aspect_y
+    o.use_border, o.use_crop_to_border = r.use_border, r.use_crop_to_border
+    o.border_min_x, o.border_max_x, o.border_min_y, o.border_max_y = (r.border_min_x, r.border_max_x,
+                                                                      r.border_min_y, r.border_max_y)
+    o.engine = engine
+    o.film_transparent = r.film_transparent
+    scene.hovr.surfaces = "HOLDOUT"
+    r.film_transparent = True
+    tree, image = new_compositor(scene, f"HOVR over {engine.title()}")
+    hovr_layer = tree.nodes.new("CompositorNodeRLayers")
+    hovr_layer.scene = scene
+    surf_layer = tree.nodes.new("CompositorNodeRLayers")
+    surf_layer.scene = other
+    node, background, foreground = alpha_over(tree)
+    tree.links.new(surf_layer.outputs["Image"], background)
+    tree.links.new(hovr_layer.outputs["Image"], foreground)
+    tree.links.new(node.outputs[0], image)
+    surf_layer.location, hovr_layer.location, node.location = (-300, -200), (-300, 200), (0, 0)
+    return other
+
+
+class HOVR_OT_setup_compositing(bpy.types.Operator):
+    """Composite HOVR's volumes over Cycles' (or EEVEE's) render of the scene's objects: a scene
+    sharing the objects rendered by that engine, HOVR's surfaces set to Holdout on a transparent
+    film, and an Alpha Over compositor"""
+
+    bl_idname = "hovr.setup_compositing"
+    bl_label = "Set Up Compositing with Surfaces"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    engine: bpy.props.EnumProperty(name="Surfaces Engine", items=(
+        ("CYCLES", "Cycles", "Render the surfaces with Cycles", 0),
+        ("EEVEE", "EEVEE", "Render the surfaces with EEVEE", 1)), default="CYCLES")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and context.scene.render.engine == 'HOVR'
+
+    def execute(self, context):
+        from .compat import eevee_engine
+
+        engine = "CYCLES" if self.engine == "CYCLES" else eevee_engine()
+        other = setup_compositing(context.scene, engine)
+        self.report({'INFO'}, f"HOVR: the volumes are composited over {other.name!r} ({engine.title()})")
+        return {'FINISHED'}
+
+
 def menu_add(self, _context):
     self.layout.operator(HOVR_OT_add_sphere_volume.bl_idname, icon='VOLUME_DATA')
 
@@ -324,7 +396,7 @@ def menu_view(self, _context):
 
 
 classes = (HOVR_OT_new_transfer_function, HOVR_OT_fit_value_range, HOVR_OT_transfer_function_preset,
-           HOVR_OT_add_sphere_volume, HOVR_OT_frame_volume)
+           HOVR_OT_add_sphere_volume, HOVR_OT_frame_volume, HOVR_OT_setup_compositing)
 
 
 def register():

@@ -64,6 +64,8 @@ class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
         layout.use_property_decorate = False
         scene = context.scene
         layout.prop(scene.render, "film_transparent")
+        layout.prop(scene.hovr, "surfaces")
+        layout.operator("hovr.setup_compositing", icon='NODE_COMPOSITING')
         if scene.world is not None:
             row = layout.row()
             row.active = not scene.render.film_transparent

@@ -24,6 +24,15 @@ DEVICE_ITEMS = (
      "rows balanced by the last frame's cost)", 2),
 )
 
+SURFACE_ITEMS = (
+    ("NONE", "Off", "Render the volumes alone: other objects neither stop the rays nor appear", 0),
+    ("SHADED", "Shaded", "Visible mesh objects stop the rays and appear in a simple shading (material base colour "
+                         "under a headlight): the volume in its scene on its own", 1),
+    ("HOLDOUT", "Holdout", "Visible mesh objects stop the rays but stay transparent: the image is the volume in "
+                           "front of them, premultiplied, to lay over Cycles' or EEVEE's render of the scene "
+                           "(see Set Up Compositing)", 2),
+)
+
 
 def _path_options() -> set:
     """String options of a data path: Blender 4.5+ wants '//' paths declared as supported
@@ -66,6 +75,8 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
                          description="Warp device the kernels run on")
     precision: EnumProperty(name="Precision", items=PRECISION_ITEMS, default="float32",
                             description="Arithmetic of the ray kernels")
+    surfaces: EnumProperty(name="Surfaces", items=SURFACE_ITEMS, default="SHADED",
+                           description="What the scene's visible mesh objects do to the volume's rays")
     # Before 0.2 the look was the scene's, shared by every volume. Kept registered (never drawn)
     # so old .blend files keep their values: versioning.py moves them onto the volumes, and
     # render.py reads them for a volume that has no look of its own yet.

@@ -67,10 +67,13 @@ class SceneInputs:
     options: object  # RenderOptions
     warnings: list = field(default_factory=list)
     transfer_functions: list | None = None  # per volume, per world unit: resolve_looks() sets it
+    surfaces: list = field(default_factory=list)  # [core.surfaces.SurfaceMesh] (blender/surfaces.py)
+    surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
+    surfaces_key: str = ""  # digest of the surfaces (blender/surfaces.surfaces_key)
 
     @property
     def data_key(self) -> tuple:
-        return (tuple(v.data_key for v in self.volumes), self.options.device)
+        return (tuple(v.data_key for v in self.volumes), self.options.device, self.surface_mode, self.surfaces_key)
 
     @property
     def transfer_function(self):
@@ -113,6 +116,8 @@ class RenderJob:
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
+# The scene's surfaces uploaded for the ray cast (core.surfaces.SurfaceScene), by geometry digest and device.
+SURFACES = LRUCache(2)
 # Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
 EXTENTS = LRUCache(16)
 
@@ -158,6 +163,27 @@ def _renderer(volumes, device: str):
     return RENDERERS.get((tuple(v.data_key for v in volumes), device), upload)
 
 
+def surface_scene(inputs: SceneInputs):
+    """The uploaded SurfaceScene of the scene's surfaces (cached), or None: surfaces off, or none there."""
+    if inputs.surface_mode == "NONE" or not inputs.surfaces:
+        return None
+    from ..core.multi_device import expand_devices
+    from ..core.surfaces import SurfaceScene
+
+    device = expand_devices(inputs.options.device)[0]  # the ray cast runs on one device (the first)
+    return SURFACES.get((inputs.surfaces_key, device), lambda: SurfaceScene(inputs.surfaces, device))
+
+
+def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
+    """The core render of the scene's volumes through `camera`, its surfaces stopping the rays
+    (core.surfaces.render_with_surfaces; plain Renderer.render without surfaces)."""
+    from ..core.surfaces import render_with_surfaces
+
+    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
+    return render_with_surfaces(renderer, surface_scene(inputs), camera, inputs.transfer_function, inputs.background,
+                                inputs.options, mode=mode, **kwargs)
+
+
 def resolve_looks(inputs: SceneInputs) -> list:
     """Each volume's transfer function in the contract's units (extinction per world unit):
     a relative density becomes density / the volume's bounding-box diagonal (which needs the
@@ -181,6 +207,7 @@ def resolve_looks(inputs: SceneInputs) -> list:
 
 def clear_cache():
     RENDERERS.clear()
+    SURFACES.clear()
     EXTENTS.clear()
     POINTS.clear()
     clear_mesh_cache()
@@ -250,8 +277,16 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
                             min_transmittance=settings.min_transmittance, device=settings.device,
                             precision=settings.precision)
+    mode = settings.surfaces
+    surfaces, key = [], ""
+    if mode != "NONE":
+        from .surfaces import scene_surfaces, surfaces_key
+
+        surfaces = scene_surfaces(depsgraph)
+        key = surfaces_key(surfaces)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
-                       film_transparent=bool(render.film_transparent), options=options)
+                       film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
+                       surface_mode=mode, surfaces_key=key)
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
@@ -344,7 +379,9 @@ def viewport_request(context, depsgraph):
     resolve_looks(inputs)
     request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
                               background=inputs.background, options=inputs.options,
-                              film_transparent=inputs.film_transparent, data_key=inputs.data_key)
+                              film_transparent=inputs.film_transparent, data_key=inputs.data_key,
+                              surfaces=surface_scene(inputs),
+                              surface_mode=inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED")
     return renderer, request
 
 
@@ -417,8 +454,7 @@ def final_render(engine, api, depsgraph):
         return not api.test_break()
 
     try:
-        result = renderer.render(job.camera, job.transfer_function, job.background, job.options,
-                                 progress=progress, tile_pixels=tile_pixels(device))
+        result = render_volume(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
         pixels = combined_pass(result.rgba, job.film_transparent)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")

@@ -26,6 +26,7 @@ import numpy as np
 
 from .camera import sub_camera
 from ..core.camera import RayCamera
+from ..core.surfaces import render_with_surfaces
 from ..core.transfer_function import TransferFunction
 from ..core.view import RenderOptions
 
@@ -43,7 +44,9 @@ class ViewportRequest:
     background: np.ndarray
     options: RenderOptions
     film_transparent: bool
-    data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device)
+    data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device) and surfaces
+    surfaces: object = None  # core.surfaces.SurfaceScene that stops the rays, or None
+    surface_mode: str = "SHADED"
 
     def signature(self) -> tuple:
         c = self.camera
@@ -148,8 +151,8 @@ class ProgressiveViewport:
             return deadline is None or self.clock() < deadline
 
         tile = max(camera.width, 256)
-        res = self._renderer.render(camera, req.transfer_function, req.background, options,
-                                    progress=progress, tile_pixels=tile)
+        res = render_with_surfaces(self._renderer, req.surfaces, camera, req.transfer_function, req.background,
+                                   options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
         return res, self.clock() - t0
 
     def _learn(self, kind, seconds, pixels):

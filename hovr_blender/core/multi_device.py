@@ -122,10 +122,10 @@ def _attach(shared, spec):
 
 def _render_into(renderer, shared, msg) -> RenderResult:
     """A "render_shared" request: the rows rendered into the shared image; the result without pixels."""
-    _, camera, tf, background, options, rows, _ = msg
+    _, camera, tf, background, options, rows, surface_t, _ = msg
     t0 = time.perf_counter()
     res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
-                          out=(shared.rgba, shared.aux))
+                          out=(shared.rgba, shared.aux), surface_t=surface_t)
     res.stats["wall_seconds"] = time.perf_counter() - t0
     res.rgba = res.depth = res.error = None
     return res
@@ -159,8 +159,9 @@ def _serve(conn, mesh, device, max_tile_rays):
                     shared = _attach(shared, msg[-1])
                     conn.send(("ok", _render_into(renderer, shared, msg)))
                 else:
-                    _, camera, tf, background, options, rows = msg
-                    res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows)
+                    _, camera, tf, background, options, rows, surface_t = msg
+                    res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
+                                          surface_t=surface_t)
                     conn.send(("ok", res))
             except BaseException as exc:  # noqa: BLE001
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
@@ -256,8 +257,10 @@ class MultiDeviceRenderer:
         cost = self._row_cost if self._row_cost is not None and len(self._row_cost) == height else np.ones(height)
         return balanced_rows(cost, self._speeds)
 
-    def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False) -> RenderResult:
-        """Renderer.render over the devices (progress is called once, at the end; profile is ignored)."""
+    def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False,
+               surface_t=None) -> RenderResult:
+        """Renderer.render over the devices (progress is called once, at the end; profile is ignored;
+        surface_t, the whole image's, goes to every device, which reads its band's rows)."""
         W, H = int(camera.width), int(camera.height)
         bands = self.split(H)
         t0 = time.perf_counter()
@@ -267,7 +270,7 @@ class MultiDeviceRenderer:
         replies, errors, waiting = [None] * len(bands), [], {}
         for k, (p, band) in enumerate(zip(self._procs, bands)):
             try:
-                p.send("render_shared", camera, tf, background, options, band, shared.spec)
+                p.send("render_shared", camera, tf, background, options, band, surface_t, shared.spec)
                 waiting[p.fileno()] = k
             except RenderError as exc:
                 errors.append(exc)

@@ -442,7 +442,8 @@ class Renderer:
 
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
-               rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None) -> RenderResult:
+               rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None,
+               surface_t=None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -454,7 +455,11 @@ class Renderer:
         whole image: a ray is the same ray whichever launch traces it). With `out` = (rgba, aux),
         host arrays of the whole image, (H, W, 4) and (H, W, 2) in the precision's dtype, the rows
         are written into them (aux: depth, error) and the result's arrays are views of those rows
-        (core/multi_device.py: the devices' processes write into one shared image)."""
+        (core/multi_device.py: the devices' processes write into one shared image). With
+        `surface_t`, an (H, W) array of the whole image (rows from the top), each pixel's ray
+        integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
+        surface: core/surfaces.py; +inf where none); the depth output is then that t where the
+        volume's opacity stays under 0.5."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -467,6 +472,7 @@ class Renderer:
         _, tf_frame, warnings = self.field_frame(tf, options.precision)
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
+            limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
@@ -491,7 +497,7 @@ class Renderer:
             rounds = 0
             for start in range(first, end, tile):
                 n = min(tile, end - start)
-                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n)
+                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit)
                 launch("finalize", kernels.finalize, n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
@@ -525,12 +531,12 @@ class Renderer:
                             stats=info, row_cost=row_cost)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
-                    n: int) -> int:
+                    n: int, limit: tuple) -> int:
         """Rays start .. start + n of the image, in rounds until none is left: search, traverse,
         sample, integrate. Returns the rounds."""
         kernels = upload.precision.kernels
         rays, segs = buffers.rays, buffers.segs
-        launch("init_rays", kernels.init_rays, n, [cam, start, rays])
+        launch("init_rays", kernels.init_rays, n, [cam, start, rays, *limit])
         active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
         rounds = 0
         while active > 0:
@@ -629,6 +635,19 @@ def _camera_args(prec: Precision, camera: RayCamera):
     cam.clip_near = float(camera.clip_near)
     cam.clip_far = float(min(camera.clip_far, 1e30))
     return cam
+
+
+def _surface_limit(prec: Precision, surface_t, width: int, height: int) -> tuple:
+    """init_rays' (t_limit, use_limit): the per-pixel far limit on the device, or a one-element
+    dummy and 0 (no surfaces: nothing is uploaded and the kernel reads nothing)."""
+    if surface_t is None:
+        return wp.zeros(1, dtype=prec.scalar), 0
+    t = np.asarray(surface_t, dtype=np.float64)
+    if t.shape != (height, width):
+        raise RenderError(f"surface_t has shape {t.shape}, the image is {height}x{width}")
+    if np.isnan(t).any() or (t < 0).any():
+        raise RenderError("surface_t must be >= 0 (+inf where no surface), without NaN")
+    return wp.array(np.minimum(t, 1e30).astype(prec.dtype).ravel(), dtype=prec.scalar), 1
 
 
 def _transfer_args(prec: Precision, tf: TransferFunction):

@@ -79,7 +79,7 @@ def render_to_exr(scene, path) -> np.ndarray:
     scene.view_settings.view_transform = 'Standard'  # keep values linear and untouched
     scene.view_settings.look = 'None'
     scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
-    bpy.ops.render.render(write_still=True)
+    bpy.ops.render.render(write_still=True, scene=scene.name)  # this scene, whichever is the context's
     img = bpy.data.images.load(str(path), check_existing=False)
     try:
         w, h = img.size

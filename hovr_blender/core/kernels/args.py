@@ -150,7 +150,7 @@ class RayState:
     # depth: t where 1 - T first reaches 0.5 (-1 until then); error: summed a-posteriori estimates
     depth_err: wp.array(dtype=wp.vec2)
     t_cur: wp.array(dtype=wp.float32)  # how far the traversal got
-    t_end: wp.array(dtype=wp.float32)  # the ray's far end (camera t_max and clip far)
+    t_end: wp.array(dtype=wp.float32)  # the ray's far end (camera t_max, clip far, an opaque surface)
     next_element: wp.array(dtype=wp.int32)  # the element the ray enters at t_cur (-1: search the BVH)
     left_element: wp.array(dtype=wp.int32)  # the element the ray has just left (-1: none)
     # the search's solution in a curved next_element at t_cur (entry_r[3] > 0: valid)

@@ -85,7 +85,11 @@ def camera_ray(cam: CameraArgs, pixel: int):
 
 
 @wp.kernel
-def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
+def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState, t_limit: wp.array(dtype=wp.float32),
+              use_limit: wp.int32):
+    """Each ray's span [t_lo, t_hi]: the camera's t range and clip planes and, with use_limit,
+    the pixel's own far limit t_limit[pixel] (the first opaque surface's t along the same unit
+    ray, +inf where none: core/surfaces.py); without it t_limit is a one-element dummy."""
     i = wp.tid()
     o, d = camera_ray(cam, i + pixel_offset)
     t_lo = cam.t_min
@@ -94,6 +98,8 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState):
     if cax > 0.0:
         t_lo = wp.max(t_lo, cam.clip_near / cax)
         t_hi = wp.min(t_hi, cam.clip_far / cax)
+    if use_limit != 0:
+        t_hi = wp.min(t_hi, t_limit[i + pixel_offset])
     rays.color_t[i] = wp.vec4(0.0, 0.0, 0.0, 1.0)
     rays.depth_err[i] = wp.vec2(-1.0, 0.0)
     rays.t_cur[i] = t_lo

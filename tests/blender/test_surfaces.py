@@ -1,0 +1,165 @@
+"""Opaque surfaces in F12 (issue 17): a plane object cutting the sphere volume renders as the
+core test's independent reference (tests/core/test_surfaces.py): the exact integral from the
+eye to the plane composited over the plane's shaded material colour; which objects count
+(blender/surfaces.py): modifiers, instances, hidden, camera-invisible and holdout objects."""
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
+pytestmark = pytest.mark.blender
+
+from hovr_blender.blender import render  # noqa: E402
+from hovr_blender.blender.surfaces import scene_surfaces  # noqa: E402
+from hovr_blender.core.camera import RayCamera  # noqa: E402
+
+from ..core import test_surfaces as ref  # noqa: E402
+from .blender_helpers import add_camera, render_to_exr, set_contract_camera, set_look  # noqa: E402
+
+
+def material(name, color):
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED')
+    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
+    return mat
+
+
+def add_plane(scene, name="Plane", color=ref.PLANE_COLOR):
+    corners = ref.plane_mesh().vertices
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(corners.tolist(), [], [[0, 1, 2, 3]])
+    me.update()
+    me.materials.append(material(name + " Material", color))
+    obj = bpy.data.objects.new(name, me)
+    scene.collection.objects.link(obj)
+    return obj
+
+
+def sphere_scene(scene, projection="perspective"):
+    add_camera(scene)
+    set_contract_camera(scene, ref.CAMERAS[projection], ref.W, ref.H)
+    scene.world = bpy.data.worlds.new("World")
+    scene.world.color = ref.BACKGROUND
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    obj.location = (0.0, 0.0, 0.0)
+    set_look(obj, ref.STOPS, (0.0, 2.0), 2.0)
+    s = scene.hovr
+    s.method, s.tolerance, s.min_transmittance, s.device = "split", 1e-7, 0.0, "cpu"
+    return obj
+
+
+def test_plane_cuts_sphere_in_f12(scene, tmp_path):
+    sphere_scene(scene)
+    add_plane(scene)
+    assert scene.hovr.surfaces == "SHADED"  # the default
+    got = render_to_exr(scene, tmp_path / "plane.exr")
+    camera = RayCamera.from_contract(ref.CAMERAS["perspective"], ref.W, ref.H)
+    want, t_s = ref.reference_image(camera)
+    assert np.isfinite(t_s).sum() > 0.3 * t_s.size
+    np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-4)
+    np.testing.assert_array_equal(got[..., 3], 1.0)  # an opaque film
+
+    # Holdout: the volume in front of the plane, premultiplied (transparent film)
+    scene.hovr.surfaces = "HOLDOUT"
+    scene.render.film_transparent = True
+    held = render_to_exr(scene, tmp_path / "holdout.exr")
+    want_h, _ = ref.reference_image(camera, holdout=True)
+    hit = np.isfinite(t_s)
+    np.testing.assert_allclose(held[hit], want_h[hit], atol=1e-4)
+    # off: the plane is ignored
+    scene.hovr.surfaces = "NONE"
+    off = render_to_exr(scene, tmp_path / "off.exr")
+    assert np.abs(off - held).max() > 0.05
+
+
+def test_which_objects_are_surfaces(scene):
+    sphere_scene(scene)
+    plane = add_plane(scene)
+    dg = bpy.context.evaluated_depsgraph_get()
+    (only,) = scene_surfaces(dg)  # the volume's outline object is not a surface
+    assert only.color == pytest.approx(ref.PLANE_COLOR) and not only.holdout
+    np.testing.assert_allclose(only.vertices, ref.plane_mesh().vertices, atol=1e-6)
+    assert len(only.triangles) == 2
+
+    # modifiers are applied, transforms too
+    plane.location = (0.0, 0.0, 1.0)
+    mod = plane.modifiers.new("Array", 'ARRAY')
+    mod.count = 3
+    dg = bpy.context.evaluated_depsgraph_get()
+    (only,) = scene_surfaces(dg)
+    assert len(only.triangles) == 6
+    assert only.vertices[:, 2].min() > ref.plane_mesh().vertices[:, 2].min() + 0.99
+
+    # instances: a collection instanced twice at its own matrices
+    coll = bpy.data.collections.new("Props")
+    scene.collection.children.link(coll)
+    cube_me = bpy.data.meshes.new("Cube")
+    cube_me.from_pydata([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [], [[0, 1, 2, 3]])
+    cube = bpy.data.objects.new("Quad", cube_me)
+    cube.color = (0.25, 0.5, 0.75, 1.0)
+    coll.objects.link(cube)
+    coll.hide_render = False
+    for k in range(2):
+        empty = bpy.data.objects.new(f"Inst{k}", None)
+        empty.instance_type = 'COLLECTION'
+        empty.instance_collection = coll
+        empty.location = (10.0 * (k + 1), 0.0, 0.0)
+        scene.collection.objects.link(empty)
+    dg = bpy.context.evaluated_depsgraph_get()
+    quads = [s for s in scene_surfaces(dg) if s.name.startswith("Quad")]
+    xs = sorted(float(q.vertices[:, 0].min()) for q in quads)
+    assert xs == pytest.approx([0.0, 10.0, 20.0])  # the collection's own object and its two instances
+    assert all(q.color == pytest.approx((0.25, 0.5, 0.75)) for q in quads)  # no material: object colour
+
+    # the camera ray visibility flag, holdout
+    cube.visible_camera = False
+    plane.is_holdout = True
+    dg = bpy.context.evaluated_depsgraph_get()
+    names = [s.name for s in scene_surfaces(dg)]
+    assert not any(n.startswith("Quad") for n in names)
+    assert [s.holdout for s in scene_surfaces(dg) if s.name.startswith("Plane")] == [True]
+
+
+def test_hidden_in_renders_is_no_surface(scene, tmp_path):
+    """F12's depsgraph leaves out Disable in Renders: the plane then stops nothing."""
+    sphere_scene(scene)
+    plane = add_plane(scene)
+    plane.hide_render = True
+    got = render_to_exr(scene, tmp_path / "hidden.exr")
+    scene.hovr.surfaces = "NONE"
+    plain = render_to_exr(scene, tmp_path / "plain.exr")
+    np.testing.assert_array_equal(got, plain)
+    assert render.SURFACES is not None
+
+
+def test_compositing_over_cycles_is_the_alpha_over(scene, tmp_path):
+    """Set Up Compositing: F12 of the HOVR scene gives Alpha Over of HOVR's Combined pass (the
+    volume in front of the surfaces, premultiplied) on Cycles' render of the same objects,
+    against the two images rendered apart and laid over each other here (<= 1/255)."""
+    sphere_scene(scene)
+    add_plane(scene)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+    sun.rotation_euler = (0.4, 0.2, 0.3)
+    scene.collection.objects.link(sun)
+    bpy.ops.hovr.setup_compositing(engine="CYCLES")
+    other = bpy.data.scenes[scene.name + " Surfaces"]
+    assert other.render.engine == "CYCLES" and scene.hovr.surfaces == "HOLDOUT" and scene.render.film_transparent
+    assert {o.name for o in other.objects} >= {"Plane", "Sun", "HOVR Sphere"}  # shared, not copied
+    assert bpy.data.objects["Plane"].users_scene and len(bpy.data.objects) == 4
+    other.cycles.samples, other.cycles.use_denoising, other.cycles.device = 4, False, 'CPU'
+    other.cycles.seed = 7
+    composed = render_to_exr(scene, tmp_path / "composed.exr")
+
+    surfaces = render_to_exr(other, tmp_path / "cycles.exr")
+    scene.render.use_compositing = False
+    hovr = render_to_exr(scene, tmp_path / "hovr.exr")
+    assert 0.05 < hovr[..., 3].max() < 1.0 and surfaces[..., :3].max() > 0.05  # both contribute
+    want = hovr + (1.0 - hovr[..., 3:4]) * surfaces
+    assert np.abs(composed - hovr).max() > 0.05  # the compositor did lay HOVR over Cycles
+    np.testing.assert_allclose(composed, want, atol=1 / 255)
+    # and HOVR's pass is the reference's holdout image
+    want_h, t_s = ref.reference_image(RayCamera.from_contract(ref.CAMERAS["perspective"], ref.W, ref.H), holdout=True)
+    hit = np.isfinite(t_s)
+    np.testing.assert_allclose(hovr[hit], want_h[hit], atol=1e-4)
