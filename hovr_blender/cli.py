@@ -1,7 +1,7 @@
 """`hovr`: render a view file exactly per the render contract, without Blender.
 
     hovr render VIEW.json -o out.npy [--png out.png] [--stats stats.json]
-                [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cuda:0|cuda:0,cuda:1|cuda:all]
+                [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cpu:all|cuda:0|cuda:0,cuda:1|cuda:all]
     hovr reference VIEW.json -o ref.npy [--png ref.png]    (float64 certifying reference)
     hovr render-series VIEW.json -o out/frame_####.npy --frames 1-100 [--png] [--orbit DEG]
                 [--camera-path cams.json] [--scheduler ADDRESS | --workers N] [--device auto|cpu|cuda:0]
@@ -51,7 +51,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--min-transmittance", type=float, help="early ray termination threshold")
     r.add_argument("--inner", choices=("spectral", "trapezoid"), help="inner integral on smooth segments")
     r.add_argument("--device", help="Warp device: cpu, cuda:0, a list (cuda:0,cuda:1: the frame's rows split "
-                   "over them) or cuda:all (every CUDA device here)")
+                   "over them), cuda:all (every CUDA device here) or cpu:all (one process a CPU core)")
     r.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic (default float32)")
     r.add_argument("--max-samples-per-ray", type=int, help="fixed-step methods: refuse a step h that takes more "
                    "samples across the data (default 100000, or HOVR_MAX_SAMPLES_PER_RAY)")

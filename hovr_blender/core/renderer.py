@@ -87,9 +87,19 @@ def cuda_devices() -> list[str]:
     return [str(d) for d in wp.get_devices() if d.is_cuda]
 
 
+def cpu_cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def expand_devices(devices) -> list[str]:
-    """A device list: "cpu", "cuda:1", "cuda:0,cuda:1" (or a list of names), or "cuda:all" / "all"
-    for every CUDA device here; each name resolved (RenderError for one that is not here)."""
+    """A device list: "cpu", "cuda:1", "cuda:0,cuda:1" (or a list of names), "cuda:all" / "all"
+    for every CUDA device here, or "cpu:all" for one CPU device a core (Warp runs a CPU launch
+    on one thread, so the cores are used by one process each); each name resolved (RenderError
+    for one that is not here)."""
     names = [d.strip() for d in (devices.split(",") if isinstance(devices, str) else devices) if d.strip()]
     if not names:
         raise RenderError("no device named")
@@ -100,6 +110,8 @@ def expand_devices(devices) -> list[str]:
             if not cuda:
                 raise RenderError(f"{name!r}: there is no CUDA device here")
             out.extend(cuda)
+        elif name == "cpu:all":
+            out.extend(["cpu"] * cpu_cores())
         else:
             out.append(resolve_device(name))
     return out

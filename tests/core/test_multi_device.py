@@ -11,7 +11,7 @@ import pytest
 
 from hovr_blender.core.mesh import subset
 from hovr_blender.core.multi_device import MultiDeviceRenderer, balanced_rows
-from hovr_blender.core.renderer import Renderer, RenderError
+from hovr_blender.core.renderer import Renderer, RenderError, cpu_cores, expand_devices
 from hovr_blender.core.sort_last import SortLastRenderer, serves, slab_partition
 from hovr_blender.core.view import RenderOptions
 from hovr_blender.io import synthetic
@@ -46,6 +46,13 @@ def test_rows_of_a_frame_over_two_cpu_processes_equal_one_device():
             assert np.array_equal(split.rgba, whole.rgba)
             assert [d["rows"] for d in split.stats["devices"]][0][0] == 0
         assert split.stats["field_evaluations"] == whole.stats["field_evaluations"]
+
+
+def test_cpu_all_is_one_cpu_device_a_core():
+    assert expand_devices("cpu:all") == ["cpu"] * cpu_cores()
+    assert expand_devices("cpu, cpu") == ["cpu", "cpu"]
+    with pytest.raises(RenderError):
+        expand_devices("")
 
 
 def test_subset_keeps_each_element():
