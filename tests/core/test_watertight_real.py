@@ -214,3 +214,29 @@ def test_annulus_ray_grazing_its_inner_wall_keeps_its_length(device, precision):
                                                                                  precision=precision))
     err, _ = relative_T_error(res, L.reshape(1, 1), tau)
     assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"
+
+
+# Hex_Mushroom's single curved hexahedron seen from inside its box: in float64 the entry search
+# walked to the box's end and the ray showed nothing (chord 0.844; 100 of 192x108 pixels off by
+# > 1e-3). The twin's `m_lo = wp.float64(NEWTON_FAILED)` had retyped NEWTON_FAILED's own Warp
+# variable, so `rq[3] > NEWTON_FAILED` compared against the last margin before the element and
+# the search's step back was skipped (kernels/precision.py).
+MUSHROOM_RAY = ([2.0428161556520092, -0.7342529245216076, 1.5799713089564065],
+                [-0.685246729006276, 0.6110795910040577, -0.39625579345230083])
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_mushroom_ray_from_inside_the_box_finds_the_element(device, precision):
+    mesh = constant_field(read_nektar(data_file("nektar", "Hex_Mushroom.xml")))
+    assert mesh.num_elements == 1 and not mesh.affine.any()
+    o, d = (np.array(v) for v in MUSHROOM_RAY)
+    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
+    co, cd = cam.rays()
+    L = annulus_chord(mesh, co, cd)
+    assert abs(L[0] - 0.8437073) < 1e-6
+    tau = 1.1
+    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
+                                                                                 min_transmittance=0.0,
+                                                                                 precision=precision))
+    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
+    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"
