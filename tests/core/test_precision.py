@@ -39,6 +39,22 @@ def test_generated_source_has_no_float32_arithmetic():
         assert src.count("float32(") == (1 if name == "raycast" else 0)
 
 
+def test_generated_source_keeps_module_constants_float64_and_uncast():
+    """Every module-level float constant (signed ones too: NEWTON_FAILED = -1.0e30) is float64,
+    and no Warp function casts a module constant by name: Warp retypes the constant's own
+    variable in place, so a later write to the cast's result changed the constant."""
+    for name in precision.float64_modules():
+        tree = ast.parse(precision.float64_source(name))
+        constants = {t.id for n in tree.body if isinstance(n, ast.Assign) for t in n.targets if isinstance(t, ast.Name)}
+        for node in tree.body:
+            if isinstance(node, ast.Assign):
+                assert not isinstance(precision._literal(node.value), float), f"{name}: {ast.unparse(node)} left float32"
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "float64":
+                assert not (node.args and isinstance(node.args[0], ast.Name) and node.args[0].id in constants), \
+                    f"{name}: {ast.unparse(node)}"
+
+
 def test_precision_option_is_validated():
     with pytest.raises(ViewError, match="precision"):
         RenderOptions(precision="float16")

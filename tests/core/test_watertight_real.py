@@ -131,7 +131,7 @@ def test_curved_annulus_is_watertight(device, precision):
 
 
 # ------------------------------------------------------------------------- NGSolve's ball
-# Rays through cells of NGSolve's ball (tests/data/vtu/ngsolve_ball_cells.npz: 7 of its 512
+# Rays through cells of NGSolve's ball (tests/data/vtu/ngsolve_ball_cells.npz: 11 of its 512
 # curved order-6 hexahedra) where the traversal lost length. Several of these cells meet the
 # sphere along an edge where their Jacobian vanishes, so the polynomial map folds beyond the
 # element and Newton converges slowly near that edge. Each case is one ray through a few cells,
@@ -157,6 +157,15 @@ BALL_CASES = {
                     [-0.14914929282198647, -0.15012671915347914, -0.9773517568649037]),
     # float32: at the face between 4 and 5 Newton's margin in 5 was below -INSIDE_TOL, the walk
     # stopped and the search went on STRETCH_RTOL |t| further (5.5e-5 lost)
+    # grazing clips across an edge on the sphere (chords 0.016, 0.041, 0.013): Newton fails all
+    # round the cell beyond the fold, the entry search's blind steps went over the clip and the
+    # ray showed nothing; the faces' own crossings (geometry.face_crossing) find it
+    "graze_fold_447": ([447], [3.0856323110509813, -2.468505848840728, 2.159942617735698],
+                       [-0.6137608653764538, 0.7106515699703781, -0.343906885989483]),
+    "graze_fold_63": ([63], [1.2709135449247513, 4.236378483082403, -0.847275696616437],
+                      [-0.42541235135793637, -0.8430441054580611, 0.3290911234970178]),
+    "graze_fold_7_15": ([7, 15], [1.0716950868194388, 2.6833690854322723, 4.427791093387074],
+                        [-0.32891291556544144, -0.5997442200219458, -0.7294677268560334]),
     "face_rounding": ([4, 5], [1.3058933991591901, 4.352977997195282, -0.8705955994373628],
                       [-0.3630723832793927, -0.9134496300175227, 0.18381571728411278]),
 }
@@ -208,6 +217,32 @@ def test_annulus_ray_grazing_its_inner_wall_keeps_its_length(device, precision):
     co, cd = cam.rays()
     L = annulus_chord(mesh, co, cd)
     assert abs(L[0] - 1.0509368) < 1e-6
+    tau = 1.1
+    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
+                                                                                 min_transmittance=0.0,
+                                                                                 precision=precision))
+    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
+    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"
+
+
+# Hex_Mushroom's single curved hexahedron seen from inside its box: in float64 the entry search
+# walked to the box's end and the ray showed nothing (chord 0.844; 100 of 192x108 pixels off by
+# > 1e-3). The twin's `m_lo = wp.float64(NEWTON_FAILED)` had retyped NEWTON_FAILED's own Warp
+# variable, so `rq[3] > NEWTON_FAILED` compared against the last margin before the element and
+# the search's step back was skipped (kernels/precision.py).
+MUSHROOM_RAY = ([2.0428161556520092, -0.7342529245216076, 1.5799713089564065],
+                [-0.685246729006276, 0.6110795910040577, -0.39625579345230083])
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_mushroom_ray_from_inside_the_box_finds_the_element(device, precision):
+    mesh = constant_field(read_nektar(data_file("nektar", "Hex_Mushroom.xml")))
+    assert mesh.num_elements == 1 and not mesh.affine.any()
+    o, d = (np.array(v) for v in MUSHROOM_RAY)
+    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
+    co, cd = cam.rays()
+    L = annulus_chord(mesh, co, cd)
+    assert abs(L[0] - 0.8437073) < 1e-6
     tau = 1.1
     res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
                                                                                  min_transmittance=0.0,

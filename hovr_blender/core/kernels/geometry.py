@@ -39,6 +39,7 @@ NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
 ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit
 MAX_EXIT_STEPS = 32
+FACE_ITERATIONS = 24  # Newton on (u, v, t) for a ray's crossing of one face (curved_entry's fallback)
 
 
 @wp.func
@@ -465,6 +466,53 @@ def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
 
 
 @wp.func
+def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: float, tb: float) -> wp.vec4:
+    """(xi, t) where the ray crosses reference face f of curved element e within [ta, tb]
+    (t = 1e30: none found): Newton on (u, v, t) for x(xi(u, v)) = o + t d, xi(u, v) in the
+    face's plane, from its centre. Beyond an edge where the map folds no point outside the
+    element has a preimage, but the face itself is a regular patch."""
+    shape = mesh.shape[e]
+    pl = element.face_plane(shape, f)
+    n = wp.vec3(pl[0], pl[1], pl[2])
+    axis = wp.vec3(1.0, 0.0, 0.0)
+    if wp.abs(n[0]) > 0.5 * wp.length(n):
+        axis = wp.vec3(0.0, 1.0, 0.0)
+    a = wp.normalize(wp.cross(n, axis))
+    b = wp.normalize(wp.cross(n, a))
+    c = reference_centre(shape)
+    xc = c + ((pl[3] - wp.dot(n, c)) / wp.dot(n, n)) * n
+    x0, J0 = geometry_with_jacobian(mesh, e, xc)
+    t = wp.clamp(wp.dot(x0 - o, d) / wp.dot(d, d), ta, tb)
+    u = float(0.0)
+    v = float(0.0)
+    for it in range(FACE_ITERATIONS):
+        xi = xc + u * a + v * b
+        x, J = geometry_with_jacobian(mesh, e, xi)
+        ca = J * a
+        cb = J * b
+        M = wp.mat33(ca[0], cb[0], -d[0], ca[1], cb[1], -d[1], ca[2], cb[2], -d[2])
+        if wp.abs(wp.determinant(M)) < 1.0e-30:
+            break
+        s = wp.inverse(M) * (x - o - t * d)
+        u = wp.clamp(u - s[0], -2.0, 2.0)
+        v = wp.clamp(v - s[1], -2.0, 2.0)
+        t = t - s[2]
+        if t < ta - (tb - ta) or t > tb + (tb - ta):
+            break  # heading for another crossing of the face's extension, or none
+        if wp.length(s) < NEWTON_STEP_TOL:
+            xi = xc + u * a + v * b
+            if t < ta or t > tb:
+                break
+            # within the face: inside every other face's plane
+            for g in range(element.num_faces(shape)):
+                q = element.face_plane(shape, g)
+                if g != f and q[3] - (q[0] * xi[0] + q[1] * xi[1] + q[2] * xi[2]) < -INSIDE_TOL:
+                    t = 1.0e30
+            return wp.vec4(xi[0], xi[1], xi[2], t)
+    return wp.vec4(0.0, 0.0, 0.0, 1.0e30)
+
+
+@wp.func
 def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     """Where the ray first is inside curved element e beyond t_from: (found, t, 0) and the
     solution and velocity there (for curved_exit).
@@ -479,7 +527,10 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     ray that clips the element near its tangent's miss is still met by a later tangent. The
     first point inside closes a bracket with the last point known to lie before the element,
     located to ROOT_RTOL relative. A clip thinner than the steps can be missed; the traversal
-    asks again beyond its t, so a later re-entry is still found."""
+    asks again beyond its t, so a later re-entry is still found. Where a step was taken blind
+    (Newton failed: next to an edge where the map folds it fails all round the element) and
+    the search reaches the box's end, it goes on once from just past the first crossing of
+    the element's boundary faces (face_crossing) that it finds."""
     none = wp.vec4(0.0, 0.0, 0.0, -1.0)
     bi = box_interval(mesh, e, o, d)
     ta = wp.max(bi[0], t_from)
@@ -496,6 +547,7 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     bracketing = int(0)
     br = Bracket()
     n_steps = int(ENTRY_STEPS)  # a local int: Warp retypes a global cast in place (float64 twin)
+    blind = int(0)  # 1: a step was taken where Newton failed; 2: the faces were searched
     for it in range(2 * n_steps + 48):
         if bracketing == 1:
             tq, start = bracket_query(br)
@@ -529,9 +581,29 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
                                   4.0 * step)
         if behind == 0:
             if tq >= tb:
-                break
+                if blind != 1:
+                    break
+                blind = 2
+                best = wp.vec4(0.0, 0.0, 0.0, 1.0e30)
+                for f in range(element.num_faces(shape)):
+                    # a clip through a shared face is walk_back's to recover (raycast.py)
+                    if mesh.neighbour[e * 6 + f] < 0:
+                        fc = face_crossing(mesh, e, o, d, f, ta, tb)
+                        if fc[3] < best[3]:
+                            best = fc
+                if best[3] >= tb:
+                    break
+                # just past the crossing; it may be an exit, so the box's start is what is known
+                # to lie before the element
+                t_lo = ta
+                m_lo = float(NEWTON_FAILED)
+                tq = wp.min(best[3] + 1.0e-3 * span, tb)
+                start = wp.vec3(best[0], best[1], best[2])
+                continue
             t_lo = tq
             m_lo = rq[3]
+        if rq[3] <= NEWTON_FAILED and blind == 0:
+            blind = 1
         t_new = wp.min(tq + step, tb)
         start = ahead(rq, dvq, t_new - tq)
         tq = t_new

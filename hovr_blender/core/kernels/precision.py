@@ -65,22 +65,39 @@ def _is_warp_decorated(fn: ast.FunctionDef) -> bool:
     return False
 
 
-def _float_constants(tree: ast.Module) -> dict:
-    """Module-level `NAME = <float literal>` assignments: {NAME: value}."""
+def _literal(node):
+    """The value of a number literal, signed (`-1.0e30` is a unary minus on 1.0e30), else None."""
+    sign = 1
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
+        sign = -1 if isinstance(node.op, ast.USub) else 1
+        node = node.operand
+    if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+        return sign * node.value
+    return None
+
+
+def _number_constants(tree: ast.Module) -> dict:
+    """Module-level `NAME = <number literal>` assignments: {NAME: value}."""
     out = {}
     for node in tree.body:
         if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name) \
-                and isinstance(node.value, ast.Constant) and isinstance(node.value.value, float):
-            out[node.targets[0].id] = node.value.value
+                and _literal(node.value) is not None:
+            out[node.targets[0].id] = _literal(node.value)
     return out
+
+
+def _float_constants(tree: ast.Module) -> dict:
+    """Module-level `NAME = <float literal>` assignments: {NAME: value}."""
+    return {k: v for k, v in _number_constants(tree).items() if isinstance(v, float)}
 
 
 class _ToFloat64(ast.NodeTransformer):
     """Rewrites the inside of Warp functions (and the float constants they read)."""
 
-    def __init__(self, float64_values: dict):
+    def __init__(self, float64_values: dict, constants: dict):
         self.in_warp = 0
         self.float64_values = float64_values  # NAME -> its NAME_FLOAT64
+        self.constants = constants  # module-level number constants: NAME -> value
 
     def visit_FunctionDef(self, node):
         warp = _is_warp_decorated(node)
@@ -121,6 +138,14 @@ class _ToFloat64(ast.NodeTransformer):
     def visit_Call(self, node):
         self.generic_visit(node)
         f = node.func
+        if self.in_warp and isinstance(f, ast.Attribute) and f.attr == "float64" and len(node.args) == 1 \
+                and isinstance(node.args[0], ast.Name) and node.args[0].id in self.constants:
+            # the literal, not the name: Warp turns wp.float64(<constant>) into a float64 variable by
+            # retyping the constant's own Var, which the name keeps for the whole function, so a
+            # later write to the cast's result (m_lo = float(NEWTON_FAILED) ... m_lo = rq[3] in a
+            # loop) changed NEWTON_FAILED too
+            name = node.args[0].id
+            return _f64(ast.Constant(self.float64_values.get(name, self.constants[name])))
         if isinstance(f, ast.Attribute) and f.attr == "bvh_query_next" and len(node.args) == 3:
             # the ray query's max_dist is float32 too
             node.args[2] = ast.Call(func=ast.Attribute(value=ast.Name("wp", ast.Load()), attr="float32", ctx=ast.Load()),
@@ -132,12 +157,13 @@ class _ToFloat64(ast.NodeTransformer):
         return node
 
     def visit_Assign(self, node):
-        # module-level float constants read inside kernels (INSIDE_TOL = 1.0e-5)
-        if not self.in_warp and isinstance(node.value, ast.Constant) and isinstance(node.value.value, float):
+        # module-level float constants read inside kernels (INSIDE_TOL = 1.0e-5, NEWTON_FAILED = -1.0e30:
+        # left a Python float, a float32 constant, -1e30 in float64 compared above it)
+        if not self.in_warp and isinstance(_literal(node.value), float):
             name = node.targets[0].id if isinstance(node.targets[0], ast.Name) else None
             if name is not None and name.endswith(FLOAT64_SUFFIX):
                 return None  # its value went to NAME
-            value = self.float64_values.get(name, node.value.value)
+            value = self.float64_values.get(name, _literal(node.value))
             node.value = _f64(ast.Constant(value))
             return node
         self.generic_visit(node)
@@ -163,7 +189,7 @@ def _to_float64(name: str, tree: ast.Module) -> str:
             if base not in constants:
                 raise ValueError(f"kernels/{name}.py: {key} has no float constant {base} beside it")
             float64_values[base] = value
-    tree = _ToFloat64(float64_values).visit(tree)
+    tree = _ToFloat64(float64_values, _number_constants(tree)).visit(tree)
     ast.fix_missing_locations(tree)
     return ast.unparse(tree) + "\n"
 

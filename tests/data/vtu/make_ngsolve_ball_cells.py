@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-CELLS = [4, 5, 6, 199, 263, 391, 455]
+CELLS = [4, 5, 6, 7, 15, 63, 199, 263, 391, 447, 455]
 
 if __name__ == "__main__":
     import sys
