@@ -75,7 +75,8 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
                          description="Warp device the kernels run on")
     precision: EnumProperty(name="Precision", items=PRECISION_ITEMS, default="float32",
                             description="Arithmetic of the ray kernels")
-    surfaces: EnumProperty(name="Surfaces", items=SURFACE_ITEMS, default="SHADED",
+    # Off in a new scene: data imported into Blender's startup scene sits inside the default cube
+    surfaces: EnumProperty(name="Surfaces", items=SURFACE_ITEMS, default="NONE",
                            description="What the scene's visible mesh objects do to the volume's rays")
     # Before 0.2 the look was the scene's, shared by every volume. Kept registered (never drawn)
     # so old .blend files keep their values: versioning.py moves them onto the volumes, and

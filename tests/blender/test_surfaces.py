@@ -53,7 +53,8 @@ def sphere_scene(scene, projection="perspective"):
 def test_plane_cuts_sphere_in_f12(scene, tmp_path):
     sphere_scene(scene)
     add_plane(scene)
-    assert scene.hovr.surfaces == "SHADED"  # the default
+    assert scene.hovr.surfaces == "NONE"  # the default: a new scene's meshes are ignored
+    scene.hovr.surfaces = "SHADED"
     got = render_to_exr(scene, tmp_path / "plane.exr")
     camera = RayCamera.from_contract(ref.CAMERAS["perspective"], ref.W, ref.H)
     want, t_s = ref.reference_image(camera)
