@@ -22,6 +22,8 @@ DEVICE_ITEMS = (
     ("cuda:0", "CUDA GPU 0", "Run the Warp kernels on the first CUDA device", 1),
     ("cuda:all", "All GPUs", "Split each frame's rows over every CUDA device (one process a device, "
      "rows balanced by the last frame's cost)", 2),
+    ("cpu:all", "All CPU Cores", "Split each frame's rows over one CPU process a core (a Warp CPU launch runs on "
+     "one thread)", 3),
 )
 
 SURFACE_ITEMS = (

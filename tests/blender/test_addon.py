@@ -65,7 +65,8 @@ def test_properties_defaults_and_enum_indices(scene):
     props = type(settings).bl_rna.properties
     methods = {i.identifier: i.value for i in props["method"].enum_items}
     assert methods == {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
-    assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1, "cuda:all": 2}
+    assert {i.identifier: i.value for i in props["device"].enum_items} == {"cpu": 0, "cuda:0": 1, "cuda:all": 2,
+                                                                                "cpu:all": 3}
     for name in ("h", "tolerance", "min_transmittance"):
         assert props[name].type == 'FLOAT'
     # the look is each volume's own; the scene keeps the old names only to read old files

@@ -54,6 +54,19 @@ def test_save_reload_renders_identically(scene, tmp_path):
     np.testing.assert_array_equal(first, second)
 
 
+def test_f12_over_every_cpu_core_equals_one_core(scene, tmp_path):
+    """Device "All CPU Cores" (cpu:all, one process a core) renders the one-core image; the
+    processes are those of core/multi_device.py, started from inside Blender."""
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    one = render_to_exr(scene, tmp_path / "one.exr")
+    scene.hovr.device = "cpu:all"
+    try:
+        every = render_to_exr(scene, tmp_path / "all.exr")
+    finally:
+        render.clear_cache()  # closes the processes
+    np.testing.assert_allclose(every, one, atol=1e-6)
+
+
 def test_renderer_is_cached_per_object_transform(scene, tmp_path):
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
