@@ -180,23 +180,29 @@ def ball_cells(cells):
     return constant_field(mesh)
 
 
+def one_ray(mesh, o, d, device, precision, tau=1.1):
+    """(relative error of T, exact chord) of the ray o + t d through `mesh` at constant density
+    tau, rendered as the centre ray of a 1x1 camera."""
+    o, d = np.asarray(o, float), np.asarray(d, float)
+    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
+    co, cd = cam.rays()
+    L = annulus_chord(mesh, co, cd)
+    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0],
+                                        RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0,
+                                                      precision=precision))
+    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
+    return err, float(L[0])
+
+
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 @pytest.mark.parametrize("case", sorted(BALL_CASES))
 def test_ngsolve_ball_rays_keep_their_length(device, case, precision):
     cells, o, d = BALL_CASES[case]
     mesh = ball_cells(cells)
     assert not mesh.affine.any() and np.all(mesh.shape == shapes.HEX)
-    o, d = np.array(o), np.array(d)
-    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
-    co, cd = cam.rays()
-    L = annulus_chord(mesh, co, cd)
-    assert L[0] > 0.0
-    tau = 1.1
-    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
-                                                                                 min_transmittance=0.0,
-                                                                                 precision=precision))
-    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
-    assert err <= BUDGET[precision], f"{case}: relative error of T {err:.3g} (chord {L[0]:.6f})"
+    err, L = one_ray(mesh, o, d, device, precision)
+    assert L > 0.0
+    assert err <= BUDGET[precision], f"{case}: relative error of T {err:.3g} (chord {L:.6f})"
 
 
 # Entries and exits are brackets on margin + INSIDE_TOL: on the domain's boundary they lay
@@ -211,18 +217,9 @@ GRAZING_WALL = ([-0.7249903826556429, 0.8492962254006307, 3.1933457737643107],
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_annulus_ray_grazing_its_inner_wall_keeps_its_length(device, precision):
     mesh = constant_field(read_nektar(data_file("nektar", "RotPerBcs3D_Annulus.xml")))
-    o, d = (np.array(v) for v in GRAZING_WALL)
-    cam = RayCamera.from_contract({"projection": "orthographic", "eye": o.tolist(), "target": (o + d).tolist(),
-                                   "up": [0, 0, 1], "height": 1e-9}, 1, 1)
-    co, cd = cam.rays()
-    L = annulus_chord(mesh, co, cd)
-    assert abs(L[0] - 1.0509368) < 1e-6
-    tau = 1.1
-    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
-                                                                                 min_transmittance=0.0,
-                                                                                 precision=precision))
-    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
-    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"
+    err, L = one_ray(mesh, *GRAZING_WALL, device, precision)
+    assert abs(L - 1.0509368) < 1e-6
+    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L:.6f})"
 
 
 # Hex_Mushroom's single curved hexahedron seen from inside its box: in float64 the entry search
@@ -238,14 +235,6 @@ MUSHROOM_RAY = ([2.0428161556520092, -0.7342529245216076, 1.5799713089564065],
 def test_mushroom_ray_from_inside_the_box_finds_the_element(device, precision):
     mesh = constant_field(read_nektar(data_file("nektar", "Hex_Mushroom.xml")))
     assert mesh.num_elements == 1 and not mesh.affine.any()
-    o, d = (np.array(v) for v in MUSHROOM_RAY)
-    cam = RayCamera.from_contract({"eye": o.tolist(), "target": (o + d).tolist(), "up": [0, 0, 1], "fov_y_deg": 1e-3}, 1, 1)
-    co, cd = cam.rays()
-    L = annulus_chord(mesh, co, cd)
-    assert abs(L[0] - 0.8437073) < 1e-6
-    tau = 1.1
-    res = Renderer(mesh, device).render(cam, constant_density(tau), [0, 0, 0], RenderOptions(method="split", tolerance=1e-7,
-                                                                                 min_transmittance=0.0,
-                                                                                 precision=precision))
-    err, _ = relative_T_error(res, L.reshape(1, 1), tau)
-    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L[0]:.6f})"
+    err, L = one_ray(mesh, *MUSHROOM_RAY, device, precision)
+    assert abs(L - 0.8437073) < 1e-6
+    assert err <= BUDGET[precision], f"relative error of T {err:.3g} (chord {L:.6f})"
