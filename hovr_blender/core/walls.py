@@ -46,6 +46,7 @@ from .shapes import FACE_PLANES, FACES, MAX_FACES, VERTICES, plane_vertices
 
 SAFETY = 0.75  # checked deviation <= SAFETY * tolerance (module docstring)
 MAX_K = 64
+_CHUNK = 1 << 20  # evaluated points per batch of faces
 DEFAULT_RELATIVE_TOLERANCE = 1e-3  # of the bounding box's diagonal
 
 
@@ -172,12 +173,6 @@ def _orientation(mesh, elems) -> np.ndarray:
     return out
 
 
-def _evaluate(shape, gmodes, G, xi):
-    """World points (m, p, 3) of m elements' maps G (m, K, 3) at reference points xi (p, 3)."""
-    B = ex.basis_matrix(shape, gmodes, xi)
-    return np.einsum("pk,mkc->mpc", B, G)
-
-
 def tessellate(mesh, tolerance: float | None = None, max_k: int = MAX_K, faces=None) -> Walls:
     """The boundary faces as triangles within `tolerance` of the true surface (module docstring);
     tolerance None: default_tolerance(mesh). faces: (element, face) arrays, default boundary_faces."""
@@ -209,18 +204,25 @@ def tessellate(mesh, tolerance: float | None = None, max_k: int = MAX_K, faces=N
         k = 1
         while todo.size:
             uv, tris = grid(len(corners), k)
-            X = _evaluate(sh, gmodes, G[todo], face_reference_points(corners, uv))  # (m, p, 3)
-            quv = np.einsum("cw,twd->tcd", _CHECK, uv[tris]).reshape(-1, 2)  # (t * 4, 2)
-            Xq = _evaluate(sh, gmodes, G[todo], face_reference_points(corners, quv)).reshape(len(todo), len(tris), 4, 3)
-            lin = np.einsum("cw,mtwd->mtcd", _CHECK, X[:, tris])
-            dev = np.linalg.norm(Xq - lin, axis=-1).max(axis=(1, 2))
-            done = (dev <= SAFETY * tolerance) | (k >= max_k)
-            for j in np.nonzero(done)[0]:
-                g = idx[todo[j]]
-                k_of[g], dev_of[g], pts_of[g] = k, dev[j], X[j]
-                flip = ref_sign * sign[g] < 0
-                tris_of[g] = tris[:, ::-1] if flip else tris
-            todo = todo[~done]
+            xi = face_reference_points(corners, uv)
+            xq = face_reference_points(corners, np.einsum("cw,twd->tcd", _CHECK, uv[tris]).reshape(-1, 2))
+            B, Bq = ex.basis_matrix(sh, gmodes, xi), ex.basis_matrix(sh, gmodes, xq)
+            left = []
+            step = max(1, _CHUNK // (len(xi) + len(xq)))  # faces at a time: bounded memory
+            for c0 in range(0, todo.size, step):
+                part = todo[c0: c0 + step]
+                X = np.einsum("pk,mkc->mpc", B, G[part])  # (m, p, 3)
+                Xq = np.einsum("pk,mkc->mpc", Bq, G[part]).reshape(len(part), len(tris), 4, 3)
+                lin = np.einsum("cw,mtwd->mtcd", _CHECK, X[:, tris])
+                dev = np.linalg.norm(Xq - lin, axis=-1).max(axis=(1, 2))
+                done = (dev <= SAFETY * tolerance) | (k >= max_k)
+                for j in np.nonzero(done)[0]:
+                    g = idx[part[j]]
+                    k_of[g], dev_of[g], pts_of[g] = k, dev[j], X[j]
+                    flip = ref_sign * sign[g] < 0
+                    tris_of[g] = tris[:, ::-1] if flip else tris
+                left.append(part[~done])
+            todo = np.concatenate(left)
             k = min(2 * k, max_k)
     nv = np.array([len(p) for p in pts_of], np.int64)
     nt = np.array([len(t) for t in tris_of], np.int64)
