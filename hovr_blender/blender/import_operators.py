@@ -2,7 +2,7 @@
 
 The file is read first; only a successful read creates anything (the outline mesh, the
 object and its own look: a transfer function, the field's range, a density relative to its
-size), so a malformed file leaves the .blend as it was and the error names the file (and the
+size; with Walls as Mesh, the domain's boundary faces as a triangle mesh, core/walls.py), so a malformed file leaves the .blend as it was and the error names the file (and the
 element or record where the reader can tell). Importing never changes another volume. By
 default the scene camera (made if there is none) then frames the new volume.
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
@@ -13,9 +13,10 @@ import os
 
 import bpy
 from bpy.app.handlers import persistent
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
+from ..core import walls as core_walls
 from ..io import nektar, vtu
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
@@ -68,6 +69,14 @@ class _ImportVolume(ImportHelper):
     frame: BoolProperty(name="Frame Camera", default=True,
                         description="Point the scene camera (a new one if there is none) at the HOVR volumes and "
                                     "set its clip start/end from their size")
+    walls: BoolProperty(name="Walls as Mesh", default=False,
+                        description="Also make the domain's boundary faces a triangle mesh (\"<volume> Walls\", a child "
+                                    "of the volume), curved faces tessellated within the tolerance, for a Cycles "
+                                    "material. With HOVR's Surfaces on, the walls are opaque and hide the volume inside")
+    walls_tolerance: FloatProperty(name="Wall Tolerance", default=core_walls.DEFAULT_RELATIVE_TOLERANCE,
+                                   min=1e-6, max=0.1, precision=6, step=0.01,
+                                   description="Largest distance of the walls' triangles from the true curved "
+                                               "faces, as a fraction of the volume's bounding-box diagonal")
 
     def resolve(self, path):
         """(solution, field, component, notes, warnings) to store; raises ValueError for bad settings."""
@@ -90,6 +99,9 @@ class _ImportVolume(ImportHelper):
             mesh = cached_volume(source)  # the first render finds it here
             wm.progress_update(2)
             values = field_samples(mesh) if self.fit_range else None
+            walls = None
+            if self.walls:
+                walls = core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, self.walls_tolerance))
         except Exception as exc:  # a reader bug must not leave a traceback instead of a message
             return _fail(self, path, exc)
         stem = os.path.splitext(os.path.basename(path))[0]
@@ -98,6 +110,16 @@ class _ImportVolume(ImportHelper):
                                                  field, component)
         except Exception as exc:
             return _fail(self, path, exc)
+        if walls is not None:
+            try:
+                create_walls_object(context, obj, walls)
+                notes.append(f"walls: {len(walls.triangles)} triangles within {walls.tolerance:.3g}")
+                if walls.cap_hit:
+                    warnings.append(f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "
+                                    f"triangles still farther than {walls.tolerance:.3g} from the true surface")
+            except Exception as exc:  # the volume itself was imported
+                warnings.append(f"walls not made: {failure_text(exc)}")
+            context.view_layer.objects.active = obj
         if values is not None and values.size:
             operators.fit_value_range(obj, context.scene, values)
         if getattr(mesh, "has_field", True) is False:
@@ -116,6 +138,33 @@ class _ImportVolume(ImportHelper):
         for w in warnings:
             self.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
         return {'FINISHED'}
+
+
+def create_walls_object(context, volume, walls):
+    """The tessellated boundary (core_walls.Walls) as the mesh object "<volume> Walls", a child of
+    the volume with an identity local transform (the volume's own transform), smooth shaded, in
+    the volume's collections. Vertices of neighbouring faces are not welded (core/walls.py)."""
+    name = f"{volume.name} Walls"
+    me = obj = None
+    try:
+        me = bpy.data.meshes.new(name)
+        me.from_pydata(walls.vertices.tolist(), [], walls.triangles.tolist())
+        me.update()
+        if hasattr(me, "shade_smooth"):  # Blender 4.1+
+            me.shade_smooth()
+        else:
+            me.polygons.foreach_set("use_smooth", [True] * len(me.polygons))
+        obj = bpy.data.objects.new(name, me)
+        obj.parent = volume
+        for collection in volume.users_collection or [context.scene.collection]:
+            collection.objects.link(obj)
+    except Exception:
+        if obj is not None:
+            bpy.data.objects.remove(obj)
+        if me is not None:
+            bpy.data.meshes.remove(me)
+        raise
+    return obj
 
 
 # The file browser redraws the operator's panel often: field-file scans per folder and field
@@ -191,6 +240,10 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
         layout.prop(self, "field")
         layout.prop(self, "fit_range")
         layout.prop(self, "frame")
+        layout.prop(self, "walls")
+        row = layout.row()
+        row.enabled = self.walls
+        row.prop(self, "walls_tolerance")
         path = bpy.path.abspath(self.filepath)
         if self.solution.strip() or not path.lower().endswith(".xml"):
             return
@@ -248,6 +301,10 @@ class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
         layout.prop(self, "component")
         layout.prop(self, "fit_range")
         layout.prop(self, "frame")
+        layout.prop(self, "walls")
+        row = layout.row()
+        row.enabled = self.walls
+        row.prop(self, "walls_tolerance")
 
 
 def menu_import(self, _context):
