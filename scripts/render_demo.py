@@ -3,7 +3,8 @@
     .venv/bin/python scripts/render_demo.py [--output demo.png] [--size 640x480] [--device cpu]
 
 Registers the add-on in a factory-fresh scene, adds the paper's sphere volume with the
-HOVR "Add > HOVR Sphere Volume" operator, points a camera at it and runs
+HOVR "Add > HOVR Sphere Volume" operator, gives it the "Three Tents" transfer-function preset
+(the paper's shells), points a camera at it and runs
 bpy.ops.render.render(write_still=True) with the HOVR engine.
 """
 from __future__ import annotations
@@ -44,6 +45,8 @@ def main(argv=None):
         world.color = (0.02, 0.02, 0.03)
         scene.world = world
         bpy.ops.hovr.add_sphere_volume()
+        # the paper's look: thin shells of the radial field (a new volume gets a smooth ramp)
+        bpy.ops.hovr.transfer_function_preset(preset="TENTS")
         cam_data = bpy.data.cameras.new("Demo Camera")
         cam_data.lens = 40.0
         cam = bpy.data.objects.new("Demo Camera", cam_data)
