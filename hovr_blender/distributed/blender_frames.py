@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-from .series import _log, link_file
+from .series import _log, link_file, submit_frames
 
 BATCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "blender", "batch.py")
 PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -58,16 +58,7 @@ def render_blend_frame(blend: str, frame: int, blender: str | None = None, pytho
 def render_animation(blend: str, frames, client, blender: str | None = None, python: str | None = None,
                      progress=None, retries: int = 3) -> list[dict]:
     """Submit one task a frame to the Dask `client`; progress(done, total, record) after each."""
-    from distributed import as_completed
-
     blend = os.path.abspath(blend)
-    token = f"{os.getpid()}-{time.time_ns()}"
-    futures = [client.submit(render_blend_frame, blend, f, blender, python, key=f"hovr-blend-{f}-{token}",
-                             pure=False, retries=retries) for f in frames]
-    records = {}
-    for fut in as_completed(futures):
-        rec = fut.result()
-        records[rec["frame"]] = rec
-        if progress is not None:
-            progress(len(records), len(futures), rec)
-    return [records[f] for f in frames]
+    return submit_frames(client, list(frames), "hovr-blend",
+                         lambda f, key: client.submit(render_blend_frame, blend, f, blender, python, key=key,
+                                                      pure=False, retries=retries), progress)

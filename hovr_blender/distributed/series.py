@@ -27,7 +27,7 @@ import numpy as np
 
 from ..core.camera import RayCamera
 from ..core.image_io import write_json, write_npy, write_png
-from ..core.view import RenderOptions, View
+from ..core.view import View
 from ..io.sources import VolumeSource, cached_volume, frame_path
 
 LOG_NAME = ".hovr-series.log"
@@ -243,23 +243,29 @@ def render_series(job: SeriesJob, client, progress=None, before_render=None, ret
     """Submit the frames not yet written to the Dask `client` (one task a frame; Dask retries a
     frame whose worker was lost) and wait for them; progress(done, total, record) after each.
     Returns the records of the frames submitted, in frame order."""
-    from distributed import as_completed
-
     folder = os.path.dirname(job.npy(job.frames[0]))
     if not os.path.isdir(folder):
         raise ValueError(f"output folder {folder} does not exist")
-    todo = pending_frames(job)
     payload = job.to_dict()
+    return submit_frames(client, pending_frames(job), "hovr-frame",
+                         lambda f, key: client.submit(render_frame, payload, f, before_render, key=key, pure=False,
+                                                      retries=retries), progress)
+
+
+def submit_frames(client, frames, prefix: str, submit, progress=None) -> list[dict]:
+    """One task a frame, submit(frame, key) each (keys unique to this run), then the records
+    as they finish (progress(done, total, record) after each), returned in frame order."""
+    from distributed import as_completed
+
     token = f"{os.getpid()}-{time.time_ns()}"
-    futures = [client.submit(render_frame, payload, f, before_render, key=f"hovr-frame-{f}-{token}", pure=False,
-                             retries=retries) for f in todo]
+    futures = [submit(f, f"{prefix}-{f}-{token}") for f in frames]
     records = {}
     for fut in as_completed(futures):
         rec = fut.result()
         records[rec["frame"]] = rec
         if progress is not None:
-            progress(len(records), len(todo), rec)
-    return [records[f] for f in todo]
+            progress(len(records), len(futures), rec)
+    return [records[f] for f in frames]
 
 
 def local_cluster(workers: int | None = None, device: str = "auto"):
