@@ -87,15 +87,20 @@ def offscreen_status(timeout=120):
 
 # ------------------------------------------------------------------------- transfer function
 
+def _color_function(tf):
+    """(vtkColorTransferFunction on the transfer function's colour breakpoints, u = 1 / max tau)."""
+    ctf = _vtk().vtkColorTransferFunction()
+    for s, c in zip(tf.color_s, tf.color_rgb):
+        ctf.AddRGBPoint(float(s), *map(float, c))
+    tmax = float(np.max(tf.density_tau))
+    return ctf, (1.0 / tmax if tmax > 0 else 1.0)
+
+
 def unstructured_functions(tf):
     """(vtkColorTransferFunction, vtkPiecewiseFunction, u) for the unstructured-grid mappers:
     alpha = tau u, exact on the same breakpoints."""
     vtk = _vtk()
-    ctf = vtk.vtkColorTransferFunction()
-    for s, c in zip(tf.color_s, tf.color_rgb):
-        ctf.AddRGBPoint(float(s), *map(float, c))
-    tmax = float(np.max(tf.density_tau))
-    u = 1.0 / tmax if tmax > 0 else 1.0
+    ctf, u = _color_function(tf)
     otf = vtk.vtkPiecewiseFunction()
     for s, t in zip(tf.density_s, tf.density_tau):
         otf.AddPoint(float(s), float(t) * u)
@@ -106,11 +111,7 @@ def image_functions(tf, densify=DENSIFY):
     """(ctf, otf, u) for the image mappers: alpha = 1 - exp(-tau u), sampled `densify` times per
     density segment (tau is linear there, alpha is not)."""
     vtk = _vtk()
-    ctf = vtk.vtkColorTransferFunction()
-    for s, c in zip(tf.color_s, tf.color_rgb):
-        ctf.AddRGBPoint(float(s), *map(float, c))
-    tmax = float(np.max(tf.density_tau))
-    u = 1.0 / tmax if tmax > 0 else 1.0
+    ctf, u = _color_function(tf)
     s = tf.density_s
     pts = [s[:1]] + [np.linspace(a, b, densify + 1)[1:] for a, b in zip(s[:-1], s[1:])]
     pts = np.concatenate(pts)
