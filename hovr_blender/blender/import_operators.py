@@ -159,10 +159,7 @@ def create_walls_object(context, volume, walls):
         for collection in volume.users_collection or [context.scene.collection]:
             collection.objects.link(obj)
     except Exception:
-        if obj is not None:
-            bpy.data.objects.remove(obj)
-        if me is not None:
-            bpy.data.meshes.remove(me)
+        operators.discard(obj, me)
         raise
     return obj
 

@@ -83,6 +83,14 @@ def new_transfer_function_texture(name: str = "HOVR Transfer Function", preset: 
     return tex
 
 
+def discard(obj, me):
+    """Remove a half-made object and its mesh: a failed step leaves nothing in the file."""
+    if obj is not None:
+        bpy.data.objects.remove(obj)
+    if me is not None:
+        bpy.data.meshes.remove(me)
+
+
 def create_volume_object(context, name, mesh, source, solution="", field="", component="", location=None):
     """A wire object outlining the domain of `mesh`, marked as a HOVR volume reading `source`;
     selected and active. Nothing is left behind if it fails."""
@@ -102,10 +110,7 @@ def create_volume_object(context, name, mesh, source, solution="", field="", com
         h.is_volume, h.source, h.solution, h.field, h.component = True, source, solution, field, component
         (context.collection or context.scene.collection).objects.link(obj)
     except Exception:
-        if obj is not None:
-            bpy.data.objects.remove(obj)
-        if me is not None:
-            bpy.data.meshes.remove(me)
+        discard(obj, me)
         raise
     for other in context.selected_objects:
         other.select_set(False)
