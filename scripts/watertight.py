@@ -152,8 +152,9 @@ def run(args):
             dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
             groups.append((kind, [aimed_camera(p, dv, r) for p, dv in zip(pts, dirs)]))
         for gname, cams in groups:
-            o = np.concatenate([cam.rays()[0].reshape(-1, 3) for cam in cams])
-            d = np.concatenate([cam.rays()[1].reshape(-1, 3) for cam in cams])
+            rays = [cam.rays() for cam in cams]
+            o = np.concatenate([ro.reshape(-1, 3) for ro, _ in rays])
+            d = np.concatenate([rd.reshape(-1, 3) for _, rd in rays])
             t1 = time.perf_counter()
             L = chords.chords_warp(boundary, o, d, args.device)
             t_chords = time.perf_counter() - t1
