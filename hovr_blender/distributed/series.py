@@ -276,10 +276,10 @@ def local_cluster(workers: int | None = None, device: str = "auto"):
 
     if workers is None:
         workers = 1
-        if device in ("auto", "cuda:all"):
-            from ..core.renderer import cuda_devices
+        from ..core.renderer import cpu_cores, cuda_devices
 
+        if device in ("auto", "cuda:all"):
             workers = len(cuda_devices())
         if workers == 0 or device == "cpu":
-            workers = os.cpu_count() or 1
+            workers = cpu_cores()  # the cores this process may use, as cpu:all counts them
     return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
