@@ -134,6 +134,9 @@ CPU_TILE_RAYS = 1 << 18
 RAY_COST_BASE = 8.0
 RAY_COST_SEGMENT = 16.0
 RAY_COST_LOCATE = 16.0
+# threads compiling kernel modules at once on first use (Warp's NVRTC / LLVM compile one module
+# per thread); HOVR_COMPILE_WORKERS=1 compiles them one after another
+COMPILE_WORKERS = max(1, int(os.environ.get("HOVR_COMPILE_WORKERS", "0") or 0) or min(8, os.cpu_count() or 1))
 
 def _check_float32_range(what: str, values, offsets):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
@@ -498,10 +501,9 @@ class Renderer:
                 buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            # compile outside the timed region (coefficients: the module of integrate)
-            for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                         kernels.integrate, kernels.finalize):
-                wp.load_module(kern.module, device=self.device)
+            # compile outside the timed region, the modules side by side (a first use compiles
+            # each; the largest one's compile is then the wait)
+            self.load_kernels(upload)
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
@@ -541,6 +543,19 @@ class Renderer:
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
                             stats=info, row_cost=row_cost)
+
+    def load_kernels(self, upload: _Upload | str = "float32"):
+        """Compile (first use) or load from Warp's kernel cache every module a render of this
+        mesh in this precision launches, in parallel threads (COMPILE_WORKERS)."""
+        if isinstance(upload, str):
+            upload = self._upload(upload)
+        kernels = upload.precision.kernels
+        modules = {}
+        for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
+                     kernels.integrate, kernels.finalize):
+            modules[id(kern.module)] = kern.module
+        workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
+        wp.force_load(device=self.device, modules=list(modules.values()), max_workers=workers)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
                     n: int, limit: tuple) -> int:

@@ -1,0 +1,310 @@
+"""Interactive speed on real curved data (issue 21): every shared dataset at 1920x1080 and the
+paper-scale channel and hump3D at 512x512, split and classified at default settings, one run,
+with each frame's kernel profile, memory per ray and per element, and its error against a
+float64 render converged far below 1e-3 (the independent reference's audit is scripts/audit.py).
+
+    python bench/interactive.py --device cuda:0 --out $OUT/interactive.json
+    python bench/interactive.py --device cuda:0 --cold --out $OUT/cold.json      first image, empty caches
+    python bench/interactive.py --device cuda:0 --million --out $OUT/million.json  1 M curved elements
+    python bench/interactive.py --device cpu --size 192x108 --datasets hump3D    (a small CPU check)
+
+Datasets, views and transfer functions are the audit's (scripts/audit.py: the oblique view, three
+tents over the field's 2..98 % range). Times are the best of --repeats renders after a warm-up
+render, each waited for (Renderer.render synchronises); the profile is one more render with every
+kernel launch waited for and timed (its total is a little above the plain time).
+
+--cold: for each kernel-compile setting (parallel modules, one after another), a fresh Python
+process with an empty Warp kernel cache (a new temporary WARP cache folder) and the CUDA driver's
+compute cache off (CUDA_CACHE_DISABLE=1) loads hump3D, builds the renderer and renders one
+1920x1080 frame; reported: the process's wall time to the image, and the render call's (what F12
+costs once the data is imported: kernel compile + first frame).
+
+--million: copies of the curved paper-scale channel (order 6, 11,008 elements each) side by side
+in a grid, one volume of about 1 M curved elements (elements of different copies never touch;
+every ray crosses several copies), rendered at 1920x1080.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.join(HERE, "..")
+sys.path.insert(0, ROOT)
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+
+import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functions)
+import suite  # noqa: E402  (git helpers)
+
+DATASETS = ["paper_scale", "hump3D", "scaleHO", "ngsolve_ball", "ngsolve_post", "mfem_fichera", "pyfr_tgv"]
+SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
+METHODS = ("split", "classified")
+TARGET_1080 = {"paper_scale": 0.060}  # seconds; every other dataset 0.100
+TARGET_512_FPS = 60.0
+
+
+def _camera(mesh, W, H):
+    from hovr_blender.core.camera import RayCamera
+
+    return RayCamera.from_contract(audit.views(mesh)["oblique"], W, H)
+
+
+def device_bytes_per_element(renderer, precision="float32") -> float:
+    """The mesh's arrays on the device (MeshArgs, BVH boxes, neighbours) over its elements."""
+    import warp as wp
+
+    upload = renderer._upload(precision)
+    total = 0
+    for name in dir(upload.mesh_args):
+        a = getattr(upload.mesh_args, name, None)
+        if isinstance(a, wp.array):
+            total += a.capacity
+    total += renderer._lowers.capacity + renderer._uppers.capacity
+    return total / renderer.mesh.num_elements
+
+
+def options(renderer, method, classified_div):
+    """Default settings, but classified's step a fraction of the data's diagonal (its default h
+    is absolute, 0.01 world units: too coarse on a 2 cm domain, needlessly fine on a 10 m one)."""
+    from hovr_blender.core.view import RenderOptions
+
+    extra = {"h": renderer.data_diagonal / classified_div} if method == "classified" and classified_div else {}
+    return RenderOptions(method=method, device=renderer.device, **extra)
+
+
+def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_div=None):
+    cam = _camera(mesh, W, H)
+    opts = options(renderer, method, classified_div)
+    renderer.render(cam, tf, np.zeros(3), opts)  # warm-up (kernels loaded, buffers sized)
+    best = None
+    for _ in range(repeats):
+        res = renderer.render(cam, tf, np.zeros(3), opts)
+        if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
+            best = res
+    prof = renderer.render(cam, tf, np.zeros(3), opts, profile=True)
+    s = best.stats
+    row = {"size": [W, H], "method": method, "seconds": s["render_seconds"], "rounds": s["rounds"],
+           "samples_per_ray": s["samples_per_ray"], "segments_per_ray": s["segments"] / (W * H),
+           "curved_locates_per_ray": s["curved_locates"] / (W * H), "walks": s["walks"],
+           "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict()}
+    if reference is not None:
+        row["max_error_vs_float64"] = float(np.abs(best.rgba.astype(np.float64) - reference).max())
+    return row
+
+
+def reference_image(renderer, mesh, tf, W, H):
+    """float64 split at tolerance 1e-9 without early termination: converged far below 1e-3."""
+    from hovr_blender.core.view import RenderOptions
+
+    res = renderer.render(_camera(mesh, W, H), tf, np.zeros(3),
+                          RenderOptions(method="split", precision="float64", tolerance=1e-9, min_transmittance=0.0,
+                                        device=renderer.device))
+    return res.rgba.astype(np.float64)
+
+
+def run_datasets(args, out):
+    from hovr_blender.core.renderer import Renderer
+
+    W, H = map(int, args.size.split("x"))
+    for name in args.datasets.split(","):
+        try:
+            t0 = time.perf_counter()
+            mesh, _ = audit.load(name)
+            load = time.perf_counter() - t0
+        except FileNotFoundError as exc:
+            print(f"{name}: skipped, missing {exc}", flush=True)
+            continue
+        tf = audit.transfer_function(mesh)
+        t0 = time.perf_counter()
+        r = Renderer(mesh, args.device)
+        r.load_kernels("float32")
+        setup = time.perf_counter() - t0
+        entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
+                 "load_seconds": load, "renderer_seconds": setup,
+                 "device_bytes_per_element": device_bytes_per_element(r),
+                 "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+        ref = reference_image(r, mesh, tf, W, H) if not args.no_reference else None
+        for method in METHODS:
+            row = frame(r, mesh, tf, W, H, method, args.repeats, ref, args.classified_div)
+            row["target_seconds"] = TARGET_1080.get(name, 0.100) if (W, H) == (1920, 1080) else None
+            entry["frames"].append(row)
+            print(f"{name} {W}x{H} {method}: {1e3 * row['seconds']:.1f} ms, {row['rounds']} rounds, "
+                  f"{row['segments_per_ray']:.2f} seg/ray, err {row.get('max_error_vs_float64', float('nan')):.1e}", flush=True)
+        if name in SMALL and not args.no_small:
+            for method in METHODS:
+                row = frame(r, mesh, tf, 512, 512, method, max(args.repeats, 10), None, args.classified_div)
+                row["fps"] = 1.0 / row["seconds"]
+                row["target_fps"] = TARGET_512_FPS
+                entry["frames"].append(row)
+                print(f"{name} 512x512 {method}: {1e3 * row['seconds']:.1f} ms = {row['fps']:.0f} fps", flush=True)
+        out["datasets"][name] = entry
+        _write(args.out, out)
+
+
+def translated(mesh, t):
+    """`mesh` moved by t (geometry modes: the vertex modes carry a translation, as
+    VolumeMesh.transformed does, vectorised over elements of one shape and geometry order)."""
+    from hovr_blender.core import expansions as ex
+
+    t = np.asarray(t, dtype=np.float64)
+    g = mesh.geom_coeffs.copy()
+    for sh in np.unique(mesh.shape):
+        for gm in np.unique(mesh.geom_modes[mesh.shape == sh], axis=0):
+            sel = np.nonzero((mesh.shape == sh) & (mesh.geom_modes == gm).all(axis=1))[0]
+            rows = mesh.geom_offset[sel][:, None] + ex.vertex_mode_indices(int(sh), tuple(int(m) for m in gm))[None, :]
+            g[rows.ravel()] += t
+    ref = mesh.ref_from_world.copy()
+    ref[:, :, 3] -= np.einsum("eij,j->ei", ref[:, :, :3], t)
+    return dataclasses.replace(mesh, geom_coeffs=g, vertices=mesh.vertices + t, ref_from_world=ref)
+
+
+def million_mesh(target: int):
+    from hovr_blender.core.mesh import concatenate
+    from hovr_blender.io.paper_scale import paper_scale_mesh
+
+    base = paper_scale_mesh()
+    copies = int(np.ceil(target / base.num_elements))
+    nx = int(np.ceil(np.sqrt(copies)))
+    V = base.vertices.reshape(-1, 3)
+    ext = V.max(0) - V.min(0)
+    parts = [translated(base, [1.05 * ext[0] * (k % nx), 1.05 * ext[1] * (k // nx), 0.0]) for k in range(copies)]
+    mesh = concatenate(parts)
+    mesh.volume = np.zeros(mesh.num_elements, np.int32)  # one volume: one field frame, one transfer function
+    return mesh, copies
+
+
+def run_million(args, out):
+    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.transfer_function import TransferFunction
+
+    W, H = map(int, args.size.split("x"))
+    t0 = time.perf_counter()
+    mesh, copies = million_mesh(args.million_elements)
+    build = time.perf_counter() - t0
+    print(f"million: {mesh.num_elements} elements ({copies} copies), built in {build:.1f} s", flush=True)
+    t0 = time.perf_counter()
+    r = Renderer(mesh, args.device)
+    r.load_kernels("float32")
+    setup = time.perf_counter() - t0
+    V = mesh.vertices.reshape(-1, 3)
+    lo, hi = V.min(0), V.max(0)
+    c, rad = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
+    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.core.view import RenderOptions
+
+    cam = RayCamera.from_contract({"eye": (c + 2.6 * rad * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
+                                   "fov_y_deg": 30.0}, W, H)
+    tf = TransferFunction.from_contract({"color": [[0.25, 0.1, 0.2, 1.0], [0.9, 0.2, 1.0, 0.3], [1.55, 1.0, 0.3, 0.1]],
+                                         "density": [[0.25, 0.0], [0.6, 0.0], [0.9, 3.0 / rad * 4], [1.2, 0.0]]})
+    entry = {"elements": mesh.num_elements, "copies": copies, "build_seconds": build, "renderer_seconds": setup,
+             "device_bytes_per_element": device_bytes_per_element(r),
+             "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+    for method in METHODS:
+        opts = options(r, method, args.classified_div)
+        r.render(cam, tf, np.zeros(3), opts)
+        secs = []
+        for _ in range(args.repeats):
+            res = r.render(cam, tf, np.zeros(3), opts)
+            secs.append(res.stats["render_seconds"])
+        s = res.stats
+        entry["frames"].append({"method": method, "seconds": min(secs), "rounds": s["rounds"],
+                                "segments_per_ray": s["segments"] / (W * H), "alpha_mean": float(res.rgba[..., 3].mean()),
+                                "target_seconds": 0.3})
+        print(f"million {method}: {1e3 * min(secs):.0f} ms, {s['segments'] / (W * H):.1f} seg/ray", flush=True)
+    out["million"] = entry
+    _write(args.out, out)
+
+
+def cold_child(args):
+    """One first image in this (fresh) process: prints a JSON line."""
+    t_start = float(os.environ["HOVR_COLD_T0"])
+    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.view import RenderOptions
+
+    mesh, _ = audit.load(args.cold_child)
+    tf = audit.transfer_function(mesh)
+    r = Renderer(mesh, args.device)
+    W, H = map(int, args.size.split("x"))
+    t0 = time.perf_counter()
+    res = r.render(_camera(mesh, W, H), tf, np.zeros(3), RenderOptions(method="split", device=args.device))
+    t1 = time.perf_counter()
+    print(json.dumps({"render_call_seconds": t1 - t0, "frame_seconds": res.stats["render_seconds"],
+                      "process_seconds": time.time() - t_start, "alpha_max": float(res.rgba[..., 3].max())}), flush=True)
+
+
+def run_cold(args, out):
+    rows = []
+    for label, workers in (("parallel modules", "0"), ("one module at a time", "1")):
+        with tempfile.TemporaryDirectory() as cache:
+            env = dict(os.environ, WARP_CACHE_PATH=cache, CUDA_CACHE_DISABLE="1", HOVR_COMPILE_WORKERS=workers,
+                       HOVR_COLD_T0=repr(time.time()))
+            p = subprocess.run([sys.executable, __file__, "--cold-child", args.cold_dataset, "--device", args.device,
+                                "--size", args.size], env=env, capture_output=True, text=True, timeout=600)
+            lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
+            if p.returncode != 0 or not lines:
+                raise RuntimeError(f"cold child failed: {p.stderr[-2000:]}")
+            row = {"setting": label, "HOVR_COMPILE_WORKERS": workers, **json.loads(lines[-1])}
+            rows.append(row)
+            print(f"cold ({label}): render call {row['render_call_seconds']:.1f} s, process {row['process_seconds']:.1f} s",
+                  flush=True)
+    out["cold"] = {"dataset": args.cold_dataset, "size": args.size, "rows": rows, "target_seconds": 5.0}
+    _write(args.out, out)
+
+
+def _write(path, out):
+    if path:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        with open(path, "w") as f:
+            json.dump(out, f, indent=1, default=suite._jsonable)
+            f.write("\n")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--size", default="1920x1080")
+    ap.add_argument("--datasets", default=",".join(DATASETS))
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--classified-div", type=float, default=1000.0,
+                    help="classified's step h = the data's box diagonal / this (0: the core's default h)")
+    ap.add_argument("--no-reference", action="store_true")
+    ap.add_argument("--no-small", action="store_true", help="skip the 512x512 frames")
+    ap.add_argument("--cold", action="store_true")
+    ap.add_argument("--cold-dataset", default="hump3D")
+    ap.add_argument("--cold-child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--million", action="store_true")
+    ap.add_argument("--million-elements", type=int, default=1_000_000)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    if args.cold_child:
+        return cold_child(args)
+    import warp as wp
+
+    from hovr_blender.core.renderer import resolve_device
+
+    resolve_device(args.device)
+    out = {"device": args.device, "device_name": wp.get_device(args.device).name,
+           "date": datetime.datetime.now().isoformat(timespec="seconds"),
+           "command": "python " + " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
+           "git_commit": suite._git("rev-parse", "HEAD"), "datasets": {}}
+    if args.cold:
+        run_cold(args, out)
+    elif args.million:
+        run_million(args, out)
+    else:
+        run_datasets(args, out)
+
+
+if __name__ == "__main__":
+    main()
