@@ -238,14 +238,21 @@ def check_stage(args):
     audit = json.loads(Path(args.audit).read_text())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = [(name, entry, audit["size"]) for name, entry in audit["datasets"].items()
-            if not args.datasets or name in args.datasets.split(",")]
+    # one job per dataset and view: the views of a large dataset check side by side
+    jobs = [(name, {**entry, "views": {vname: view}}, audit["size"]) for name, entry in audit["datasets"].items()
+            if not args.datasets or name in args.datasets.split(",") for vname, view in entry["views"].items()]
     summary = {"size": audit["size"], "device": audit["device"], "datasets": {}}
+    reports = {}
     with ProcessPoolExecutor(args.jobs) as pool:
         for name, report in pool.map(_check_dataset, jobs):
-            (out / f"{name}.json").write_text(json.dumps(report, indent=1) + "\n")
-            summary["datasets"][name] = {v: {k: x for k, x in r.items() if k != "pixels"}
-                                         for v, r in report["views"].items()}
+            if name in reports:
+                reports[name]["views"].update(report["views"])
+            else:
+                reports[name] = report
+    for name, report in reports.items():
+        (out / f"{name}.json").write_text(json.dumps(report, indent=1) + "\n")
+        summary["datasets"][name] = {v: {k: x for k, x in r.items() if k != "pixels"}
+                                     for v, r in report["views"].items()}
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
 
 
