@@ -83,3 +83,48 @@ def test_vtu_import_has_the_option(scene, tmp_path):
     walls = bpy.data.objects["cube Walls"]
     assert len(walls.data.polygons) == 12  # a straight hexahedron: 6 faces of 2 triangles
     assert walls.parent == bpy.context.active_object
+
+
+def test_walls_from_a_boundary_region_and_add_walls(scene, tmp_path):
+    """Walls From picks the annulus' boundary regions (B[3] its outer wall r = 1, B[4] the inner
+    r = 0.3); a selection the file cannot satisfy cancels the import and names the composite;
+    Add Walls makes another region's walls for the imported volume."""
+    xml = tmp_path / f"{ANNULUS}.xml"
+    shutil.copy(data_file("nektar", f"{ANNULUS}.xml"), xml)
+    before = set(bpy.data.objects.keys())
+    with pytest.raises(RuntimeError, match=r"composite C\[0\] holds hexahedra \(H\[\.\.\.\]\), not faces"):
+        bpy.ops.import_scene.hovr_nektar(filepath=str(xml), frame=False, walls=True, walls_from="C[0]")
+    assert set(bpy.data.objects.keys()) == before  # nothing made
+
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(xml), frame=False, walls=True,
+                                            walls_from="B[3]") == {'FINISHED'}
+    volume = bpy.context.active_object
+    outer = bpy.data.objects[f"{ANNULUS} Walls"]
+    r = np.hypot(*_walls_vertices(outer)[:, :2].T)
+    np.testing.assert_allclose(r, 1.0, atol=2e-3)  # within the tolerance (1e-3 of the diagonal) of the cylinder
+    assert len(outer.data.polygons) < 1604  # less than the whole boundary
+
+    bpy.context.view_layer.objects.active = volume
+    assert bpy.ops.hovr.add_walls(walls_from="B[4]") == {'FINISHED'}
+    inner = bpy.data.objects[f"{ANNULUS} Walls B[4]"]
+    assert inner.parent == volume
+    np.testing.assert_allclose(np.hypot(*_walls_vertices(inner)[:, :2].T), 0.3, atol=2e-3)
+    bpy.context.view_layer.objects.active = volume
+    assert bpy.ops.hovr.add_walls() == {'FINISHED'}  # empty: the whole boundary
+    assert len(bpy.data.objects[f"{ANNULUS} Walls.001"].data.polygons) == 1604
+    bpy.context.view_layer.objects.active = volume
+    with pytest.raises(RuntimeError, match=r"no boundary region B\[0\]; the file has B\[1\]"):
+        bpy.ops.hovr.add_walls(walls_from="B[0]")
+
+
+def test_add_walls_of_a_vtu_volume_takes_no_composites(scene, tmp_path):
+    meshio = pytest.importorskip("meshio")
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    path = tmp_path / "cube.vtu"
+    meshio.write(str(path), meshio.Mesh(pts, [("hexahedron", np.arange(8)[None])], point_data={"s": pts[:, 2]}),
+                 binary=False)
+    assert bpy.ops.import_scene.hovr_vtu(filepath=str(path), frame=False) == {'FINISHED'}
+    with pytest.raises(RuntimeError, match=r"composites and boundary regions are a Nektar\+\+ mesh's"):
+        bpy.ops.hovr.add_walls(walls_from="C[1]")
+    assert bpy.ops.hovr.add_walls() == {'FINISHED'}
+    assert len(bpy.data.objects["cube Walls"].data.polygons) == 12
