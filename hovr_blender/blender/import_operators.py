@@ -229,6 +229,9 @@ def draw_wall_choices(layout, path):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
     choices = _cached(("walls", path), path, lambda: nektar.mesh_boundaries(path).choices())
     box = layout.box()
+    if choices is None:
+        box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
+        return
     if not choices:
         box.label(text="No face composites: all boundary faces", icon='INFO')
         return

@@ -152,6 +152,9 @@ def test_pyramid_channel_names_interior_faces_and_conditions(tmp_path):
     ("", "<B ID=\"0\"> C[1] </B><B ID=\"0\"> C[2] </B>", "", "B[0]", "boundary region B[0] is defined twice"),
     ("", "<B ID=\"0\"> C[9] </B>", "", "B[0]", "boundary region B[0] names missing composite C[9]"),
     ("", "<B ID=\"0\"> F[1] </B>", "", "B[0]", "boundary region B[0] must list composites as C[...]"),
+    # a file whose regions name the composites over and over is refused before they are expanded
+    ("", "".join(f'<B ID="{i}"> C[0-6] </B>' for i in range(200)), "", "B[0]",
+     "the boundary regions name 1057 composites or more in all, for 7 composites; refused"),
 ])
 def test_bad_composites_and_regions(tmp_path, composites, regions, faces, selection, message):
     path = _variant(tmp_path, "bad.xml", composites, regions, faces)

@@ -35,6 +35,9 @@ _WHAT = {"V": "vertices", "E": "edges", "S": "segments", "F": "faces", "T": "tri
          "A": "tetrahedra", "P": "pyramids", "R": "prisms", "H": "hexahedra"}
 _CONDITION_KINDS = {"D": "Dirichlet", "N": "Neumann", "R": "Robin", "P": "Periodic"}
 _TOKEN = re.compile(r"([A-Za-z])\s*\[([^\]]*)\]")
+# A composite is in one boundary region, rarely a few: a file naming more in all is refused
+# before the regions' composite lists are expanded.
+MAX_NAMED_PER_COMPOSITE = 8
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,7 @@ def read_boundary_regions(conditions, path, composites: dict) -> dict:
                 labels.append(label)
     composite_ids = np.array(sorted(composites), dtype=np.int64)
     out = {}
+    named = 0  # composites named by the regions so far
     for node in conditions.find("BOUNDARYREGIONS").findall("B"):
         rid = entity_id(node, path, "BOUNDARYREGIONS")
         what = f"boundary region B[{rid}]"
@@ -107,14 +111,22 @@ def read_boundary_regions(conditions, path, composites: dict) -> dict:
         lists = re.findall(r"C\s*\[([^\]]*)\]", text)
         if not lists or re.sub(r"C\s*\[[^\]]*\]", "", text).strip():
             raise NektarError(f"{path}: {what} must list composites as C[...], got {text.strip()!r}")
-        ranges = [r for body in lists for r in parse_ranges(body, path, what)]
-        positions, lo, hi, complete = select(composite_ids, ranges)
+        ranges = np.array([r for body in lists for r in parse_ranges(body, path, what)], dtype=np.int64)
+        # searchsorted per range, not ranges.select: that walks every composite once per region
+        lo = np.searchsorted(composite_ids, ranges[:, 0], "left")
+        hi = np.searchsorted(composite_ids, ranges[:, 1], "right")
+        complete = hi - lo - 1 == ranges[:, 1] - ranges[:, 0]
         if not complete.all():
             i = int(np.argmin(complete))
-            missing = first_missing(composite_ids, ranges[i][0], lo[i], hi[i])
+            missing = first_missing(composite_ids, int(ranges[i, 0]), lo[i], hi[i])
             raise NektarError(f"{path}: {what} names missing composite C[{missing}]")
-        out[rid] = BoundaryRegion(rid, (node.attrib.get("NAME") or "").strip(),
-                                  tuple(composite_ids[positions].tolist()), tuple(kinds.get(rid, ())))
+        named += int((hi - lo).sum())
+        if named > MAX_NAMED_PER_COMPOSITE * len(composite_ids) + 1000:
+            raise NektarError(f"{path}: the boundary regions name {named} composites or more in all, for "
+                              f"{len(composite_ids)} composites; refused")
+        ids = np.unique(np.concatenate([composite_ids[a:b] for a, b in zip(lo.tolist(), hi.tolist())]))
+        out[rid] = BoundaryRegion(rid, (node.attrib.get("NAME") or "").strip(), tuple(ids.tolist()),
+                                  tuple(kinds.get(rid, ())))
     return out
 
 
@@ -136,6 +148,10 @@ class Boundaries:
     def choices(self) -> list:
         """[(selection text, label)]: each boundary region, then each face composite."""
         out = []
+        named_by: dict = {}
+        for rid, region in sorted(self.regions.items()):
+            for c in region.composites:
+                named_by.setdefault(c, []).append(f"B[{rid}]")
         for rid, region in sorted(self.regions.items()):
             parts = [", ".join(f"C[{c}]" for c in region.composites)]
             if region.name:
@@ -145,8 +161,8 @@ class Boundaries:
             out.append((f"B[{rid}]", f"B[{rid}]: " + " ".join(parts)))
         for c in self.face_composites:
             label = f"C[{c.id}]: " + (f"{c.name} " if c.name else "") + f"{c.declared_count} faces"
-            named_by = [f"B[{r}]" for r, region in sorted(self.regions.items()) if c.id in region.composites]
-            out.append((f"C[{c.id}]", label + (f" (in {', '.join(named_by)})" if named_by else "")))
+            regions = named_by.get(c.id, [])
+            out.append((f"C[{c.id}]", label + (f" (in {', '.join(regions)})" if regions else "")))
         return out
 
     def composite_faces(self, cid: int):
