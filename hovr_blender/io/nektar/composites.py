@@ -1,5 +1,5 @@
 """The mesh's composites and the CONDITIONS' boundary regions (docs/spec/formats.md §2.2,
-§2.2.1): which element faces a face composite holds, for the walls (core/walls.py), and which
+§5.1): which element faces a face composite holds, for the walls (core/walls.py), and which
 composites each boundary region names, with the names and condition types the file gives.
 
 A composite <C ID="i" NAME="optional"> lists entities of one dimension; a face composite lists
