@@ -2,8 +2,11 @@
 
 The file is read first; only a successful read creates anything (the outline mesh, the
 object and its own look: a transfer function, the field's range, a density relative to its
-size; with Walls as Mesh, the domain's boundary faces as a triangle mesh, core/walls.py), so a malformed file leaves the .blend as it was and the error names the file (and the
-element or record where the reader can tell). Importing never changes another volume. By
+size; with Walls as Mesh, the domain's boundary faces, or a Nektar++ file's chosen composites or
+boundary regions, as a triangle mesh, core/walls.py), so a malformed file or a selection the
+file cannot satisfy leaves the .blend as it was and the error names the file (and the element,
+record or composite where the reader can tell). Add Walls (hovr.add_walls) makes the same mesh
+for a volume already imported. Importing never changes another volume. By
 default the scene camera (made if there is none) then frames the new volume.
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
 that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
@@ -82,6 +85,10 @@ class _ImportVolume(ImportHelper):
         """(solution, field, component, notes, warnings) to store; raises ValueError for bad settings."""
         raise NotImplementedError
 
+    def wall_selection(self) -> str:
+        """Which faces become the walls: "" for all boundary faces (a Nektar++ import may choose)."""
+        return ""
+
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         wm = context.window_manager
@@ -101,7 +108,7 @@ class _ImportVolume(ImportHelper):
             values = field_samples(mesh) if self.fit_range else None
             walls = None
             if self.walls:
-                walls = core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, self.walls_tolerance))
+                walls = make_walls(mesh, source.path, self.wall_selection(), self.walls_tolerance)
         except Exception as exc:  # a reader bug must not leave a traceback instead of a message
             return _fail(self, path, exc)
         stem = os.path.splitext(os.path.basename(path))[0]
@@ -113,10 +120,10 @@ class _ImportVolume(ImportHelper):
         if walls is not None:
             try:
                 create_walls_object(context, obj, walls)
-                notes.append(f"walls: {len(walls.triangles)} triangles within {walls.tolerance:.3g}")
-                if walls.cap_hit:
-                    warnings.append(f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "
-                                    f"triangles still farther than {walls.tolerance:.3g} from the true surface")
+                note, warning = walls_report(walls, self.wall_selection())
+                notes.append(note)
+                if warning:
+                    warnings.append(warning)
             except Exception as exc:  # the volume itself was imported
                 warnings.append(f"walls not made: {failure_text(exc)}")
             context.view_layer.objects.active = obj
@@ -140,11 +147,36 @@ class _ImportVolume(ImportHelper):
         return {'FINISHED'}
 
 
-def create_walls_object(context, volume, walls):
-    """The tessellated boundary (core_walls.Walls) as the mesh object "<volume> Walls", a child of
-    the volume with an identity local transform (the volume's own transform), smooth shaded, in
-    the volume's collections. Vertices of neighbouring faces are not welded (core/walls.py)."""
-    name = f"{volume.name} Walls"
+def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
+    """core_walls.Walls of the volume `mesh` read from `path`: its boundary faces, or with a
+    selection (C[...], B[...] or names) those of a Nektar++ file's composites or boundary regions."""
+    faces = None
+    if selection.strip():
+        if not path.lower().endswith(".xml"):
+            raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a Nektar++ "
+                             f"mesh's (.xml), not {os.path.basename(path) or path}'s; leave the selection empty "
+                             "for all boundary faces")
+        faces = nektar.mesh_boundaries(path).select(selection)
+    return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
+
+
+def walls_report(walls, selection: str):
+    """(note, warning or None) for the report of a walls mesh."""
+    what = f" of {selection.strip()}" if selection.strip() else ""
+    note = f"walls{what}: {len(walls.element)} faces, {len(walls.triangles)} triangles within {walls.tolerance:.3g}"
+    warning = None
+    if walls.cap_hit:
+        warning = (f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "
+                   f"triangles still farther than {walls.tolerance:.3g} from the true surface")
+    return note, warning
+
+
+def create_walls_object(context, volume, walls, name=None):
+    """The tessellated boundary (core_walls.Walls) as the mesh object `name` (default "<volume>
+    Walls"), a child of the volume with an identity local transform (the volume's own transform),
+    smooth shaded, in the volume's collections. Vertices of neighbouring faces are not welded
+    (core/walls.py)."""
+    name = name or f"{volume.name} Walls"
     me = obj = None
     try:
         me = bpy.data.meshes.new(name)
@@ -187,6 +219,82 @@ def _cached(key, stamp_path, compute):
     return value
 
 
+WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domain's boundary faces; or the "
+                          "file's composites C[1,3-4], boundary regions B[0] (from its CONDITIONS), or names "
+                          "(a composite's or region's NAME, or a condition type such as WallViscous), "
+                          "separated by commas")
+
+
+def draw_wall_choices(layout, path):
+    """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
+    choices = _cached(("walls", path), path, lambda: nektar.mesh_boundaries(path).choices())
+    box = layout.box()
+    if choices is None:
+        box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
+        return
+    if not choices:
+        box.label(text="No face composites: all boundary faces", icon='INFO')
+        return
+    box.label(text="Walls From (empty: all boundary faces):")
+    for _, label in choices[:12]:
+        box.label(text=label[:60])
+    if len(choices) > 12:
+        box.label(text=f"... {len(choices) - 12} more")
+
+
+class HOVR_OT_add_walls(bpy.types.Operator):
+    """Add a triangle mesh of the active HOVR volume's walls: its boundary faces, or a Nektar++
+    mesh's chosen composites or boundary regions, curved faces tessellated within the tolerance"""
+
+    bl_idname = "hovr.add_walls"
+    bl_label = "Add Walls"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
+    walls_tolerance: FloatProperty(name="Wall Tolerance", default=core_walls.DEFAULT_RELATIVE_TOLERANCE,
+                                   min=1e-6, max=0.1, precision=6, step=0.01,
+                                   description="Largest distance of the walls' triangles from the true curved "
+                                               "faces, as a fraction of the volume's bounding-box diagonal")
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.hovr.is_volume and bool(obj.hovr.source.strip())
+
+    def invoke(self, context, _event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "walls_from")
+        layout.prop(self, "walls_tolerance")
+        path = context.object.hovr.source
+        if path.lower().endswith(".xml"):
+            try:
+                draw_wall_choices(layout, operators.source_of(context.object, context.scene).path)
+            except ValueError:
+                pass
+
+    def execute(self, context):
+        volume = context.object
+        try:
+            source = operators.source_of(volume, context.scene)
+            mesh = cached_volume(source)
+            walls = make_walls(mesh, source.path, self.walls_from, self.walls_tolerance)
+        except Exception as exc:
+            self.report({'ERROR'}, f"HOVR: no walls for {volume.name}: {failure_text(exc)}")
+            return {'CANCELLED'}
+        selection = self.walls_from.strip()
+        obj = create_walls_object(context, volume, walls,
+                                  f"{volume.name} Walls {selection}" if selection else None)
+        note, warning = walls_report(walls, selection)
+        self.report({'INFO'}, f"HOVR: {obj.name}: {note}")
+        if warning:
+            self.report({'WARNING'}, f"HOVR: {obj.name}: {warning}")
+        return {'FINISHED'}
+
+
 class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
     """Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume"""
 
@@ -202,6 +310,10 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
     field: StringProperty(name="Field", default="",
                           description='Field to render; "|u,v,w|" is the magnitude of u, v, w. '
                                       "Empty: the file's first field")
+    walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
+
+    def wall_selection(self) -> str:
+        return self.walls_from
 
     def resolve(self, path):
         folder = os.path.dirname(path)
@@ -238,10 +350,13 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
         layout.prop(self, "fit_range")
         layout.prop(self, "frame")
         layout.prop(self, "walls")
-        row = layout.row()
-        row.enabled = self.walls
-        row.prop(self, "walls_tolerance")
+        col = layout.column()
+        col.enabled = self.walls
+        col.prop(self, "walls_tolerance")
+        col.prop(self, "walls_from")
         path = bpy.path.abspath(self.filepath)
+        if self.walls and path.lower().endswith(".xml"):
+            draw_wall_choices(col, path)
         if self.solution.strip() or not path.lower().endswith(".xml"):
             return
         folder = os.path.dirname(path) or "."
@@ -362,7 +477,7 @@ def restore_paths_after_copy(*args):
         _BEFORE_SAVE.clear()
 
 
-classes = (HOVR_OT_import_nektar, HOVR_OT_import_vtu)
+classes = (HOVR_OT_import_nektar, HOVR_OT_import_vtu, HOVR_OT_add_walls)
 
 
 def register():

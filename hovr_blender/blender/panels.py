@@ -100,7 +100,9 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
                 layout.prop(hovr, "component")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')
-        layout.operator("hovr.frame_volume", icon='VIEW_CAMERA')
+        row = layout.row(align=True)
+        row.operator("hovr.frame_volume", icon='VIEW_CAMERA')
+        row.operator("hovr.add_walls", icon='MESH_GRID')
 
 
 class HOVR_OBJECT_PT_look(HovrButtonsPanel, bpy.types.Panel):

@@ -59,3 +59,9 @@ def plane_vertices(shape: int) -> list[np.ndarray]:
     """Per face of FACE_PLANES, the local vertex indices lying on it."""
     V = VERTICES[shape]
     return [np.nonzero(np.abs(V @ np.asarray(n, float) - c) < 1e-12)[0] for n, c in FACE_PLANES[shape]]
+
+
+# PLANE_OF_FACE[shape][k]: the FACE_PLANES index of the face FACES[shape][k] (Nektar++'s local
+# face k), the two numberings' one bridge (the walls of a Nektar++ composite: io/nektar/composites.py).
+PLANE_OF_FACE = {s: tuple(next(p for p, on in enumerate(plane_vertices(s)) if set(on.tolist()) == set(face))
+                          for face in FACES[s]) for s in FACES}

@@ -30,7 +30,9 @@ grids differ (Blender's Merge by Distance closes the coincident ones).
 
 Boundary faces: faces with no neighbour in face_neighbours, less the unmatched faces that
 other unmatched faces cover from the other side (a quadrilateral met by two triangles, as
-between a hexahedron and tetrahedra; outline.py's rule), which lie inside the domain.
+between a hexahedron and tetrahedra; outline.py's rule), which lie inside the domain. Instead of
+all of them, tessellate takes a selection of faces (the walls of chosen Nektar++ composites or
+boundary regions: io/nektar/composites.py gives them as (element, face)).
 """
 from __future__ import annotations
 
@@ -42,7 +44,7 @@ from . import expansions as ex
 from .adjacency import face_neighbours
 from .mesh import with_geometry_expansion
 from .outline import _split_faces_inside
-from .shapes import FACE_PLANES, FACES, MAX_FACES, VERTICES, plane_vertices
+from .shapes import FACE_PLANES, FACES, MAX_FACES, NAMES, VERTICES, plane_vertices
 
 SAFETY = 0.75  # checked deviation <= SAFETY * tolerance (module docstring)
 MAX_K = 64
@@ -173,9 +175,32 @@ def _orientation(mesh, elems) -> np.ndarray:
     return out
 
 
+def checked_faces(mesh, faces):
+    """(element, face) int64 arrays of a face selection, each element an index of `mesh` and each
+    face one of its shape's faces (FACE_PLANES' numbering); ValueError naming the first bad pair."""
+    try:
+        elem, face = (np.asarray(a) for a in faces)
+    except (TypeError, ValueError):
+        raise ValueError("faces must be a pair of arrays (element, face)") from None
+    if elem.ndim != 1 or face.shape != elem.shape or not all(np.issubdtype(a.dtype, np.integer) for a in (elem, face)):
+        raise ValueError(f"faces must be two 1-D integer arrays of one length, got shapes {elem.shape} and {face.shape}")
+    elem, face = elem.astype(np.int64), face.astype(np.int64)
+    bad = np.flatnonzero((elem < 0) | (elem >= mesh.num_elements))
+    if bad.size:
+        raise ValueError(f"faces: element {elem[bad[0]]} is not in the mesh ({mesh.num_elements} elements)")
+    nfaces = np.array([len(FACE_PLANES[s]) for s in range(4)])[mesh.shape[elem]]
+    bad = np.flatnonzero((face < 0) | (face >= nfaces))
+    if bad.size:
+        e = int(elem[bad[0]])
+        raise ValueError(f"faces: element {e} ({NAMES[int(mesh.shape[e])]}) has no face {face[bad[0]]}")
+    return elem, face
+
+
 def tessellate(mesh, tolerance: float | None = None, max_k: int = MAX_K, faces=None) -> Walls:
     """The boundary faces as triangles within `tolerance` of the true surface (module docstring);
-    tolerance None: default_tolerance(mesh). faces: (element, face) arrays, default boundary_faces."""
+    tolerance None: default_tolerance(mesh). faces: a selection (element, face) of any faces
+    (checked_faces; a Nektar++ composite's: io/nektar/composites.py) instead of boundary_faces;
+    each is tessellated and wound as its element's outward face, interior ones too."""
     if mesh.geom_coeffs is None:
         mesh = with_geometry_expansion(mesh)
     if tolerance is None:
@@ -184,7 +209,7 @@ def tessellate(mesh, tolerance: float | None = None, max_k: int = MAX_K, faces=N
     if not np.isfinite(tolerance) or tolerance <= 0:
         raise ValueError(f"tolerance must be positive, got {tolerance}")
     max_k = max(1, int(max_k))
-    elem, face = boundary_faces(mesh) if faces is None else (np.asarray(faces[0], np.int64), np.asarray(faces[1], np.int64))
+    elem, face = boundary_faces(mesh) if faces is None else checked_faces(mesh, faces)
     F = elem.size
     k_of = np.ones(F, np.int64)
     dev_of = np.zeros(F)

@@ -121,3 +121,41 @@ def set_look(obj, stops, value_range, density_scale, units="WORLD"):
 def volume(scene, k=0):
     """The k-th HOVR volume of the scene, by name (the render order)."""
     return sorted((o for o in scene.objects if o.hovr.is_volume), key=lambda o: o.name)[k]
+
+
+def material(name, color, roughness=None):
+    """A new material whose Principled BSDF has this base colour (linear RGB)."""
+    mat = bpy.data.materials.new(name)
+    if mat.node_tree is None:  # before 5.0 a new material has no nodes until asked
+        mat.use_nodes = True
+    bsdf = next(n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED')
+    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
+    if roughness is not None:
+        bsdf.inputs["Roughness"].default_value = roughness
+    return mat
+
+
+def set_world(scene, color):
+    """A new world of one colour: HOVR's background (World.color) and Cycles' (its Background node)."""
+    world = bpy.data.worlds.new("World")
+    world.color = color
+    if world.node_tree is None:
+        world.use_nodes = True
+    background = next(n for n in world.node_tree.nodes if n.type == 'BACKGROUND')
+    background.inputs["Color"].default_value = (*color, 1.0)
+    scene.world = world
+    return world
+
+
+def z_combine(tree):
+    """(node, image A, depth A, image B, depth B) of a new Z Combine node that picks, per pixel, the
+    input with the smaller depth: Use Alpha and Anti-Alias off. 5.0 has them as input sockets
+    (A, Depth A, B, Depth B, Use Alpha, Anti-Alias); 4.x as properties (Image, Z, Image, Z)."""
+    node = tree.nodes.new("CompositorNodeZcombine")
+    if "Use Alpha" in node.inputs:  # 5.0+
+        node.inputs["Use Alpha"].default_value = False
+        node.inputs["Anti-Alias"].default_value = False
+    else:
+        node.use_alpha = False
+        node.use_antialias_z = False
+    return (node, *node.inputs[:4])

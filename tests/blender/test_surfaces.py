@@ -13,16 +13,7 @@ from hovr_blender.blender.surfaces import scene_surfaces  # noqa: E402
 from hovr_blender.core.camera import RayCamera  # noqa: E402
 
 from ..core import test_surfaces as ref  # noqa: E402
-from .blender_helpers import add_camera, render_to_exr, set_contract_camera, set_look  # noqa: E402
-
-
-def material(name, color):
-    mat = bpy.data.materials.new(name)
-    if mat.node_tree is None:
-        mat.use_nodes = True
-    bsdf = next(n for n in mat.node_tree.nodes if n.type == 'BSDF_PRINCIPLED')
-    bsdf.inputs["Base Color"].default_value = (*color, 1.0)
-    return mat
+from .blender_helpers import add_camera, material, render_to_exr, set_contract_camera, set_look, z_combine  # noqa: E402
 
 
 def add_plane(scene, name="Plane", color=ref.PLANE_COLOR):
@@ -164,3 +155,62 @@ def test_compositing_over_cycles_is_the_alpha_over(scene, tmp_path):
     want_h, t_s = ref.reference_image(RayCamera.from_contract(ref.CAMERAS["perspective"], ref.W, ref.H), holdout=True)
     hit = np.isfinite(t_s)
     np.testing.assert_allclose(hovr[hit], want_h[hit], atol=1e-4)
+
+
+def test_depth_pass_z_combines_with_cycles(scene, tmp_path):
+    """The Depth pass the other way round: HOVR's volume alone (Surfaces Off) and Cycles' render of
+    the plane, joined by the compositor's Z Combine (Use Alpha off): each pixel is HOVR's where its
+    Depth (the view-axis distance where the volume's opacity reaches 0.5, else the clip end) is
+    nearer than Cycles' Depth of the plane, else Cycles', against that choice made here from the
+    two images and depths rendered apart."""
+    from hovr_blender.blender.compat import new_compositor
+
+    sphere_volume = sphere_scene(scene)
+    sphere_volume.hovr.density = 6.0  # opaque enough to reach 0.5 in front of the plane in places
+    add_plane(scene)
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", 'SUN'))
+    sun.rotation_euler = (0.4, 0.2, 0.3)
+    scene.collection.objects.link(sun)
+    bpy.ops.hovr.setup_compositing(engine="CYCLES")  # the scene sharing the objects, rendered by Cycles
+    other = bpy.data.scenes[scene.name + " Surfaces"]
+    other.cycles.samples, other.cycles.use_denoising, other.cycles.device, other.cycles.seed = 4, False, 'CPU', 7
+    scene.hovr.surfaces = "NONE"  # the volume whole: the compositor decides what is in front
+    for sc in (scene, other):
+        sc.view_layers[0].use_pass_z = True
+    tree, out = new_compositor(scene, "HOVR Z Combine")
+    hovr_layer, surf_layer = tree.nodes.new("CompositorNodeRLayers"), tree.nodes.new("CompositorNodeRLayers")
+    hovr_layer.scene, surf_layer.scene = scene, other
+    node, image_a, depth_a, image_b, depth_b = z_combine(tree)
+    tree.links.new(hovr_layer.outputs["Image"], image_a)
+    tree.links.new(hovr_layer.outputs["Depth"], depth_a)
+    tree.links.new(surf_layer.outputs["Image"], image_b)
+    tree.links.new(surf_layer.outputs["Depth"], depth_b)
+    tree.links.new(node.outputs[0], out)
+    combined = render_to_exr(scene, tmp_path / "zcombine.exr")
+
+    def through_compositor(socket, name):
+        """One input of the Z Combine, rendered on its own (a depth arrives as grey RGB)."""
+        for link in [lk for lk in tree.links if lk.to_socket == out]:
+            tree.links.remove(link)
+        tree.links.new(socket, out)
+        return render_to_exr(scene, tmp_path / f"{name}.exr")
+
+    hovr = through_compositor(hovr_layer.outputs["Image"], "hovr")
+    z_hovr = through_compositor(hovr_layer.outputs["Depth"], "hovr_depth")[..., 0]
+    cycles = through_compositor(surf_layer.outputs["Image"], "cycles")
+    z_cycles = through_compositor(surf_layer.outputs["Depth"], "cycles_depth")[..., 0]
+
+    far = scene.camera.data.clip_end
+    volume_near = z_hovr < 0.999 * far  # the volume reaches 0.5 on these rays
+    plane = z_cycles < 1e9  # Cycles writes 1e10 where its ray hits nothing
+    front = z_hovr < z_cycles
+    clear = np.abs(z_hovr - z_cycles) > 1e-4 * np.minimum(z_hovr, z_cycles)  # no ties
+    assert (front & volume_near & plane).sum() >= 10  # the volume in front of the plane
+    assert (~front & volume_near & plane).sum() >= 10  # the plane in front of the volume's depth
+    assert (front & ~plane).sum() >= 10 and (~front & ~volume_near).sum() >= 10
+    assert clear.mean() > 0.95
+    want = np.where(front[..., None], hovr, cycles)
+    np.testing.assert_allclose(combined[clear], want[clear], atol=1e-5)
+    # HOVR's pixel where chosen is its whole volume, behind the plane too: a per-pixel choice, not
+    # the exact composite (the alpha-over route above is that)
+    assert np.abs(hovr - cycles)[front & volume_near & plane].max() > 0.05

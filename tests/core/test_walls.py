@@ -1,6 +1,7 @@
 """The domain's walls (core/walls.py): the right boundary faces, each tessellated within the
 tolerance of the true curved surface, measured independently at random points of every face."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -152,3 +153,44 @@ def test_cap_is_reported():
 def test_bad_tolerance():
     with pytest.raises(ValueError):
         walls.tessellate(_annulus(), 0.0)
+
+
+def test_hump3d_wall_from_its_boundary_region():
+    """A chosen composite's faces (hump3D's B[0], the WallViscous bottom with the hump): within
+    the tolerance of the true surface at random points, and wound outward of the domain (down)."""
+    from hovr_blender.io.nektar import mesh_boundaries
+
+    path = data_file("nektar", "hump3D_GLL.xml")
+    mesh = read_nektar(str(path))
+    faces = mesh_boundaries(path).select("B[0]")
+    tol = walls.default_tolerance(mesh)
+    w = walls.tessellate(mesh, tol, faces=faces)
+    assert w.capped == 0 and len(w.element) == 160 and w.k.max() > 1  # the hump's faces refined
+    np.testing.assert_array_equal(w.element, faces[0])
+    measured = measured_deviation(mesh, w)
+    print(f"hump3D wall: tolerance {tol:.3g}, measured {measured:.3g}, k {np.bincount(w.k).nonzero()[0].tolist()}, "
+          f"{len(w.triangles)} triangles")
+    assert measured <= tol
+    # the bottom is a graph over the 20 x 10 mm rectangle: its outward (downward) area vector is -A z
+    v = w.vertices[w.triangles]
+    area_vector = 0.5 * np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]).sum(axis=0)
+    np.testing.assert_allclose(area_vector, [0.0, 0.0, -0.02 * 0.01], atol=1e-12)
+    assert w.vertices[:, 2].max() == pytest.approx(0.00116454, abs=1e-8)
+
+
+def test_face_selection_is_checked():
+    mesh = mixed_cube(2, 2, lambda x, y, z: x)
+    w = walls.tessellate(mesh, faces=([0, 0], [0, 1]))
+    assert w.element.tolist() == [0, 0] and w.face.tolist() == [0, 1]
+    n = mesh.num_elements
+    tet = int(np.nonzero(mesh.shape == shapes.TET)[0][0])
+    for faces, message in [
+        (([n], [0]), f"element {n} is not in the mesh ({n} elements)"),
+        (([-1], [0]), "element -1 is not in the mesh"),
+        (([tet], [4]), f"element {tet} (tetrahedron) has no face 4"),
+        (([0, 1], [0]), "two 1-D integer arrays of one length"),
+        (([0.5], [0]), "two 1-D integer arrays of one length"),
+        ((None, None), "two 1-D integer arrays"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            walls.tessellate(mesh, faces=faces)

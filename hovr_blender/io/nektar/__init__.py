@@ -16,6 +16,8 @@ Modules, each importing only those above it:
   points     1-D and triangle point sets of curves, Lagrange interpolation
   entities   vertices, edges, faces, elements
   curves     the CURVED section
+  composites the COMPOSITE section and the CONDITIONS' boundary regions; a face composite's
+             faces as (element, face) for the walls (read_boundaries, after read_mesh)
   domain     the DOMAIN's elements through its composites
   mesh       NektarMesh and read_mesh: the above together
   topology   an element's local vertices, edges and faces from the mesh's
@@ -23,12 +25,13 @@ Modules, each importing only those above it:
   blocks     a field file's blocks, format-free, sizes checked against the mesh
   hdf5       HDF5 field files, and safe access to HDF5 objects (imports h5py)
   fields     field files and directories -> FieldFile; one field's coefficients
-  reader     read_nektar, list_fields, find_solution
+  reader     read_nektar, list_fields, find_solution, mesh_boundaries
 """
+from .composites import Boundaries, BoundaryRegion, Composite
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
-from .reader import (NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, pick_solution, read_nektar,
-                     solution_candidates)
+from .reader import (NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, mesh_boundaries, pick_solution,
+                     read_nektar, solution_candidates)
 
-__all__ = ["NO_FIELD", "SOLUTION_EXTENSIONS", "FieldFile", "NektarError", "find_solution", "list_fields",
-           "read_field_file", "read_nektar"]
+__all__ = ["NO_FIELD", "SOLUTION_EXTENSIONS", "Boundaries", "BoundaryRegion", "Composite", "FieldFile",
+           "NektarError", "find_solution", "list_fields", "mesh_boundaries", "read_field_file", "read_nektar"]

@@ -7,10 +7,10 @@ import re
 import numpy as np
 
 from ...core.shapes import NAMES
+from .composites import read_composites
 from .entities import ELEMENT_TAGS
 from .errors import NektarError
 from .ranges import first_missing, parse_ranges, select
-from .xmlfile import entity_id
 
 
 def domain_elements(geometry, path, elements):
@@ -62,10 +62,7 @@ def _domain_composites(geometry, domain, path):
             ranges.extend(parse_ranges(match.group(1), path, "DOMAIN"))
     if not ranges:
         raise NektarError(f"{path}: DOMAIN names no composite")
-    composites = {}
-    section = geometry.find("COMPOSITE")
-    for node in (section if section is not None else []):
-        composites[entity_id(node, path, "COMPOSITE")] = node.text or ""
+    composites = {cid: c.text for cid, c in read_composites(geometry, path).items()}
     composite_ids = np.array(sorted(composites), dtype=np.int64)
     positions, lo, hi, complete = select(composite_ids, ranges)
     if not complete.all():

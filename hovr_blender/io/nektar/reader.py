@@ -1,5 +1,5 @@
 """The entry points: a mesh and one field of its field file -> VolumeMesh; the fields a file
-holds; the field file beside a mesh."""
+holds; the field file beside a mesh; the mesh's composites and boundary regions."""
 from __future__ import annotations
 
 import os
@@ -12,6 +12,7 @@ from ...core import expansions as ex
 from ...core.cache import LRUCache
 from ...core.mesh import MeshError, VolumeMesh
 from ...core.shapes import NAMES
+from .composites import Boundaries, read_boundaries
 from .errors import NektarError, guard
 from .fields import read_field_file
 from .geometry import mesh_geometry
@@ -177,6 +178,14 @@ def _read(mesh_path: Path, solution: Path | None, field):
     out.has_field = solution is not None
     out.warnings = sorted(set(warnings))
     return out
+
+
+def mesh_boundaries(mesh_path, conditions_path=None) -> Boundaries:
+    """The composites and boundary regions of a Nektar++ mesh (io/nektar/composites.py), faces
+    numbered by read_nektar's elements; the boundary regions from `conditions_path` (a session
+    file with <CONDITIONS>) or else from the mesh file."""
+    mesh_path = Path(mesh_path)
+    return guard(mesh_path, lambda: read_boundaries(_mesh_geometry(mesh_path)[0], conditions_path))
 
 
 def _field(mesh: NektarMesh, solution: Path, field):
