@@ -1055,9 +1055,8 @@ def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOp
     whose cache the memory limit or the device refuses (stats["segment_cache"] says why); None
     comes back then. A cancelled trace (progress returned False) gives a cancelled result."""
     if not isinstance(renderer, Renderer):
-        kw = {} if surface_t is None else {"surface_t": surface_t}
-        return renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, rows=rows,
-                               **kw), None
+        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t)) if v is not None}
+        return renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, **kw), None
     if surface_t is not None and surface_key is None:
         surface_key = surface_digest(surface_t)
     if renderer.cache_fits(cache, camera, tf, options, rows, surface_key):
