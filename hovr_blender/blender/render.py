@@ -194,9 +194,10 @@ class FinalCache:
 
     view: tuple | None = None  # the last F12's view (Renderer.trace_key)
     cache: object = None  # its core SegmentCache, or None
+    refused: bool = False  # the view's cache did not fit the memory limit: not tried again
 
     def clear(self):
-        self.view, self.cache = None, None
+        self.view, self.cache, self.refused = None, None, False
 
 
 FINAL = FinalCache()
@@ -215,7 +216,10 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
     surface_key = surfaces if surfaces is not None and not surfaces.empty else None
     view = renderer.trace_key(camera, inputs.options, surface_key=surface_key)
     if view != FINAL.view:
-        FINAL.view, FINAL.cache = view, None  # a new view: its segments only if it comes again
+        FINAL.clear()
+        FINAL.view = view  # a new view: its segments only if it comes again
+        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
+    if FINAL.refused:
         return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
     mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
     old, FINAL.cache = FINAL.cache, None
@@ -225,6 +229,7 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
     result, FINAL.cache = render_with_surfaces_cached(renderer, surfaces, camera, inputs.transfer_function,
                                                       inputs.background, inputs.options, mode=mode, cache=old,
                                                       progress=progress, tile_pixels=tile_pixels)
+    FINAL.refused = "refused" in result.stats.get("segment_cache", {})
     return result
 
 

@@ -129,6 +129,7 @@ class ProgressiveViewport:
     # the bands' segment caches of the current view: first row -> (rows, core SegmentCache)
     _caches: dict = field(default_factory=dict)
     _cache_view: tuple | None = None
+    _cache_refused: bool = False  # a band's cache did not fit the memory limit: the view's later bands keep none
 
     def sync(self, renderer, request: ViewportRequest) -> bool:
         """Adopt the current request; restart (True) when it differs from the last one. The
@@ -141,6 +142,7 @@ class ProgressiveViewport:
         if view != self._cache_view:
             self._caches = {}
             self._cache_view = view
+            self._cache_refused = False
         self.signature = sig
         self.display = None
         self.converged = False
@@ -195,9 +197,14 @@ class ProgressiveViewport:
             return deadline is None or self.clock() < deadline
 
         tile = max(req.camera.width, 256)
+        if self._cache_refused and cache is None:
+            res = render_with_surfaces(self._renderer, req.surfaces, cam, req.transfer_function, req.background,
+                                       req.options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
+            return res, self.clock() - t0, False
         res, kept = render_with_surfaces_cached(self._renderer, req.surfaces, cam, req.transfer_function,
                                                 req.background, req.options, mode=req.surface_mode, cache=cache,
                                                 held_bytes=held, progress=progress, tile_pixels=tile)
+        self._cache_refused |= "refused" in res.stats.get("segment_cache", {})
         if kept is not None:
             self._caches[y0] = (rows, kept)
         return res, self.clock() - t0, kept is not None and kept is cache

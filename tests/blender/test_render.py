@@ -301,3 +301,25 @@ def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path,
     scene.camera.location.x += 0.25
     render_to_exr(scene, tmp_path / "5.exr")
     assert render.FINAL.cache is None and len(traces) == 1
+
+
+def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_path, monkeypatch):
+    """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
+    picture) and does not try to keep its segments again."""
+    from hovr_blender.core import limits
+    from hovr_blender.core import renderer as renderer_module
+    from hovr_blender.core.renderer import Renderer
+
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    render.clear_cache()
+    first = render_to_exr(scene, tmp_path / "1.exr")
+    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
+    traces, trace = [], Renderer.trace
+    monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
+    with limits.using(limits.ResourceLimits(max_memory=1 << 30)):
+        second = render_to_exr(scene, tmp_path / "2.exr")
+        assert render.FINAL.refused and render.FINAL.cache is None and len(traces) == 1
+        third = render_to_exr(scene, tmp_path / "3.exr")
+    assert len(traces) == 1
+    np.testing.assert_array_equal(second, first)
+    np.testing.assert_array_equal(third, first)

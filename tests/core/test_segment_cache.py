@@ -305,3 +305,22 @@ def test_surfaces_keep_their_hits_with_the_cache(monkeypatch):
     fresh = render_with_surfaces(r, surfaces, cam, tf, BACKGROUND, opts, rows=(3, 11))
     np.testing.assert_array_equal(band.rgba, fresh.rgba)
     assert band_cache.rows == (3, 11)
+
+
+def test_two_volumes_each_with_its_own_look():
+    """Two volumes in one mesh, one transfer function each (their frames side by side on one
+    axis): editing either look shades from the cache as a fresh render would draw it."""
+    from hovr_blender.core.mesh import concatenate
+
+    a = mixed_cube(2, 3, cube_field)
+    b = mixed_cube(1, 3, lambda x, y, z: 1000.0 + 50.0 * cube_field(x, y, z), lower=(0.2, 1.3, 0.1), size=0.8)
+    mesh = concatenate([a, b])
+    r = Renderer(mesh, "cpu")
+    cam = framing(mesh, 20, 14)
+    tfs = [tents(0.0, 1.5, COLORS, 10.0), tents(1000.0, 1075.0, COLORS[::-1], 8.0)]
+    opts = RenderOptions(method="split")
+    cache = r.trace(cam, tfs, opts)
+    for edited in ([edits(tfs[0])["opaque"], tfs[1]], [tfs[0], edits(tfs[1])["colours"]],
+                   [edits(tfs[0])["one tent"], edits(tfs[1])["moved"]]):
+        assert r.cache_fits(cache, cam, edited, opts)
+        assert_same_image(r.render(cam, edited, BACKGROUND, opts), r.shade(cache, edited, BACKGROUND, opts), "cpu")

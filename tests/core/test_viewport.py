@@ -130,7 +130,7 @@ class FakeRenderer:
                 cancelled = True
                 break
         img = np.full((camera.height, camera.width, 4), 0.5, np.float32)
-        return SimpleNamespace(rgba=img, cancelled=cancelled)
+        return SimpleNamespace(rgba=img, cancelled=cancelled, stats={})
 
 
 class Clock:
@@ -237,16 +237,20 @@ def test_a_look_change_mid_refinement_shades_the_cached_bands(renderer):
 
 def test_caches_the_memory_limit_refuses_are_not_kept(renderer, monkeypatch):
     """Every band's render fits the limit, no band's cache does (its smallest arrays are made
-    larger than the limit): the bands render plainly, keep nothing, and the image is the same."""
+    larger than the limit): the first band's trace is refused, the view's later bands do not try
+    again; they render plainly, keep nothing, and the image is the same."""
     from hovr_blender.core import limits
     from hovr_blender.core import renderer as renderer_module
 
     vp = ProgressiveViewport(first_frame_seconds=0.05)
     image = renderer.check_limits(96, 64, RenderOptions(method="split"), 96 * 64)
     monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", image // 8)
+    traces, trace = [], Renderer.trace
+    monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
     with limits.using(limits.ResourceLimits(max_memory=image)):
         vp.sync(renderer, request())
         converge(vp)
-    assert vp._caches == {}
+    assert vp._caches == {} and vp._cache_refused and len(traces) == 1
+    assert len([r for r in vp.log if r.kind == "band"]) > 1
     want = renderer.render(vp._request.camera, TF, BG, vp._request.options).rgba[::-1]
     np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
