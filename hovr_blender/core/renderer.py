@@ -619,17 +619,14 @@ class Renderer:
     # ------------------------------------------------------------------ the segment cache
 
     def trace_key(self, camera: RayCamera, options: RenderOptions, rows: tuple[int, int] | None = None,
-                  surface_key=None) -> tuple:
-        """What a trace's segments depend on, besides the field's frame: this renderer and its
-        field, the precision, whether the method samples the field along segments (classified and
-        split do; riemann and trapezoid evaluate affine elements as they march), the camera's rays,
-        the rows, and what stopped the rays (surface_key: the caller's name for surface_t, or its
-        digest). The transfer function, density, colours, background, tolerance, h, the inner
-        rule and min_transmittance are not in it: the shade kernel takes those."""
+                  surface_key=None) -> TraceKey:
+        """What a trace's segments depend on, besides the field's frame (TraceKey). The transfer
+        function, density, colours, background, tolerance, h, the inner rule and
+        min_transmittance are not in it: the shade kernel takes those."""
         W, H = int(camera.width), int(camera.height)
         row0, row1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
-        return (self._id, self._field_version, options.precision, options.method in _SAMPLING_METHODS,
-                _camera_key(camera), (row0, row1), surface_key)
+        return TraceKey(self._id, self._field_version, options.precision, options.method in _SAMPLING_METHODS,
+                        _camera_key(camera), (row0, row1), surface_key)
 
     def frame_key(self, tf) -> tuple:
         """The key of the field's frame a render through `tf` uses (core/field_frame.py), without
@@ -679,6 +676,8 @@ class Renderer:
             tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
             tile = min(tile, self._tile_limit(prec), end - first)
             what = f"the segment cache of a {W}x{H} image in {options.precision}"
+            # the render's buffers, the caller's other caches, and per tile ray its reservation
+            # (vec3i) and last chunk (int32)
             base_bytes = self.check_limits(W, H, options, tile) + int(held_bytes) + tile * 16
             try:
                 stats = wp.zeros((W * H, kernels.NUM_STATS), dtype=wp.int32)
@@ -721,9 +720,8 @@ class Renderer:
             counts = stats[first:end].numpy().sum(axis=0, dtype=np.int64)
         info = {"device": self.device, "trace_seconds": seconds, "width": W, "height": H, "rounds": rounds,
                 **_counter_stats(kernels, counts, end - first), **({"kernel_seconds": launch.seconds} if profile else {})}
-        return SegmentCache(key=key, frame_key=fr.key, camera=camera, rows=(row0, row1), precision=options.precision,
-                            arrays=store.arrays, counts=store.used(), complete=complete, stats=info,
-                            warnings=warnings)
+        return SegmentCache(key=key, frame_key=fr.key, camera=camera, rows=(row0, row1), arrays=store.arrays,
+                            counts=store.used(), complete=complete, stats=info, warnings=warnings)
 
     def shade(self, cache: SegmentCache, tf, background, options: RenderOptions, progress=None,
               tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
@@ -737,8 +735,9 @@ class Renderer:
         tile_pixels and profile as in render; stats["segment_cache"] describes the cache."""
         if not cache.complete:
             raise SegmentCacheError("the segment cache's trace was cancelled before it finished; trace again")
-        want = self.trace_key(cache.camera, options, cache.rows, cache.key[-1])
-        if cache.key[:4] != want[:4]:
+        want = self.trace_key(cache.camera, options, cache.rows, cache.key.surface)
+        if (cache.key.renderer, cache.key.field_version, cache.key.precision, cache.key.sampling) != \
+                (want.renderer, want.field_version, want.precision, want.sampling):
             raise SegmentCacheError("the segment cache was traced by another renderer, field, precision or method "
                                     "family; trace again")
         if cache.frame_key != self.frame_key(tf):
@@ -912,6 +911,20 @@ def _camera_key(camera: RayCamera) -> tuple:
             float(camera.clip_near), float(camera.clip_far))
 
 
+@dataclass(frozen=True)
+class TraceKey:
+    """What a trace's segments depend on besides the field's frame (Renderer.trace_key)."""
+
+    renderer: int  # the Renderer (its upload and BVH)
+    field_version: int  # its field (replace_field counts up)
+    precision: str
+    sampling: bool  # the method samples the field along segments (classified, split); riemann and
+    # trapezoid evaluate affine elements as they march and keep no series for them
+    camera: tuple  # the camera's rays (_camera_key)
+    rows: tuple  # (first, end) image rows
+    surface: object  # what stopped the rays: the caller's name for surface_t, or its digest; None
+
+
 def surface_digest(surface_t) -> tuple:
     """A name for a per-pixel far limit (render's surface_t) in a trace's key: its digest."""
     t = np.ascontiguousarray(surface_t, dtype=np.float64)
@@ -927,11 +940,10 @@ class SegmentCache:
     per segment its element, t0, t1, degree, flags, tail and where its series starts; the series
     themselves (degree + 3 values each). describe() gives its size."""
 
-    key: tuple  # Renderer.trace_key of the view
+    key: TraceKey  # of the view (Renderer.trace_key)
     frame_key: tuple  # the field frame the series are in (core/field_frame.py)
     camera: RayCamera
     rows: tuple  # (first, end) image rows traced
-    precision: str
     arrays: dict  # kernels' SegmentCache field name -> device array (counts included)
     counts: tuple  # (segments, chunks, coefficients)
     complete: bool  # False: the trace was cancelled part way
@@ -949,10 +961,7 @@ class SegmentCache:
 
     def args(self, kernels):
         """The kernels' SegmentCache struct of these arrays (kernels of the cache's precision)."""
-        s = kernels.SegmentCache()
-        for name, a in self.arrays.items():
-            setattr(s, name, a)
-        return s
+        return _cache_struct(kernels, self.arrays)
 
     def describe(self) -> dict:
         """Its size: bytes in all, per ray and per segment (a segment's record, its series and its
@@ -1039,10 +1048,15 @@ class _CacheStore:
         return tuple(self.written[g] for g in ("segment", "chunk", "coefficient"))
 
     def args(self):
-        s = self.prec.kernels.SegmentCache()
-        for name, a in self.arrays.items():
-            setattr(s, name, a)
-        return s
+        return _cache_struct(self.prec.kernels, self.arrays)
+
+
+def _cache_struct(kernels, arrays: dict):
+    """The kernels' SegmentCache struct of a cache's device arrays."""
+    s = kernels.SegmentCache()
+    for name, a in arrays.items():
+        setattr(s, name, a)
+    return s
 
 
 def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions, cache: SegmentCache | None = None,
