@@ -144,6 +144,7 @@ RAY_COST_LOCATE = 16.0
 # a segment cache grows by this factor when a round needs more room (then shrinks to fit)
 CACHE_GROWTH = 1.5
 CACHE_MIN_SEGMENTS = 1 << 12
+SUM_THREADS = 1 << 14  # threads summing a shade's per-ray counters on the device
 INT32_MAX = 2**31 - 1
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
@@ -784,9 +785,8 @@ class Renderer:
                     if progress((start + k) / n) is False:
                         cancelled = True
                         break
-            rows_per_thread = 256
-            launch("sum_counts", kernels.sum_counts, (n + rows_per_thread - 1) // rows_per_thread,
-                   [counters, rows_per_thread, sums])
+            threads = min(n, SUM_THREADS)
+            launch("sum_counts", kernels.sum_counts, threads, [counters, threads, sums])
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
             if int(nonfinite.numpy()[0]) > 0 and not cancelled:

@@ -29,6 +29,8 @@ from hovr_blender.io.synthetic import cube_field, curved_cube, mixed_cube
 from ..helpers import COLORS, framing, tents
 
 GPU_ATOL = 1e-6
+COUNTERS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
+            "segments_piecewise_smooth")
 BACKGROUND = np.array([0.1, 0.2, 0.3])
 W, H = 24, 18
 
@@ -224,7 +226,7 @@ def test_memory_limit_refuses_the_cache_and_render_cached_renders_plainly():
             r.trace(cam, tf, opts, held_bytes=10 * full.nbytes)
 
 
-def test_cache_size_is_reported():
+def test_cache_size_is_reported(monkeypatch):
     r, cam, tf = scene("curved", "cpu")
     opts = RenderOptions(method="split")
     cache = r.trace(cam, tf, opts)
@@ -237,6 +239,11 @@ def test_cache_size_is_reported():
     assert 28 + series <= info["bytes_per_segment"] <= 28 + series + 12 + 4 * 3 / segments + 1e-9
     res = r.shade(cache, tf, BACKGROUND, opts)
     assert res.stats["segment_cache"] == info
+    # the counters summed on the device, many rows a thread, as one row a thread
+    monkeypatch.setattr(renderer_module, "SUM_THREADS", 7)
+    few = r.shade(cache, tf, BACKGROUND, opts).stats
+    assert {k: few[k] for k in COUNTERS} == {k: res.stats[k] for k in COUNTERS}
+    assert res.stats["segments"] == segments and res.stats["restriction_evaluations"] > 0
     # render_cached reports the trace and the shade as one render
     res, _ = render_cached(r, cam, tf, BACKGROUND, opts)
     assert res.stats["render_seconds"] >= res.stats["segment_cache"]["trace_seconds"]

@@ -74,6 +74,7 @@ SAMPLE_MAX_REGISTERS = 64
 WindowKeys = wp.types.vector(length=WINDOW, dtype=wp.float32)
 WindowElements = wp.types.vector(length=WINDOW, dtype=wp.int32)
 LocatedElements = wp.types.vector(length=LOCATED, dtype=wp.int32)
+CounterSums = wp.types.vector(length=NUM_STATS, dtype=wp.int64)  # sum_counts' per-thread sums
 
 
 @wp.func
@@ -1023,12 +1024,14 @@ def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_
 
 
 @wp.kernel(enable_backward=False)
-def sum_counts(stats: wp.array2d(dtype=wp.int32), rows_per_thread: wp.int32, out: wp.array(dtype=wp.int64)):
-    """The per-ray counters summed on the device: a share of the rows per thread, added to out."""
-    r0 = wp.tid() * rows_per_thread
-    r1 = wp.min(r0 + rows_per_thread, stats.shape[0])
+def sum_counts(stats: wp.array2d(dtype=wp.int32), threads: wp.int32, out: wp.array(dtype=wp.int64)):
+    """The per-ray counters summed on the device into out: thread t takes rows t, t + threads, ...
+    (neighbouring threads read neighbouring rows), then adds its sums."""
+    acc = CounterSums()
+    r = wp.tid()
+    while r < stats.shape[0]:
+        for k in range(NUM_STATS):
+            acc[k] += wp.int64(stats[r, k])
+        r += threads
     for k in range(NUM_STATS):
-        acc = wp.int64(0)
-        for r in range(r0, r1):
-            acc += wp.int64(stats[r, k])
-        wp.atomic_add(out, k, acc)
+        wp.atomic_add(out, k, acc[k])
