@@ -29,8 +29,8 @@ Per setting (bench/frame.py's names; default split-1e-3 and classified-d1600):
 The memory limit is raised to --max-memory (default 64G) for the run: at 1920x1080 one launch
 tile's buffers alone are ~7.7 GiB in float32 (Renderer.check_limits), more than the default 4 GiB.
 Writes the JSON after every dataset (--datasets takes a subset, so a time-limited machine can run
-them over several calls; each dataset costs about (2 + edits) full renders and 1 + repeats traces
-per setting, besides the timed calls); --png writes each dataset's last shaded edit beside it.
+them over several calls; each dataset costs 1 + repeats + edits full renders and 1 + repeats traces
+per setting, and (1 + repeats) shades per edit); --png writes each dataset's last shaded edit beside it.
 """
 from __future__ import annotations
 
