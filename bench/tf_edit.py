@@ -137,7 +137,8 @@ def main(argv=None):
     ap.add_argument("--datasets", default=DEFAULT_DATASETS)
     ap.add_argument("--settings", default="split-1e-3,classified-d1600")
     ap.add_argument("--precision", default="float32")
-    ap.add_argument("--edits", type=int, default=8, help="transfer functions shaded from one cache (the first: the original)")
+    ap.add_argument("--edits", type=int, default=8,
+                    help="transfer functions shaded from one cache (the first: the original)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--paper", default="3400,7600", help="the paper-scale channel's requested hexahedra,prisms")
     ap.add_argument("--max-memory", default="64G", help="the memory limit for the run (core/limits.py)")
@@ -146,7 +147,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     unknown = [n for n in args.datasets.split(",") if n not in audit.DATASETS and n != "paper_scale_straight"]
     if unknown:
-        ap.error(f"unknown dataset(s) {', '.join(unknown)}; known: {', '.join([*audit.DATASETS, 'paper_scale_straight'])}")
+        known = ", ".join([*audit.DATASETS, "paper_scale_straight"])
+        ap.error(f"unknown dataset(s) {', '.join(unknown)}; known: {known}")
     unknown = [s for s in args.settings.split(",") if s not in SETTINGS]
     if unknown:
         ap.error(f"unknown setting(s) {', '.join(unknown)}; known: {', '.join(SETTINGS)}")
@@ -195,11 +197,13 @@ def main(argv=None):
                 row["parameters"] = kw
                 entry["settings"][setting] = row
                 c = row["cache"]
+                shade_ms = row["shade_seconds_min_median_max"][1] * 1e3
+                wall_ms = row["shade_wall_seconds_min_median_max"][1] * 1e3
                 print(f"{name:22s} {setting:16s} render {row['render_seconds'] * 1e3:9.2f} ms  trace "
-                      f"{row['trace_seconds'] * 1e3:9.2f} ms  shade {row['shade_seconds_min_median_max'][1] * 1e3:8.2f} ms "
-                      f"(wall {row['shade_wall_seconds_min_median_max'][1] * 1e3:8.2f} ms)  cache "
-                      f"{c['bytes'] / 2**20:8.1f} MiB = {c['bytes_per_ray']:7.1f} B/ray, {c['bytes_per_segment']:6.1f} B/seg, "
-                      f"{c['segments_per_ray']:5.2f} seg/ray  max diff {row['max_abs_difference']:.2g}", flush=True)
+                      f"{row['trace_seconds'] * 1e3:9.2f} ms  shade {shade_ms:8.2f} ms (wall {wall_ms:8.2f} ms)  "
+                      f"cache {c['bytes'] / 2**20:8.1f} MiB = {c['bytes_per_ray']:7.1f} B/ray, "
+                      f"{c['bytes_per_segment']:6.1f} B/seg, {c['segments_per_ray']:5.2f} seg/ray  "
+                      f"max diff {row['max_abs_difference']:.2g}", flush=True)
             if args.png and args.out and shaded is not None:
                 write_png(os.path.join(os.path.dirname(os.path.abspath(args.out)), f"tf_edit_{name}.png"), shaded.rgba,
                           alpha=False)

@@ -580,7 +580,8 @@ class Renderer:
             launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
-                launch("integrate", kernels.integrate, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+                launch("integrate", kernels.integrate, active,
+                       [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             else:
                 record(active)
             rounds += 1
@@ -624,7 +625,7 @@ class Renderer:
         """What a trace's segments depend on, besides the field's frame (TraceKey). The transfer
         function, density, colours, background, tolerance, h, the inner rule and
         min_transmittance are not in it: the shade kernel takes those."""
-        W, H = int(camera.width), int(camera.height)
+        H = int(camera.height)
         row0, row1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
         return TraceKey(self._id, self._field_version, options.precision, options.method in _SAMPLING_METHODS,
                         _camera_key(camera), (row0, row1), surface_key)
@@ -720,7 +721,8 @@ class Renderer:
             seconds = time.perf_counter() - t0
             counts = stats[first:end].numpy().sum(axis=0, dtype=np.int64)
         info = {"device": self.device, "trace_seconds": seconds, "width": W, "height": H, "rounds": rounds,
-                **_counter_stats(kernels, counts, end - first), **({"kernel_seconds": launch.seconds} if profile else {})}
+                **_counter_stats(kernels, counts, end - first),
+                **({"kernel_seconds": launch.seconds} if profile else {})}
         return SegmentCache(key=key, frame_key=fr.key, camera=camera, rows=(row0, row1), arrays=store.arrays,
                             counts=store.used(), complete=complete, stats=info, warnings=warnings)
 
@@ -1059,9 +1061,10 @@ def _cache_struct(kernels, arrays: dict):
     return s
 
 
-def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions, cache: SegmentCache | None = None,
-                  rows: tuple[int, int] | None = None, surface_t=None, surface_key=None, held_bytes: int = 0,
-                  progress=None, tile_pixels: int | None = None) -> tuple[RenderResult, SegmentCache | None]:
+def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions,
+                  cache: SegmentCache | None = None, rows: tuple[int, int] | None = None, surface_t=None,
+                  surface_key=None, held_bytes: int = 0, progress=None,
+                  tile_pixels: int | None = None) -> tuple[RenderResult, SegmentCache | None]:
     """(RenderResult, SegmentCache or None): the view shaded from `cache` where it holds this
     view's segments (Renderer.cache_fits), else traced anew (Renderer.trace) and shaded, the new
     cache returned for the next call; the image is renderer.render's either way. A renderer that

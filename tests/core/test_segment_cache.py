@@ -297,7 +297,8 @@ def test_surfaces_keep_their_hits_with_the_cache(monkeypatch):
     monkeypatch.setattr(SurfaceScene, "cast", lambda self, camera: casts.append(camera) or cast(self, camera))
     for mode in ("SHADED", "HOLDOUT"):
         for edit in (edits(tf)["colours"], edits(tf)["opaque"]):
-            shaded, again = render_with_surfaces_cached(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode, cache=cache)
+            shaded, again = render_with_surfaces_cached(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode,
+                                                        cache=cache)
             assert again is cache
             fresh = render_with_surfaces(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode)
             np.testing.assert_array_equal(shaded.rgba, fresh.rgba)

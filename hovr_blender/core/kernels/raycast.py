@@ -9,12 +9,14 @@ A render of a tile (core/renderer.py) runs init_rays once, then rounds of
 3. integrate: each ray integrates its segments (kernels/quadrature.py) into colour,
    transmittance, depth and error, and puts itself on the next round's list if it is not done;
 until no ray is left, then finalize writes the pixels. Rounds run over the list of rays
-still going (no thread is spent on a finished ray). A trace (Renderer.trace) runs the same
-rounds with trace_reserve and trace_write in place of integrate: every segment of every ray,
-with its series, goes into a SegmentCache, and the shade kernel later integrates a ray's
-cached segments through any transfer function as integrate would have, then writes its pixel. Three kernels instead of one keep each
+still going (no thread is spent on a finished ray). Three kernels instead of one keep each
 small: the search (BVH, locating curved candidates), the walk (Newton, element evaluation)
 and the quadrature never hold their registers at the same time, and each compiles quickly.
+
+A trace (Renderer.trace) runs the same rounds with trace_reserve and trace_write in place of
+integrate: every segment of every ray, with its series, goes into a SegmentCache, and the
+shade kernel later integrates a ray's cached segments through any transfer function as
+integrate would have, then writes its pixel.
 
 Traversal walks through shared faces: where a ray leaves an element through a face it
 shares with another (MeshArgs.neighbour), the next segment starts there, at the same t (no
