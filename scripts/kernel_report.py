@@ -49,7 +49,11 @@ def main(argv=None):
         kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
         kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
                     for m in args.modes]
-    kernels.append(("integrate, init_rays, finalize", raycast.integrate))
+    kernels.append(("integrate", raycast.integrate))
+    kernels.append(("shade (transfer-function edits from a segment cache)", raycast.shade))
+    # the module's own kernels: init_rays, refine, coefficients, finalize, trace_*, sum_counts
+    kernels.append(("init_rays, refine, coefficients, finalize, trace_reserve, trace_write, trace_ends, sum_counts",
+                    raycast.finalize))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:

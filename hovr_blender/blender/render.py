@@ -184,6 +184,55 @@ def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
                                 inputs.options, mode=mode, **kwargs)
 
 
+@dataclass
+class FinalCache:
+    """F12's element segments, kept on the device for the next F12 (core.renderer.render_cached).
+    A view's segments are traced at its second F12 (the first renders plainly and only remembers
+    the view): a one-off render, or an animation whose frames change the data or the camera,
+    never pays for a trace it would not reuse; from then on, F12 after an edit of the look alone
+    (transfer function, density, colours, background, tolerance) shades from the cache."""
+
+    view: tuple | None = None  # the last F12's view (Renderer.trace_key)
+    cache: object = None  # its core SegmentCache, or None
+    refused: bool = False  # the view's cache did not fit the memory limit: not tried again
+
+    def clear(self):
+        self.view, self.cache, self.refused = None, None, False
+
+
+FINAL = FinalCache()
+
+
+def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixels=None):
+    """F12's render_volume through FINAL: shaded from the last F12's segments where they hold this
+    view, traced (and kept) where the last F12 had the same view, else a plain render."""
+    from ..core.renderer import Renderer
+    from ..core.surfaces import render_with_surfaces_cached
+
+    if not isinstance(renderer, Renderer):  # several devices keep no segments
+        FINAL.clear()
+        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
+    surfaces = surface_scene(inputs)
+    surface_key = surfaces if surfaces is not None and not surfaces.empty else None
+    view = renderer.trace_key(camera, inputs.options, surface_key=surface_key)
+    if view != FINAL.view:
+        FINAL.clear()
+        FINAL.view = view  # a new view: its segments only if it comes again
+        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
+    if FINAL.refused:
+        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
+    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
+    old, FINAL.cache = FINAL.cache, None
+    if old is not None and not renderer.cache_fits(old, camera, inputs.transfer_function, inputs.options,
+                                                   surface_key=surface_key):
+        old = None  # another field frame: freed before the new trace allocates
+    result, FINAL.cache = render_with_surfaces_cached(renderer, surfaces, camera, inputs.transfer_function,
+                                                      inputs.background, inputs.options, mode=mode, cache=old,
+                                                      progress=progress, tile_pixels=tile_pixels)
+    FINAL.refused = "refused" in result.stats.get("segment_cache", {})
+    return result
+
+
 def resolve_looks(inputs: SceneInputs) -> list:
     """Each volume's transfer function in the contract's units (extinction per world unit):
     a relative density becomes density / the volume's bounding-box diagonal (which needs the
@@ -207,6 +256,7 @@ def resolve_looks(inputs: SceneInputs) -> list:
 
 def clear_cache():
     RENDERERS.clear()
+    FINAL.clear()
     SURFACES.clear()
     EXTENTS.clear()
     POINTS.clear()
@@ -454,7 +504,7 @@ def final_render(engine, api, depsgraph):
         return not api.test_break()
 
     try:
-        result = render_volume(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
+        result = render_final(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
         pixels = combined_pass(result.rgba, job.film_transparent)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")

@@ -13,8 +13,17 @@ scheduler does bounded work per call (one call per view_draw):
    cancelled through the renderer's progress callback if it overruns.
 
 A change of the request's signature restarts at 1; the learned costs are kept. The
-display buffer is the region's (H, W, 4) scene-linear premultiplied RGBA with row 0 at
-the bottom, ready for a GPU texture.
+display buffer is the region's (H, W, 4) scene-linear premultiplied RGBA with row 0 at the
+bottom, ready for a GPU texture.
+
+Each refinement band keeps its rays' element segments and their series on the device
+(core.renderer.render_cached: a trace, then a shade). While the view stays (camera, data,
+surfaces, precision, device), a change of the look alone (transfer function, density,
+colours, background, quadrature tolerance) restarts with the bands shaded from their caches:
+when they cover the region and the measured shading cost fits the first frame's time, the
+whole region at full resolution is the first frame (no preview); otherwise the preview
+comes first and the bands follow, each shaded from its cache. Caches that the memory limit
+refuses (with the other bands' caches counted) are not kept: those bands render as before.
 """
 from __future__ import annotations
 
@@ -26,7 +35,7 @@ import numpy as np
 
 from .camera import sub_camera
 from ..core.camera import RayCamera
-from ..core.surfaces import render_with_surfaces
+from ..core.surfaces import render_with_surfaces, render_with_surfaces_cached
 from ..core.transfer_function import TransferFunction
 from ..core.view import RenderOptions
 
@@ -58,6 +67,14 @@ class ViewportRequest:
                 tuple(np.asarray(self.background, dtype=np.float64).tolist()),
                 tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key)
 
+    def cache_view(self) -> tuple:
+        """What the bands' cached segments depend on besides the look: the camera, the data, the
+        surfaces, precision and device (the renderer's key checks the rest: Renderer.trace_key)."""
+        c = self.camera
+        cam = tuple(np.concatenate([c.o0, c.ou, c.ov, c.d0, c.du, c.dv, c.clip_axis]).tolist())
+        return (cam, c.width, c.height, c.t_min, c.t_max, c.clip_near, c.clip_far, c.projection, self.data_key,
+                self.surfaces, self.options.precision, self.options.device)
+
 
 def preview_options(options: RenderOptions) -> RenderOptions:
     """Looser quadrature for the preview: 100x the tolerance (at most 1e-3), twice the step."""
@@ -86,7 +103,7 @@ def preview_camera(camera: RayCamera, scale: int) -> RayCamera:
 
 @dataclass
 class StepRecord:
-    kind: str  # "preview" | "band" | "preview-overrun" | "band-overrun"
+    kind: str  # "preview" | "band" | "reshade" (every band shaded from its cache) | "preview-overrun" | "band-overrun"
     scale: int
     rows: tuple  # (first row from the top, number of rows) of the region, or the preview size
     seconds: float
@@ -109,13 +126,23 @@ class ProgressiveViewport:
     _next_row: int = 0  # refinement progress, rows from the top
     _request: ViewportRequest | None = None
     _renderer: object = None
+    # the bands' segment caches of the current view: first row -> (rows, core SegmentCache)
+    _caches: dict = field(default_factory=dict)
+    _cache_view: tuple | None = None
+    _cache_refused: bool = False  # a band's cache did not fit the memory limit: the view's later bands keep none
 
     def sync(self, renderer, request: ViewportRequest) -> bool:
-        """Adopt the current request; restart (True) when it differs from the last one."""
+        """Adopt the current request; restart (True) when it differs from the last one. The
+        bands' caches stay while the view does (ViewportRequest.cache_view)."""
         sig = request.signature()
         self._renderer, self._request = renderer, request
         if sig == self.signature:
             return False
+        view = request.cache_view()
+        if view != self._cache_view:
+            self._caches = {}
+            self._cache_view = view
+            self._cache_refused = False
         self.signature = sig
         self.display = None
         self.converged = False
@@ -155,6 +182,77 @@ class ProgressiveViewport:
                                    options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
         return res, self.clock() - t0
 
+    def _render_band(self, y0, rows, deadline):
+        """(RenderResult, wall seconds, shaded from its cache) of the region's rows y0 .. y0 + rows,
+        through render_with_surfaces_cached with the band's cache (if it has one of these rows);
+        the cache that comes back is kept for the band."""
+        req = self._request
+        cam = sub_camera(req.camera, 0, y0, req.camera.width, rows)
+        old = self._caches.pop(y0, None)
+        cache = old[1] if old is not None and old[0] == rows else None
+        held = sum(c.nbytes for _, c in self._caches.values())
+        t0 = self.clock()
+
+        def progress(_fraction):
+            return deadline is None or self.clock() < deadline
+
+        tile = max(req.camera.width, 256)
+        if self._cache_refused and cache is None:
+            res = render_with_surfaces(self._renderer, req.surfaces, cam, req.transfer_function, req.background,
+                                       req.options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
+            return res, self.clock() - t0, False
+        res, kept = render_with_surfaces_cached(self._renderer, req.surfaces, cam, req.transfer_function,
+                                                req.background, req.options, mode=req.surface_mode, cache=cache,
+                                                held_bytes=held, progress=progress, tile_pixels=tile)
+        self._cache_refused |= "refused" in res.stats.get("segment_cache", {})
+        if kept is not None:
+            self._caches[y0] = (rows, kept)
+        return res, self.clock() - t0, kept is not None and kept is cache
+
+    def _cached_bands(self):
+        """The caches' bands in order when they tile the whole region and hold its view, else None."""
+        req = self._request
+        W, H = req.camera.width, req.camera.height
+        fits = getattr(self._renderer, "cache_fits", None)
+        bands, y = [], 0
+        while y < H:
+            if y not in self._caches:
+                return None
+            rows, cache = self._caches[y]
+            surface_key = req.surfaces if cache.surface_hits is not None else None
+            if fits is None or not fits(cache, sub_camera(req.camera, 0, y, W, rows), req.transfer_function,
+                                        req.options, surface_key=surface_key):
+                return None
+            bands.append((y, rows))
+            y += rows
+        return bands
+
+    def _reshade(self, W, H, now) -> bool:
+        """The whole region shaded from the bands' caches as the first frame, where they cover it
+        and the measured shading cost fits first_frame_seconds (unmeasured: tried against a
+        deadline). True when the display holds it."""
+        bands = self._cached_bands()
+        cost = self._cost.get("shade")
+        if not bands or (cost is not None and cost * W * H > self.first_frame_seconds):
+            return False
+        deadline = now + 2.0 * self.first_frame_seconds
+        img = np.empty((H, W, 4), dtype=np.float32)
+        spent = 0.0
+        for y0, rows in bands:
+            res, sec, shaded = self._render_band(y0, rows, deadline)
+            spent += sec
+            if res.cancelled or not shaded:
+                self._learn("shade", 4.0 * spent, W * (y0 + rows))  # at least this expensive
+                return False
+            img[y0:y0 + rows] = self._finish(res.rgba)
+        self._learn("shade", spent, W * H)
+        self.log.append(StepRecord("reshade", 1, (0, H), spent))
+        self.display = np.ascontiguousarray(img[::-1])
+        self._next_row = H
+        self.converged = True
+        self.version += 1
+        return True
+
     def _learn(self, kind, seconds, pixels):
         c = seconds / max(pixels, 1)
         old = self._cost.get(kind)
@@ -186,6 +284,8 @@ class ProgressiveViewport:
 
     def _preview(self, W, H, now) -> bool:
         req = self._request
+        if self._scale == 0 and self._reshade(W, H, now):
+            return True
         if self._scale == 0:
             cost = self._cost.get("preview", _DEFAULT_COST)
             s = math.ceil(math.sqrt(W * H * cost / self.first_frame_seconds))
@@ -209,18 +309,21 @@ class ProgressiveViewport:
         return True
 
     def _band(self, W, H, left) -> bool:
-        req = self._request
-        cost = self._cost.get("final", self._cost.get("preview", _DEFAULT_COST) * 2.0)
-        rows = int(np.clip((0.5 * left) / (cost * W), 1, H - self._next_row))
         y0 = self._next_row
-        cam = sub_camera(req.camera, 0, y0, W, rows)
-        deadline = self.clock() + max(left, 0.01)
-        res, sec = self._render(cam, req.options, None if rows == 1 else deadline)
+        if y0 in self._caches:  # a band of this view's last pass: its rows again, shaded from its cache
+            rows, deadline = self._caches[y0][0], None
+        else:
+            cost = self._cost.get("final", self._cost.get("preview", _DEFAULT_COST) * 2.0)
+            rows = int(np.clip((0.5 * left) / (cost * W), 1, H - y0))
+            rows = min(rows, min((y for y in self._caches if y > y0), default=H) - y0)  # up to the next cached band
+            deadline = None if rows == 1 else self.clock() + max(left, 0.01)
+        res, sec, shaded = self._render_band(y0, rows, deadline)
+        kind = "shade" if shaded else "final"
         if res.cancelled:
             self.log.append(StepRecord("band-overrun", 1, (y0, rows), sec))
-            self._learn("final", 2.0 * sec, W * rows)  # at least this expensive: smaller bands
+            self._learn(kind, 2.0 * sec, W * rows)  # at least this expensive: smaller bands
             return False
-        self._learn("final", sec, W * rows)
+        self._learn(kind, sec, W * rows)
         self.log.append(StepRecord("band", 1, (y0, rows), sec))
         img = self._finish(res.rgba)
         # display rows are bottom-up: region rows [y0, y0+rows) from the top

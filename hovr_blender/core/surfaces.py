@@ -181,7 +181,12 @@ def render_with_surfaces(renderer, surfaces: SurfaceScene | None, camera: RayCam
         return renderer.render(camera, tf, background, options, **kwargs)
     hits = surfaces.cast(camera)
     res = renderer.render(camera, tf, np.zeros(3), options, surface_t=hits.t, **kwargs)
-    rows = kwargs.get("rows")
+    return _composited(res, hits, background, mode, kwargs.get("rows"))
+
+
+def _composited(res, hits: SurfaceHits, background, mode: str, rows):
+    """The volume's result (rendered up to the hits over black) with the surfaces composited in;
+    a band of `rows` takes its rows of the whole camera's hits."""
     if rows is not None:
         r0, r1 = int(rows[0]), int(rows[1])
         hits = SurfaceHits(*(a[r0:r1] for a in (hits.t, hits.surface, hits.normal, hits.shaded, hits.holdout)))
@@ -189,3 +194,27 @@ def render_with_surfaces(renderer, surfaces: SurfaceScene | None, camera: RayCam
     res.stats["surface_pixels"] = int(hits.hit.sum())
     res.surface_hits = hits
     return res
+
+
+def render_with_surfaces_cached(renderer, surfaces: SurfaceScene | None, camera: RayCamera, tf, background, options,
+                                mode: str = "SHADED", cache=None, rows=None, held_bytes: int = 0, progress=None,
+                                tile_pixels: int | None = None):
+    """render_with_surfaces through core.renderer.render_cached: (result, segment cache or None).
+    The cache keeps the surfaces' hits beside the segments (they stopped its rays), so an image
+    shaded from it casts nothing; its key names this SurfaceScene (the same object, the same
+    triangles)."""
+    from .renderer import render_cached
+
+    kw = dict(rows=rows, held_bytes=held_bytes, progress=progress, tile_pixels=tile_pixels)
+    if surfaces is None or surfaces.empty:
+        return render_cached(renderer, camera, tf, background, options, cache=cache, **kw)
+    fits = (cache is not None and cache.surface_hits is not None
+            and renderer.cache_fits(cache, camera, tf, options, rows, surface_key=surfaces))
+    hits = cache.surface_hits if fits else surfaces.cast(camera)
+    res, cache = render_cached(renderer, camera, tf, np.zeros(3), options, cache=cache if fits else None,
+                               surface_t=hits.t, surface_key=surfaces, **kw)
+    if cache is not None:
+        cache.surface_hits = hits
+    if res.cancelled:
+        return res, cache
+    return _composited(res, hits, background, mode, rows), cache

@@ -271,3 +271,55 @@ def test_a_file_saved_with_the_scene_look_renders_the_same(scene, tmp_path):
     assert versioning.volume_look(obj.hovr, sc).legacy
     fallback = render_to_exr(sc, tmp_path / "fallback.exr")
     np.testing.assert_allclose(fallback, got, atol=0)
+
+
+def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path, monkeypatch):
+    """The first F12 of a view renders plainly; the second traces and keeps its segments
+    (render.FINAL) and gives the same picture; an F12 after an edit of the look alone (ramp
+    colour, density, world colour) shades from them without a trace and gives the picture of a
+    fresh render of the new look. A moved camera renders plainly again."""
+    from hovr_blender.core.renderer import Renderer
+
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    render.clear_cache()
+    traces, trace = [], Renderer.trace
+    monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(a[0]) or trace(self, *a, **k))
+    first = render_to_exr(scene, tmp_path / "1.exr")
+    assert render.FINAL.cache is None and traces == []
+    second = render_to_exr(scene, tmp_path / "2.exr")
+    assert render.FINAL.cache is not None and len(traces) == 1
+    np.testing.assert_array_equal(second, first)
+    obj.hovr.transfer_function.color_ramp.elements[1].color = (1.0, 0.0, 0.0, 1.0)
+    obj.hovr.density *= 2.0
+    scene.world.color = (0.25, 0.125, 0.0625)
+    edited = render_to_exr(scene, tmp_path / "3.exr")
+    assert len(traces) == 1 and np.abs(edited - first).max() > 1e-2
+    render.clear_cache()
+    assert render.FINAL.cache is None
+    fresh = render_to_exr(scene, tmp_path / "4.exr")
+    np.testing.assert_array_equal(edited, fresh)
+    scene.camera.location.x += 0.25
+    render_to_exr(scene, tmp_path / "5.exr")
+    assert render.FINAL.cache is None and len(traces) == 1
+
+
+def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_path, monkeypatch):
+    """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
+    picture) and does not try to keep its segments again."""
+    from hovr_blender.core import limits
+    from hovr_blender.core import renderer as renderer_module
+    from hovr_blender.core.renderer import Renderer
+
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    render.clear_cache()
+    first = render_to_exr(scene, tmp_path / "1.exr")
+    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
+    traces, trace = [], Renderer.trace
+    monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
+    with limits.using(limits.ResourceLimits(max_memory=1 << 30)):
+        second = render_to_exr(scene, tmp_path / "2.exr")
+        assert render.FINAL.refused and render.FINAL.cache is None and len(traces) == 1
+        third = render_to_exr(scene, tmp_path / "3.exr")
+    assert len(traces) == 1
+    np.testing.assert_array_equal(second, first)
+    np.testing.assert_array_equal(third, first)

@@ -122,3 +122,25 @@ def test_viewport_errors_are_raised_for_view_draw_to_show(scene):
     ctx = camera_view(scene, 16, 12)
     with pytest.raises(ValueError, match="Linear"):
         render.viewport_step(ProgressiveViewport(), ctx, bpy.context.evaluated_depsgraph_get())
+
+
+def test_a_look_edit_in_the_converged_viewport_is_shaded_from_its_bands(scene, tmp_path):
+    """Rendered viewport, camera view, converged: an edit of the ramp's colour and the density
+    is answered by one view_draw step that shades every band from its cached segments (no
+    preview, no trace), and that frame is F12's picture of the new look."""
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    ctx = camera_view(scene, SPHERE.W, SPHERE.H)
+    state = ProgressiveViewport()
+    for _ in range(200):
+        if render.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get()).converged:
+            break
+    caches = {y: c for y, (_, c) in state._caches.items()}
+    assert state.converged and sum(rows for rows, _ in state._caches.values()) == SPHERE.H
+    obj.hovr.transfer_function.color_ramp.elements[1].color = (1.0, 0.0, 0.0, 1.0)
+    obj.hovr.density *= 2.0
+    n = len(state.log)
+    frame = render.viewport_step(state, ctx, bpy.context.evaluated_depsgraph_get())
+    assert frame.converged and [r.kind for r in state.log[n:]] == ["reshade"]
+    assert all(state._caches[y][1] is c for y, c in caches.items())
+    f12 = render_to_exr(scene, tmp_path / "f12.exr")[::-1]
+    np.testing.assert_allclose(frame.pixels, f12, atol=1e-5)

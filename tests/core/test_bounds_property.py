@@ -173,8 +173,8 @@ def _segment_bounds(mesh: args.MeshArgs, xo: wp.array(dtype=wp.vec3), xd: wp.arr
     segs.samples[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
     for k in range(deg + 1):
         segs.coeffs[i * args.MAX_SAMPLES + k] = restriction.chebyshev_coefficient(segs, i, k, deg)
-    segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 2] = w[0]
-    segs.coeffs[i * args.MAX_SAMPLES + args.MAX_SAMPLES - 1] = w[1]
+    segs.coeffs[i * args.MAX_SAMPLES + deg + 1] = w[0]  # the weights after the series (restriction.series_weights)
+    segs.coeffs[i * args.MAX_SAMPLES + deg + 2] = w[1]
     out[i] = restriction.segment_bounds(segs.coeffs, i * args.MAX_SAMPLES, deg, mesh.field_err[0])
 
 

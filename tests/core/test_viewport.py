@@ -1,6 +1,7 @@
 """The progressive viewport scheduler (core/viewport.py) without Blender: its frames,
 resolutions, time per call, restarts, and that it ends at the F12 image of the same view."""
 import time
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -103,10 +104,12 @@ def test_restarts_on_change_and_learns_the_preview_scale(renderer):
         assert vp.display is None and not vp.converged and vp.stage == "preview"
         vp.step(0.02)
         assert vp.display is not None and vp.display.shape[:2] == (64, changed.camera.width)
-    previews = [r for r in vp.log if r.kind == "preview"]
-    assert len(previews) == 5 and vp.restarts == 5
+    # a first frame per restart: a preview, or for the look-only change (tf2) with every band
+    # already cached, the region shaded from the caches
+    firsts = [r for r in vp.log if r.kind in ("preview", "reshade")]
+    assert len(firsts) == 5 and vp.restarts == 5
     # the preview's resolution comes from the measured cost (timed with a fake clock below)
-    assert all(r.scale >= 1 for r in previews)
+    assert all(r.scale >= 1 for r in firsts)
 
 
 class FakeRenderer:
@@ -127,7 +130,7 @@ class FakeRenderer:
                 cancelled = True
                 break
         img = np.full((camera.height, camera.width, 4), 0.5, np.float32)
-        return SimpleNamespace(rgba=img, cancelled=cancelled)
+        return SimpleNamespace(rgba=img, cancelled=cancelled, stats={})
 
 
 class Clock:
@@ -172,3 +175,82 @@ def test_preview_at_maximum_scale_always_finishes():
     scales = [r.scale for r in vp.log]
     assert vp.display is not None and vp.log[-1].kind == "preview" and vp.log[-1].scale == MAX_PREVIEW_SCALE
     assert scales == sorted(scales) and calls <= 5 and vp.display.shape == (1024, 2048, 4)
+
+
+def converge(vp, budget=0.05):
+    for _ in range(500):
+        if vp.converged:
+            return
+        vp.step(budget)
+    raise AssertionError("the viewport did not converge")
+
+
+def test_a_look_change_is_shaded_from_the_bands_caches(renderer):
+    """After the view converged, an edit of the look alone (colours, density, background,
+    tolerance) is shaded from the bands' cached segments: the whole region at full resolution as
+    the first frame, no trace and no preview, equal to F12 of the new look. A change of the view
+    drops the caches."""
+    vp = ProgressiveViewport(first_frame_seconds=10.0)  # room for the region at once on any machine
+    vp.sync(renderer, request())
+    converge(vp)
+    caches = dict(vp._caches)
+    assert caches and sum(rows for rows, _ in caches.values()) == 64  # every band kept its segments
+    looks = [TransferFunction(TF.color_s, TF.color_rgb[::-1], TF.density_s, TF.density_tau * 3.0),
+             TransferFunction(TF.color_s, TF.color_rgb, TF.density_s, TF.density_tau * 0.25)]
+    for tf in looks:
+        req = replace(request(tf=tf), background=np.array([0.5, 0.25, 0.0]),
+                      options=RenderOptions(method="split", tolerance=1e-5))
+        assert vp.sync(renderer, req) is True
+        n = len(vp.log)
+        assert vp.step(0.05) is True and vp.converged
+        assert [r.kind for r in vp.log[n:]] == ["reshade"]
+        assert all(vp._caches[y][1] is c for y, (_, c) in caches.items())  # shaded, not traced again
+        want = renderer.render(req.camera, tf, req.background, req.options).rgba[::-1]
+        np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
+    vp.sync(renderer, request(w=97))
+    assert vp._caches == {}
+    n = len(vp.log)
+    vp.step(0.05)
+    assert vp.log[n].kind.startswith("preview")
+
+
+def test_a_look_change_mid_refinement_shades_the_cached_bands(renderer):
+    """Before convergence only some bands have caches: the look change starts with a preview, the
+    cached bands are shaded again (same rows), the rest traced; the end is F12 of the new look."""
+    vp = ProgressiveViewport(first_frame_seconds=0.05)
+    vp.sync(renderer, request())
+    while not vp._caches or vp.converged:
+        if vp.converged:
+            vp.sync(renderer, request(method="classified"))  # a fresh start with fewer bands done
+        vp.step(0.01)
+    first = dict(vp._caches)
+    tf = TransferFunction(TF.color_s, TF.color_rgb, TF.density_s, TF.density_tau * 2.0)
+    req = request(tf=tf, method=vp._request.options.method)
+    vp.sync(renderer, req)
+    n = len(vp.log)
+    converge(vp)
+    assert vp.log[n].kind == "preview"
+    assert all(vp._caches[y][1] is c for y, (_, c) in first.items())
+    want = renderer.render(req.camera, tf, BG, req.options).rgba[::-1]
+    np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
+
+
+def test_caches_the_memory_limit_refuses_are_not_kept(renderer, monkeypatch):
+    """Every band's render fits the limit, no band's cache does (its smallest arrays are made
+    larger than the limit): the first band's trace is refused, the view's later bands do not try
+    again; they render plainly, keep nothing, and the image is the same."""
+    from hovr_blender.core import limits
+    from hovr_blender.core import renderer as renderer_module
+
+    vp = ProgressiveViewport(first_frame_seconds=0.05)
+    image = renderer.check_limits(96, 64, RenderOptions(method="split"), 96 * 64)
+    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", image // 8)
+    traces, trace = [], Renderer.trace
+    monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
+    with limits.using(limits.ResourceLimits(max_memory=image)):
+        vp.sync(renderer, request())
+        converge(vp)
+    assert vp._caches == {} and vp._cache_refused and len(traces) == 1
+    assert len([r for r in vp.log if r.kind == "band"]) > 1
+    want = renderer.render(vp._request.camera, TF, BG, vp._request.options).rgba[::-1]
+    np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)

@@ -6,7 +6,9 @@ A render is a loop of rounds over a tile of rays (kernels/raycast.py): the searc
 where rays that need it enter the mesh, the traverse kernel walks each ray through the mesh
 and writes up to SEGMENTS_PER_ROUND element segments, the sample kernel fills in the field's
 samples along them, and the integrate kernel turns them into colour and transmittance.
-Per-ray state carries everything from one round to the next.
+Per-ray state carries everything from one round to the next. A trace (Renderer.trace) keeps
+every segment of every ray in a SegmentCache instead of integrating them, and the shade
+kernel integrates them later through any transfer function.
 """
 from __future__ import annotations
 
@@ -135,7 +137,8 @@ class Segments:
     # slot * MAX_SAMPLES + j: f(t_j) w(t_j)^2 at t_j = mid + half cos(pi j / degree) (w = 1 but
     # for pyramids); MAX_SAMPLES - 2 / - 1: w(t0), w(t1)
     samples: wp.array(dtype=wp.float32)
-    # slot * MAX_SAMPLES + k: the Chebyshev coefficients of the samples (and the same weights)
+    # slot * MAX_SAMPLES + k: the Chebyshev coefficients c_0 .. c_degree of the samples, then the
+    # same two weights (restriction.series_weights)
     coeffs: wp.array(dtype=wp.float32)
     # the slots that need samples this round: list[0..list_count)
     list: wp.array(dtype=wp.int32)
@@ -163,3 +166,28 @@ class RayState:
     active: wp.array(dtype=wp.int32)
     active_next: wp.array(dtype=wp.int32)
     active_count: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class SegmentCache:
+    """Every element segment of every ray of a trace, with its Chebyshev series, for the shade
+    kernel (core/renderer.py Renderer.trace / shade). A round appends each ray's segments as one
+    chunk (contiguous, in ray order); a ray's chunks are linked in the order of the rounds, so
+    walking them gives its segments front to back. Segments, chunks and coefficients are
+    reserved with atomic counters, so the arrays are in no particular order across rays."""
+
+    head: wp.array(dtype=wp.int32)  # per ray: its first chunk (-1: no segment)
+    t_end: wp.array(dtype=wp.float32)  # per ray: its far end (the depth output where 1 - T stays < 0.5)
+    chunk_start: wp.array(dtype=wp.int32)  # per chunk: its first segment
+    chunk_count: wp.array(dtype=wp.int32)  # ... how many
+    chunk_next: wp.array(dtype=wp.int32)  # ... and the ray's next chunk (-1: the last)
+    element: wp.array(dtype=wp.int32)  # per segment, as Segments holds them
+    t0: wp.array(dtype=wp.float32)
+    t1: wp.array(dtype=wp.float32)
+    degree: wp.array(dtype=wp.int32)  # -1: no series (SEG_EVALUATE)
+    flags: wp.array(dtype=wp.int32)
+    tail: wp.array(dtype=wp.float32)
+    coeff_offset: wp.array(dtype=wp.int32)  # where its series (degree + 3 values) starts in coeffs
+    coeffs: wp.array(dtype=wp.float32)
+    # segments, chunks and coefficients reserved so far (the trace's atomic counters)
+    counts: wp.array(dtype=wp.int32)

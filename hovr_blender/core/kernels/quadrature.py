@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from .args import MAX_SAMPLES, MeshArgs, QuadArgs, TransferArgs
+from .args import MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
-from .restriction import clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at
+from .restriction import (clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at,
+                          series_weights)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -381,7 +382,8 @@ def gauss_kronrod_smooth(
     hint_d = int(-1)  # the breakpoint segments of the last lookups (between breakpoints: all of them)
     hint_c = int(-1)
     unweighted = int(0)  # f is the series (w = 1): its antiderivative gives exact optical depths
-    if coeffs[base + MAX_SAMPLES - 2] == 1.0 and coeffs[base + MAX_SAMPLES - 1] == 1.0:
+    ws = series_weights(coeffs, base, deg)
+    if ws[0] == 1.0 and ws[1] == 1.0:
         unweighted = 1
     half_seg = 0.5 * (b - a)
     mid_seg = 0.5 * (a + b)
@@ -472,8 +474,9 @@ def level_crossing(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: f
 @wp.func
 def value_and_slope_sign(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s: float) -> wp.vec2:
     """(f, a quantity with the sign of df/ds) at s in [-1, 1], for f = g / w^2 (w linear)."""
-    wa = coeffs[base + MAX_SAMPLES - 2]
-    wb = coeffs[base + MAX_SAMPLES - 1]
+    ws = series_weights(coeffs, base, deg)
+    wa = ws[0]
+    wb = ws[1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
     gs = clenshaw_with_slope(coeffs, base, deg, s)
     return wp.vec2(gs[0] / (w * w), gs[1] * w - gs[0] * (wb - wa))
@@ -523,8 +526,9 @@ def next_cut(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, de
     half = 0.5 * (b - a)
     mid = 0.5 * (a + b)
     margin = float(1.0e30)  # M h / 2, or no filter (pyramids)
-    if coeffs[base + MAX_SAMPLES - 2] == coeffs[base + MAX_SAMPLES - 1]:
-        w2 = coeffs[base + MAX_SAMPLES - 2] * coeffs[base + MAX_SAMPLES - 2]
+    ws = series_weights(coeffs, base, deg)
+    if ws[0] == ws[1]:
+        w2 = ws[0] * ws[0]
         lip = float(0.0)
         for k in range(1, deg + 1):
             lip += float(k * k) * wp.abs(coeffs[base + k])

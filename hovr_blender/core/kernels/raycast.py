@@ -13,6 +13,11 @@ still going (no thread is spent on a finished ray). Three kernels instead of one
 small: the search (BVH, locating curved candidates), the walk (Newton, element evaluation)
 and the quadrature never hold their registers at the same time, and each compiles quickly.
 
+A trace (Renderer.trace) runs the same rounds with trace_reserve and trace_write in place of
+integrate: every segment of every ray, with its series, goes into a SegmentCache, and the
+shade kernel later integrates a ray's cached segments through any transfer function as
+integrate would have, then writes its pixel.
+
 Traversal walks through shared faces: where a ray leaves an element through a face it
 shares with another (MeshArgs.neighbour), the next segment starts there, at the same t (no
 gap, no double count), in that element: an affine element's exact clip, or a curved one's
@@ -32,14 +37,15 @@ from . import quadrature
 from . import restriction
 from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
-                   STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, Segments, TransferArgs)
+                   STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments,
+                   TransferArgs)
 from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "NUM_STATS",
+__all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
            "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients", "integrate",
-           "finalize"]
+           "finalize", "trace_reserve", "trace_write", "trace_ends", "shade", "sum_counts"]
 
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
@@ -70,6 +76,7 @@ SAMPLE_MAX_REGISTERS = 64
 WindowKeys = wp.types.vector(length=WINDOW, dtype=wp.float32)
 WindowElements = wp.types.vector(length=WINDOW, dtype=wp.int32)
 LocatedElements = wp.types.vector(length=LOCATED, dtype=wp.int32)
+CounterSums = wp.types.vector(length=NUM_STATS, dtype=wp.int64)  # sum_counts' per-thread sums
 
 
 @wp.func
@@ -506,6 +513,15 @@ def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b
 
 
 @wp.func
+def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
+    """1 where the density is 0 over element e's whole certified range: classified and split
+    take no samples there (traverse) and integrate nothing (shade)."""
+    if quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
+        return 1
+    return 0
+
+
+@wp.func
 def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int, t: float, e: int, left: int,
                r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int):
     """Where ray i's walk got this round (its n segments, the counters) into the ray state."""
@@ -589,7 +605,7 @@ def _make_traverse_kernel(CURVED: bool):
             if b > a:
                 zero_steps = 0
                 n_seg += 1
-                if uses_restriction == 1 and quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
+                if uses_restriction == 1 and element_transparent(mesh, tf, e) == 1:
                     n_empty += 1  # the element's whole range is transparent: no samples
                 else:
                     curved = int(0)  # a constant in the affine kernel: the sample kernel's Newton compiles out
@@ -665,9 +681,9 @@ def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int
     while kk <= deg:
         segs.coeffs[base + kk] = restriction.chebyshev_coefficient(segs, slot, kk, deg)
         kk += stride
-    if k == 0:
-        segs.coeffs[base + MAX_SAMPLES - 2] = segs.samples[base + MAX_SAMPLES - 2]
-        segs.coeffs[base + MAX_SAMPLES - 1] = segs.samples[base + MAX_SAMPLES - 1]
+    if k == 0:  # the weights right after the series (restriction.series_weights)
+        segs.coeffs[base + deg + 1] = segs.samples[base + MAX_SAMPLES - 2]
+        segs.coeffs[base + deg + 2] = segs.samples[base + MAX_SAMPLES - 1]
 
 
 @wp.kernel(enable_backward=False)
@@ -708,12 +724,13 @@ def walk_kernels(curved: bool, modes: int = 0):
 
 @wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
-                      b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: RayIntegral):
-    """One segment into the ray state; returns the new state and (element evaluations,
-    restriction evaluations, class: 1 empty, 2 smooth, 3 piecewise-smooth, 0 unclassified)."""
+                      b: float, deg: int, flags: int, coeffs: wp.array(dtype=wp.float32), base: int,
+                      state_in: RayIntegral):
+    """One segment into the ray state (its series at coeffs[base ..], restriction.py's layout,
+    wherever it is kept: a round's slot or a cached segment); returns the new state and
+    (element evaluations, restriction evaluations, class: 1 empty, 2 smooth, 3
+    piecewise-smooth, 0 unclassified)."""
     state = state_in
-    coeffs = segs.coeffs
-    base = slot * MAX_SAMPLES
     evaluate = int(0)
     xo = wp.vec3(0.0, 0.0, 0.0)
     xd = wp.vec3(0.0, 0.0, 0.0)
@@ -766,6 +783,50 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     return state, counts
 
 
+@wp.struct
+class Tally:
+    """What a ray's integration of its segments counted (the stats' STAT_* counters)."""
+
+    field_evals: wp.int32
+    restriction_evals: wp.float32
+    empty: wp.int32
+    smooth: wp.int32
+    piecewise: wp.int32
+
+
+@wp.func
+def no_tally() -> Tally:
+    t = Tally()
+    t.field_evals = 0
+    t.restriction_evals = 0.0
+    t.empty = 0
+    t.smooth = 0
+    t.piecewise = 0
+    return t
+
+
+@wp.func
+def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
+                      b: float, deg: int, flags: int, tail: float, coeffs: wp.array(dtype=wp.float32), base: int,
+                      state_in: RayIntegral, tally_in: Tally):
+    """integrate_segment, the segment's tail added to the error estimate first, its counts to
+    the tally: one segment as the integrate and shade kernels both take it."""
+    state = state_in
+    tally = tally_in
+    state.error = state.error + tail
+    state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, deg, flags, coeffs, base, state)
+    tally.field_evals += int(counts[0])
+    tally.restriction_evals += counts[1]
+    cls = int(counts[2])
+    if cls == 1:
+        tally.empty += 1
+    elif cls == 2:
+        tally.smooth += 1
+    elif cls == 3:
+        tally.piecewise += 1
+    return state, tally
+
+
 @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
 def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
               rays: RayState, segs: Segments):
@@ -782,52 +843,197 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
     state.restriction_evals = 0.0
     state.depth = de[0]
     state.error = de[1]
-    n_field = int(0)
-    n_restr = float(0.0)
-    n_empty = int(0)
-    n_smooth = int(0)
-    n_pw = int(0)
+    tally = no_tally()
     for k in range(segs.count[i]):
         if state.transmittance < q.min_transmittance:
             break
         slot = i * SEGMENTS_PER_ROUND + k
-        state.error = state.error + segs.tail[slot]
-        state, counts = integrate_segment(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
-                                          segs.degree[slot], segs.flags[slot], segs, slot, state)
-        n_field += int(counts[0])
-        n_restr += counts[1]
-        cls = int(counts[2])
-        if cls == 1:
-            n_empty += 1
-        elif cls == 2:
-            n_smooth += 1
-        elif cls == 3:
-            n_pw += 1
+        state, tally = integrate_counted(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
+                                         segs.degree[slot], segs.flags[slot], segs.tail[slot], segs.coeffs,
+                                         slot * MAX_SAMPLES, state, tally)
     rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
     rays.depth_err[i] = wp.vec2(state.depth, state.error)
-    rays.stats[pixel, STAT_FIELD_EVALS] += n_field
-    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(n_restr + state.restriction_evals)
-    rays.stats[pixel, STAT_EMPTY] += n_empty
-    rays.stats[pixel, STAT_SMOOTH] += n_smooth
-    rays.stats[pixel, STAT_PIECEWISE] += n_pw
+    rays.stats[pixel, STAT_FIELD_EVALS] += tally.field_evals
+    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(tally.restriction_evals + state.restriction_evals)
+    rays.stats[pixel, STAT_EMPTY] += tally.empty
+    rays.stats[pixel, STAT_SMOOTH] += tally.smooth
+    rays.stats[pixel, STAT_PIECEWISE] += tally.piecewise
     if state.transmittance < q.min_transmittance or rays.phase[i] == 1:
         rays.phase[i] = 2
     else:
         rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
 
 
+@wp.func
+def pixel_values(q: QuadArgs, ct: wp.vec4, de: wp.vec2, t_end: float):
+    """A ray's pixel from its (C, T) and (depth, error): RGB = C + T background, alpha = 1 - T;
+    depth (the ray's far end where the opacity never reached 0.5) and the error estimate."""
+    T = ct[3]
+    depth = de[0]
+    if depth < 0.0:
+        depth = t_end
+    return (wp.vec4(ct[0] + T * q.background[0], ct[1] + T * q.background[1], ct[2] + T * q.background[2], 1.0 - T),
+            wp.vec2(depth, de[1]))
+
+
 @wp.kernel(enable_backward=False)
 def finalize(q: QuadArgs, pixel_offset: wp.int32, rays: RayState, rgba: wp.array(dtype=wp.vec4),
              aux: wp.array(dtype=wp.vec2)):
-    """Pixels of the tile: RGB = C + T background, alpha = 1 - T; depth (the far end where the
-    opacity never reached 0.5) and the error estimate."""
+    """Pixels of the tile (pixel_values)."""
     i = wp.tid()
     pixel = i + pixel_offset
-    ct = rays.color_t[i]
-    T = ct[3]
-    rgba[pixel] = wp.vec4(ct[0] + T * q.background[0], ct[1] + T * q.background[1], ct[2] + T * q.background[2], 1.0 - T)
-    de = rays.depth_err[i]
-    depth = de[0]
-    if depth < 0.0:
-        depth = rays.t_end[i]
-    aux[pixel] = wp.vec2(depth, de[1])
+    px, ax = pixel_values(q, rays.color_t[i], rays.depth_err[i], rays.t_end[i])
+    rgba[pixel] = px
+    aux[pixel] = ax
+
+
+# ------------------------------------------------------------------ the segment cache
+
+
+@wp.kernel(enable_backward=False)
+def trace_reserve(rays: RayState, segs: Segments, cache: SegmentCache, reserved: wp.array(dtype=wp.vec3i)):
+    """A trace's round, after the samples, one thread per active ray (the integrate kernel's
+    place): reserve (first segment, chunk, first coefficient) in the cache for the ray's segments
+    of the round, one chunk, and put the ray on the next round's list unless its traversal has
+    finished. Nothing is integrated, so no ray stops early: the cache holds the whole ray."""
+    i = rays.active[wp.tid()]
+    reserved[i] = wp.vec3i(-1, -1, -1)
+    if rays.phase[i] == 2:
+        return
+    k = segs.count[i]
+    if k > 0:
+        n_coeffs = int(0)
+        for j in range(k):
+            deg = segs.degree[i * SEGMENTS_PER_ROUND + j]
+            if deg >= 0:
+                n_coeffs += deg + 3
+        reserved[i] = wp.vec3i(wp.atomic_add(cache.counts, 0, k), wp.atomic_add(cache.counts, 1, 1),
+                               wp.atomic_add(cache.counts, 2, n_coeffs))
+    if rays.phase[i] == 1:
+        rays.phase[i] = 2
+    else:
+        rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
+
+
+@wp.kernel(enable_backward=False)
+def trace_write(rays: RayState, segs: Segments, cache: SegmentCache, reserved: wp.array(dtype=wp.vec3i),
+                last_chunk: wp.array(dtype=wp.int32), ray_offset: wp.int32):
+    """One thread per slot of the active rays: the ray's segment k into its reserved place, with
+    its series (degree + 3 values); thread 0 of a ray writes the chunk and links it after the
+    ray's last one (last_chunk, per ray of the tile), so the chunks go in the rounds' order."""
+    tid = wp.tid()
+    i = rays.active[tid // SEGMENTS_PER_ROUND]
+    k = tid % SEGMENTS_PER_ROUND
+    r = reserved[i]
+    if r[0] < 0 or k >= segs.count[i]:
+        return
+    first_slot = i * SEGMENTS_PER_ROUND
+    offset = r[2]
+    for j in range(k):
+        dj = segs.degree[first_slot + j]
+        if dj >= 0:
+            offset += dj + 3
+    slot = first_slot + k
+    s = r[0] + k
+    deg = segs.degree[slot]
+    cache.element[s] = segs.element[slot]
+    cache.t0[s] = segs.t0[slot]
+    cache.t1[s] = segs.t1[slot]
+    cache.degree[s] = deg
+    cache.flags[s] = segs.flags[slot]
+    cache.tail[s] = segs.tail[slot]
+    cache.coeff_offset[s] = offset
+    for m in range(deg + 3):  # none for deg = -1
+        cache.coeffs[offset + m] = segs.coeffs[slot * MAX_SAMPLES + m]
+    if k == 0:
+        c = r[1]
+        cache.chunk_start[c] = r[0]
+        cache.chunk_count[c] = segs.count[i]
+        cache.chunk_next[c] = -1
+        prev = last_chunk[i]
+        if prev < 0:
+            cache.head[i + ray_offset] = c
+        else:
+            cache.chunk_next[prev] = c
+        last_chunk[i] = c
+
+
+@wp.kernel(enable_backward=False)
+def trace_ends(rays: RayState, cache: SegmentCache, ray_offset: wp.int32):
+    """Each ray's far end into the cache (the depth output where its opacity stays below 0.5)."""
+    i = wp.tid()
+    cache.t_end[i + ray_offset] = rays.t_end[i]
+
+
+@wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
+def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
+          ray_offset: wp.int32, cache: SegmentCache, rgba: wp.array(dtype=wp.vec4), aux: wp.array(dtype=wp.vec2),
+          stats: wp.array2d(dtype=wp.int32), nonfinite: wp.array(dtype=wp.int32)):
+    """One thread per ray of a trace (ray i is pixel i + pixel_offset): its cached segments front
+    to back through integrate_counted, as the integrate kernel takes them round by round, then
+    its pixel (pixel_values) into rgba[i], aux[i]. Classified and split skip the elements the
+    traverse kernel would not have sampled under tf (element_transparent), and the ray stops
+    where integrate stops it (transmittance below q.min_transmittance), so the pixel is a fresh
+    render's. Its counters go to stats[i] (segments: those walked up to the stop), and a pixel
+    that is not finite counts in nonfinite[0]."""
+    i = wp.tid() + ray_offset
+    o, d = camera_ray(cam, i + pixel_offset)
+    state = RayIntegral()
+    state.color = wp.vec3(0.0, 0.0, 0.0)
+    state.transmittance = 1.0
+    state.restriction_evals = 0.0
+    state.depth = -1.0
+    state.error = 0.0
+    tally = no_tally()
+    skip_transparent = int(0)
+    if q.method >= METHOD_CLASSIFIED:
+        skip_transparent = 1
+    n_seg = int(0)
+    n_skipped = int(0)
+    going = int(1)
+    c = cache.head[i]
+    while c >= 0 and going == 1:
+        s = cache.chunk_start[c]
+        s_end = s + cache.chunk_count[c]
+        while s < s_end:
+            e = cache.element[s]
+            if skip_transparent == 1 and element_transparent(mesh, tf, e) == 1:
+                n_skipped += 1
+            else:
+                if state.transmittance < q.min_transmittance:
+                    going = 0
+                    break
+                state, tally = integrate_counted(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
+                                                 cache.flags[s], cache.tail[s], cache.coeffs, cache.coeff_offset[s],
+                                                 state, tally)
+            n_seg += 1
+            s += 1
+        c = cache.chunk_next[c]
+    px, ax = pixel_values(q, wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance),
+                          wp.vec2(state.depth, state.error), cache.t_end[i])
+    rgba[i] = px
+    aux[i] = ax
+    if not (wp.isfinite(px) and wp.isfinite(ax)):
+        wp.atomic_add(nonfinite, 0, 1)
+    stats[i, STAT_FIELD_EVALS] = tally.field_evals
+    stats[i, STAT_RESTRICTION_EVALS] = int(tally.restriction_evals + state.restriction_evals)
+    stats[i, STAT_SEGMENTS] = n_seg
+    stats[i, STAT_EMPTY] = n_skipped + tally.empty
+    stats[i, STAT_SMOOTH] = tally.smooth
+    stats[i, STAT_PIECEWISE] = tally.piecewise
+    stats[i, STAT_LOCATES] = 0
+    stats[i, STAT_WALKS] = 0
+
+
+@wp.kernel(enable_backward=False)
+def sum_counts(stats: wp.array2d(dtype=wp.int32), threads: wp.int32, out: wp.array(dtype=wp.int64)):
+    """The per-ray counters summed on the device into out: thread t takes rows t, t + threads, ...
+    (neighbouring threads read neighbouring rows), then adds its sums."""
+    acc = CounterSums()
+    r = wp.tid()
+    while r < stats.shape[0]:
+        for k in range(NUM_STATS):
+            acc[k] += wp.int64(stats[r, k])
+        r += threads
+    for k in range(NUM_STATS):
+        wp.atomic_add(out, k, acc[k])

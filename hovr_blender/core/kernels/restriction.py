@@ -8,8 +8,11 @@ curved element the same samples give an interpolant, whose tail is the error est
 
 The sample kernel writes the samples (sample_point, then the element's evaluator), the coefficients kernel turns them into the
 series (chebyshev_coefficient, one thread per coefficient) in Segments.coeffs, and the
-integrate kernel evaluates it there: a series is (array, base offset), never a local vector
-(a vector argument is copied at every call).
+integrate kernel evaluates it there: a series is (array, base offset, degree), never a local
+vector (a vector argument is copied at every call). Its coefficients c_0 .. c_deg sit at base ..
+base + deg and the pyramid weights w(t0), w(t1) right after them (series_weights), so a series
+takes deg + 3 values wherever it is kept: a round's segment buffer or a ray's cached segments
+(Renderer.trace).
 """
 from __future__ import annotations
 
@@ -127,12 +130,20 @@ def clenshaw_integral(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, s
 
 
 @wp.func
+def series_weights(coeffs: wp.array(dtype=wp.float32), base: int, deg: int) -> wp.vec2:
+    """(w(t0), w(t1)) of the series at coeffs[base ..] of degree deg: the pyramid weights at the
+    segment's ends (1 but for pyramids), kept right after its coefficients."""
+    return wp.vec2(coeffs[base + deg + 1], coeffs[base + deg + 2])
+
+
+@wp.func
 def restriction_at(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, t: float) -> float:
     """f(t) = g(s) / w(s)^2 (w = 1 but for pyramids), s the position of t in [a, b]; the
-    series at coeffs[base ..], the weights w(a), w(b) in its last two slots."""
+    series at coeffs[base ..] with its weights w(a), w(b) (series_weights)."""
     s = wp.clamp((2.0 * t - a - b) / (b - a), -1.0, 1.0)
-    wa = coeffs[base + MAX_SAMPLES - 2]
-    wb = coeffs[base + MAX_SAMPLES - 1]
+    ws = series_weights(coeffs, base, deg)
+    wa = ws[0]
+    wb = ws[1]
     w = wp.max(wa + 0.5 * (s + 1.0) * (wb - wa), 1.0e-6)
     return clenshaw(coeffs, base, deg, s) / (w * w)
 
@@ -143,8 +154,9 @@ def segment_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, err:
     rounding margin), widened by `err` (the samples' rounding, mesh.field_err scaled by the
     Lebesgue constant of the points), divided by w^2 in interval arithmetic (w linear and
     positive)."""
-    wa = coeffs[base + MAX_SAMPLES - 2]
-    wb = coeffs[base + MAX_SAMPLES - 1]
+    ws = series_weights(coeffs, base, deg)
+    wa = ws[0]
+    wb = ws[1]
     if wa == 1.0 and wb == 1.0:  # no pyramid weight: f = g
         rad = float(0.0)
         for k in range(1, deg + 1):
