@@ -66,10 +66,14 @@ class SceneInputs:
     film_transparent: bool
     options: object  # RenderOptions
     warnings: list = field(default_factory=list)
-    transfer_functions: list | None = None  # per volume, per world unit: resolve_looks() sets it
+    transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
     surfaces: list = field(default_factory=list)  # [core.surfaces.SurfaceMesh] (blender/surfaces.py)
     surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
     surfaces_key: str = ""  # digest of the surfaces (blender/surfaces.surfaces_key)
+    # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
+    # needs the volumes' sizes, i.e. their data)
+    step_units: str = "WORLD"
+    steps_across: int = 0
 
     @property
     def data_key(self) -> tuple:
@@ -77,9 +81,9 @@ class SceneInputs:
 
     @property
     def transfer_function(self):
-        """The core's argument: one TransferFunction per volume (resolve_looks first)."""
+        """The core's argument: one TransferFunction per volume (resolve_units first)."""
         if self.transfer_functions is None:
-            raise RuntimeError("resolve_looks() has not run")
+            raise RuntimeError("resolve_units() has not run")
         return self.transfer_functions
 
 
@@ -184,25 +188,40 @@ def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
                                 inputs.options, mode=mode, **kwargs)
 
 
-def resolve_looks(inputs: SceneInputs) -> list:
-    """Each volume's transfer function in the contract's units (extinction per world unit):
-    a relative density becomes density / the volume's bounding-box diagonal (which needs the
-    data, read once and cached). Sets and returns inputs.transfer_functions."""
+def world_diagonal(v: VolumeInputs) -> float:
+    """The volume's bounding-box diagonal in world units (its data read once and cached)."""
+    from .framing import volume_diagonal
+
+    lo, hi = volume_extent(v.source)
+    return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+
+
+def resolve_units(inputs: SceneInputs) -> SceneInputs:
+    """What is given relative to the volumes' sizes, in the render contract's absolute units:
+    each volume's transfer function per world unit (a relative density becomes density / the
+    volume's diagonal; inputs.transfer_functions) and the step h in world units (a relative
+    step: the smallest volume's diagonal / Steps Across; inputs.options.h). A view file means
+    what it always meant: only these numbers reach the core."""
     from dataclasses import replace
 
-    from .framing import density_per_world_unit, volume_diagonal
+    from .framing import density_per_world_unit, step_world_length
 
     tfs = []
     for v in inputs.volumes:
-        diag = 0.0
-        if v.density_units != "WORLD":
-            lo, hi = volume_extent(v.source)
-            diag = volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+        diag = world_diagonal(v) if v.density_units != "WORLD" else 0.0
         scale = density_per_world_unit(v.density, v.density_units, diag)
         tf = v.transfer_function
         tfs.append(replace(tf, density_tau=np.asarray(tf.density_tau, dtype=np.float64) * scale))
     inputs.transfer_functions = tfs
-    return tfs
+    if inputs.step_units != "WORLD":
+        try:
+            h = step_world_length(inputs.options.h, inputs.steps_across, inputs.step_units,
+                                  [world_diagonal(v) for v in inputs.volumes])
+        except ValueError as exc:
+            raise SceneError(str(exc)) from exc
+        inputs.options = replace(inputs.options, h=h)
+        inputs.step_units = "WORLD"  # resolved: options.h is the world step now
+    return inputs
 
 
 def clear_cache():
@@ -262,7 +281,8 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
     depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
     it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects. Call resolve_looks() before using the transfer functions."""
+    come from the evaluated objects. Call resolve_units() before using the transfer functions or
+    the step (options.h)."""
     from ..core.view import RenderOptions
 
     scene = depsgraph.scene if original else depsgraph.scene_eval
@@ -286,7 +306,8 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
         key = surfaces_key(surfaces)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
                        film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
-                       surface_mode=mode, surfaces_key=key)
+                       surface_mode=mode, surfaces_key=key, step_units=settings.step_units,
+                       steps_across=int(settings.steps_across))
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
@@ -376,7 +397,7 @@ def viewport_request(context, depsgraph):
     camera = ray_camera_from_view(rv3d.window_matrix, rv3d.view_matrix, region.width, region.height)
     inputs = scene_inputs(depsgraph, original=True)
     renderer, _n = _renderer(inputs.volumes, inputs.options.device)
-    resolve_looks(inputs)
+    resolve_units(inputs)
     request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
                               background=inputs.background, options=inputs.options,
                               film_transparent=inputs.film_transparent, data_key=inputs.data_key,
@@ -433,7 +454,7 @@ def final_render(engine, api, depsgraph):
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
-        resolve_looks(job.inputs)
+        resolve_units(job.inputs)
     except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return

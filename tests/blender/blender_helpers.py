@@ -105,7 +105,7 @@ def build_sphere_scene(scene, contract, width, height, stops, value_range, densi
     obj.location, obj.rotation_euler = location, (0.0, 0.0, angle_z)
     set_look(obj, stops, value_range, density_scale)
     s = scene.hovr
-    s.method, s.h, s.tolerance, s.device = method, 0.01, 1e-6, "cpu"
+    s.method, s.step_units, s.h, s.tolerance, s.device = method, 'WORLD', 0.01, 1e-6, "cpu"
     return obj
 
 

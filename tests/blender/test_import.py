@@ -273,7 +273,7 @@ def test_imported_volume_renders_like_the_core(scene, tmp_path):
     scene.world.color = (0.0625, 0.0625, 0.125)
     s, h = scene.hovr, obj.hovr
     h.density_units, h.density = 'WORLD', 8.0
-    s.method, s.h = "classified", 0.01
+    s.method, s.step_units, s.h = "classified", 'WORLD', 0.01
     img = render_to_exr(scene, tmp_path / "f12.exr")
 
     ramp = h.transfer_function.color_ramp
