@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass
 
@@ -45,6 +46,7 @@ class RenderResult:
 
 
 _WARP_READY = False
+_WARP_LOCK = threading.Lock()  # the add-on compiles kernels in a background thread (blender/jobs.py)
 
 
 def _init_warp():
@@ -52,9 +54,13 @@ def _init_warp():
     needs it). Warp's greeting, module-load lines and its native "no CUDA driver" line are shown
     only with HOVR_DEBUG=1: on a machine without a GPU they are noise on every render."""
     global _WARP_READY
-    if _WARP_READY:
-        return
-    _WARP_READY = True
+    with _WARP_LOCK:
+        if not _WARP_READY:
+            _start_warp()
+            _WARP_READY = True
+
+
+def _start_warp():
     debug = bool(os.environ.get("HOVR_DEBUG"))
     wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
     if debug:
@@ -135,6 +141,38 @@ RAY_COST_BASE = 8.0
 RAY_COST_SEGMENT = 16.0
 RAY_COST_LOCATE = 16.0
 
+def kernel_variant(meshes) -> tuple[bool, int]:
+    """(curved, modes): what the walk kernels of a render of `meshes` (one mesh, or several
+    merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
+    meshes = list(meshes)
+    curved = any(m.affine is not None and not m.affine.all() for m in meshes)
+    modes = static_modes(np.concatenate([m.shape for m in meshes]), np.concatenate([m.modes for m in meshes]))
+    return bool(curved), int(modes)
+
+
+def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> list:
+    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant`."""
+    kernels = Precision.named(precision).kernels
+    search, traverse, sample = kernels.walk_kernels(*variant)
+    # coefficients lives in the module of integrate
+    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.finalize]
+
+
+def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
+                 surfaces: bool = False) -> None:
+    """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
+    (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
+    read from Warp's kernel cache on disk. Safe in a background thread while no render runs."""
+    device = resolve_device(device)
+    kernels = render_kernels(variant, precision)
+    if surfaces:
+        from .kernels import surfaces as surface_kernels
+
+        kernels.append(surface_kernels.cast_surfaces)
+    for kern in kernels:
+        wp.load_module(kern.module, device=device)
+
+
 def _check_float32_range(what: str, values, offsets):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
     if values is None or values.size == 0:
@@ -195,7 +233,8 @@ class Renderer:
         self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
         self.device = resolve_device(device)
         self.mesh = mesh
-        self._curved = not bool(mesh.affine is None or mesh.affine.all())
+        self.kernel_variant = kernel_variant([mesh])
+        self._curved = self.kernel_variant[0]
         self._uploads = {}  # precision name -> _Upload
         # the field's frame (core/field_frame.py) follows the transfer functions: the float64
         # data stays here, the device holds it mapped into the last frame rendered
@@ -401,7 +440,7 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            walk = raycast.walk_kernels(curved=self._curved, modes=static_modes(mesh.shape, mesh.modes))
+            walk = raycast.walk_kernels(*self.kernel_variant)
             self._sample_stride = sample_stride(mesh, gdeg)
         self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
         return self._uploads[name]
@@ -498,10 +537,7 @@ class Renderer:
                 buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            # compile outside the timed region (coefficients: the module of integrate)
-            for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                         kernels.integrate, kernels.finalize):
-                wp.load_module(kern.module, device=self.device)
+            load_kernels(self.kernel_variant, self.device, options.precision)  # compiled outside the timed region
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
