@@ -20,6 +20,7 @@ from ..core.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from .compat import write_pass_pixels
+from .jobs import WARMUP, kernel_key
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -194,6 +195,19 @@ def world_diagonal(v: VolumeInputs) -> float:
 
     lo, hi = volume_extent(v.source)
     return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+
+
+def renderer_variant(renderer) -> tuple:
+    """The kernel variant (core.renderer.kernel_variant) of a Renderer or MultiDeviceRenderer."""
+    from ..core.renderer import kernel_variant
+
+    return getattr(renderer, "kernel_variant", None) or kernel_variant([renderer.mesh])
+
+
+def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
+    """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
+    return kernel_key(inputs.options.device, inputs.options.precision, renderer_variant(renderer),
+                      inputs.surface_mode != "NONE")
 
 
 def resolve_units(inputs: SceneInputs) -> SceneInputs:
@@ -409,10 +423,26 @@ def viewport_request(context, depsgraph):
 def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
     """All of view_draw except the GPU upload: detect changes (view changes arrive only
     here: moving the view does not call view_update), do a bounded amount of work, return the frame to show."""
-    renderer, request = viewport_request(context, depsgraph)
+    return advance_viewport(state, *viewport_request(context, depsgraph), budget)
+
+
+def advance_viewport(state, renderer, request, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
     state.sync(renderer, request)
     state.step(budget)
     return ViewportFrame(state.display, state.version, state.converged, state.stage)
+
+
+def kernels_pending(key) -> str | None:
+    """None when the viewport can render; else the words to show while the render kernels
+    compile in the background (started here if they are not compiled yet): a compile on the
+    main thread would hold Blender's UI for tens of seconds."""
+    from . import kernel_warmup
+
+    status = WARMUP.status()
+    if status is None and not WARMUP.is_ready(key):
+        kernel_warmup.request(lambda: [key])
+        status = WARMUP.status() or f"{WARMUP.COMPILING}\u2026"
+    return status
 
 
 def fail(api, message: str):
@@ -450,11 +480,17 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
+    # the data and kernels the background warm-up is preparing (kernel_warmup.py): wait for them
+    # rather than reading and compiling a second time
+    if not WARMUP.wait_idle(lambda status: _waiting(api, status)):
+        api.update_stats("", "HOVR | cancelled")
+        return
     api.update_stats("", f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
         resolve_units(job.inputs)
+        key = render_kernel_key(renderer, job.inputs)
     except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
@@ -464,8 +500,15 @@ def final_render(engine, api, depsgraph):
         api.report({'WARNING'}, w)
     if api.test_break():
         return
-    # the kernels compile on their first use in a Blender session (tens of seconds on a CPU)
-    api.update_stats("", f"HOVR | {n_elements} elements | preparing kernels (the first render compiles them)")
+    try:
+        if not WARMUP.is_ready(key):  # their first use in this session: tens of seconds on a CPU
+            api.update_stats("", f"HOVR | {n_elements} elements | {WARMUP.COMPILING}\u2026")
+            WARMUP.compile_now(key)
+    except Exception as exc:
+        fail(api, f"HOVR render failed: {failure_text(exc)}")
+        return
+    if api.test_break():
+        return
     t1 = time.perf_counter()
 
     def progress(fraction):
@@ -515,9 +558,18 @@ def final_render(engine, api, depsgraph):
     api.update_stats("", text)
 
 
+def _waiting(api, status: str) -> bool:
+    api.update_stats("", f"HOVR | waiting: {status}")
+    return not api.test_break()
+
+
 def view_update(engine, context, depsgraph):
     """Data changes: view_draw re-reads everything and restarts on any difference; here only
-    make sure the mesh upload (and Warp start-up) happens outside view_draw."""
+    make sure the mesh upload (and Warp start-up) happens outside view_draw (not while the
+    background warm-up reads the same data)."""
+    if WARMUP.busy:
+        engine.tag_redraw()
+        return
     try:
         inputs = scene_inputs(depsgraph, original=True)
         _renderer(inputs.volumes, inputs.options.device)
@@ -527,9 +579,21 @@ def view_update(engine, context, depsgraph):
 
 
 def view_draw(engine, context, depsgraph):
-    """One bounded step of the progressive viewport, then draw what there is."""
+    """One bounded step of the progressive viewport, then draw what there is. While the render
+    kernels compile in the background, a message instead (kernel_warmup.py redraws when done)."""
     try:
-        frame = viewport_step(engine.viewport, context, depsgraph)
+        waiting = WARMUP.status()
+        if waiting is None:
+            renderer, request = viewport_request(context, depsgraph)
+            waiting = kernels_pending(kernel_key(request.options.device, request.options.precision,
+                                                 renderer_variant(renderer), depsgraph.scene.hovr.surfaces != "NONE"))
+        if waiting is not None:
+            draw_message(f"HOVR: {waiting}")
+            if waiting != getattr(engine, "viewport_status", None):
+                engine.viewport_status = waiting
+                engine.update_stats("", f"HOVR | {waiting}")
+            return
+        frame = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
     except Exception as exc:
         message = f"HOVR: {failure_text(exc)}"
@@ -568,7 +632,7 @@ def draw_pixels(engine, scene, region, frame):
 def draw_message(message):
     import blf
 
-    blf.position(0, 20, 20, 0)
+    blf.position(0, 20, 50, 0)  # above the last operator's panel in the corner
     blf.size(0, 14)
     blf.color(0, 1.0, 0.4, 0.3, 1.0)
     blf.draw(0, message[:200])

@@ -5,7 +5,9 @@ compat() finds the add-on's version differences in whichever copy is loaded.
 """
 import importlib
 import math
+import shutil
 import sys
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -121,3 +123,22 @@ def set_look(obj, stops, value_range, density_scale, units="WORLD"):
 def volume(scene, k=0):
     """The k-th HOVR volume of the scene, by name (the render order)."""
     return sorted((o for o in scene.objects if o.hovr.is_volume), key=lambda o: o.name)[k]
+
+
+TET = "Tet_channel_m3"  # 48 straight tets on the unit cube, fields u, v, w, p (3 modes)
+
+
+def copy_tet(folder: Path) -> Path:
+    """The vendored Tet_channel_m3 mesh and its solution copied into `folder`; the mesh's path."""
+    from tests.helpers import data_file
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for ext in (".xml", ".fld"):
+        shutil.copy(data_file("nektar", TET + ext), folder / (TET + ext))
+    return folder / (TET + ".xml")
+
+
+def datablock_counts() -> dict:
+    """How many of each kind of datablock an import could add."""
+    return {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "textures", "collections",
+                                                            "materials", "images")}
