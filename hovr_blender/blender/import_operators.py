@@ -179,8 +179,8 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     return ImportRead(request, source, mesh, solution, field, component, notes, warnings, values, walls)
 
 
-# Imports reading in the background now, for diagnostics and the windowed test (weak: they go
-# with their operator)
+# Imports reading in the background now (their status bar text is theirs; the windowed test
+# watches them)
 RUNNING = weakref.WeakSet()
 
 
@@ -308,6 +308,7 @@ class _ImportVolume(ImportHelper):
             context.workspace.status_text_set(f"HOVR: {job.title}: {job.status()}  |  Esc: cancel")
 
     def _end(self, context):
+        RUNNING.discard(self._job)
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()

@@ -2,9 +2,11 @@
 render: after an import, when the add-on is enabled or a file opened with HOVR volumes in a
 scene rendered by HOVR, and when the Rendered viewport meets kernels not compiled yet (it draws
 a message meanwhile rather than holding the UI for the compile). While the thread works, the
-status bar says "Compiling render kernels (first use)… N s": a timer on the main thread redraws
-it and the 3D views, the thread itself never touches Blender. F12 waits for it (render.py).
-Blender in background mode renders at once and compiles in place: nothing starts here there."""
+status bar says "HOVR: Compiling render kernels (first use)… N s", as a modal operator's text
+(Python cannot redraw the status bar otherwise: it is not one of the screen's areas), unless an
+import is showing its own there; a timer on the main thread writes it and redraws the 3D views,
+the thread itself never touches Blender. F12 waits for it (render.py). Blender in background
+mode renders at once and compiles in place: nothing starts here there."""
 import bpy
 from bpy.app.handlers import persistent
 
@@ -55,22 +57,36 @@ def request(keys):
         bpy.app.timers.register(_redraw, first_interval=REDRAW_SECONDS)
 
 
+_SHOWN = {"status": False}  # whether the status bar holds the warm-up's words
+
+
+def _status_text(text):
+    """Each window's status bar text (None: Blender's own again)."""
+    from .import_operators import RUNNING
+
+    if RUNNING:  # an import in the background shows its progress there
+        return
+    wm = bpy.context.window_manager
+    for window in (wm.windows if wm is not None else ()):
+        with bpy.context.temp_override(window=window):
+            window.workspace.status_text_set(text)
+    _SHOWN["status"] = text is not None
+
+
 def _redraw():
-    """While the warm-up works, and once after: the status bar and the 3D views (a Rendered
-    viewport waiting for the kernels starts when they are ready)."""
+    """While the warm-up works, and once after: the status bar's words and the 3D views (a
+    Rendered viewport waiting for the kernels starts when they are ready)."""
+    text = WARMUP.status()
+    if text is not None:
+        _status_text(f"HOVR: {text}")
+    elif _SHOWN["status"]:
+        _status_text(None)
     wm = bpy.context.window_manager
     for window in (wm.windows if wm is not None else ()):
         for area in window.screen.areas:
-            if area.type in {'STATUSBAR', 'VIEW_3D'}:
+            if area.type == 'VIEW_3D':
                 area.tag_redraw()
-    return REDRAW_SECONDS if WARMUP.busy else None
-
-
-def draw_status(self, _context):
-    """STATUSBAR_HT_header: what the warm-up is doing, while it works."""
-    text = WARMUP.status()
-    if text is not None:
-        self.layout.label(text=f"HOVR: {text}", icon='TIME')
+    return REDRAW_SECONDS if text is not None else None
 
 
 def _warm_up_open_file():
@@ -86,7 +102,6 @@ def warm_up_on_load(*_args):
 
 
 def register():
-    bpy.types.STATUSBAR_HT_header.append(draw_status)
     if warm_up_on_load not in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.append(warm_up_on_load)
     if not bpy.app.background:  # register() runs with restricted bpy.data: the open file just after
@@ -97,6 +112,10 @@ def unregister():
     for fn in (_warm_up_open_file, _redraw):
         if bpy.app.timers.is_registered(fn):
             bpy.app.timers.unregister(fn)
+    if _SHOWN["status"]:
+        try:
+            _status_text(None)
+        except Exception:  # a window manager being torn down: nothing left to show it in
+            pass
     if warm_up_on_load in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(warm_up_on_load)
-    bpy.types.STATUSBAR_HT_header.remove(draw_status)
