@@ -80,8 +80,12 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         col.prop(settings, "step_units")
         if settings.step_units != "WORLD":
             h = known_world_step(context.scene)
-            if h is not None:
-                col.label(text=f"Step {h:.3g} in world units")
+            if h is not None:  # in the property rows' two columns
+                split = col.split(factor=0.4)
+                name = split.row()
+                name.alignment = 'RIGHT'
+                name.label(text="Step")
+                split.label(text=f"{h:.3g} world units")
         layout.prop(settings, "tolerance")
         layout.prop(settings, "min_transmittance")
         layout.prop(settings, "device")
