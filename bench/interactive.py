@@ -113,7 +113,7 @@ def reference_image(renderer, mesh, tf, W, H):
 
 
 def run_datasets(args, out):
-    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.renderer import Renderer, load_kernels
 
     W, H = map(int, args.size.split("x"))
     for name in args.datasets.split(","):
@@ -127,7 +127,7 @@ def run_datasets(args, out):
         tf = audit.transfer_function(mesh)
         t0 = time.perf_counter()
         r = Renderer(mesh, args.device)
-        r.load_kernels("float32")
+        load_kernels(r.kernel_variant, r.device, "float32")
         setup = time.perf_counter() - t0
         entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
                  "load_seconds": load, "renderer_seconds": setup,
@@ -184,7 +184,7 @@ def million_mesh(target: int):
 
 
 def run_million(args, out):
-    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.core.renderer import Renderer, load_kernels
     from hovr_blender.core.transfer_function import TransferFunction
 
     W, H = map(int, args.size.split("x"))
@@ -194,14 +194,13 @@ def run_million(args, out):
     print(f"million: {mesh.num_elements} elements ({copies} copies), built in {build:.1f} s", flush=True)
     t0 = time.perf_counter()
     r = Renderer(mesh, args.device)
-    r.load_kernels("float32")
+    load_kernels(r.kernel_variant, r.device, "float32")
     setup = time.perf_counter() - t0
     V = mesh.vertices.reshape(-1, 3)
     lo, hi = V.min(0), V.max(0)
     c, rad = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
     d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
     from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.view import RenderOptions
 
     cam = RayCamera.from_contract({"eye": (c + 2.6 * rad * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
                                    "fov_y_deg": 30.0}, W, H)

@@ -202,8 +202,9 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
                                   percentage)
 
     @classmethod
-    def core_render(cls, contract, method, film_transparent, camera=None, matrix=None):
-        """The same view through the core API only: contract camera, ramp lists, numpy transform."""
+    def core_render(cls, contract, method, film_transparent, camera=None, matrix=None, h=0.01):
+        """The same view through the core API only: contract camera, ramp lists, numpy transform;
+        `h` the step in world units."""
         from hovr_blender.core.renderer import Renderer
         from hovr_blender.core.view import RenderOptions
         from hovr_blender.io import builtin
@@ -213,7 +214,7 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
                                              *cls.VALUE_RANGE)
         bg = np.zeros(3) if film_transparent else np.array(cls.BACKGROUND)
         mesh = builtin.sphere().transformed(cls.object_matrix() if matrix is None else matrix)
-        options = RenderOptions(method=method, h=0.01, tolerance=1e-6, device="cpu")
+        options = RenderOptions(method=method, h=h, tolerance=1e-6, device="cpu")
         return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
 
 

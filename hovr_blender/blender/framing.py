@@ -3,7 +3,8 @@
 Blender's defaults are made for metre-sized scenes: a 2 cm domain sits inside the default
 camera's 0.1 m clip start and is ~2% opaque at one unit of extinction per metre. These
 functions turn a volume's extent into the numbers a first picture needs (a density per world
-unit, a camera position, clip planes) and say in words when a picture will be empty.
+unit, a step in world units, a camera position, clip planes) and say in words when a picture
+will be empty.
 """
 from __future__ import annotations
 
@@ -47,6 +48,31 @@ def density_per_world_unit(density: float, units: str, diagonal: float) -> float
         raise ValueError(f"the volume has no extent (bounding-box diagonal {diagonal:g}): cannot make its "
                          "density relative to its size; set Density units to Per World Unit")
     return float(density) / float(diagonal)
+
+
+STEP_UNITS = ("RELATIVE", "WORLD")
+
+
+def step_world_length(h: float, steps_across: float, units: str, diagonals) -> float:
+    """The contract's step h (world units) of a scene's volumes.
+
+    RELATIVE: `steps_across` steps along the bounding-box diagonal of the smallest volume
+    (h = its diagonal / steps_across), so every volume is sampled at least that finely
+    whatever the data's units; WORLD: `h` already is in world units."""
+    if units == "WORLD":
+        return float(h)
+    if units != "RELATIVE":
+        raise ValueError(f"unknown step units {units!r}; one of {', '.join(STEP_UNITS)}")
+    if not (np.isfinite(steps_across) and steps_across >= 1):
+        raise ValueError(f"Steps Across must be at least 1, got {steps_across:g}")
+    diagonals = [float(d) for d in diagonals]
+    if not diagonals:
+        raise ValueError("no volume to measure the step against")
+    smallest = min(diagonals)
+    if not (np.isfinite(smallest) and smallest > 0):
+        raise ValueError(f"a volume has no extent (bounding-box diagonal {smallest:g}): cannot make the step "
+                         "relative to its size; set Step units to World Units")
+    return smallest / float(steps_across)
 
 
 def _axes(forward, up):

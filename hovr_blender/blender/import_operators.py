@@ -6,13 +6,23 @@ size; with Walls as Mesh, the domain's boundary faces, or a Nektar++ file's chos
 boundary regions, as a triangle mesh, core/walls.py), so a malformed file or a selection the
 file cannot satisfy leaves the .blend as it was and the error names the file (and the element,
 record or composite where the reader can tell). Add Walls (hovr.add_walls) makes the same mesh
-for a volume already imported. Importing never changes another volume. By
-default the scene camera (made if there is none) then frames the new volume.
+for a volume already imported. Importing never changes another volume. By default the scene
+camera (made if there is none) then frames the new volume.
+
+From the file browser the reading runs in a background thread (read_import as a jobs.Job):
+Blender stays responsive, the status bar shows the stage and time, and Esc cancels it, leaving
+the scene exactly as it was (nothing is created before the read has finished). Scripts
+(EXEC_DEFAULT) and Blender in background mode, which has no event loop for a modal operator,
+read in place. After an import, the render kernels the scene needs compile in the background
+(kernel_warmup.py).
+
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
 that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
 remapping does not see add-on properties).
 """
 import os
+import weakref
+from dataclasses import dataclass, field as dc_field
 
 import bpy
 from bpy.app.handlers import persistent
@@ -23,7 +33,8 @@ from ..core import walls as core_walls
 from ..io import nektar, vtu
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
-from .render import failure_text
+from .jobs import Job
+from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
 
 
@@ -64,6 +75,180 @@ def _fail(op, path, exc) -> set:
     return {'CANCELLED'}
 
 
+@dataclass
+class ImportRequest:
+    """An import's settings as plain values, taken from the operator on the main thread (the
+    reading thread must not touch Blender's data, operator properties included)."""
+
+    kind: str  # "nektar" or "vtu"
+    path: str  # absolute
+    solution: str = ""  # Nektar++: absolute, or "" to pick the likeliest beside the mesh
+    field: str = ""
+    component: str = ""  # VTU
+    fit_range: bool = True
+    walls: bool = False
+    walls_tolerance: float = core_walls.DEFAULT_RELATIVE_TOLERANCE
+    frame: int = 1
+    walls_from: str = ""  # Nektar++: composites or boundary regions for the walls ("" = every boundary face)
+
+    @property
+    def steps(self) -> int:
+        return 3 + int(self.fit_range) + int(self.walls)
+
+
+@dataclass
+class ImportRead:
+    """What read_import found and read, for conclude_import to turn into objects."""
+
+    request: ImportRequest
+    source: VolumeSource
+    mesh: object  # core.mesh.VolumeMesh
+    solution: str
+    field: str
+    component: str
+    notes: list = dc_field(default_factory=list)
+    warnings: list = dc_field(default_factory=list)
+    values: object = None  # sampled field values (Fit Value Range)
+    walls: object = None  # core.walls.Walls (Walls as Mesh)
+
+
+def resolve_nektar(request: ImportRequest):
+    """(solution, field, component, notes, warnings) of a Nektar++ import: the solution named or
+    the likeliest beside the mesh, the field named or the file's first; raises for bad settings."""
+    path = request.path
+    notes, warnings = [], []
+    solution = request.solution
+    if not solution:
+        picked, why, others = nektar.pick_solution(path)
+        if picked is not None:
+            solution = str(picked)
+            rest = [p.name for p in others if p != picked]
+            notes.append(f"solution {picked.name} ({why})"
+                         + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
+                            if rest else ""))
+        elif others:
+            warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
+    field = request.field.strip()
+    if solution and not field:
+        names = nektar.list_fields(solution)
+        if not names:
+            raise nektar.NektarError(f"{solution}: holds no fields")
+        field = names[0]
+        if len(names) > 1:
+            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+    if not solution and field:
+        raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
+                                 "found beside the mesh")
+    return solution, field, "", notes, warnings
+
+
+def resolve_vtu(request: ImportRequest):
+    """(solution, field, component, notes, warnings) of a VTU import: the array named or the first."""
+    parse_component(request.component)  # a bad entry is reported before the file is read
+    field, notes = request.field.strip(), []
+    if not field:
+        names = list(vtu.list_fields(request.path))
+        if not names:
+            raise vtu.VtuError(f"{request.path}: no point-data array to render")
+        field = names[0]
+        if len(names) > 1:
+            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+    return "", field, request.component.strip(), notes, []
+
+
+RESOLVE = {"nektar": resolve_nektar, "vtu": resolve_vtu}
+
+
+def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
+    """Everything an import reads and computes, with no bpy: the solution and field, the data
+    (kept in io.sources' cache for the first render), its extent and corner points (the panel's
+    step, Frame Camera), the sampled field (Fit Value Range) and the walls. step(stage) is called
+    before each stage (a jobs.Job's step: it raises Cancelled once the import is cancelled)."""
+    step("finding the solution and field")
+    solution, field, component, notes, warnings = RESOLVE[request.kind](request)
+    step("reading the data")
+    source = VolumeSource.resolve(request.path, solution, field, request.frame, component=component)
+    mesh = cached_volume(source)
+    step("measuring the volume")
+    volume_extent(source)
+    volume_points(source)
+    values = walls = None
+    if request.fit_range:
+        step("sampling the field")
+        values = field_samples(mesh)
+    if request.walls:
+        step("tessellating the walls")
+        walls = make_walls(mesh, request.path, request.walls_from, request.walls_tolerance)
+    return ImportRead(request, source, mesh, solution, field, component, notes, warnings, values, walls)
+
+
+# Imports reading in the background now (their status bar text is theirs; the windowed test
+# watches them)
+RUNNING = weakref.WeakSet()
+
+
+def import_job(request: ImportRequest) -> Job:
+    """The import's reading as a Job (start() it in a thread, or run() it here)."""
+    return Job(lambda job: read_import(request, job.step), f"importing {os.path.basename(request.path)}",
+               steps=request.steps)
+
+
+def finish_import(op, context, request: ImportRequest, job: Job, frame_camera: bool = True) -> set:
+    """The end of an import on the main thread: nothing for a cancelled job (the scene is as it
+    was), the error for a failed one, else the objects (conclude_import)."""
+    if job.cancelled:
+        op.report({'WARNING'}, f"HOVR: {job.title} cancelled; the scene is unchanged")
+        return {'CANCELLED'}
+    if job.error is not None:  # a reader bug too must end as a message, not a traceback
+        return _fail(op, request.path, job.error)
+    return conclude_import(op, context, job.result, frame_camera)
+
+
+def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) -> set:
+    """The volume object (and walls) of a finished read, its look fitted, the camera framed, the
+    report; then the scene's render kernels compile in the background."""
+    path, mesh = read.request.path, read.mesh
+    notes, warnings = list(read.notes), list(read.warnings)
+    stem = os.path.splitext(os.path.basename(path))[0]
+    try:
+        obj = operators.create_volume_object(context, stem, mesh, stored_path(path), stored_path(read.solution),
+                                             read.field, read.component)
+    except Exception as exc:
+        return _fail(op, path, exc)
+    if read.walls is not None:
+        walls = read.walls
+        try:
+            create_walls_object(context, obj, walls)
+            note, warning = walls_report(walls, read.request.walls_from)
+            notes.append(note)
+            if warning:
+                warnings.append(warning)
+        except Exception as exc:  # the volume itself was imported
+            warnings.append(f"walls not made: {failure_text(exc)}")
+        context.view_layer.objects.active = obj
+    if read.values is not None and read.values.size:
+        operators.fit_value_range(obj, context.scene, read.values)
+    if getattr(mesh, "has_field", True) is False:
+        warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
+    for w in getattr(mesh, "warnings", [])[:5]:
+        notes.append(w)
+    if frame_camera:
+        try:
+            operators.frame_volumes(context, [o for o in context.scene.objects
+                                              if o.hovr.is_volume and o.visible_get()] or [obj])
+        except Exception as exc:  # framing is a convenience: the import itself succeeded
+            notes.append(f"camera not framed: {failure_text(exc)}")
+    label = f" field {mesh.field_name}" if mesh.field_name else ""
+    op.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}" + "".join(f"; {n}" for n in notes))
+    for w in warnings:
+        op.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
+    if not bpy.app.background:  # background mode renders at once: it compiles in place
+        from . import kernel_warmup
+
+        kernel_warmup.warm_up_scene(context.scene)
+    return {'FINISHED'}
+
+
 class _ImportVolume(ImportHelper):
     bl_options = {'REGISTER', 'UNDO', 'PRESET'}
 
@@ -81,70 +266,76 @@ class _ImportVolume(ImportHelper):
                                    description="Largest distance of the walls' triangles from the true curved "
                                                "faces, as a fraction of the volume's bounding-box diagonal")
 
-    def resolve(self, path):
-        """(solution, field, component, notes, warnings) to store; raises ValueError for bad settings."""
+    background_job: BoolProperty(name="Read in the Background", default=False, options={'HIDDEN', 'SKIP_SAVE'},
+                                 description="Read in a background thread, Blender responsive, Esc cancels "
+                                             "(the file browser sets it; ignored in background mode)")
+
+    def request(self, context, path: str) -> ImportRequest:
+        """The settings as plain values."""
         raise NotImplementedError
 
-    def wall_selection(self) -> str:
-        """Which faces become the walls: "" for all boundary faces (a Nektar++ import may choose)."""
-        return ""
+    def invoke(self, context, event):
+        self.background_job = True  # a person picked the file: keep Blender responsive
+        return super().invoke(context, event)
 
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
+        request = self.request(context, path)
+        job = import_job(request)
+        if self.background_job and not bpy.app.background and context.window is not None:
+            return self._start(context, request, job)
         wm = context.window_manager
-        wm.progress_begin(0, 3)
+        wm.progress_begin(0, request.steps)
         try:
-            return self._execute(context, path, wm)
+            job.run()
         finally:
             wm.progress_end()
+        return finish_import(self, context, request, job, self.frame)
 
-    def _execute(self, context, path, wm):
-        try:
-            solution, field, component, notes, warnings = self.resolve(path)
-            wm.progress_update(1)
-            source = VolumeSource.resolve(path, solution, field, context.scene.frame_current, component=component)
-            mesh = cached_volume(source)  # the first render finds it here
-            wm.progress_update(2)
-            values = field_samples(mesh) if self.fit_range else None
-            walls = None
-            if self.walls:
-                walls = make_walls(mesh, source.path, self.wall_selection(), self.walls_tolerance)
-        except Exception as exc:  # a reader bug must not leave a traceback instead of a message
-            return _fail(self, path, exc)
-        stem = os.path.splitext(os.path.basename(path))[0]
-        try:
-            obj = operators.create_volume_object(context, stem, mesh, stored_path(path), stored_path(solution),
-                                                 field, component)
-        except Exception as exc:
-            return _fail(self, path, exc)
-        if walls is not None:
-            try:
-                create_walls_object(context, obj, walls)
-                note, warning = walls_report(walls, self.wall_selection())
-                notes.append(note)
-                if warning:
-                    warnings.append(warning)
-            except Exception as exc:  # the volume itself was imported
-                warnings.append(f"walls not made: {failure_text(exc)}")
-            context.view_layer.objects.active = obj
-        if values is not None and values.size:
-            operators.fit_value_range(obj, context.scene, values)
-        if getattr(mesh, "has_field", True) is False:
-            warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
-        for w in getattr(mesh, "warnings", [])[:5]:
-            notes.append(w)
-        if self.frame:
-            try:
-                operators.frame_volumes(context, [o for o in context.scene.objects
-                                                  if o.hovr.is_volume and o.visible_get()] or [obj])
-            except Exception as exc:  # framing is a convenience: the import itself succeeded
-                notes.append(f"camera not framed: {failure_text(exc)}")
-        label = f" field {mesh.field_name}" if mesh.field_name else ""
-        self.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}"
-                              + "".join(f"; {n}" for n in notes))
-        for w in warnings:
-            self.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
-        return {'FINISHED'}
+    # -------------------------------------------------------------- in the background, modal
+
+    def _start(self, context, request: ImportRequest, job: Job) -> set:
+        self._request, self._job = request, job.start()
+        RUNNING.add(job)
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.1, window=context.window)
+        wm.modal_handler_add(self)
+        wm.progress_begin(0, job.steps)
+        self._show(context)
+        return {'RUNNING_MODAL'}
+
+    def _show(self, context):
+        job = self._job
+        context.window_manager.progress_update(job.step_index)
+        if context.workspace is not None:
+            context.workspace.status_text_set(f"HOVR: {job.title}: {job.status()}  |  Esc: cancel")
+
+    def _end(self, context):
+        RUNNING.discard(self._job)
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+
+    def modal(self, context, event):
+        job = self._job
+        if event.type == 'ESC' and event.value == 'PRESS':
+            job.cancel()  # the thread stops; its result, if any, is dropped
+            self._end(context)
+            self.report({'WARNING'}, f"HOVR: {job.title} cancelled; the scene is unchanged")
+            return {'CANCELLED'}
+        if event.type == 'TIMER':
+            if job.done:
+                self._end(context)
+                return finish_import(self, context, self._request, job, self.frame)
+            self._show(context)
+        return {'PASS_THROUGH'}  # the rest of Blender keeps working meanwhile
+
+    def cancel(self, context):
+        """Blender ends the operator (another file opened, the window closed)."""
+        self._job.cancel()
+        self._end(context)
 
 
 def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
@@ -272,14 +463,14 @@ class HOVR_OT_add_walls(bpy.types.Operator):
         path = context.object.hovr.source
         if path.lower().endswith(".xml"):
             try:
-                draw_wall_choices(layout, operators.source_of(context.object, context.scene).path)
+                draw_wall_choices(layout, operators.volume_source(context.object, context.scene).path)
             except ValueError:
                 pass
 
     def execute(self, context):
         volume = context.object
         try:
-            source = operators.source_of(volume, context.scene)
+            source = operators.volume_source(volume, context.scene)
             mesh = cached_volume(source)
             walls = make_walls(mesh, source.path, self.walls_from, self.walls_tolerance)
         except Exception as exc:
@@ -312,35 +503,10 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
                                       "Empty: the file's first field")
     walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
 
-    def wall_selection(self) -> str:
-        return self.walls_from
-
-    def resolve(self, path):
-        folder = os.path.dirname(path)
-        notes, warnings = [], []
-        solution = _absolute(self.solution, folder)
-        if not solution:
-            picked, why, others = nektar.pick_solution(path)
-            if picked is not None:
-                solution = str(picked)
-                rest = [p.name for p in others if p != picked]
-                notes.append(f"solution {picked.name} ({why})"
-                             + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
-                                if rest else ""))
-            elif others:
-                warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
-        field = self.field.strip()
-        if solution and not field:
-            names = nektar.list_fields(solution)
-            if not names:
-                raise nektar.NektarError(f"{solution}: holds no fields")
-            field = names[0]
-            if len(names) > 1:
-                notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
-        if not solution and field:
-            raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
-                                     "found beside the mesh")
-        return solution, field, "", notes, warnings
+    def request(self, context, path):
+        return ImportRequest("nektar", path, _absolute(self.solution, os.path.dirname(path)), self.field, "",
+                             self.fit_range, self.walls, self.walls_tolerance, context.scene.frame_current,
+                             self.walls_from)
 
     def draw(self, context):
         layout = self.layout
@@ -394,17 +560,9 @@ class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
                               description="For vector arrays: empty or \"magnitude\" renders the magnitude, "
                                           "an index (0, 1, 2, ...) that component")
 
-    def resolve(self, path):
-        parse_component(self.component)  # a bad entry is reported before the file is read
-        field, notes = self.field.strip(), []
-        if not field:
-            names = list(vtu.list_fields(path))
-            if not names:
-                raise vtu.VtuError(f"{path}: no point-data array to render")
-            field = names[0]
-            if len(names) > 1:
-                notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
-        return "", field, self.component.strip(), notes, []
+    def request(self, context, path):
+        return ImportRequest("vtu", path, "", self.field, self.component, self.fit_range, self.walls,
+                             self.walls_tolerance, context.scene.frame_current)
 
     def draw(self, context):
         layout = self.layout

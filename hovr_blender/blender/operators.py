@@ -33,8 +33,8 @@ def _volume_object(context):
     return volumes[0] if len(volumes) == 1 else None
 
 
-def source_of(obj, scene):
-    """The volume's data at the scene's frame (its paths resolved from the .blend's folder)."""
+def volume_source(obj, scene):
+    """The volume's data (io.sources.VolumeSource) at the scene's frame."""
     return VolumeSource.resolve(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
                                 abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
 
@@ -45,7 +45,7 @@ def histogram_for(context, obj=None):
     if obj is None:
         return None
     try:
-        key = source_of(obj, context.scene).key
+        key = volume_source(obj, context.scene).key
     except ValueError:
         return None
     values = SAMPLES.get(key)
@@ -143,7 +143,7 @@ class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
 
 def fit_value_range(obj, scene, values=None):
     """Set the volume's Value Min/Max to its field's sampled range; returns (lo, hi, samples)."""
-    source = source_of(obj, scene)
+    source = volume_source(obj, scene)
     if values is None:
         values = SAMPLES.get(source.key)
     if values is None:
@@ -188,7 +188,7 @@ def volume_points(obj, scene):
 
     M = np.array(obj.matrix_world)
     try:
-        return transform_points(data_points(source_of(obj, scene)), M)
+        return transform_points(data_points(volume_source(obj, scene)), M)
     except Exception:
         return transform_points(np.array([tuple(c) for c in obj.bound_box]), M)
 

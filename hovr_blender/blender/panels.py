@@ -27,6 +27,30 @@ def draw_histogram(layout, context, obj):
             row.label(text=f"{text:>8} " + "|" * int(round(30 * frac / peak)))
 
 
+def known_world_step(scene):
+    """The world step a relative Step gives the scene's volumes, if all their sizes are known
+    already (panels never load data: a volume not yet read or rendered leaves it unknown)."""
+    from .framing import step_world_length, volume_diagonal
+    from .operators import volume_source
+    from .render import EXTENTS
+
+    diagonals = []
+    for obj in scene.objects:
+        if not obj.hovr.is_volume:
+            continue
+        try:
+            extent = EXTENTS.get(volume_source(obj, scene).key)
+        except ValueError:
+            return None
+        if extent is None:
+            return None
+        diagonals.append(volume_diagonal(*extent, matrix=obj.matrix_world))
+    try:
+        return step_world_length(scene.hovr.h, scene.hovr.steps_across, scene.hovr.step_units, diagonals)
+    except ValueError:
+        return None
+
+
 class HovrButtonsPanel:
     bl_space_type = 'PROPERTIES'
     bl_region_type = 'WINDOW'
@@ -47,7 +71,21 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         layout.use_property_decorate = False
         settings = context.scene.hovr
         layout.prop(settings, "method")
-        layout.prop(settings, "h")
+        col = layout.column(align=True)
+        col.active = settings.method != "split"  # Split needs no step
+        if settings.step_units == "WORLD":
+            col.prop(settings, "h")
+        else:
+            col.prop(settings, "steps_across")
+        col.prop(settings, "step_units")
+        if settings.step_units != "WORLD":
+            h = known_world_step(context.scene)
+            if h is not None:  # in the property rows' two columns
+                split = col.split(factor=0.4)
+                name = split.row()
+                name.alignment = 'RIGHT'
+                name.label(text="Step")
+                split.label(text=f"{h:.3g} world units")
         layout.prop(settings, "tolerance")
         layout.prop(settings, "min_transmittance")
         layout.prop(settings, "device")

@@ -1,7 +1,7 @@
 """Per-datablock settings: Scene.hovr (render), Object.hovr (which objects are volumes, their data)
 and ViewLayer.hovr (extra passes)."""
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 # Explicit indices so items can be renamed or reordered without breaking saved .blend files.
 METHOD_ITEMS = (
@@ -55,6 +55,16 @@ DENSITY_UNIT_ITEMS = (
 )
 
 
+STEP_UNIT_ITEMS = (
+    ("RELATIVE", "Across Volume", "Steps Across: so many steps along the volume's bounding-box diagonal, the same "
+                                  "sampling at any size", 0),
+    ("WORLD", "World Units", "Step: a length in world units (the render contract's h)", 1),
+)
+# h = diagonal / 1000: PyFR's Taylor-Green box (diagonal 10.9) keeps about the world default 0.01,
+# hump3D (diagonal 0.023) gets 2.3e-5 instead of a step half its size (docs/user-guide.md)
+DEFAULT_STEPS_ACROSS = 1000
+
+
 def _volume_ticked(self, context):
     """Ticking HOVR Volume gives the object the transfer function it needs."""
     if self.is_volume and self.transfer_function is None:
@@ -66,7 +76,16 @@ def _volume_ticked(self, context):
 class HovrRenderSettings(bpy.types.PropertyGroup):
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="classified",
                          description="Quadrature along each ray")
-    h: FloatProperty(name="Step", default=0.01, min=1e-6, soft_max=1.0, precision=4, step=0.1,
+    # Step Units decide which of the two steps is used; a scene saved before Step Units existed
+    # keeps its step in world units (versioning.migrate_step_units)
+    step_units: EnumProperty(name="Units", items=STEP_UNIT_ITEMS, default="RELATIVE",
+                             description="What the step is measured in")
+    steps_across: IntProperty(name="Steps Across", default=DEFAULT_STEPS_ACROSS, min=1, soft_min=10,
+                              soft_max=100000,
+                              description="Steps along the bounding-box diagonal of the (smallest) volume: the step "
+                                          "is that diagonal divided by this. Riemann and Trapezoid, and Classified "
+                                          "where the ramp bends inside a segment (Split ignores it)")
+    h: FloatProperty(name="Step", default=0.01, min=1e-6, soft_max=1.0, precision=6, step=0.1,
                      description="Step length in world units: Riemann and Trapezoid, and Classified where the "
                                  "ramp bends inside a segment (Split ignores it)")
     tolerance: FloatProperty(name="Tolerance", default=1e-5, min=1e-12, soft_max=1e-1, precision=7,

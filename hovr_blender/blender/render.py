@@ -20,6 +20,7 @@ from ..core.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from .compat import write_pass_pixels
+from .jobs import WARMUP, kernel_key
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -66,10 +67,14 @@ class SceneInputs:
     film_transparent: bool
     options: object  # RenderOptions
     warnings: list = field(default_factory=list)
-    transfer_functions: list | None = None  # per volume, per world unit: resolve_looks() sets it
+    transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
     surfaces: list = field(default_factory=list)  # [core.surfaces.SurfaceMesh] (blender/surfaces.py)
     surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
     surfaces_key: str = ""  # digest of the surfaces (blender/surfaces.surfaces_key)
+    # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
+    # needs the volumes' sizes, i.e. their data)
+    step_units: str = "WORLD"
+    steps_across: int = 0
 
     @property
     def data_key(self) -> tuple:
@@ -77,9 +82,9 @@ class SceneInputs:
 
     @property
     def transfer_function(self):
-        """The core's argument: one TransferFunction per volume (resolve_looks first)."""
+        """The core's argument: one TransferFunction per volume (resolve_units first)."""
         if self.transfer_functions is None:
-            raise RuntimeError("resolve_looks() has not run")
+            raise RuntimeError("resolve_units() has not run")
         return self.transfer_functions
 
 
@@ -233,25 +238,53 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
     return result
 
 
-def resolve_looks(inputs: SceneInputs) -> list:
-    """Each volume's transfer function in the contract's units (extinction per world unit):
-    a relative density becomes density / the volume's bounding-box diagonal (which needs the
-    data, read once and cached). Sets and returns inputs.transfer_functions."""
+def world_diagonal(v: VolumeInputs) -> float:
+    """The volume's bounding-box diagonal in world units (its data read once and cached)."""
+    from .framing import volume_diagonal
+
+    lo, hi = volume_extent(v.source)
+    return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+
+
+def renderer_variant(renderer) -> tuple:
+    """The kernel variant (core.renderer.kernel_variant) of a Renderer or MultiDeviceRenderer."""
+    from ..core.renderer import kernel_variant
+
+    return getattr(renderer, "kernel_variant", None) or kernel_variant([renderer.mesh])
+
+
+def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
+    """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
+    return kernel_key(inputs.options.device, inputs.options.precision, renderer_variant(renderer),
+                      inputs.surface_mode != "NONE")
+
+
+def resolve_units(inputs: SceneInputs) -> SceneInputs:
+    """What is given relative to the volumes' sizes, in the render contract's absolute units:
+    each volume's transfer function per world unit (a relative density becomes density / the
+    volume's diagonal; inputs.transfer_functions) and the step h in world units (a relative
+    step: the smallest volume's diagonal / Steps Across; inputs.options.h). A view file means
+    what it always meant: only these numbers reach the core."""
     from dataclasses import replace
 
-    from .framing import density_per_world_unit, volume_diagonal
+    from .framing import density_per_world_unit, step_world_length
 
     tfs = []
     for v in inputs.volumes:
-        diag = 0.0
-        if v.density_units != "WORLD":
-            lo, hi = volume_extent(v.source)
-            diag = volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
+        diag = world_diagonal(v) if v.density_units != "WORLD" else 0.0
         scale = density_per_world_unit(v.density, v.density_units, diag)
         tf = v.transfer_function
         tfs.append(replace(tf, density_tau=np.asarray(tf.density_tau, dtype=np.float64) * scale))
     inputs.transfer_functions = tfs
-    return tfs
+    if inputs.step_units != "WORLD":
+        try:
+            h = step_world_length(inputs.options.h, inputs.steps_across, inputs.step_units,
+                                  [world_diagonal(v) for v in inputs.volumes])
+        except ValueError as exc:
+            raise SceneError(str(exc)) from exc
+        inputs.options = replace(inputs.options, h=h)
+        inputs.step_units = "WORLD"  # resolved: options.h is the world step now
+    return inputs
 
 
 def clear_cache():
@@ -312,7 +345,8 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
     depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
     it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects. Call resolve_looks() before using the transfer functions."""
+    come from the evaluated objects. Call resolve_units() before using the transfer functions or
+    the step (options.h)."""
     from ..core.view import RenderOptions
 
     scene = depsgraph.scene if original else depsgraph.scene_eval
@@ -336,7 +370,8 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
         key = surfaces_key(surfaces)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
                        film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
-                       surface_mode=mode, surfaces_key=key)
+                       surface_mode=mode, surfaces_key=key, step_units=settings.step_units,
+                       steps_across=int(settings.steps_across))
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
@@ -426,7 +461,7 @@ def viewport_request(context, depsgraph):
     camera = ray_camera_from_view(rv3d.window_matrix, rv3d.view_matrix, region.width, region.height)
     inputs = scene_inputs(depsgraph, original=True)
     renderer, _n = _renderer(inputs.volumes, inputs.options.device)
-    resolve_looks(inputs)
+    resolve_units(inputs)
     request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
                               background=inputs.background, options=inputs.options,
                               film_transparent=inputs.film_transparent, data_key=inputs.data_key,
@@ -438,10 +473,26 @@ def viewport_request(context, depsgraph):
 def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
     """All of view_draw except the GPU upload: detect changes (view changes arrive only
     here: moving the view does not call view_update), do a bounded amount of work, return the frame to show."""
-    renderer, request = viewport_request(context, depsgraph)
+    return advance_viewport(state, *viewport_request(context, depsgraph), budget)
+
+
+def advance_viewport(state, renderer, request, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
     state.sync(renderer, request)
     state.step(budget)
     return ViewportFrame(state.display, state.version, state.converged, state.stage)
+
+
+def kernels_pending(key) -> str | None:
+    """None when the viewport can render; else the words to show while the render kernels
+    compile in the background (started here if they are not compiled yet): a compile on the
+    main thread would hold Blender's UI for tens of seconds."""
+    from . import kernel_warmup
+
+    status = WARMUP.status()
+    if status is None and not WARMUP.is_ready(key):
+        kernel_warmup.request(lambda: [key])
+        status = WARMUP.status() or f"{WARMUP.COMPILING}\u2026"
+    return status
 
 
 def fail(api, message: str):
@@ -479,11 +530,17 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
+    # the data and kernels the background warm-up is preparing (kernel_warmup.py): wait for them
+    # rather than reading and compiling a second time
+    if not WARMUP.wait_idle(lambda status: _waiting(api, status)):
+        api.update_stats("", "HOVR | cancelled")
+        return
     api.update_stats("", f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
-        resolve_looks(job.inputs)
+        resolve_units(job.inputs)
+        key = render_kernel_key(renderer, job.inputs)
     except Exception as exc:  # the readers' refusals; ImportError: warp-lang missing from Blender's Python
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
@@ -493,8 +550,15 @@ def final_render(engine, api, depsgraph):
         api.report({'WARNING'}, w)
     if api.test_break():
         return
-    # the kernels compile on their first use in a Blender session (tens of seconds on a CPU)
-    api.update_stats("", f"HOVR | {n_elements} elements | preparing kernels (the first render compiles them)")
+    try:
+        if not WARMUP.is_ready(key):  # their first use in this session: tens of seconds on a CPU
+            api.update_stats("", f"HOVR | {n_elements} elements | {WARMUP.COMPILING}\u2026")
+            WARMUP.compile_now(key)
+    except Exception as exc:
+        fail(api, f"HOVR render failed: {failure_text(exc)}")
+        return
+    if api.test_break():
+        return
     t1 = time.perf_counter()
 
     def progress(fraction):
@@ -544,9 +608,18 @@ def final_render(engine, api, depsgraph):
     api.update_stats("", text)
 
 
+def _waiting(api, status: str) -> bool:
+    api.update_stats("", f"HOVR | waiting: {status}")
+    return not api.test_break()
+
+
 def view_update(engine, context, depsgraph):
     """Data changes: view_draw re-reads everything and restarts on any difference; here only
-    make sure the mesh upload (and Warp start-up) happens outside view_draw."""
+    make sure the mesh upload (and Warp start-up) happens outside view_draw (not while the
+    background warm-up reads the same data)."""
+    if WARMUP.busy:
+        engine.tag_redraw()
+        return
     try:
         inputs = scene_inputs(depsgraph, original=True)
         _renderer(inputs.volumes, inputs.options.device)
@@ -556,9 +629,21 @@ def view_update(engine, context, depsgraph):
 
 
 def view_draw(engine, context, depsgraph):
-    """One bounded step of the progressive viewport, then draw what there is."""
+    """One bounded step of the progressive viewport, then draw what there is. While the render
+    kernels compile in the background, a message instead (kernel_warmup.py redraws when done)."""
     try:
-        frame = viewport_step(engine.viewport, context, depsgraph)
+        waiting = WARMUP.status()
+        if waiting is None:
+            renderer, request = viewport_request(context, depsgraph)
+            waiting = kernels_pending(kernel_key(request.options.device, request.options.precision,
+                                                 renderer_variant(renderer), depsgraph.scene.hovr.surfaces != "NONE"))
+        if waiting is not None:
+            draw_message(f"HOVR: {waiting}")
+            if waiting != getattr(engine, "viewport_status", None):
+                engine.viewport_status = waiting
+                engine.update_stats("", f"HOVR | {waiting}")
+            return
+        frame = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
     except Exception as exc:
         message = f"HOVR: {failure_text(exc)}"
@@ -597,7 +682,7 @@ def draw_pixels(engine, scene, region, frame):
 def draw_message(message):
     import blf
 
-    blf.position(0, 20, 20, 0)
+    blf.position(0, 20, 50, 0)  # above the last operator's panel in the corner
     blf.size(0, 14)
     blf.color(0, 1.0, 0.4, 0.3, 1.0)
     blf.draw(0, message[:200])

@@ -2,23 +2,28 @@
 of: loaded meshes, meshes uploaded to a device, field samples."""
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from typing import Callable, Hashable
 
 
 class LRUCache:
-    """At most `size` values by key; the least recently used goes first."""
+    """At most `size` values by key; the least recently used goes first. Safe to use from several
+    threads (the add-on reads data in background threads): make() runs outside the lock, so two
+    threads missing the same key may both make it, and the last one stored stays."""
 
     def __init__(self, size: int):
         self.size = int(size)
         self._items: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
 
     def get(self, key: Hashable, make: Callable[[], object] | None = None):
         """The value for key (now the most recent); if absent, make() is stored and returned
         (None without `make`)."""
-        if key in self._items:
-            self._items.move_to_end(key)
-            return self._items[key]
+        with self._lock:
+            if key in self._items:
+                self._items.move_to_end(key)
+                return self._items[key]
         if make is None:
             return None
         value = make()
@@ -26,22 +31,28 @@ class LRUCache:
         return value
 
     def put(self, key: Hashable, value) -> None:
-        self._items[key] = value
-        self._items.move_to_end(key)
-        while len(self._items) > self.size:
-            self._items.popitem(last=False)
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
 
     def items(self):
-        return list(self._items.items())
+        with self._lock:
+            return list(self._items.items())
 
     def values(self):
-        return list(self._items.values())
+        with self._lock:
+            return list(self._items.values())
 
     def __contains__(self, key) -> bool:
-        return key in self._items
+        with self._lock:
+            return key in self._items
 
     def __len__(self) -> int:
-        return len(self._items)
+        with self._lock:
+            return len(self._items)
 
     def clear(self) -> None:
-        self._items.clear()
+        with self._lock:
+            self._items.clear()

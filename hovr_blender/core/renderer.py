@@ -7,6 +7,7 @@ import hashlib
 import itertools
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -52,6 +53,7 @@ class RenderResult:
 
 
 _WARP_READY = False
+_WARP_LOCK = threading.Lock()  # the add-on compiles kernels in a background thread (blender/jobs.py)
 
 
 def _init_warp():
@@ -59,9 +61,13 @@ def _init_warp():
     needs it). Warp's greeting, module-load lines and its native "no CUDA driver" line are shown
     only with HOVR_DEBUG=1: on a machine without a GPU they are noise on every render."""
     global _WARP_READY
-    if _WARP_READY:
-        return
-    _WARP_READY = True
+    with _WARP_LOCK:
+        if not _WARP_READY:
+            _start_warp()
+            _WARP_READY = True
+
+
+def _start_warp():
     debug = bool(os.environ.get("HOVR_DEBUG"))
     wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
     if debug:
@@ -151,6 +157,40 @@ SUM_THREADS = 1 << 14  # threads summing a shade's per-ray counters on the devic
 INT32_MAX = 2**31 - 1
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
+def kernel_variant(meshes) -> tuple[bool, int]:
+    """(curved, modes): what the walk kernels of a render of `meshes` (one mesh, or several
+    merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
+    meshes = list(meshes)
+    curved = any(m.affine is not None and not m.affine.all() for m in meshes)
+    modes = static_modes(np.concatenate([m.shape for m in meshes]), np.concatenate([m.modes for m in meshes]))
+    return bool(curved), int(modes)
+
+
+def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> list:
+    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant`."""
+    kernels = Precision.named(precision).kernels
+    search, traverse, sample = kernels.walk_kernels(*variant)
+    # coefficients lives in the module of integrate
+    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.finalize]
+
+
+def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
+                 surfaces: bool = False) -> None:
+    """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
+    (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
+    read from Warp's kernel cache on disk. Safe in a background thread while no render runs."""
+    device = resolve_device(device)
+    kernels = render_kernels(variant, precision)
+    if surfaces:
+        from .kernels import surfaces as surface_kernels
+
+        kernels.append(surface_kernels.cast_surfaces)
+    # the modules compile side by side (on first use the largest one's compile is the wait)
+    modules = list({id(k.module): k.module for k in kernels}.values())
+    workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
+    wp.force_load(device=device, modules=modules, max_workers=workers)
+
+
 def _check_float32_range(what: str, values, offsets):
     """float32 kernels need data well inside float32's range: name the first element that is not."""
     if values is None or values.size == 0:
@@ -213,7 +253,8 @@ class Renderer:
         self.mesh = mesh
         self._id = next(_RENDERER_IDS)
         self._field_version = 0  # replace_field counts up: segment caches of an older field are stale
-        self._curved = not bool(mesh.affine is None or mesh.affine.all())
+        self.kernel_variant = kernel_variant([mesh])
+        self._curved = self.kernel_variant[0]
         self._uploads = {}  # precision name -> _Upload
         # the field's frame (core/field_frame.py) follows the transfer functions: the float64
         # data stays here, the device holds it mapped into the last frame rendered
@@ -425,7 +466,7 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            walk = raycast.walk_kernels(curved=self._curved, modes=static_modes(mesh.shape, mesh.modes))
+            walk = raycast.walk_kernels(*self.kernel_variant)
             self._sample_stride = sample_stride(mesh, gdeg)
         self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
         return self._uploads[name]
@@ -522,9 +563,7 @@ class Renderer:
                 buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            # compile outside the timed region, the modules side by side (a first use compiles
-            # each; the largest one's compile is then the wait)
-            self.load_kernels(upload)
+            load_kernels(self.kernel_variant, self.device, options.precision)  # compiled outside the timed region
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
@@ -564,19 +603,6 @@ class Renderer:
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
                             stats=info, row_cost=row_cost)
-
-    def load_kernels(self, upload: _Upload | str = "float32"):
-        """Compile (first use) or load from Warp's kernel cache every module a render of this
-        mesh in this precision launches, in parallel threads (COMPILE_WORKERS)."""
-        if isinstance(upload, str):
-            upload = self._upload(upload)
-        kernels = upload.precision.kernels
-        modules = {}
-        for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                     kernels.integrate, kernels.finalize):
-            modules[id(kern.module)] = kern.module
-        workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
-        wp.force_load(device=self.device, modules=list(modules.values()), max_workers=workers)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
                     n: int, limit: tuple, record=None) -> int:

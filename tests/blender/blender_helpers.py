@@ -5,7 +5,9 @@ compat() finds the add-on's version differences in whichever copy is loaded.
 """
 import importlib
 import math
+import shutil
 import sys
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -105,7 +107,7 @@ def build_sphere_scene(scene, contract, width, height, stops, value_range, densi
     obj.location, obj.rotation_euler = location, (0.0, 0.0, angle_z)
     set_look(obj, stops, value_range, density_scale)
     s = scene.hovr
-    s.method, s.h, s.tolerance, s.device = method, 0.01, 1e-6, "cpu"
+    s.method, s.step_units, s.h, s.tolerance, s.device = method, 'WORLD', 0.01, 1e-6, "cpu"
     return obj
 
 
@@ -159,3 +161,22 @@ def z_combine(tree):
         node.use_alpha = False
         node.use_antialias_z = False
     return (node, *node.inputs[:4])
+
+
+TET = "Tet_channel_m3"  # 48 straight tets on the unit cube, fields u, v, w, p (3 modes)
+
+
+def copy_tet(folder: Path) -> Path:
+    """The vendored Tet_channel_m3 mesh and its solution copied into `folder`; the mesh's path."""
+    from tests.helpers import data_file
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for ext in (".xml", ".fld"):
+        shutil.copy(data_file("nektar", TET + ext), folder / (TET + ext))
+    return folder / (TET + ".xml")
+
+
+def datablock_counts() -> dict:
+    """How many of each kind of datablock an import could add."""
+    return {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "textures", "collections",
+                                                            "materials", "images")}

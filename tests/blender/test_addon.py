@@ -77,7 +77,11 @@ def test_properties_defaults_and_enum_indices(scene):
     assert {i.identifier: i.value for i in oprops["density_units"].enum_items} == {"RELATIVE": 0, "WORLD": 1}
     assert oprops["density_units"].default == "RELATIVE"
     assert {"transfer_function", "density_scale", "value_min", "value_max"} <= set(props.keys())
-    # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI.
+    # The step is relative to the volume by default; in world units its default is the core's
+    assert {i.identifier: i.value for i in props["step_units"].enum_items} == {"RELATIVE": 0, "WORLD": 1}
+    assert settings.step_units == "RELATIVE" and props["steps_across"].type == 'INT'
+    # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI
+    # (but for the step, which the CLI takes in world units).
     from hovr_blender.core.view import RenderOptions
 
     core = RenderOptions()
@@ -189,8 +193,13 @@ def test_panels_draw_existing_properties(scene, with_tf):
             cls.draw_header(panel, context)
         cls.draw(panel, context)
     names = {n for _, n in drawn}
-    assert {"method", "h", "tolerance", "min_transmittance", "device", "density", "density_units", "value_min",
-            "value_max"} <= names
+    assert {"method", "steps_across", "step_units", "tolerance", "min_transmittance", "device", "density",
+            "density_units", "value_min", "value_max"} <= names
+    assert "h" not in names  # the world step is drawn only in World Units
+    scene.hovr.step_units = 'WORLD'
+    drawn.clear()
+    panels.HOVR_RENDER_PT_quadrature.draw(SimpleNamespace(layout=_Layout(drawn)), context)
+    assert {"h", "step_units"} <= {n for _, n in drawn} and "steps_across" not in {n for _, n in drawn}
     assert ("color_ramp" in names) == with_tf
     context.engine = 'CYCLES'
     assert not any(cls.poll(context) for cls in panels.classes)

@@ -52,7 +52,7 @@ def build(scene, folder: Path):
     set_contract_camera(scene, CONTRACT, W, H)
     scene.world = bpy.data.worlds.new("World")
     scene.world.color = (0.0625, 0.0625, 0.125)
-    scene.hovr.method = "classified"
+    scene.hovr.method, scene.hovr.step_units = "classified", 'WORLD'  # the core images' h = 0.01
     obj = bpy.data.objects.new("Flow", None)
     scene.collection.objects.link(obj)
     obj.hovr.is_volume = True  # ticking it gives the volume a transfer function

@@ -10,6 +10,7 @@ bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not
 pytestmark = pytest.mark.blender
 
 from ..hostile import cases  # noqa: E402
+from .blender_helpers import datablock_counts  # noqa: E402
 
 SECONDS = 5.0
 
@@ -58,11 +59,6 @@ IMPORTS = {"mesh is a FIFO": _mesh_is_fifo, "mesh is /dev/zero": _mesh_is_dev_ze
            "solution is a FIFO": _solution_is_fifo, "HDF5 external storage": _hdf5_external_storage,
            "DOMAIN amplification": _domain_amplification, "VTU 800 blocks of zeros": _vtu_bomb,
            "VTU is a FIFO": _vtu_is_fifo}
-
-
-def datablock_counts():
-    return {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "textures", "collections",
-                                                            "materials", "images")}
 
 
 @pytest.mark.parametrize("kind", list(IMPORTS))

@@ -21,18 +21,10 @@ from hovr_blender.io import nektar  # noqa: E402
 from hovr_blender.blender import import_operators, panels  # noqa: E402
 
 from ..helpers import data_file  # noqa: E402
-from .blender_helpers import add_camera, render_to_exr, set_contract_camera  # noqa: E402
+from .blender_helpers import TET, add_camera, copy_tet, datablock_counts, render_to_exr, set_contract_camera  # noqa: E402
 
-TET = "Tet_channel_m3"  # 48 straight tets on the unit cube, fields u, v, w, p (3 modes)
 W, H = 24, 16
 CONTRACT = {"eye": [2.6, -1.9, 2.2], "target": [0.5, 0.5, 0.5], "up": [0.0, 0.0, 1.0], "fov_y_deg": 40.0}
-
-
-def copy_tet(folder: Path) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    for ext in (".xml", ".fld"):
-        shutil.copy(data_file("nektar", TET + ext), folder / (TET + ext))
-    return folder / (TET + ".xml")
 
 
 def vector_vtu(path: Path) -> Path:
@@ -43,11 +35,6 @@ def vector_vtu(path: Path) -> Path:
     meshio.write(str(path), meshio.Mesh(pts, [("hexahedron", np.arange(8)[None])],
                                         point_data={"vel": vel, "s": pts[:, 2]}), binary=False)
     return path
-
-
-def datablock_counts():
-    return {name: len(getattr(bpy.data, name)) for name in ("objects", "meshes", "textures", "collections",
-                                                            "materials", "images")}
 
 
 def mesh_edges(obj):
@@ -273,7 +260,7 @@ def test_imported_volume_renders_like_the_core(scene, tmp_path):
     scene.world.color = (0.0625, 0.0625, 0.125)
     s, h = scene.hovr, obj.hovr
     h.density_units, h.density = 'WORLD', 8.0
-    s.method, s.h = "classified", 0.01
+    s.method, s.step_units, s.h = "classified", 'WORLD', 0.01
     img = render_to_exr(scene, tmp_path / "f12.exr")
 
     ramp = h.transfer_function.color_ramp

@@ -94,7 +94,7 @@ def _fingerprint(scene):
     return (
         sorted((o.name, o.location[:], o.rotation_euler[:], o.scale[:], o.hovr.is_volume, o.hovr.source, look(o.hovr))
                for o in scene.objects),
-        (s.method, s.h, s.tolerance, s.min_transmittance, s.device),
+        (s.method, s.step_units, s.steps_across, s.h, s.tolerance, s.min_transmittance, s.device),
         len(bpy.data.textures), len(bpy.data.meshes),
         len([i for i in bpy.data.images if i.type != 'RENDER_RESULT']),  # Blender adds its Render Result
     )
@@ -244,6 +244,83 @@ def test_relative_density_is_optical_depth_across_the_volume(scene, tmp_path):
     scene.hovr.h *= s  # Step is in world units (it sets accuracy, not the look)
     small = render_to_exr(scene, tmp_path / "small.exr")
     np.testing.assert_allclose(small, world, atol=2e-4)
+
+
+def _sphere_diagonal(scale=1.0):
+    from hovr_blender.io import builtin
+
+    v = builtin.sphere().vertices.reshape(-1, 3)
+    return scale * float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+
+
+def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
+    """Step Units Across Volume: the core gets h = the volume's bounding-box diagonal (world
+    units, the object's scale included) / Steps Across, so the picture keeps its sampling at any
+    size without touching the step (the sphere scaled by 1/50 with its camera)."""
+    from hovr_blender.blender import render
+
+    from .blender_helpers import set_contract_camera
+
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    scene.hovr.step_units, scene.hovr.steps_across = 'RELATIVE', 50
+    h = _sphere_diagonal() / 50  # 0.133: coarse enough to show in the image
+    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    assert inputs.options.h == pytest.approx(h, rel=1e-6)
+    got = render_to_exr(scene, tmp_path / "relative.exr")
+    want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False, h=h)
+    np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
+    assert np.abs(got[..., :3] - SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)[..., :3]).max() > 1e-3
+    s = 0.02
+    obj.location = [s * x for x in SPHERE.OBJECT_LOCATION]
+    obj.scale = (s, s, s)
+    c = dict(SPHERE.PERSPECTIVE, eye=[s * x for x in SPHERE.PERSPECTIVE["eye"]],
+             target=[s * x for x in SPHERE.PERSPECTIVE["target"]])
+    set_contract_camera(scene, c, SPHERE.W, SPHERE.H)
+    scene.camera.data.clip_start = 0.001
+    obj.hovr.density *= 1 / s  # the look in world units follows the size by hand; the step by itself
+    bpy.context.view_layer.update()
+    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    assert inputs.options.h == pytest.approx(s * h, rel=1e-5)
+    small = render_to_exr(scene, tmp_path / "small.exr")
+    np.testing.assert_allclose(small, got, atol=2e-4)
+
+
+def test_step_units_survive_save_and_reload(scene, tmp_path):
+    """A scene saved with Step Units keeps them on reload, the default Across Volume included
+    (never mistaken for a file from before Step Units, which keeps its world step)."""
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    scene.hovr.property_unset("step_units")  # as build_scene's World Units were never chosen
+    scene.hovr.steps_across = 321
+    assert scene.hovr.step_units == 'RELATIVE'
+    path = tmp_path / "steps.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    s = bpy.context.scene.hovr
+    assert (s.step_units, s.steps_across) == ('RELATIVE', 321)
+    s.step_units, s.h = 'WORLD', 0.03125
+    bpy.ops.wm.save_mainfile()
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    s = bpy.context.scene.hovr
+    assert (s.step_units, s.h, s.steps_across) == ('WORLD', 0.03125, 321)
+
+
+def test_a_file_saved_before_step_units_keeps_its_world_step(scene, tmp_path):
+    """tests/data/blender/legacy_world_step.blend was saved before Step Units, its step never set
+    (the world default 0.01). Opened, its scene keeps that step in world units (load_post) and F12
+    gives the image the old version gave; a scene of it never used with HOVR takes the new default."""
+    from hovr_blender.blender import versioning
+
+    from ..helpers import data_file
+
+    blend = data_file("blender", "legacy_world_step.blend")
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    sc = bpy.context.scene
+    assert (sc.hovr.step_units, sc.hovr.h) == ('WORLD', pytest.approx(0.01))
+    got = render_to_exr(sc, tmp_path / "legacy.exr")
+    want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
+    np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
+    other = bpy.data.scenes.new("Unused")
+    assert versioning.migrate_step_units([other]) == 0 and other.hovr.step_units == 'RELATIVE'
 
 
 def test_a_file_saved_with_the_scene_look_renders_the_same(scene, tmp_path):

@@ -1,6 +1,6 @@
 """The bpy-free numbers of a first picture (hovr_blender/blender/framing.py) and the Nektar++
-importer's solution discovery (io/nektar/reader.py): density relative to the volume's size,
-a camera that sees every point, clip planes around them, and the words for an empty, faint or
+importer's solution discovery (io/nektar/reader.py): density and step relative to the volume's
+size, a camera that sees every point, clip planes around them, and the words for an empty, faint or
 clipped render."""
 import numpy as np
 import pytest
@@ -24,6 +24,21 @@ def test_relative_density_is_optical_depth_along_the_diagonal():
         framing.density_per_world_unit(1.0, "RELATIVE", 0.0)
     with pytest.raises(ValueError):
         framing.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
+
+
+def test_relative_step_is_the_smallest_diagonal_over_steps_across():
+    assert framing.step_world_length(0.01, 1000, "RELATIVE", [0.0226]) == pytest.approx(2.26e-5)
+    # several volumes: each sampled at least Steps Across times along its diagonal
+    assert framing.step_world_length(0.01, 500, "RELATIVE", [10.0, 2.0, 4.0]) == pytest.approx(2.0 / 500)
+    assert framing.step_world_length(0.03, 1000, "WORLD", []) == 0.03  # World Units: h itself, no data needed
+    with pytest.raises(ValueError, match="no extent"):
+        framing.step_world_length(0.01, 1000, "RELATIVE", [1.0, 0.0])
+    with pytest.raises(ValueError, match="at least 1"):
+        framing.step_world_length(0.01, 0, "RELATIVE", [1.0])
+    with pytest.raises(ValueError, match="no volume"):
+        framing.step_world_length(0.01, 10, "RELATIVE", [])
+    with pytest.raises(ValueError, match="unknown step units"):
+        framing.step_world_length(0.01, 10, "PER_PARSEC", [1.0])
 
 
 @pytest.mark.parametrize("scale", [0.02, 1.0, 300.0])

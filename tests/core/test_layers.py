@@ -83,6 +83,7 @@ def test_addon_package_and_its_bpy_free_modules_import_without_bpy():
     code = (
         "import sys, hovr_blender, hovr_blender.blender.camera, hovr_blender.blender.scene, "
         "hovr_blender.blender.framing, hovr_blender.blender.viewport, hovr_blender.blender.dependencies, "
+        "hovr_blender.blender.jobs, "
         "hovr_blender.core.renderer, hovr_blender.io.builtin, hovr_blender.blender; "
         "assert 'bpy' not in sys.modules, 'bpy imported'; "
         "assert callable(hovr_blender.register) and hovr_blender.bl_info['name'] == 'HOVR'"
