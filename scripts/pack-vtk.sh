@@ -37,6 +37,13 @@ for i in $(seq 1 "$parts"); do
 done
 last=$out/vtk-$parts
 echo "$ver" > "$last/VERSION"
+# GLVND's EGL/OpenGL dispatch libraries (Debian's libegl1, libglvnd0, libopengl0): a CUDA machine
+# may carry NVIDIA's EGL vendor library without the loader VTK opens (libEGL.so.1)
+mkdir -p "$tmp/debs" "$last/glvnd"
+(cd "$tmp/debs" && apt-get download -q libegl1 libglvnd0 libopengl0 >/dev/null 2>&1) &&
+  for deb in "$tmp"/debs/*.deb; do dpkg-deb -x "$deb" "$tmp/root"; done &&
+  for so in libEGL.so.1 libGLdispatch.so.0 libOpenGL.so.0; do cp -L "$tmp/root/usr/lib/x86_64-linux-gnu/$so" "$last/glvnd/"; done ||
+  echo "could not fetch GLVND (apt-get download): VTK will need the machine's own libEGL.so.1"
 cat > "$last/install.sh" <<EOS
 # source me: joins VTK's wheel, unpacks it into /tmp/site-vtk, exports PYTHONPATH, reports OpenGL
 if [ ! -f /tmp/site-vtk/vtkmodules/__init__.py ]; then
@@ -54,6 +61,11 @@ if [ ! -f /tmp/site-vtk/vtkmodules/__init__.py ]; then
 fi
 if [ -f /tmp/site-vtk/vtkmodules/__init__.py ]; then
   export PYTHONPATH=/tmp/site-vtk\${PYTHONPATH:+:\$PYTHONPATH}; echo "vtk $ver ready in /tmp/site-vtk"
+  if ! ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1 '; then
+    here=\$(cd "\$(dirname "\${BASH_SOURCE[0]}")" && pwd)
+    mkdir -p /tmp/glvnd && cp "\$here"/glvnd/* /tmp/glvnd/ 2>/dev/null &&
+      export LD_LIBRARY_PATH=/tmp/glvnd\${LD_LIBRARY_PATH:+:\$LD_LIBRARY_PATH} && echo "GLVND's libEGL.so.1 from the pack: /tmp/glvnd"
+  fi
   echo "OpenGL libraries here (VTK needs libEGL.so.1 + an EGL vendor such as libEGL_nvidia, or libOSMesa):"
   (ldconfig -p 2>/dev/null | grep -E 'libEGL|libOpenGL|libGLX|libOSMesa' || echo "  none found by ldconfig")
   ls /usr/share/glvnd/egl_vendor.d/ 2>/dev/null || echo "  no /usr/share/glvnd/egl_vendor.d"

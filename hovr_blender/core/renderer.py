@@ -138,6 +138,7 @@ GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
 # H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
 # few-ray tails of each tile, where a round costs the latency of its slowest ray
 TILE_MEMORY_FRACTION = 0.25
+TILE_LIMIT_SHARE = 0.5  # of the memory limit (core/limits.py) a launch tile's buffers may take
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
@@ -375,11 +376,14 @@ class Renderer:
         few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
         if self.max_tile_rays is not None:
             return self.max_tile_rays
+        # the resource policy's memory limit holds the tile too, with room left for the image's
+        # own buffers (a full-HD tile is ~8 GB in float32: over the 4 GiB default)
+        policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
-            return CPU_TILE_RAYS
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
-                           MIN_TILE_RAYS, MAX_TILE_RAYS))
+            return int(max(1024, min(CPU_TILE_RAYS, policy)))
+        return int(max(1024, min(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
+                                         MIN_TILE_RAYS, MAX_TILE_RAYS), policy)))
 
     def _ray_bytes(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
