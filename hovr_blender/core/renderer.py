@@ -22,7 +22,7 @@ from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_sca
                    element_volumes, mapped_coefficients)
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import RenderOptions, View
+from .view import AUTO_STEP_ERROR, RenderOptions, View
 
 _METHOD_IDS = {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
@@ -333,9 +333,10 @@ class Renderer:
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None):
         """Refuse a render the resource policy does not allow (core/limits.py), before
         anything is allocated: the image's buffers against the memory limit, and for the
-        fixed-step methods the samples a ray may take across the data (its box diagonal / h)."""
+        fixed-step methods the samples a ray may take across the data (its box diagonal / h;
+        classified without h never steps below the diagonal / that limit)."""
         lim = limits.current()
-        if options.method != "split":
+        if options.method != "split" and options.h is not None:
             steps = self.data_diagonal / float(options.h)
             if not steps <= lim.max_samples_per_ray:
                 raise limits.ResourceLimitError(
@@ -486,7 +487,7 @@ class Renderer:
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
-            quad = _quad_args(prec, options, background, upload)
+            quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
             tile = min(tile, self._tile_limit(prec), end - first)
@@ -671,12 +672,15 @@ def _transfer_args(prec: Precision, tf: TransferFunction):
     return transfer
 
 
-def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload):
+def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload, diagonal: float):
     quad = prec.kernels.QuadArgs()
     quad.method = _METHOD_IDS[options.method]
     quad.inner = _INNER_IDS[options.inner]
-    quad.h = float(options.h)
-    quad.max_steps = int(limits.current().max_samples_per_ray) + 1
+    quad.h = 0.0 if options.h is None else float(options.h)  # 0: classified's own step per segment
+    max_samples = int(limits.current().max_samples_per_ray)
+    quad.max_steps = max_samples + 1
+    quad.h_min = diagonal / max_samples  # so a ray takes no more samples than with the smallest fixed h allowed
+    quad.step_error = AUTO_STEP_ERROR
     quad.tol = float(options.tolerance)
     quad.min_transmittance = float(options.min_transmittance)
     quad.background = prec.vec3(*map(float, np.asarray(background, dtype=np.float64).reshape(3)))

@@ -101,8 +101,10 @@ class TransferArgs:
 class QuadArgs:
     method: wp.int32
     inner: wp.int32
-    h: wp.float32
+    h: wp.float32  # the fixed step; 0: classified chooses each piecewise-smooth segment's (quadrature.auto_step)
     max_steps: wp.int32  # steps of h per segment at most (the samples-per-ray limit; the host refuses more)
+    h_min: wp.float32  # auto_step's smallest step: the data's box diagonal / the samples-per-ray limit
+    step_error: wp.float32  # auto_step's error bound per piecewise-smooth segment
     tol: wp.float32
     min_transmittance: wp.float32
     background: wp.vec3

@@ -727,10 +727,10 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     trapezoid = int(1)
     piecewise = int(0)
     emitting = int(1)
+    bnd = wp.vec2(0.0, 0.0)  # classified and split: f's bounds on the segment
     if q.method == METHOD_RIEMANN:
         trapezoid = 0
     elif q.method >= METHOD_CLASSIFIED:
-        bnd = wp.vec2(0.0, 0.0)
         if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
             # the paper's classes bound the true field; a curved segment's interpolant is no bound
             # of it (split integrates the interpolant itself, so its bounds decide there)
@@ -750,7 +750,14 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
-        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, state)
+        n = int(0)
+        if q.h > 0.0:
+            n = quadrature.fixed_steps(q, a, b)
+        else:  # classified without a fixed step (riemann and trapezoid always have one: core/view.py)
+            nb = quadrature.auto_step(tf, q, coeffs, base, deg, a, b, bnd[0], bnd[1], emitting, state.transmittance)
+            n = int(nb[0])
+            state.error = state.error + nb[1]
+        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, n, state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
