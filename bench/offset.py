@@ -4,7 +4,7 @@ and without it (the field and transfer function handed to the kernels in their o
 before the frame existed), for data whose values sit far from zero:
 
 - PyFR's Taylor-Green pressure (71.05 .. 72.01: offset / span about 74);
-- a synthetic pressure in pascals, 101,325 +- 5 Pa, on the curved mixed cube (offset / span
+- a synthetic pressure in pascals, 101,325 +- 5 Pa, on the mixed cube (straight, all four shapes; offset / span
   about 10^4).
 
     python bench/offset.py --device cuda:0 --size 1920x1080 --out $OUT/offset.json
