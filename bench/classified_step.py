@@ -1,6 +1,6 @@
 """classified's step (issue 20, docs/methods.md "classified's step"): error against the exact
 image and cost, for the paper's fixed step h (absolute, and relative to the data's box diagonal)
-against the step each piecewise-smooth segment chooses without h (kernels/quadrature.auto_step),
+against the step each piecewise-smooth segment chooses without h (kernels/quadrature.auto_steps),
 with split beside them.
 
     python bench/classified_step.py --size 192x108 --out bench/results/cpu/classified_step.json

@@ -49,7 +49,7 @@ def main(argv=None):
         kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
         kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
                     for m in args.modes]
-    kernels.append(("integrate, init_rays, finalize", raycast.integrate))
+    kernels += [("integrate, init_rays, finalize", raycast.integrate), ("step_terms", raycast.step_terms)]
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:

@@ -302,6 +302,7 @@ class Renderer:
         segs.v1 = zeros(slots, prec.vec3)
         segs.samples = zeros(slots * MAX_SAMPLES, prec.scalar)
         segs.coeffs = zeros(slots * MAX_SAMPLES, prec.scalar)
+        segs.step_terms = zeros(slots, prec.vec3)
         segs.list = zeros(slots, wp.int32)
         segs.list_count = zeros(1, wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
@@ -501,7 +502,7 @@ class Renderer:
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             # compile outside the timed region (coefficients: the module of integrate)
             for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                         kernels.integrate, kernels.finalize):
+                         kernels.integrate, kernels.step_terms, kernels.finalize):
                 wp.load_module(kern.module, device=self.device)
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
@@ -557,7 +558,9 @@ class Renderer:
             segs.list_count.zero_()
             launch("search", upload.search, active, [upload.mesh_args, cam, start, rays])
             launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
-            self._sample_segments(launch, upload, cam, start, buffers)
+            listed = self._sample_segments(launch, upload, cam, start, buffers)
+            if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
+                launch("step_terms", kernels.step_terms, listed, [upload.mesh_args, transfer, quad, segs, segs.list])
             launch("integrate", kernels.integrate, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             rounds += 1
             active = int(rays.active_count.numpy()[0])
@@ -567,14 +570,15 @@ class Renderer:
                                   f"still going): a bug, please report it with the data")
         return rounds
 
-    def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers):
+    def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers) -> int:
         """The samples of the segments traverse listed, then their Chebyshev coefficients; curved
-        interpolants whose tail is too large get their degree doubled (twice at most)."""
+        interpolants whose tail is too large get their degree doubled (twice at most). Returns how
+        many segments were listed."""
         kernels = upload.precision.kernels
         rays, segs, again, again_count = buffers.rays, buffers.segs, buffers.again, buffers.again_count
         listed = int(segs.list_count.numpy()[0])
         if listed == 0:
-            return
+            return 0
         stride = self._sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
@@ -592,6 +596,7 @@ class Renderer:
             if n_slots > 0:  # the last refined slots: their tails, no more doubling
                 launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
         launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+        return listed
 
 
 @dataclass

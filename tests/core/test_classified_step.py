@@ -1,7 +1,7 @@
 """classified's step (docs/methods.md, "classified's step"). With a fixed h it marches the paper's
 trapezoid rule at that step on piecewise-smooth segments; without one (the default) each such
 segment takes the largest step whose bound of the rule's error there is within AUTO_STEP_ERROR
-(kernels/quadrature.auto_step), so the image stays within the project's 1e-3 (render contract §6)
+(kernels/quadrature.step_error_terms, auto_steps), so the image stays within the project's 1e-3 (render contract §6)
 on fields where the paper's 0.01 does not, and the error pass carries those bounds."""
 import numpy as np
 import pytest

@@ -4,7 +4,7 @@ quadratures and the segment classification of Nelson, Kirby and Haimes (2014).
 - riemann / trapezoid: the named baselines, step h (march);
 - classified (Algorithm 1): bound f on the segment, classify density and colour as empty /
   piecewise-smooth / smooth; skip empty segments, trapezoid with step h on piecewise-smooth
-  ones (without h: each segment's own step, from a bound of the rule's error, auto_step),
+  ones (without h: each segment's own step, from a bound of the rule's error, auto_steps),
   adaptive Gauss-Kronrod (G7/K15) on smooth ones (absorption only when the colour is 0);
 - split: like classified, but piecewise-smooth segments are cut at the exact crossings of the
   transfer function's breakpoints (next_cut), so every piece is smooth and gets Gauss-Kronrod.
@@ -164,7 +164,7 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
           evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, n: int,
           state_in: RayIntegral):
-    """[a, b] in n equal steps (fixed_steps or auto_step): left Riemann sum (trapezoid = 0, samples
+    """[a, b] in n equal steps (fixed_steps or auto_steps): left Riemann sum (trapezoid = 0, samples
     t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1, samples t_0..t_n).
     Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the restriction coeffs.
     Returns the new state and (element evaluations, restriction evaluations)."""
@@ -261,7 +261,7 @@ def slope_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: flo
     """(M1, M2): bounds of |df/dt| and |d2f/dt2| on the segment [a, b]. For a pyramid's f = g / w^2
     (w linear, its ends in the series' last slots) through f = m + u / w^2, u = g - m w^2 with m the
     value at the middle, so the bounds follow the variation, not the offset (pyramid_segment_bounds);
-    near the apex (w -> 0) they grow without limit and auto_step falls to its smallest step."""
+    near the apex (w -> 0) they grow without limit and auto_steps falls to its smallest step."""
     wa = coeffs[base + MAX_SAMPLES - 2]
     wb = coeffs[base + MAX_SAMPLES - 1]
     sc = 2.0 / (b - a)
@@ -313,12 +313,11 @@ def breakpoints_inside(s_arr: wp.array(dtype=wp.float32), lo: float, hi: float) 
 
 
 @wp.func
-def auto_step(tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float,
-              b: float, lo: float, hi: float, emitting: int, T: float) -> wp.vec2:
-    """classified without a fixed step: (n, bound) for the piecewise-smooth segment [a, b] (f in
-    [lo, hi], transmittance T at its start): the fewest steps whose bound of the trapezoid rule's
-    error on the segment (emission plus T times optical depth, as a Gauss-Kronrod panel's) is at
-    most q.step_error, no step below q.h_min; and that bound.
+def step_error_terms(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float,
+                     lo: float, hi: float, emitting: int) -> wp.vec3:
+    """classified's trapezoid rule on the piecewise-smooth segment [a, b] (f in [lo, hi]): its error
+    with step h (emission plus T times optical depth, as a Gauss-Kronrod panel's) is at most
+    T (min(x h^2, y h) + z h^2), T the transmittance at the segment's start; returns (x, y, z).
 
     tau and kappa are piecewise linear in f, so along the ray the integrands are smooth but for a
     kink where f crosses a breakpoint. A kink of slope jump J costs a step at most J h^2 / 8, and
@@ -326,7 +325,6 @@ def auto_step(tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32),
     error is (b - a) h^2 / 12 times the integrand's second derivative. Both are bounded from the
     series' derivative bounds (slope_bounds) and the transfer function's values and slopes over
     [lo, hi], one crossing per breakpoint inside it."""
-    ell = b - a
     m = slope_bounds(coeffs, base, deg, a, b)
     m1 = m[0]
     s_tau = slope_max_on(tf.density_s, tf.density_tau, lo, hi)
@@ -341,28 +339,36 @@ def auto_step(tf: TransferArgs, q: QuadArgs, coeffs: wp.array(dtype=wp.float32),
     # |d(tau kappa)/df| and the two integrands' slopes in f (emission tau kappa T, optical depth tau)
     s_emit = s_tau * col_max + tau_max * s_col
     s_both = s_emit + s_tau
-    # per kink: error <= T s_both m1 h^2 / 4 (the jump is at most twice the slope), or h times the range
-    kink_h2 = T * s_both * m1 / 4.0
-    kink_h = T * tau_max * (1.0 + col_max)
     # between kinks: |(T tau kappa)''| + |tau''| with T' = -tau T and tau'' = kappa'' = 0 in f
     second = s_both * m[1] + 2.0 * s_tau * s_col * m1 * m1 + 2.0 * tau_max * s_emit * m1 \
         + s_tau * m1 * tau_max * col_max + tau_max * tau_max * tau_max * col_max
-    smooth_h2 = T * ell * second / 12.0
+    # per kink: s_both m1 h^2 / 4 (the slope jumps by at most twice the slope), or h times the range
+    return wp.vec3(kinks * s_both * m1 / 4.0, kinks * tau_max * (1.0 + col_max), (b - a) * second / 12.0)
+
+
+@wp.func
+def auto_steps(q: QuadArgs, terms: wp.vec3, a: float, b: float, T: float) -> wp.vec2:
+    """classified without a fixed step: (n, bound) for a piecewise-smooth segment [a, b] whose
+    step_error_terms are `terms` and whose transmittance at the start is T: the fewest steps whose
+    error bound is at most q.step_error, no step below q.h_min; and the bound at that step."""
+    ell = b - a
     target = q.step_error
+    x = T * terms[0]
+    y = T * terms[1]
+    z = T * terms[2]
     h = ell
-    quad = kinks * kink_h2 + smooth_h2
-    if quad > 0.0:
-        h = wp.sqrt(target / quad)
-        if kinks > 0.0 and smooth_h2 > 0.0:
-            h = wp.max(h, wp.min(0.5 * target / (kinks * kink_h), wp.sqrt(0.5 * target / smooth_h2)))
-        elif kinks > 0.0:
-            h = wp.max(h, target / (kinks * kink_h))
+    if x + z > 0.0:
+        h = wp.sqrt(target / (x + z))
+        if y > 0.0 and z > 0.0:
+            h = wp.max(h, wp.min(0.5 * target / y, wp.sqrt(0.5 * target / z)))
+        elif y > 0.0:
+            h = wp.max(h, target / y)
     step = q.h_min  # also where h is NaN (0 times an overflowed slope)
     if h > q.h_min:
         step = h
     n = int(wp.clamp(wp.ceil(ell / step), 1.0, float(q.max_steps)))
     hs = ell / float(n)
-    bound = kinks * wp.min(kink_h2 * hs * hs, kink_h * hs) + smooth_h2 * hs * hs
+    bound = wp.min(x * hs * hs, y * hs) + z * hs * hs
     if wp.isnan(bound):  # only from 0 times an overflowed factor: that term is 0
         bound = 0.0
     return wp.vec2(float(n), bound)

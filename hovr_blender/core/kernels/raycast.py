@@ -707,6 +707,47 @@ def walk_kernels(curved: bool, modes: int = 0):
 
 
 @wp.func
+def classify(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, flags: int, coeffs: wp.array(dtype=wp.float32),
+             base: int, deg: int) -> wp.vec4:
+    """classified and split: (lo, hi) bounding f on the segment, emitting (1 where the colour is not 0
+    over them), and the segment's class: 1 empty, 2 smooth, 3 piecewise-smooth."""
+    bnd = wp.vec2(0.0, 0.0)
+    if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
+        # the paper's classes bound the true field; a curved segment's interpolant is no bound
+        # of it (split integrates the interpolant itself, so its bounds decide there)
+        bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
+    else:
+        bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
+    emitting = int(0)
+    if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
+        emitting = 1
+    piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
+    if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
+        piecewise = 1
+    kind = 2 + piecewise
+    if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
+        kind = 1
+    return wp.vec4(bnd[0], bnd[1], float(emitting), float(kind))
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def step_terms(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, segs: Segments, slots: wp.array(dtype=wp.int32)):
+    """classified without a fixed step, one thread per sampled slot: the segment's
+    quadrature.step_error_terms where it is piecewise-smooth, for integrate to turn into its steps
+    with the transmittance the ray reaches it with (quadrature.auto_steps). A kernel of its own so
+    that integrate's registers do not grow."""
+    slot = slots[wp.tid()]
+    base = slot * MAX_SAMPLES
+    deg = segs.degree[slot]
+    cls = classify(mesh, tf, q, segs.element[slot], segs.flags[slot], segs.coeffs, base, deg)
+    terms = wp.vec3(0.0, 0.0, 0.0)
+    if int(cls[3]) == 3:
+        terms = quadrature.step_error_terms(tf, segs.coeffs, base, deg, segs.t0[slot], segs.t1[slot], cls[0], cls[1],
+                                            int(cls[2]))
+    segs.step_terms[slot] = terms
+
+
+@wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
                       b: float, deg: int, flags: int, segs: Segments, slot: int, state_in: RayIntegral):
     """One segment into the ray state; returns the new state and (element evaluations,
@@ -727,26 +768,15 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     trapezoid = int(1)
     piecewise = int(0)
     emitting = int(1)
-    bnd = wp.vec2(0.0, 0.0)  # classified and split: f's bounds on the segment
     if q.method == METHOD_RIEMANN:
         trapezoid = 0
     elif q.method >= METHOD_CLASSIFIED:
-        if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
-            # the paper's classes bound the true field; a curved segment's interpolant is no bound
-            # of it (split integrates the interpolant itself, so its bounds decide there)
-            bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
-        else:
-            bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
-        emitting = int(0)
-        if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
-            emitting = 1
-        piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
-        if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
-            piecewise = 1
-        if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
-            counts[2] = 1.0
+        cls = classify(mesh, tf, q, e, flags, coeffs, base, deg)
+        emitting = int(cls[2])
+        counts[2] = cls[3]
+        if int(cls[3]) == 1:
             return state, counts
-        counts[2] = 2.0 + float(piecewise)
+        piecewise = int(cls[3]) - 2
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
@@ -754,7 +784,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         if q.h > 0.0:
             n = quadrature.fixed_steps(q, a, b)
         else:  # classified without a fixed step (riemann and trapezoid always have one: core/view.py)
-            nb = quadrature.auto_step(tf, q, coeffs, base, deg, a, b, bnd[0], bnd[1], emitting, state.transmittance)
+            nb = quadrature.auto_steps(q, segs.step_terms[slot], a, b, state.transmittance)
             n = int(nb[0])
             state.error = state.error + nb[1]
         state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, n, state)
