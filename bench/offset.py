@@ -4,14 +4,15 @@ and without it (the field and transfer function handed to the kernels in their o
 before the frame existed), for data whose values sit far from zero:
 
 - PyFR's Taylor-Green pressure (71.05 .. 72.01: offset / span about 74);
-- a synthetic pressure in pascals, 101,325 +- 5 Pa, on the curved mixed cube (offset / span
+- a synthetic pressure in pascals, 101,325 +- 5 Pa, on the mixed cube (straight, all four shapes; offset / span
   about 10^4).
 
     python bench/offset.py --device cuda:0 --size 1920x1080 --out $OUT/offset.json
 
 Each case gives, per method (split, classified), the max |float32 - float64| over the image's
-RGBA with and without the frame, both renders' seconds (best of --repeats), and the warnings the
-renderer reported.
+RGBA with and without the frame, both renders' seconds (best of --repeats), the warnings the
+renderer reported and the float32 render's options. Classified runs at its default: without h,
+each piecewise-smooth segment's own step (until 2026-11-26 the default was the fixed h = 0.01).
 """
 from __future__ import annotations
 
@@ -49,6 +50,14 @@ def datasets():
     return out
 
 
+def scene(mesh, W, H):
+    """(transfer function, camera, value band): three tents over the field's 2..98 % band, an optical
+    depth of 8 across the data's half diagonal, the tests' framing."""
+    lo, hi = (float(v) for v in np.percentile(mesh.field_samples(4), [2, 98]))
+    tf = tents(lo, hi, COLORS, 8.0 / (0.5 * float(np.linalg.norm(np.ptp(mesh.vertices.reshape(-1, 3), axis=0)))))
+    return tf, framing(mesh, W, H), (lo, hi)
+
+
 def own_units(tfs, data_ranges):
     """field_frame.frame's stand-in for the baseline: the identity frame (one volume)."""
     tfs = list(tfs)
@@ -82,9 +91,7 @@ def main(argv=None):
               "date": datetime.date.today().isoformat(), "cases": {}}
     frame = field_frame.frame
     for name, mesh in datasets().items():
-        lo, hi = (float(v) for v in np.percentile(mesh.field_samples(4), [2, 98]))
-        tf = tents(lo, hi, COLORS, 8.0 / (0.5 * float(np.linalg.norm(np.ptp(mesh.vertices.reshape(-1, 3), axis=0)))))
-        camera = framing(mesh, W, H)
+        tf, camera, (lo, hi) = scene(mesh, W, H)
         renderer = Renderer(mesh, args.device)
         case = {"elements": int(mesh.num_elements), "value_band": [lo, hi], "offset_over_span": 0.5 * (lo + hi) / (hi - lo)}
         for method in ("split", "classified"):
@@ -112,7 +119,8 @@ def main(argv=None):
                 "seconds_float32_frame": row["float32"]["seconds"],
                 "seconds_float32_own_units": row["float32_own_units"]["seconds"],
                 "seconds_float64": row["float64"]["seconds"],
-                "warnings_float32": row["float32"]["warnings"]}
+                "warnings_float32": row["float32"]["warnings"],
+                "options_float32": opts.as_dict()}
             print(f"{name} {method}: float32 vs float64 max {case[method]['max_error_float32_frame']:.2e} with the "
                   f"frame, {case[method]['max_error_float32_own_units']:.2e} in its own units; "
                   f"{row['float32']['seconds']:.3f} / {row['float32_own_units']['seconds']:.3f} s", flush=True)

@@ -46,7 +46,8 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a view file with the Warp kernels")
     common(r)
     r.add_argument("--method", choices=METHODS, help="quadrature (default: the view's, else classified)")
-    r.add_argument("--h", type=float, help="step in world units for Riemann/trapezoid/piecewise-smooth segments")
+    r.add_argument("--h", type=float, help="fixed step in world units: Riemann and trapezoid need one; classified "
+                   "without it chooses each piecewise-smooth segment's step from its error bound")
     r.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
     r.add_argument("--min-transmittance", type=float, help="early ray termination threshold")
     r.add_argument("--inner", choices=("spectral", "trapezoid"), help="inner integral on smooth segments")
@@ -75,7 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--device", default="auto", help="each worker's device: auto (a local worker k: cuda:k; "
                    "else cuda:0, or cpu without CUDA), cpu or cuda:N")
     s.add_argument("--method", choices=METHODS, help="quadrature (default: the view's)")
-    s.add_argument("--h", type=float, help="step in world units")
+    s.add_argument("--h", type=float, help="fixed step in world units (as render's --h)")
     s.add_argument("--tolerance", type=float, help="absolute error per adaptive Gauss-Kronrod panel")
     s.add_argument("--precision", choices=("float32", "float64"), help="kernel arithmetic")
     s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)

@@ -54,6 +54,7 @@ def main(argv=None):
     # the module's own kernels: init_rays, refine, coefficients, finalize, trace_*, sum_counts
     kernels.append(("init_rays, refine, coefficients, finalize, trace_reserve, trace_write, trace_ends, sum_counts",
                     raycast.finalize))
+    kernels.append(("step_terms", raycast.step_terms))
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:

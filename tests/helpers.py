@@ -73,13 +73,17 @@ def mesh_bounds(mesh: VolumeMesh):
     return lo.min(axis=0), hi.max(axis=0)
 
 
-def framing(mesh: VolumeMesh, w, h, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0) -> RayCamera:
-    """A w x h camera looking at the mesh's bounding box from `direction`, `distance` radii away."""
+def framing_contract(mesh: VolumeMesh, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0) -> dict:
+    """framing's camera as the contract's camera object (for code that computes its own rays)."""
     lo, hi = mesh_bounds(mesh)
     c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo)
     d = np.asarray(direction, float) / np.linalg.norm(direction)
-    return RayCamera.from_contract({"eye": (c + distance * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
-                                    "fov_y_deg": fov}, w, h)
+    return {"eye": (c + distance * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1], "fov_y_deg": fov}
+
+
+def framing(mesh: VolumeMesh, w, h, direction=(1.0, -0.8, 0.7), distance=2.6, fov=30.0) -> RayCamera:
+    """A w x h camera looking at the mesh's bounding box from `direction`, `distance` radii away."""
+    return RayCamera.from_contract(framing_contract(mesh, direction, distance, fov), w, h)
 
 
 # ---------------------------------------------------------------------------- meshes and scenes

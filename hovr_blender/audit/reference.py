@@ -6,7 +6,9 @@ For each pixel ray (render contract §4, computed here from the view):
    along the ray with VTK's own point location (vtkCell.EvaluatePosition, whose Newton stops
    at ~1e-3 in parametric coordinates for higher-order cells, then polished by Newton on
    VTK's own shape functions and their derivatives to 1e-12), and each run of inside samples
-   is bounded by bisection to 1e-13 of the ray's extent. Runs of different cells that overlap by more than that are reported.
+   is bounded by bisection to 1e-13 of the ray's extent. A gap left between two runs (a cell the
+   ray only clips, its chord shorter than the samples' spacing) is sampled again at its own scale
+   against the cells whose boxes span it. Runs of different cells that overlap by more than that are reported.
 2. Where the field crosses a transfer-function breakpoint: sign changes of f - level between
    64 samples per stretch, located by bisection; between crossings the integrand is smooth.
 3. Emission-absorption (contract §3) on each smooth piece by adaptive Gauss-Kronrod (G7/K15),
@@ -187,22 +189,38 @@ class IndependentReference:
         eps = 1e-13 * scale
         out = []
         for c in hits:
-            ts = np.linspace(tmin[c], tmax[c], SAMPLES_PER_BOX + 1)
-            inside = np.array([self._at(c, o + t * d)[0] for t in ts])
-            k = 0
-            while k < len(ts):
-                if not inside[k]:
-                    k += 1
-                    continue
-                j = k
-                while j + 1 < len(ts) and inside[j + 1]:
-                    j += 1
-                a = ts[k] if k == 0 else self._boundary(c, o, d, ts[k - 1], ts[k], eps)
-                b = ts[j] if j == len(ts) - 1 else self._boundary(c, o, d, ts[j + 1], ts[j], eps)
-                if b > a:
-                    out.append((a, b, int(c)))
-                k = j + 1
+            out += self._runs(c, o, d, tmin[c], tmax[c], eps)
         out.sort()
+        # a cell the ray only clips (a corner or edge, a chord shorter than its box / SAMPLES_PER_BOX)
+        # can fall between the samples and leave a gap between the stretches of its neighbours:
+        # every gap is sampled again at its own scale against the cells whose boxes span it
+        gaps = [(b, a) for (_, b, _), (a, _, _) in zip(out, out[1:]) if a - b > 2.0 * eps]
+        for g0, g1 in gaps:
+            for c in hits[(tmin[hits] < g1) & (tmax[hits] > g0)]:
+                # (not the neighbours' own ends again: runs at the gap's ends that round to inside)
+                out += [r for r in self._runs(c, o, d, max(g0, tmin[c]), min(g1, tmax[c]), eps) if r[1] - r[0] > 2.0 * eps]
+        out.sort()
+        return out
+
+    def _runs(self, c, o, d, t0, t1, eps):
+        """(a, b, c): the runs of [t0, t1] inside cell c, found by SAMPLES_PER_BOX + 1 samples and
+        bounded by bisection (a run that touches t0 or t1 ends there)."""
+        ts = np.linspace(t0, t1, SAMPLES_PER_BOX + 1)
+        inside = np.array([self._at(c, o + t * d)[0] for t in ts])
+        out = []
+        k = 0
+        while k < len(ts):
+            if not inside[k]:
+                k += 1
+                continue
+            j = k
+            while j + 1 < len(ts) and inside[j + 1]:
+                j += 1
+            a = ts[k] if k == 0 else self._boundary(c, o, d, ts[k - 1], ts[k], eps)
+            b = ts[j] if j == len(ts) - 1 else self._boundary(c, o, d, ts[j + 1], ts[j], eps)
+            if b > a:
+                out.append((a, b, int(c)))
+            k = j + 1
         return out
 
     def _boundary(self, c, o, d, t_out, t_in, eps):

@@ -77,8 +77,10 @@ class ViewportRequest:
 
 
 def preview_options(options: RenderOptions) -> RenderOptions:
-    """Looser quadrature for the preview: 100x the tolerance (at most 1e-3), twice the step."""
-    return options.with_(tolerance=max(options.tolerance, min(100.0 * options.tolerance, 1e-3)), h=2.0 * options.h)
+    """Looser quadrature for the preview: 100x the tolerance (at most 1e-3), twice a fixed step (without
+    one, classified's own step per segment stays)."""
+    return options.with_(tolerance=max(options.tolerance, min(100.0 * options.tolerance, 1e-3)),
+                         h=None if options.h is None else 2.0 * options.h)
 
 
 def preview_camera(camera: RayCamera, scale: int) -> RayCamera:

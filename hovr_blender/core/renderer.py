@@ -25,7 +25,7 @@ from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_sca
                    element_volumes, mapped_coefficients)
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import RenderOptions, View
+from .view import AUTO_STEP_ERROR, RenderOptions, View
 
 _METHOD_IDS = {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
@@ -172,7 +172,8 @@ def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> lis
     kernels = Precision.named(precision).kernels
     search, traverse, sample = kernels.walk_kernels(*variant)
     # coefficients lives in the module of integrate
-    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.finalize]
+    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.step_terms,
+            kernels.finalize]
 
 
 def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
@@ -363,6 +364,7 @@ class Renderer:
         segs.v1 = zeros(slots, prec.vec3)
         segs.samples = zeros(slots * MAX_SAMPLES, prec.scalar)
         segs.coeffs = zeros(slots * MAX_SAMPLES, prec.scalar)
+        segs.step_terms = zeros(slots, prec.vec3)
         segs.list = zeros(slots, wp.int32)
         segs.list_count = zeros(1, wp.int32)
         # a curved slot refined (degree doubled) goes on one of these for its odd points
@@ -397,8 +399,8 @@ class Renderer:
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None) -> int:
         """Refuse a render the resource policy does not allow (core/limits.py), before
         anything is allocated: the image's buffers against the memory limit, and for the
-        fixed-step methods the samples a ray may take across the data (its box diagonal / h).
-        Returns the bytes counted."""
+        fixed-step methods the samples a ray may take across the data (its box diagonal / h;
+        classified without h never steps below the diagonal / that limit). Returns the bytes counted."""
         self._check_steps(options)
         prec = self._upload(options.precision).precision
         num_stats = prec.kernels.NUM_STATS
@@ -412,7 +414,7 @@ class Renderer:
     def _check_steps(self, options: RenderOptions):
         """The fixed-step methods' samples per ray across the data against the resource policy."""
         lim = limits.current()
-        if options.method != "split":
+        if options.method != "split" and options.h is not None:
             steps = self.data_diagonal / float(options.h)
             if not steps <= lim.max_samples_per_ray:
                 raise limits.ResourceLimitError(
@@ -555,7 +557,7 @@ class Renderer:
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
-            quad = _quad_args(prec, options, background, upload)
+            quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
             tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
             tile = min(tile, self._tile_limit(prec), end - first)
@@ -623,8 +625,11 @@ class Renderer:
             segs.list_count.zero_()
             launch("search", upload.search, active, [upload.mesh_args, cam, start, rays])
             launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
-            self._sample_segments(launch, upload, cam, start, buffers)
+            listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
+                if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
+                    launch("step_terms", kernels.step_terms, listed,
+                           [upload.mesh_args, transfer, quad, segs, segs.list])
                 launch("integrate", kernels.integrate, active,
                        [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             else:
@@ -637,14 +642,15 @@ class Renderer:
                                   f"still going): a bug, please report it with the data")
         return rounds
 
-    def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers):
+    def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers) -> int:
         """The samples of the segments traverse listed, then their Chebyshev coefficients; curved
-        interpolants whose tail is too large get their degree doubled (twice at most)."""
+        interpolants whose tail is too large get their degree doubled (twice at most). Returns how
+        many segments were listed."""
         kernels = upload.precision.kernels
         rays, segs, again, again_count = buffers.rays, buffers.segs, buffers.again, buffers.again_count
         listed = int(segs.list_count.numpy()[0])
         if listed == 0:
-            return
+            return 0
         stride = self._sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
@@ -662,6 +668,7 @@ class Renderer:
             if n_slots > 0:  # the last refined slots: their tails, no more doubling
                 launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
         launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+        return listed
 
     # ------------------------------------------------------------------ the segment cache
 
@@ -931,12 +938,15 @@ def _transfer_args(prec: Precision, tf: TransferFunction):
     return transfer
 
 
-def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload):
+def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload, diagonal: float):
     quad = prec.kernels.QuadArgs()
     quad.method = _METHOD_IDS[options.method]
     quad.inner = _INNER_IDS[options.inner]
-    quad.h = float(options.h)
-    quad.max_steps = int(limits.current().max_samples_per_ray) + 1
+    quad.h = 0.0 if options.h is None else float(options.h)  # 0: classified's own step per segment
+    max_samples = int(limits.current().max_samples_per_ray)
+    quad.max_steps = max_samples + 1
+    quad.h_min = diagonal / max_samples  # so a ray takes no more samples than with the smallest fixed h allowed
+    quad.step_error = AUTO_STEP_ERROR
     quad.tol = float(options.tolerance)
     quad.min_transmittance = float(options.min_transmittance)
     quad.background = prec.vec3(*map(float, np.asarray(background, dtype=np.float64).reshape(3)))

@@ -14,6 +14,12 @@ from .strict_json import as_integer, as_object, as_string, as_vector3
 from .transfer_function import TransferFunction
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
+FIXED_STEP_METHODS = ("riemann", "trapezoid")  # the baselines: a step h is what they are
+# classified without h: each piecewise-smooth segment's trapezoid step is the largest whose error
+# bound on the segment is at most this (kernels/quadrature.auto_steps): the contract's aim for a
+# whole image (§6), per segment, since the bound overestimates enough that rays crossing several
+# such segments stay well within it (docs/methods.md, "classified's step", has the measurements)
+AUTO_STEP_ERROR = 1e-3
 
 
 MAX_IMAGE_SIDE = 32768
@@ -42,7 +48,9 @@ class RenderOptions:
     """Quadrature settings; optional keys of the view file ("render": {...})."""
 
     method: str = "classified"
-    h: float = 0.01  # step (world units) of Riemann/trapezoid and of piecewise-smooth segments
+    # fixed step (world units) of Riemann/trapezoid and of classified's piecewise-smooth segments;
+    # None: classified chooses each segment's step from its error bound (AUTO_STEP_ERROR)
+    h: float | None = None
     tolerance: float = 1e-5  # absolute error target of each adaptive Gauss-Kronrod panel
     min_transmittance: float = 1e-5  # early ray termination: stop once T falls below this
     inner: str = "spectral"  # smooth/smooth inner integral: "spectral" or the paper's "trapezoid"
@@ -55,11 +63,17 @@ class RenderOptions:
                 raise ViewError(f"render option {name} must be a string, got {getattr(self, name)!r}")
         for name in ("h", "tolerance", "min_transmittance"):
             v = getattr(self, name)
+            if name == "h" and v is None:
+                continue
             if not isinstance(v, numbers.Real) or isinstance(v, bool):
                 raise ViewError(f"render option {name} must be a number, got {v!r}")
         if self.method not in METHODS:
             raise ViewError(f"unknown method {self.method!r}; one of {', '.join(METHODS)}")
-        if not (np.isfinite(self.h) and self.h > 0):
+        if self.h is None:
+            if self.method in FIXED_STEP_METHODS:
+                raise ViewError(f"method {self.method} marches with a fixed step: give h in world units "
+                                f"(--h, or \"render\": {{\"h\": ...}} in the view file)")
+        elif not (np.isfinite(self.h) and self.h > 0):
             raise ViewError(f"h must be a positive step, got {self.h}")
         if not (np.isfinite(self.tolerance) and self.tolerance > 0):
             raise ViewError(f"tolerance must be positive, got {self.tolerance}")

@@ -105,3 +105,23 @@ def test_reference_matches_the_float64_reference_on_the_sphere():
     o, d = R.contract_ray(cam, W, H, 0, 0)  # a ray that misses the box
     p = ir.pixel(o, d, view.background)
     np.testing.assert_array_equal(p.rgba, [*view.background, 0.0])
+
+
+
+def test_a_cell_the_ray_only_clips_is_not_missed():
+    """A ray in a 2 x 2 brick passing 1e-3 beside the vertex the four cells share clips one cell
+    over a chord of 8e-4, which fell between the samples of its box (SAMPLES_PER_BOX) and left
+    a gap (1e-4 of alpha lost). Constant density: T = exp(-tau L) over the whole chord L."""
+    from hovr_blender.audit.chords import box_chord
+    from hovr_blender.io.synthetic import brick
+
+    mesh = brick([0.0, 0.0, 0.0], [2.0, 2.0, 1.0], (2, 2, 1), 2, lambda x, y, z: 0.0 * x + 1.0)
+    tau = 1.0
+    ir = R.IndependentReference(vtk_volume.from_mesh(mesh), [0.0, 2.0], [[0.3, 0.6, 0.9]] * 2, [0.0, 2.0],
+                                [tau, tau], tol=1e-10)
+    d = np.array([1.0, 1.3, 0.0]) / np.linalg.norm([1.0, 1.3, 0.0])
+    o = np.array([1.0, 1.0 + 1e-3, 0.5]) - 3.0 * d  # through (1, 1.001): cells 0, 2 (clipped), 3
+    p = ir.pixel(o, d, np.zeros(3))
+    assert {c for _, _, c in p.stretches} == {0, 2, 3}
+    chord = float(box_chord(o[None], d[None], np.zeros(3), np.array([2.0, 2.0, 1.0]))[0])
+    assert abs(p.rgba[3] - (1.0 - np.exp(-tau * chord))) < 1e-10

@@ -299,7 +299,7 @@ def test_rays_through_collapsed_vertex_low_order(device, shape):
         assert L.min() > 0.5
         for method in ("split", "trapezoid"):
             assert_transmittance(Renderer(mesh, device).render(cam, constant_tf(), [0, 0, 0],
-                                                               RenderOptions(method=method, min_transmittance=0.0)), L)
+                                                               RenderOptions(method=method, h=0.01, min_transmittance=0.0)), L)
 
 
 @pytest.mark.slow

@@ -25,7 +25,7 @@ BG = np.array([0.0625, 0.03125, 0.125])
 
 def request(w=96, h=64, tf=TF, method="split", film_transparent=False):
     cam = RayCamera.from_contract(CONTRACT, w, h)
-    return ViewportRequest(cam, tf, BG, RenderOptions(method=method, tolerance=1e-6), film_transparent, ("sphere",))
+    return ViewportRequest(cam, tf, BG, RenderOptions(method=method, h=0.01, tolerance=1e-6), film_transparent, ("sphere",))
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +54,7 @@ def test_preview_options_are_looser_but_valid():
     p = preview_options(o)
     assert p.tolerance == pytest.approx(1e-4) and p.h == 0.02 and p.method == "split"
     assert preview_options(RenderOptions(tolerance=1e-2)).tolerance == 1e-2  # never tighter
+    assert preview_options(RenderOptions()).h is None  # classified's own steps stay its own
 
 
 def test_progressive_frames_end_at_the_full_render(renderer):

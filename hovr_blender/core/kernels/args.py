@@ -103,8 +103,10 @@ class TransferArgs:
 class QuadArgs:
     method: wp.int32
     inner: wp.int32
-    h: wp.float32
+    h: wp.float32  # the fixed step; 0: classified chooses each piecewise-smooth segment's (quadrature.auto_steps)
     max_steps: wp.int32  # steps of h per segment at most (the samples-per-ray limit; the host refuses more)
+    h_min: wp.float32  # auto_steps' smallest step: the data's box diagonal / the samples-per-ray limit
+    step_error: wp.float32  # auto_steps' error bound per piecewise-smooth segment
     tol: wp.float32
     min_transmittance: wp.float32
     background: wp.vec3
@@ -140,6 +142,8 @@ class Segments:
     # slot * MAX_SAMPLES + k: the Chebyshev coefficients c_0 .. c_degree of the samples, then the
     # same two weights (restriction.series_weights)
     coeffs: wp.array(dtype=wp.float32)
+    # classified without a fixed step: the slot's quadrature.step_error_terms (the step_terms kernel)
+    step_terms: wp.array(dtype=wp.vec3)
     # the slots that need samples this round: list[0..list_count)
     list: wp.array(dtype=wp.int32)
     list_count: wp.array(dtype=wp.int32)

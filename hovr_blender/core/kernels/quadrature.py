@@ -4,7 +4,8 @@ quadratures and the segment classification of Nelson, Kirby and Haimes (2014).
 - riemann / trapezoid: the named baselines, step h (march);
 - classified (Algorithm 1): bound f on the segment, classify density and colour as empty /
   piecewise-smooth / smooth; skip empty segments, trapezoid with step h on piecewise-smooth
-  ones, adaptive Gauss-Kronrod (G7/K15) on smooth ones (absorption only when the colour is 0);
+  ones (without h: each segment's own step, from a bound of the rule's error, auto_steps),
+  adaptive Gauss-Kronrod (G7/K15) on smooth ones (absorption only when the colour is 0);
 - split: like classified, but piecewise-smooth segments are cut at the exact crossings of the
   transfer function's breakpoints (next_cut), so every piece is smooth and gets Gauss-Kronrod.
 
@@ -16,8 +17,8 @@ import warp as wp
 
 from .args import MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
-from .restriction import (clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field, restriction_at,
-                          series_weights)
+from .restriction import (clenshaw, clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field,
+                          restriction_at, series_weights)
 
 wp.set_module_options({"enable_backward": False})
 
@@ -162,15 +163,13 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
-          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float,
+          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, n: int,
           state_in: RayIntegral):
-    """The baselines on [a, b] with n = ceil((b - a) / h) equal steps (at most q.max_steps): left Riemann sum
-    (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1,
-    samples t_0..t_n). Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the
-    restriction coeffs. Returns the new state and (element evaluations, restriction evaluations)."""
+    """[a, b] in n equal steps (fixed_steps or auto_steps): left Riemann sum (trapezoid = 0, samples
+    t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1, samples t_0..t_n).
+    Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the restriction coeffs.
+    Returns the new state and (element evaluations, restriction evaluations)."""
     state = state_in
-    # in floating point and capped: (b - a) / h of a tiny h overflows a 32-bit int
-    n = int(wp.clamp(wp.ceil((b - a) / q.h), 1.0, float(q.max_steps)))
     w = (b - a) / float(n)
     col = state.color
     T = state.transmittance
@@ -214,6 +213,167 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
     if evaluate == 1:
         return state, wp.vec2(float(nev), 0.0)
     return state, wp.vec2(0.0, float(nev))
+
+
+@wp.func
+def fixed_steps(q: QuadArgs, a: float, b: float) -> int:
+    """ceil((b - a) / h) steps of the fixed step h, at least 1 and at most q.max_steps (in floating
+    point: (b - a) / h of a tiny h overflows a 32-bit int)."""
+    return int(wp.clamp(wp.ceil((b - a) / q.h), 1.0, float(q.max_steps)))
+
+
+@wp.func
+def series_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, d0: float, d1: float,
+                  d2: float) -> wp.vec3:
+    """Bounds of |u|, |u'| and |u''| on s in [-1, 1] for the series u = coeffs[base ..] - (d0 T_0 + d1 T_1 +
+    d2 T_2): sum |c_k|; the derivative's own Chebyshev coefficients (d_k-1 = d_k+1 + 2 k c_k), summed;
+    sum k^2 (k^2 - 1) / 3 |c_k| (|T_k''| peaks at the ends)."""
+    d_next = float(0.0)  # the derivative's coefficients d_k+1 and d_k
+    d_k = float(0.0)
+    m0 = float(0.0)
+    m1 = float(0.0)
+    m2 = float(0.0)
+    k = deg
+    while k >= 0:
+        c = coeffs[base + k]
+        if k == 0:
+            c -= d0
+        elif k == 1:
+            c -= d1
+        elif k == 2:
+            c -= d2
+        m0 += wp.abs(c)
+        if k >= 1:
+            d_prev = d_next + 2.0 * float(k) * c
+            if k == 1:
+                m1 += 0.5 * wp.abs(d_prev)  # the derivative's constant term is d_0 / 2
+            else:
+                m1 += wp.abs(d_prev)
+            d_next = d_k
+            d_k = d_prev
+            kk = float(k * k)
+            m2 += kk * (kk - 1.0) / 3.0 * wp.abs(c)
+        k -= 1
+    return wp.vec3(m0, m1, m2)
+
+
+@wp.func
+def slope_bounds(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float) -> wp.vec2:
+    """(M1, M2): bounds of |df/dt| and |d2f/dt2| on the segment [a, b]. For a pyramid's f = g / w^2
+    (w linear, its ends after the series: series_weights) through f = m + u / w^2, u = g - m w^2 with m
+    the value at the middle, so the bounds follow the variation, not the offset (pyramid_segment_bounds);
+    near the apex (w -> 0) they grow without limit and auto_steps falls to its smallest step."""
+    ws = series_weights(coeffs, base, deg)
+    wa = ws[0]
+    wb = ws[1]
+    sc = 2.0 / (b - a)
+    if wa == 1.0 and wb == 1.0:
+        u = series_bounds(coeffs, base, deg, 0.0, 0.0, 0.0)
+        return wp.vec2(u[1] * sc, u[2] * sc * sc)
+    alpha = 0.5 * (wa + wb)  # w = alpha + beta s, w^2 = (alpha^2 + beta^2 / 2) T_0 + 2 alpha beta T_1 + beta^2 / 2 T_2
+    beta = 0.5 * (wb - wa)
+    w_min = wp.max(wp.min(wa, wb), 1.0e-6)
+    m = clenshaw(coeffs, base, deg, 0.0) / wp.max(alpha * alpha, 1.0e-12)
+    u = series_bounds(coeffs, base, deg, m * (alpha * alpha + 0.5 * beta * beta), m * 2.0 * alpha * beta, m * 0.5 * beta * beta)
+    r = wp.abs(beta) / w_min  # |w'| / w
+    m1 = (u[1] + 2.0 * u[0] * r) / (w_min * w_min)
+    m2 = (u[2] + 4.0 * u[1] * r + 6.0 * u[0] * r * r) / (w_min * w_min)
+    return wp.vec2(m1 * sc, m2 * sc * sc)
+
+
+@wp.func
+def slope_max_on(s_arr: wp.array(dtype=wp.float32), v: wp.array(dtype=wp.float32), lo: float, hi: float) -> float:
+    """The steepest |slope| of the piecewise-linear (s_arr, v) over the pieces meeting [lo, hi], at
+    most 1e30 (breakpoints 1e-9 apart, a ramp's step, can round to one value in float32)."""
+    r = float(0.0)
+    for k in range(s_arr.shape[0] - 1):
+        if s_arr[k + 1] >= lo and s_arr[k] <= hi:
+            r = wp.max(r, wp.abs(v[k + 1] - v[k]) / wp.max(s_arr[k + 1] - s_arr[k], 1.0e-30))
+    return wp.min(r, 1.0e30)
+
+
+@wp.func
+def color_slope_max_on(tf: TransferArgs, lo: float, hi: float) -> float:
+    """slope_max_on of the colour, the steepest channel."""
+    r = float(0.0)
+    for k in range(tf.color_s.shape[0] - 1):
+        if tf.color_s[k + 1] >= lo and tf.color_s[k] <= hi:
+            dc = tf.color_rgb[k + 1] - tf.color_rgb[k]
+            gap = wp.max(tf.color_s[k + 1] - tf.color_s[k], 1.0e-30)
+            r = wp.max(r, wp.max(wp.max(wp.abs(dc[0]), wp.abs(dc[1])), wp.abs(dc[2])) / gap)
+    return wp.min(r, 1.0e30)
+
+
+@wp.func
+def breakpoints_inside(s_arr: wp.array(dtype=wp.float32), lo: float, hi: float) -> float:
+    """How many breakpoints lie in (lo, hi)."""
+    c = float(0.0)
+    for k in range(s_arr.shape[0]):
+        if s_arr[k] > lo and s_arr[k] < hi:
+            c += 1.0
+    return c
+
+
+@wp.func
+def step_error_terms(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float,
+                     lo: float, hi: float, emitting: int) -> wp.vec3:
+    """classified's trapezoid rule on the piecewise-smooth segment [a, b] (f in [lo, hi]): its error
+    with step h (emission plus T times optical depth, as a Gauss-Kronrod panel's) is at most
+    T (min(x h^2, y h) + z h^2), T the transmittance at the segment's start; returns (x, y, z).
+
+    tau and kappa are piecewise linear in f, so along the ray the integrands are smooth but for a
+    kink where f crosses a breakpoint. A kink of slope jump J costs a step at most J h^2 / 8, and
+    never more than h times the integrand's range (a near-vertical ramp); between kinks the rule's
+    error is (b - a) h^2 / 12 times the integrand's second derivative. Both are bounded from the
+    series' derivative bounds (slope_bounds) and the transfer function's values and slopes over
+    [lo, hi], one crossing per breakpoint inside it."""
+    m = slope_bounds(coeffs, base, deg, a, b)
+    m1 = m[0]
+    s_tau = slope_max_on(tf.density_s, tf.density_tau, lo, hi)
+    tau_max = density_max_on(tf, lo, hi)
+    s_col = float(0.0)
+    col_max = float(0.0)
+    kinks = breakpoints_inside(tf.density_s, lo, hi)
+    if emitting == 1:
+        s_col = color_slope_max_on(tf, lo, hi)
+        col_max = color_max_on(tf, lo, hi)
+        kinks += breakpoints_inside(tf.color_s, lo, hi)
+    # |d(tau kappa)/df| and the two integrands' slopes in f (emission tau kappa T, optical depth tau)
+    s_emit = s_tau * col_max + tau_max * s_col
+    s_both = s_emit + s_tau
+    # between kinks: |(T tau kappa)''| + |tau''| with T' = -tau T and tau'' = kappa'' = 0 in f
+    second = s_both * m[1] + 2.0 * s_tau * s_col * m1 * m1 + 2.0 * tau_max * s_emit * m1 \
+        + s_tau * m1 * tau_max * col_max + tau_max * tau_max * tau_max * col_max
+    # per kink: s_both m1 h^2 / 4 (the slope jumps by at most twice the slope), or h times the range
+    return wp.vec3(kinks * s_both * m1 / 4.0, kinks * tau_max * (1.0 + col_max), (b - a) * second / 12.0)
+
+
+@wp.func
+def auto_steps(q: QuadArgs, terms: wp.vec3, a: float, b: float, T: float) -> wp.vec2:
+    """classified without a fixed step: (n, bound) for a piecewise-smooth segment [a, b] whose
+    step_error_terms are `terms` and whose transmittance at the start is T: the fewest steps whose
+    error bound is at most q.step_error, no step below q.h_min; and the bound at that step."""
+    ell = b - a
+    target = q.step_error
+    x = T * terms[0]
+    y = T * terms[1]
+    z = T * terms[2]
+    h = ell
+    if x + z > 0.0:
+        h = wp.sqrt(target / (x + z))
+        if y > 0.0 and z > 0.0:
+            h = wp.max(h, wp.min(0.5 * target / y, wp.sqrt(0.5 * target / z)))
+        elif y > 0.0:
+            h = wp.max(h, target / y)
+    step = q.h_min  # also where h is NaN (0 times an overflowed slope)
+    if h > q.h_min:
+        step = h
+    n = int(wp.clamp(wp.ceil(ell / step), 1.0, float(q.max_steps)))
+    hs = ell / float(n)
+    bound = wp.min(x * hs * hs, y * hs) + z * hs * hs
+    if wp.isnan(bound):  # only from 0 times an overflowed factor: that term is 0
+        bound = 0.0
+    return wp.vec2(float(n), bound)
 
 
 @wp.func

@@ -723,11 +723,58 @@ def walk_kernels(curved: bool, modes: int = 0):
 
 
 @wp.func
+def classify(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, flags: int, coeffs: wp.array(dtype=wp.float32),
+             base: int, deg: int) -> wp.vec4:
+    """classified and split: (lo, hi) bounding f on the segment, emitting (1 where the colour is not 0
+    over them), and the segment's class: 1 empty, 2 smooth, 3 piecewise-smooth."""
+    bnd = wp.vec2(0.0, 0.0)
+    if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
+        # the paper's classes bound the true field; a curved segment's interpolant is no bound
+        # of it (split integrates the interpolant itself, so its bounds decide there)
+        bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
+    else:
+        bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
+    emitting = int(0)
+    if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
+        emitting = 1
+    piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
+    if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
+        piecewise = 1
+    kind = 2 + piecewise
+    if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
+        kind = 1
+    return wp.vec4(bnd[0], bnd[1], float(emitting), float(kind))
+
+
+@wp.func
+def segment_step_terms(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, flags: int,
+                       coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float) -> wp.vec3:
+    """A segment's quadrature.step_error_terms where it is piecewise-smooth (else 0)."""
+    cls = classify(mesh, tf, q, e, flags, coeffs, base, deg)
+    terms = wp.vec3(0.0, 0.0, 0.0)
+    if int(cls[3]) == 3:
+        terms = quadrature.step_error_terms(tf, coeffs, base, deg, a, b, cls[0], cls[1], int(cls[2]))
+    return terms
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def step_terms(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, segs: Segments, slots: wp.array(dtype=wp.int32)):
+    """classified without a fixed step, one thread per sampled slot: the segment's
+    quadrature.step_error_terms where it is piecewise-smooth, for integrate to turn into its steps
+    with the transmittance the ray reaches it with (quadrature.auto_steps). A kernel of its own so
+    that integrate's registers do not grow."""
+    slot = slots[wp.tid()]
+    segs.step_terms[slot] = segment_step_terms(mesh, tf, q, segs.element[slot], segs.flags[slot], segs.coeffs,
+                                               slot * MAX_SAMPLES, segs.degree[slot], segs.t0[slot], segs.t1[slot])
+
+
+@wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
                       b: float, deg: int, flags: int, coeffs: wp.array(dtype=wp.float32), base: int,
-                      state_in: RayIntegral):
+                      terms: wp.vec3, state_in: RayIntegral):
     """One segment into the ray state (its series at coeffs[base ..], restriction.py's layout,
-    wherever it is kept: a round's slot or a cached segment); returns the new state and
+    wherever it is kept: a round's slot or a cached segment; `terms`: its step_error_terms, for
+    classified without a fixed step); returns the new state and
     (element evaluations, restriction evaluations, class: 1 empty, 2 smooth, 3
     piecewise-smooth, 0 unclassified)."""
     state = state_in
@@ -747,27 +794,23 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     if q.method == METHOD_RIEMANN:
         trapezoid = 0
     elif q.method >= METHOD_CLASSIFIED:
-        bnd = wp.vec2(0.0, 0.0)
-        if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
-            # the paper's classes bound the true field; a curved segment's interpolant is no bound
-            # of it (split integrates the interpolant itself, so its bounds decide there)
-            bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
-        else:
-            bnd = restriction.segment_bounds(coeffs, base, deg, mesh.field_err[e])
-        emitting = int(0)
-        if quadrature.color_max_on(tf, bnd[0], bnd[1]) > 0.0:
-            emitting = 1
-        piecewise = quadrature.breakpoint_inside(tf.density_s, bnd[0], bnd[1])
-        if emitting == 1 and quadrature.breakpoint_inside(tf.color_s, bnd[0], bnd[1]) == 1:
-            piecewise = 1
-        if quadrature.density_max_on(tf, bnd[0], bnd[1]) <= 0.0:
-            counts[2] = 1.0
+        cls = classify(mesh, tf, q, e, flags, coeffs, base, deg)
+        emitting = int(cls[2])
+        counts[2] = cls[3]
+        if int(cls[3]) == 1:
             return state, counts
-        counts[2] = 2.0 + float(piecewise)
+        piecewise = int(cls[3]) - 2
         if piecewise == 0 or q.method == METHOD_SPLIT:
             mode = 1
     if mode == 0:
-        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, state)
+        n = int(0)
+        if q.h > 0.0:
+            n = quadrature.fixed_steps(q, a, b)
+        else:  # classified without a fixed step (riemann and trapezoid always have one: core/view.py)
+            nb = quadrature.auto_steps(q, terms, a, b, state.transmittance)
+            n = int(nb[0])
+            state.error = state.error + nb[1]
+        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, n, state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
@@ -808,13 +851,13 @@ def no_tally() -> Tally:
 @wp.func
 def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
                       b: float, deg: int, flags: int, tail: float, coeffs: wp.array(dtype=wp.float32), base: int,
-                      state_in: RayIntegral, tally_in: Tally):
+                      terms: wp.vec3, state_in: RayIntegral, tally_in: Tally):
     """integrate_segment, the segment's tail added to the error estimate first, its counts to
     the tally: one segment as the integrate and shade kernels both take it."""
     state = state_in
     tally = tally_in
     state.error = state.error + tail
-    state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, deg, flags, coeffs, base, state)
+    state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, deg, flags, coeffs, base, terms, state)
     tally.field_evals += int(counts[0])
     tally.restriction_evals += counts[1]
     cls = int(counts[2])
@@ -850,7 +893,7 @@ def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pi
         slot = i * SEGMENTS_PER_ROUND + k
         state, tally = integrate_counted(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
                                          segs.degree[slot], segs.flags[slot], segs.tail[slot], segs.coeffs,
-                                         slot * MAX_SAMPLES, state, tally)
+                                         slot * MAX_SAMPLES, segs.step_terms[slot], state, tally)
     rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
     rays.depth_err[i] = wp.vec2(state.depth, state.error)
     rays.stats[pixel, STAT_FIELD_EVALS] += tally.field_evals
@@ -1003,9 +1046,13 @@ def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_
                 if state.transmittance < q.min_transmittance:
                     going = 0
                     break
+                terms = wp.vec3(0.0, 0.0, 0.0)
+                if q.method == METHOD_CLASSIFIED and q.h <= 0.0:  # its own steps: step_terms' work, here
+                    terms = segment_step_terms(mesh, tf, q, e, cache.flags[s], cache.coeffs, cache.coeff_offset[s],
+                                               cache.degree[s], cache.t0[s], cache.t1[s])
                 state, tally = integrate_counted(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
                                                  cache.flags[s], cache.tail[s], cache.coeffs, cache.coeff_offset[s],
-                                                 state, tally)
+                                                 terms, state, tally)
             n_seg += 1
             s += 1
         c = cache.chunk_next[c]
