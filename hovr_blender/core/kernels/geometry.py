@@ -299,6 +299,11 @@ def box_interval(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 # an inside point b (solution rb, velocity dvb): the margin is smooth across one face and its
 # slope is known (curved_inside), so Newton steps on it are taken while they stay inside the
 # bracket, with bisection where the outside end's solve failed and Illinois regula falsi otherwise.
+# The margin is the smallest over the faces, so its slope jumps where the nearest face changes:
+# Newton from a point whose nearest face is not the one crossed can go back and forth between
+# the bracket's ends (Hex_Mushroom: 1.31 and 1.89 for 80 steps, the crossing at 1.56), so a
+# Newton step must be under half the step before the last one (Numerical Recipes' rtsafe),
+# else the bracket is halved.
 # The result is an inside point within ROOT_RTOL relative of the crossing with the solution
 # found there (solving again at that t can land a rounding error on the other side). The
 # callers' loops ask bracket_query for the next t, solve there, and hand it to bracket_update,
@@ -319,6 +324,9 @@ class Bracket:
     rl: wp.vec4
     dvl: wp.vec4
     done: wp.int32
+    last: wp.float32  # the last t solved at
+    dx: wp.float32  # the last step's length, and the one before
+    dxold: wp.float32
 
 
 @wp.func
@@ -336,6 +344,10 @@ def bracket_start(t_out: float, m_out: float, t_in: float, r_in: wp.vec4, dv_in:
     br.rl = r_in
     br.dvl = dv_in
     br.done = 0
+    br.last = t_in
+    # the first two Newton steps may go anywhere inside the bracket
+    br.dx = 2.0 * wp.abs(t_in - t_out)
+    br.dxold = br.dx
     return br
 
 
@@ -358,7 +370,10 @@ def bracket_query(br: Bracket):
         if br.dvl[3] != 0.0:
             tn = br.tl - br.rl[3] / br.dvl[3]
             if tn > wp.min(a, b) and tn < wp.max(a, b):
-                m = tn
+                if wp.abs(tn - br.tl) <= 0.5 * br.dxold:
+                    m = tn
+                else:
+                    m = 0.5 * (a + b)  # Newton is not converging here: halve
                 start = ahead(br.rl, br.dvl, m - br.tl)
     return m, start
 
@@ -367,6 +382,9 @@ def bracket_query(br: Bracket):
 def bracket_update(br_in: Bracket, m: float, rm: wp.vec4, dvm: wp.vec4) -> Bracket:
     br = br_in
     br.have = 0
+    br.dxold = br.dx
+    br.dx = wp.abs(m - br.last)
+    br.last = m
     if rm[3] > NEWTON_FAILED:
         br.have = 1
         br.tl = m
@@ -513,9 +531,28 @@ def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: fl
 
 
 @wp.func
-def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
+def back_to_face(t: float, r: wp.vec4, dv: wp.vec4, shift: float, t_min: float):
+    """An entry found with `shift` taken off the margin (curved_entry's `again`): its margin
+    given back, and the entry moved back along the ray to the face (margin INSIDE_TOL: the
+    true margin 0), to first order, but not before t_min."""
+    r_out = r
+    r_out[3] = r[3] + shift
+    t_out = t
+    if shift > 0.0 and dv[3] > 0.0:
+        dt = wp.max((INSIDE_TOL - r_out[3]) / dv[3], t_min - t)
+        if dt < 0.0:
+            r_out = r_out + dt * dv
+            t_out = t + dt
+    return t_out, r_out
+
+
+@wp.func
+def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, again: int):
     """Where the ray first is inside curved element e beyond t_from: (found, t, 0) and the
-    solution and velocity there (for curved_exit).
+    solution and velocity there (for curved_exit). With `again` = 1 (e is the element the ray
+    has just left at t_from) it must come INSIDE_TOL inside, not INSIDE_TOL short of the face:
+    right after the exit the ray is still within the band the exit counted as inside, and
+    Newton's rounding there can reach INSIDE_TOL, but not 2 INSIDE_TOL.
 
     Predictor-corrector from the start of the box interval: at each point, Newton's solution
     (the polynomial map extends beyond the element) and the tangent line in reference space
@@ -548,17 +585,24 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     br = Bracket()
     n_steps = int(ENTRY_STEPS)  # a local int: Warp retypes a global cast in place (float64 twin)
     blind = int(0)  # 1: a step was taken where Newton failed; 2: the faces were searched
+    shift = float(0.0)  # taken off the margin, and given back with the solution returned
+    if again == 1:
+        shift = 2.0 * INSIDE_TOL
     for it in range(2 * n_steps + 48):
         if bracketing == 1:
             tq, start = bracket_query(br)
         rq, dvq = curved_inside(mesh, e, o, d, tq, start)
+        if rq[3] > NEWTON_FAILED:
+            rq[3] = rq[3] - shift
         if bracketing == 1:
             br = bracket_update(br, tq, rq, dvq)
             if br.done == 1:
-                return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb
+                t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
+                return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb
             continue
         if rq[3] > 0.0:
             if tq <= ta:
+                rq[3] = rq[3] + shift
                 return wp.vec3(1.0, tq, 0.0), rq, dvq
             bracketing = 1
             br = bracket_start(t_lo, m_lo, tq, rq, dvq)
@@ -569,12 +613,17 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
         if rq[3] > NEWTON_FAILED:
             clip = tangent_clip(shape, wp.vec3(rq[0], rq[1], rq[2]), wp.vec3(dvq[0], dvq[1], dvq[2]))
             if clip[0] <= clip[1]:
-                if clip[1] <= 0.0:
+                if clip[1] <= 0.0 and tq + 0.5 * (clip[0] + clip[1]) > t_lo:
                     # back to the stretch's predicted middle, but at most halfway to the last
                     # point before the element: going back to that point itself repeats the
                     # same forward step, a cycle when the stretch is thinner than the step
                     behind = 1
                     step = wp.max(0.5 * (clip[0] + clip[1]), 0.5 * (t_lo - tq))
+                elif clip[1] <= 0.0:
+                    # the stretch lies behind the last point before the element too: the element
+                    # just left, seen from the band past its exit (`again`); stepping back there
+                    # stalled the search, so it goes on, its steps doubling from its start
+                    step = wp.min(wp.max(tq - ta, 1.0e-4 * span), step)
                 else:
                     s_in = wp.max(clip[0], 0.0)
                     step = wp.min(s_in + wp.min(EXIT_OVERSHOOT * s_in + 1.0e-4 * span, 0.5 * (clip[1] - s_in)),
@@ -610,5 +659,6 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float):
     if bracketing == 1:
         # out of steps before the bracket met ROOT_RTOL (float64's 1e-13 after a long search):
         # its inside end is inside the element, the nearest point known so
-        return wp.vec3(1.0, br.b, 0.0), br.rb, br.dvb
+        t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
+        return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb
     return wp.vec3(0.0, 0.0, 0.0), none, none

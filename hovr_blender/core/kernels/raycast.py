@@ -55,11 +55,10 @@ SHARED_FACE_TOL = 1.0e-3  # a point this close to a curved element's face (refer
 SHARED_FACE_TOL_FLOAT64 = 1.0e-8
 # a stretch beyond t must reach past t + STRETCH_RTOL |t| to count (rounding of the exit just
 # left); an affine neighbour's entry may lie STRETCH_RTOL (|t| + its chord) beyond the exit it is
-# walked to. A curved element just left is searched again only from 1/LEAVE_FRACTION of its box
-# chord beyond (inside it, a rounding error past its exit still counts as inside)
+# walked to. A curved element just left counts as entered again only where the ray comes
+# INSIDE_TOL inside it (geometry.curved_entry's `again`)
 STRETCH_RTOL = 1.0e-5
 STRETCH_RTOL_FLOAT64 = 1.0e-11  # in the float64 twin (kernels/precision.py)
-LEAVE_FRACTION = 64.0
 MAX_ZERO_STEPS = 3  # zero-length walks in a row (a ray through an edge) before searching instead
 PYRAMID_W_RATIO = 2.0  # a pyramid's segment is cut where its weight w changes by more than this
 PYRAMID_W_FLOOR = 1.0e-6  # ... down to this w (the last sliver at the apex stays whole)
@@ -246,7 +245,8 @@ def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: fl
                   located: wp.ref[LocatedElements], n_listed: int, best: Entry, nloc: int):
     """The window's candidates located in order (curved_entry) while they can still come first:
     returns best updated, n_listed (each is remembered in `located`) and nloc counting. The
-    element just left is searched only from 1/LEAVE_FRACTION of its box chord beyond t_from."""
+    element just left must be entered again, not found in the band its exit counted as inside
+    (a thin re-entry: the annulus' inner wall, Hex_Mushroom's cap)."""
     entry = best
     for w in range(count):
         if keys[w] < entry.span[0]:
@@ -255,11 +255,10 @@ def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: fl
             if n_listed < LOCATED:
                 located[n_listed] = e
                 n_listed += 1
-            bx = geometry.box_interval(mesh, e, o, d)
-            t_look = t_from + eps
+            again = int(0)
             if e == left:
-                t_look = t_from + (bx[1] - bx[0]) / LEAVE_FRACTION
-            ent, r, dv = geometry.curved_entry(mesh, e, o, d, t_look)
+                again = 1
+            ent, r, dv = geometry.curved_entry(mesh, e, o, d, t_from + eps, again)
             if ent[0] > 0.0 and ent[1] < entry.span[0]:
                 entry.element = e
                 entry.span = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
