@@ -74,8 +74,8 @@ def device_bytes_per_element(renderer, precision="float32") -> float:
 
 
 def options(renderer, method, classified_div):
-    """Default settings, but classified's step a fraction of the data's diagonal (its default h
-    is absolute, 0.01 world units: too coarse on a 2 cm domain, needlessly fine on a 10 m one)."""
+    """Default settings (classified: its own step per segment), or with `classified_div` a fixed
+    step of the data's diagonal / classified_div."""
     from hovr_blender.core.view import RenderOptions
 
     extra = {"h": renderer.data_diagonal / classified_div} if method == "classified" and classified_div else {}
@@ -275,8 +275,8 @@ def main(argv=None):
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--datasets", default=",".join(DATASETS))
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--classified-div", type=float, default=1000.0,
-                    help="classified's step h = the data's box diagonal / this (0: the core's default h)")
+    ap.add_argument("--classified-div", type=float, default=0.0,
+                    help="classified's fixed step h = the data's box diagonal / this (0: the core's default, its own step per segment)")
     ap.add_argument("--no-reference", action="store_true")
     ap.add_argument("--no-small", action="store_true", help="skip the 512x512 frames")
     ap.add_argument("--cold", action="store_true")

@@ -726,7 +726,7 @@ class Renderer:
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, _DENSE_EVERYWHERE)
-            quad = _quad_args(prec, options, np.zeros(3), upload)
+            quad = _quad_args(prec, options, np.zeros(3), upload, self.data_diagonal)
             tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
             tile = min(tile, self._tile_limit(prec), end - first)
             what = f"the segment cache of a {W}x{H} image in {options.precision}"
@@ -813,7 +813,7 @@ class Renderer:
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
-            quad = _quad_args(prec, options, background, upload)
+            quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             try:
                 rgba = wp.zeros(n, dtype=prec.vec4)
                 aux = wp.zeros(n, dtype=prec.vec2)

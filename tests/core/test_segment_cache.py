@@ -129,11 +129,11 @@ def test_cache_does_not_fit_another_view():
     assert not r.cache_fits(cache, replace(cam, t_max=3.0), tf, opts)
     assert not r.cache_fits(cache, cam, tf, opts, rows=(0, 5))
     assert not r.cache_fits(cache, cam, tf, opts.with_(precision="float64"))
-    assert not r.cache_fits(cache, cam, tf, opts.with_(method="trapezoid"))
+    assert not r.cache_fits(cache, cam, tf, opts.with_(method="trapezoid", h=0.05))
     assert not r.cache_fits(cache, cam, tf, opts, surface_key="a plane")
     assert not r.cache_fits(None, cam, tf, opts)
     with pytest.raises(SegmentCacheError, match="precision or method"):
-        r.shade(cache, tf, BACKGROUND, opts.with_(method="riemann"))
+        r.shade(cache, tf, BACKGROUND, opts.with_(method="riemann", h=0.05))
     other = Renderer(r.mesh, "cpu")  # the same mesh, another upload: its own caches
     assert not other.cache_fits(cache, cam, tf, opts)
     with pytest.raises(SegmentCacheError):
