@@ -892,7 +892,7 @@ class _Launcher:
         self.device = device
         self.profile = profile
         self.seconds = {name: 0.0 for name in ("init_rays", "search", "traverse", "sample", "refine",
-                                               "coefficients", "integrate", "finalize", "trace_reserve",
+                                               "coefficients", "step_terms", "integrate", "finalize", "trace_reserve",
                                                "trace_write", "trace_ends", "shade", "sum_counts")}
 
     def __call__(self, name: str, kernel, dim: int, inputs: list):
