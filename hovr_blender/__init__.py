@@ -20,10 +20,10 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .blender import properties, operators, import_operators, panels, versioning, kernel_warmup
+    from .blender import properties, operators, import_operators, panels, versioning
     from .blender import engine as render_engine
 
-    return (properties, render_engine, operators, import_operators, panels, versioning, kernel_warmup)
+    return (properties, render_engine, operators, import_operators, panels, versioning)
 
 
 _registered = False

@@ -9,19 +9,14 @@ record or composite where the reader can tell). Add Walls (hovr.add_walls) makes
 for a volume already imported. Importing never changes another volume. By default the scene
 camera (made if there is none) then frames the new volume.
 
-From the file browser the reading runs in a background thread (read_import as a jobs.Job):
-Blender stays responsive, the status bar shows the stage and time, and Esc cancels it, leaving
-the scene exactly as it was (nothing is created before the read has finished). Scripts
-(EXEC_DEFAULT) and Blender in background mode, which has no event loop for a modal operator,
-read in place. After an import, the render kernels the scene needs compile in the background
-(kernel_warmup.py).
+The reading runs in Blender's main thread, its stages in the progress bar (a thread left
+running after the operator returns is not supported by Blender: jobs.py says why).
 
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
 that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
 remapping does not see add-on properties).
 """
 import os
-import weakref
 from dataclasses import dataclass, field as dc_field
 
 import bpy
@@ -163,7 +158,7 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     """Everything an import reads and computes, with no bpy: the solution and field, the data
     (kept in io.sources' cache for the first render), its extent and corner points (the panel's
     step, Frame Camera), the sampled field (Fit Value Range) and the walls. step(stage) is called
-    before each stage (a jobs.Job's step: it raises Cancelled once the import is cancelled)."""
+    before each stage (a jobs.Job's step: the progress bar)."""
     step("finding the solution and field")
     solution, field, component, notes, warnings = RESOLVE[request.kind](request)
     step("reading the data")
@@ -182,23 +177,15 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     return ImportRead(request, source, mesh, solution, field, component, notes, warnings, values, walls)
 
 
-# Imports reading in the background now (their status bar text is theirs; the windowed test
-# watches them)
-RUNNING = weakref.WeakSet()
-
-
-def import_job(request: ImportRequest) -> Job:
-    """The import's reading as a Job (start() it in a thread, or run() it here)."""
+def import_job(request: ImportRequest, on_step=None) -> Job:
+    """The import's reading as a Job (run() it), on_step(job) called at each stage."""
     return Job(lambda job: read_import(request, job.step), f"importing {os.path.basename(request.path)}",
-               steps=request.steps)
+               steps=request.steps, on_step=on_step)
 
 
 def finish_import(op, context, request: ImportRequest, job: Job, frame_camera: bool = True) -> set:
-    """The end of an import on the main thread: nothing for a cancelled job (the scene is as it
-    was), the error for a failed one, else the objects (conclude_import)."""
-    if job.cancelled:
-        op.report({'WARNING'}, f"HOVR: {job.title} cancelled; the scene is unchanged")
-        return {'CANCELLED'}
+    """The end of an import: the error for a failed read (nothing was made), else the objects
+    (conclude_import)."""
     if job.error is not None:  # a reader bug too must end as a message, not a traceback
         return _fail(op, request.path, job.error)
     return conclude_import(op, context, job.result, frame_camera)
@@ -242,10 +229,6 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
     op.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}" + "".join(f"; {n}" for n in notes))
     for w in warnings:
         op.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
-    if not bpy.app.background:  # background mode renders at once: it compiles in place
-        from . import kernel_warmup
-
-        kernel_warmup.warm_up_scene(context.scene)
     return {'FINISHED'}
 
 
@@ -266,76 +249,21 @@ class _ImportVolume(ImportHelper):
                                    description="Largest distance of the walls' triangles from the true curved "
                                                "faces, as a fraction of the volume's bounding-box diagonal")
 
-    background_job: BoolProperty(name="Read in the Background", default=False, options={'HIDDEN', 'SKIP_SAVE'},
-                                 description="Read in a background thread, Blender responsive, Esc cancels "
-                                             "(the file browser sets it; ignored in background mode)")
-
     def request(self, context, path: str) -> ImportRequest:
         """The settings as plain values."""
         raise NotImplementedError
 
-    def invoke(self, context, event):
-        self.background_job = True  # a person picked the file: keep Blender responsive
-        return super().invoke(context, event)
-
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         request = self.request(context, path)
-        job = import_job(request)
-        if self.background_job and not bpy.app.background and context.window is not None:
-            return self._start(context, request, job)
         wm = context.window_manager
+        job = import_job(request, on_step=lambda j: wm.progress_update(j.step_index))
         wm.progress_begin(0, request.steps)
         try:
             job.run()
         finally:
             wm.progress_end()
         return finish_import(self, context, request, job, self.frame)
-
-    # -------------------------------------------------------------- in the background, modal
-
-    def _start(self, context, request: ImportRequest, job: Job) -> set:
-        self._request, self._job = request, job.start()
-        RUNNING.add(job)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(0.1, window=context.window)
-        wm.modal_handler_add(self)
-        wm.progress_begin(0, job.steps)
-        self._show(context)
-        return {'RUNNING_MODAL'}
-
-    def _show(self, context):
-        job = self._job
-        context.window_manager.progress_update(job.step_index)
-        if context.workspace is not None:
-            context.workspace.status_text_set(f"HOVR: {job.title}: {job.status()}  |  Esc: cancel")
-
-    def _end(self, context):
-        RUNNING.discard(self._job)
-        wm = context.window_manager
-        wm.event_timer_remove(self._timer)
-        wm.progress_end()
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
-
-    def modal(self, context, event):
-        job = self._job
-        if event.type == 'ESC' and event.value == 'PRESS':
-            job.cancel()  # the thread stops; its result, if any, is dropped
-            self._end(context)
-            self.report({'WARNING'}, f"HOVR: {job.title} cancelled; the scene is unchanged")
-            return {'CANCELLED'}
-        if event.type == 'TIMER':
-            if job.done:
-                self._end(context)
-                return finish_import(self, context, self._request, job, self.frame)
-            self._show(context)
-        return {'PASS_THROUGH'}  # the rest of Blender keeps working meanwhile
-
-    def cancel(self, context):
-        """Blender ends the operator (another file opened, the window closed)."""
-        self._job.cancel()
-        self._end(context)
 
 
 def make_walls(mesh, path: str, selection: str, relative_tolerance: float):

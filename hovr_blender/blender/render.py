@@ -20,7 +20,7 @@ from ..core.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from .compat import write_pass_pixels
-from .jobs import WARMUP, kernel_key
+from .jobs import KERNELS, kernel_key
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -482,19 +482,6 @@ def advance_viewport(state, renderer, request, budget=VIEW_BUDGET_SECONDS) -> Vi
     return ViewportFrame(state.display, state.version, state.converged, state.stage)
 
 
-def kernels_pending(key) -> str | None:
-    """None when the viewport can render; else the words to show while the render kernels
-    compile in the background (started here if they are not compiled yet): a compile on the
-    main thread would hold Blender's UI for tens of seconds."""
-    from . import kernel_warmup
-
-    status = WARMUP.status()
-    if status is None and not WARMUP.is_ready(key):
-        kernel_warmup.request(lambda: [key])
-        status = WARMUP.status() or f"{WARMUP.COMPILING}\u2026"
-    return status
-
-
 def fail(api, message: str):
     """report() reaches the status bar and makes bpy.ops.render.render raise for scripts;
     error_set() as well would only repeat the message."""
@@ -530,11 +517,6 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
-    # the data and kernels the background warm-up is preparing (kernel_warmup.py): wait for them
-    # rather than reading and compiling a second time
-    if not WARMUP.wait_idle(lambda status: _waiting(api, status)):
-        api.update_stats("", "HOVR | cancelled")
-        return
     api.update_stats("", f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
@@ -551,9 +533,9 @@ def final_render(engine, api, depsgraph):
     if api.test_break():
         return
     try:
-        if not WARMUP.is_ready(key):  # their first use in this session: tens of seconds on a CPU
-            api.update_stats("", f"HOVR | {n_elements} elements | {WARMUP.COMPILING}\u2026")
-            WARMUP.compile_now(key)
+        if not KERNELS.is_ready(key):  # their first use in this session: tens of seconds on a CPU
+            api.update_stats("", f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
+            KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
@@ -608,18 +590,9 @@ def final_render(engine, api, depsgraph):
     api.update_stats("", text)
 
 
-def _waiting(api, status: str) -> bool:
-    api.update_stats("", f"HOVR | waiting: {status}")
-    return not api.test_break()
-
-
 def view_update(engine, context, depsgraph):
     """Data changes: view_draw re-reads everything and restarts on any difference; here only
-    make sure the mesh upload (and Warp start-up) happens outside view_draw (not while the
-    background warm-up reads the same data)."""
-    if WARMUP.busy:
-        engine.tag_redraw()
-        return
+    make sure the mesh upload (and Warp start-up) happens outside view_draw."""
     try:
         inputs = scene_inputs(depsgraph, original=True)
         _renderer(inputs.volumes, inputs.options.device)
@@ -629,20 +602,15 @@ def view_update(engine, context, depsgraph):
 
 
 def view_draw(engine, context, depsgraph):
-    """One bounded step of the progressive viewport, then draw what there is. While the render
-    kernels compile in the background, a message instead (kernel_warmup.py redraws when done)."""
+    """One bounded step of the progressive viewport, then draw what there is. The render
+    kernels' first use compiles them here (the status line says so first)."""
     try:
-        waiting = WARMUP.status()
-        if waiting is None:
-            renderer, request = viewport_request(context, depsgraph)
-            waiting = kernels_pending(kernel_key(request.options.device, request.options.precision,
-                                                 renderer_variant(renderer), depsgraph.scene.hovr.surfaces != "NONE"))
-        if waiting is not None:
-            draw_message(f"HOVR: {waiting}")
-            if waiting != getattr(engine, "viewport_status", None):
-                engine.viewport_status = waiting
-                engine.update_stats("", f"HOVR | {waiting}")
-            return
+        renderer, request = viewport_request(context, depsgraph)
+        key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
+                         depsgraph.scene.hovr.surfaces != "NONE")
+        if not KERNELS.is_ready(key):
+            engine.update_stats("", f"HOVR | {KERNELS.COMPILING}\u2026")
+            KERNELS.compile_now(key)
         frame = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
     except Exception as exc:

@@ -53,7 +53,7 @@ class RenderResult:
 
 
 _WARP_READY = False
-_WARP_LOCK = threading.Lock()  # the add-on compiles kernels in a background thread (blender/jobs.py)
+_WARP_LOCK = threading.Lock()  # Warp starts once, whichever thread asks first
 
 
 def _init_warp():
@@ -180,7 +180,8 @@ def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str 
                  surfaces: bool = False) -> None:
     """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
     (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
-    read from Warp's kernel cache on disk. Safe in a background thread while no render runs."""
+    read from Warp's kernel cache on disk. The modules compile side by side in worker threads
+    joined before it returns."""
     device = resolve_device(device)
     kernels = render_kernels(variant, precision)
     if surfaces:

@@ -1,9 +1,7 @@
 """Run by Debian's Blender 3.4 *with a window* (under Xvfb, --enable-event-simulate), factory
-startup, a new Warp kernel cache: the first hour of issue 16 as a user does it. An import of
-PyFR's velocity magnitude read in the background and cancelled with Esc; hump3D imported (File >
-Import > HOVR Nektar++, defaults, read in the background as from the file browser) while its
-render kernels then compile in the background (status bar); the outline in Solid shading, Frame
-HOVR Volume, Rendered shading in camera view (waiting for the kernels, then converging), F12,
+startup, a new Warp kernel cache: the first hour of issue 16 as a user does it. hump3D imported
+(File > Import > HOVR Nektar++, defaults); the outline in Solid shading, Frame HOVR Volume,
+Rendered shading in camera view (the kernels' first use compiled there, then converging), F12,
 and the render and object HOVR panels. Screenshots and report.json go to OUT; the pytest side
 checks them (and copies them into docs/ on request)."""
 import json
@@ -17,7 +15,7 @@ import bpy
 if os.environ.get("HOVR_EXTRA_SITE"):  # warp-lang from the project's venv (Debian has none)
     sys.path.append(os.environ["HOVR_EXTRA_SITE"])
 
-OUT, DATA, SLOW_DATA = sys.argv[sys.argv.index("--") + 1:][:3]
+OUT, DATA = sys.argv[sys.argv.index("--") + 1:][:2]
 report = {"log": []}
 state = {"t0": time.time(), "phase": "setup"}
 
@@ -44,23 +42,6 @@ def shot(name):
         bpy.ops.screen.screenshot(filepath=path)
     report[name] = path
     return path
-
-
-def running_import():
-    from hovr_blender.blender import import_operators
-
-    return next(iter(import_operators.RUNNING), None)
-
-
-def note_warmup():
-    """The kernel warm-up's words, as the status bar shows them, each new stage once."""
-    from hovr_blender.blender import jobs
-
-    text = jobs.WARMUP.status()
-    seen = report.setdefault("warmup_status", [])
-    if text is not None and (not seen or seen[-1].split("\u2026")[0] != text.split("\u2026")[0]):
-        seen.append(text)
-    return text
 
 
 def finish():
@@ -91,45 +72,19 @@ def step():
         space = area.spaces.active
         space.show_region_toolbar = space.show_region_ui = False
         bpy.context.preferences.filepaths.use_relative_paths = False  # readable paths in the screenshot
-        # an import read in the background as from the file browser, cancelled with Esc
-        report["objects_before_cancel"] = sorted(o.name for o in bpy.data.objects)
+        report["objects_before"] = sorted(o.name for o in bpy.data.objects)
         with override():
-            result = bpy.ops.import_scene.hovr_vtu(filepath=SLOW_DATA, field="Velocity", background_job=True)
-        report["cancel_result"] = sorted(result)
-        state["phase"] = "cancel"
-        return 0.05
-    if phase == "cancel":
-        job = running_import()
-        if job is not None and job.stage != "reading the data" and not job.done:
-            return 0.05
-        report["cancelled_stage"] = job.stage if job is not None else None
-        shot("import_progress.png")  # the status bar: "HOVR: importing ...: reading the data (2/4) ..."
-        win.event_simulate(type='ESC', value='PRESS')
-        win.event_simulate(type='ESC', value='RELEASE')
-        state.update(phase="cancelled", job=job, esc_at=time.time())
-        return 0.1
-    if phase == "cancelled":  # the thread ends at its next Python instruction (a C call runs to its end)
-        job = state["job"]
-        if job is not None and not job.done and time.time() - state["esc_at"] < 30:
-            return 0.1
-        report.update(cancel_job_done=bool(job and job.done), cancel_job_cancelled=bool(job and job.cancelled),
-                      cancel_seconds=time.time() - state.pop("esc_at"),
-                      objects_after_cancel=sorted(o.name for o in bpy.data.objects))
-        state.pop("job")
-        log("import cancelled")
-        with override():
-            result = bpy.ops.import_scene.hovr_nektar(filepath=DATA, background_job=True)
+            result = bpy.ops.import_scene.hovr_nektar(filepath=DATA)
         report["import_result"] = sorted(result)
         state.update(phase="importing", import_from=time.time())
         return 0.2
     if phase == "importing":
-        note_warmup()
         obj = bpy.context.view_layer.objects.active
         if obj is None or not obj.hovr.is_volume:
             if time.time() - state["import_from"] < 120:
                 return 0.2
-            raise RuntimeError("the background import never finished")
-        log(f"imported in the background in {time.time() - state['import_from']:.1f} s")
+            raise RuntimeError("the import never finished")
+        log(f"imported in {time.time() - state['import_from']:.1f} s")
         space = area.spaces.active
         report.update(volume=obj.name, solution=obj.hovr.solution,
                       field=obj.hovr.field, clip=[sc.camera.data.clip_start, sc.camera.data.clip_end],
@@ -140,7 +95,6 @@ def step():
         state["phase"] = "solid"
         return 0.5
     if phase == "solid":  # the outline, drawn by Blender's overlays in Solid shading
-        note_warmup()
         obj = bpy.data.objects[report["volume"]]
         if not state.get("solid_shown"):
             from bpy_extras.view3d_utils import location_3d_to_region_2d
@@ -172,14 +126,6 @@ def step():
     if phase == "wait":
         from hovr_blender.blender import render as re_mod
 
-        if note_warmup() is not None:  # the kernels still compile: the viewport says so
-            state["waiting_ticks"] = state.get("waiting_ticks", 0) + 1
-            if state["waiting_ticks"] == 4:  # once the viewport has drawn its message
-                shot("viewport_waiting.png")
-            return 0.5
-        if "kernels_ready" not in report:
-            report["kernels_ready"] = time.time() - state["t0"]
-            log("render kernels ready")
         states = list(re_mod.VIEWPORTS)
         done = [v for v in states if v.converged]
         report.setdefault("viewport_status", [])

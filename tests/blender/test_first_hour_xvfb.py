@@ -1,16 +1,14 @@
 """Issue 16's first hour in a real window: Debian's Blender 3.4 under Xvfb, factory startup, a
-new Warp kernel cache. An import read in the background (the modal operator the file browser
-starts) cancelled with Esc leaves the scene as it was; File > Import hump3D with the defaults,
-read in the background, its render kernels then compiled in the background (the status bar
-says so, the Rendered viewport waits for them); the outline in Solid shading, Frame HOVR
-Volume, Rendered viewport (camera view) until it converges, F12, the render and object panels
+new Warp kernel cache. File > Import hump3D with the defaults; the outline in Solid shading,
+Frame HOVR Volume, Rendered viewport (camera view; the kernels' first use compiles there) until
+it converges, F12, the render and object panels
 (first_hour_capture.py). HOVR_UPDATE_DOCS=1 copies the screenshots into docs/ for the user
 guide. Skipped where blender, xvfb-run, warp's venv or the data are missing."""
 import json
 import os
 import shutil
 import subprocess
-from pathlib import Path
+
 
 import numpy as np
 import pytest
@@ -30,7 +28,6 @@ def test_import_frame_render_in_a_window(legacy_env):
 
     root, env = legacy_env
     xml = data_file("nektar", "hump3D_GLL.xml")
-    slow = data_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu")  # its velocity magnitude reads for seconds
     out = root / "first_hour"
     out.mkdir()
     env = dict(env, WARP_CACHE_PATH=str(root / "warp_cache"))  # the first use of the kernels, compiled
@@ -41,20 +38,13 @@ def test_import_frame_render_in_a_window(legacy_env):
                    env=env, check=True, capture_output=True, timeout=300)
     proc = subprocess.run([XVFB_RUN, "-a", "-s", "-screen 0 900x800x24", BLENDER, str(fresh), "-p", "0", "0",
                            "900", "800", "--enable-event-simulate", "--python", str(HERE / "first_hour_capture.py"),
-                           "--", str(out), str(xml), str(slow)],
+                           "--", str(out), str(xml)],
                           env=env, capture_output=True, text=True, timeout=600)
     report_path = out / "report.json"
     assert report_path.exists(), proc.stdout[-3000:] + proc.stderr[-3000:]
     report = json.loads(report_path.read_text())
     assert "error" not in report, report["error"]
-    # Esc while the background read ran: the thread stopped, nothing was made
-    assert report["cancel_result"] == ["RUNNING_MODAL"] and report["cancelled_stage"] == "reading the data"
-    assert report["cancel_job_done"] and report["cancel_job_cancelled"]
-    assert report["objects_after_cancel"] == report["objects_before_cancel"]
-    assert report["import_result"] == ["RUNNING_MODAL"] and report["solution"].endswith("hump3D.rst")
-    # the kernels compiled in the background (a new cache: their first use), said in the status bar
-    assert any(s.startswith("Compiling render kernels (first use)") for s in report["warmup_status"]), report
-    assert Path(report.get("viewport_waiting.png", "")).is_file(), "the viewport never met the compile running"
+    assert report["import_result"] == ["FINISHED"] and report["solution"].endswith("hump3D.rst")
     assert report["clip"][0] < 0.05  # Blender's default 0.1 m clip start would hide the 2 cm domain
     # the wire outline is drawn in Solid shading: hiding the volume changes the picture
     # (inside the 3D view's region, away from the object's origin dot: the outliner's eye icon
