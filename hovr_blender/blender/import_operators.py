@@ -193,7 +193,7 @@ def finish_import(op, context, request: ImportRequest, job: Job, frame_camera: b
 
 def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) -> set:
     """The volume object (and walls) of a finished read, its look fitted, the camera framed, the
-    report; then the scene's render kernels compile in the background."""
+    report."""
     path, mesh = read.request.path, read.mesh
     notes, warnings = list(read.notes), list(read.warnings)
     stem = os.path.splitext(os.path.basename(path))[0]

@@ -9,7 +9,7 @@ from typing import Callable, Hashable
 
 class LRUCache:
     """At most `size` values by key; the least recently used goes first. Safe to use from several
-    threads (the add-on reads data in background threads): make() runs outside the lock, so two
+    threads: make() runs outside the lock, so two
     threads missing the same key may both make it, and the last one stored stays."""
 
     def __init__(self, size: int):
