@@ -26,7 +26,6 @@ every ray crosses several copies), rendered at 1920x1080.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import datetime
 import json
 import os
@@ -151,23 +150,6 @@ def run_datasets(args, out):
         _write(args.out, out)
 
 
-def translated(mesh, t):
-    """`mesh` moved by t (geometry modes: the vertex modes carry a translation, as
-    VolumeMesh.transformed does, vectorised over elements of one shape and geometry order)."""
-    from hovr_blender.core import expansions as ex
-
-    t = np.asarray(t, dtype=np.float64)
-    g = mesh.geom_coeffs.copy()
-    for sh in np.unique(mesh.shape):
-        for gm in np.unique(mesh.geom_modes[mesh.shape == sh], axis=0):
-            sel = np.nonzero((mesh.shape == sh) & (mesh.geom_modes == gm).all(axis=1))[0]
-            rows = mesh.geom_offset[sel][:, None] + ex.vertex_mode_indices(int(sh), tuple(int(m) for m in gm))[None, :]
-            g[rows.ravel()] += t
-    ref = mesh.ref_from_world.copy()
-    ref[:, :, 3] -= np.einsum("eij,j->ei", ref[:, :, :3], t)
-    return dataclasses.replace(mesh, geom_coeffs=g, vertices=mesh.vertices + t, ref_from_world=ref)
-
-
 def million_mesh(target: int):
     from hovr_blender.core.mesh import concatenate
     from hovr_blender.io.paper_scale import paper_scale_mesh
@@ -177,7 +159,11 @@ def million_mesh(target: int):
     nx = int(np.ceil(np.sqrt(copies)))
     V = base.vertices.reshape(-1, 3)
     ext = V.max(0) - V.min(0)
-    parts = [translated(base, [1.05 * ext[0] * (k % nx), 1.05 * ext[1] * (k // nx), 0.0]) for k in range(copies)]
+    parts = []
+    for k in range(copies):
+        M = np.eye(4)
+        M[:2, 3] = 1.05 * ext[0] * (k % nx), 1.05 * ext[1] * (k // nx)
+        parts.append(base.transformed(M))
     mesh = concatenate(parts)
     mesh.volume = np.zeros(mesh.num_elements, np.int32)  # one volume: one field frame, one transfer function
     return mesh, copies

@@ -247,16 +247,18 @@ class VolumeMesh:
             raise MeshError("object transform must be a finite affine matrix")
         if self.geom_coeffs is not None:
             # x' = A x + t: every geometry mode scales by A; the vertex modes sum to one, so the
-            # translation goes onto them alone
-            geoms = []
-            for e in range(self.num_elements):
-                sh, gm = int(self.shape[e]), self.geom_modes[e]
-                o = int(self.geom_offset[e])
-                g = self.geom_coeffs[o : o + ex.num_coeffs(sh, gm)] @ M[:3, :3].T
-                g[ex.vertex_mode_indices(sh, gm)] += M[:3, 3]
-                geoms.append(g)
+            # translation goes onto them alone (per group of one shape and geometry order)
+            A, t = M[:3, :3], M[:3, 3]
+            geoms = self.geom_coeffs @ A.T
+            for sh in np.unique(self.shape):
+                for gm in np.unique(self.geom_modes[self.shape == sh], axis=0):
+                    sel = np.nonzero((self.shape == sh) & (self.geom_modes == gm).all(axis=1))[0]
+                    rows = self.geom_offset[sel][:, None] + ex.vertex_mode_indices(int(sh), tuple(int(m) for m in gm))
+                    geoms[rows.ravel()] += t
             out = VolumeMesh.from_elements(self.shape, self.modes, [self.element_coeffs(e) for e in range(self.num_elements)],
-                                           self.geom_modes, geoms, field_name=self.field_name, source=self.source)
+                                           self.geom_modes, [geoms[int(o):int(o) + ex.num_coeffs(int(sh), gm)] for o, sh, gm
+                                                             in zip(self.geom_offset, self.shape, self.geom_modes)],
+                                           field_name=self.field_name, source=self.source)
             for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume"):
                 if hasattr(self, attr):
                     setattr(out, attr, getattr(self, attr))

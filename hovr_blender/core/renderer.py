@@ -182,13 +182,17 @@ def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str 
     (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
     read from Warp's kernel cache on disk. The modules compile side by side in worker threads
     joined before it returns."""
-    device = resolve_device(device)
     kernels = render_kernels(variant, precision)
     if surfaces:
         from .kernels import surfaces as surface_kernels
 
         kernels.append(surface_kernels.cast_surfaces)
-    # the modules compile side by side (on first use the largest one's compile is the wait)
+    load_modules(kernels, resolve_device(device))
+
+
+def load_modules(kernels, device: str) -> None:
+    """Compile (first use) or load from Warp's disk cache the modules of `kernels` on `device`,
+    side by side (on first use the largest module's compile is the wait)."""
     modules = list({id(k.module): k.module for k in kernels}.values())
     workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
     wp.force_load(device=device, modules=modules, max_workers=workers)
@@ -372,6 +376,12 @@ class Renderer:
         again = [zeros(slots, wp.int32) for _ in range(2)]
         again_count = [zeros(1, wp.int32) for _ in range(2)]
         return _TileBuffers(rays, segs, again, again_count, sum(a.capacity for a in allocated))
+
+    def _launch_tile(self, prec, rays: int, progress, tile_pixels) -> int:
+        """Rays per launch tile of a render of `rays` rays: the progress/cancel unit (tile_pixels,
+        65,536 by default, when progress is reported), within what the buffers may take."""
+        tile = rays if progress is None else max(1, int(tile_pixels or 65536))
+        return min(tile, self._tile_limit(prec), rays)
 
     def _tile_limit(self, prec) -> int:
         """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
@@ -559,9 +569,7 @@ class Renderer:
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
-            # a launch tile: the progress/cancel unit, and what the per-ray buffers are sized for
-            tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self._tile_limit(prec), end - first)
+            tile = self._launch_tile(prec, end - first, progress, tile_pixels)
             self.check_limits(W, H, options, tile)
             try:
                 rgba = wp.zeros(total, dtype=prec.vec4)
@@ -728,8 +736,7 @@ class Renderer:
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, _DENSE_EVERYWHERE)
             quad = _quad_args(prec, options, np.zeros(3), upload, self.data_diagonal)
-            tile = end - first if progress is None else max(1, int(tile_pixels or 65536))
-            tile = min(tile, self._tile_limit(prec), end - first)
+            tile = self._launch_tile(prec, end - first, progress, tile_pixels)
             what = f"the segment cache of a {W}x{H} image in {options.precision}"
             # the render's buffers, the caller's other caches, and per tile ray its reservation
             # (vec3i) and last chunk (int32)
@@ -742,9 +749,8 @@ class Renderer:
                 store = _CacheStore(prec, end - first, base_bytes, what)
             except RuntimeError as exc:
                 raise SegmentCacheError(f"cannot allocate {what} on {self.device}: {exc}") from exc
-            for kern in (upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                         kernels.trace_reserve):
-                wp.load_module(kern.module, device=self.device)
+            load_modules([upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
+                          kernels.trace_reserve], self.device)
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
@@ -823,8 +829,7 @@ class Renderer:
                 nonfinite = wp.zeros(1, dtype=wp.int32)
             except RuntimeError as exc:
                 raise RenderError(f"cannot allocate a {W}x{row1 - row0} image on {self.device}: {exc}") from exc
-            for kern in (kernels.shade, kernels.sum_counts):
-                wp.load_module(kern.module, device=self.device)
+            load_modules([kernels.shade, kernels.sum_counts], self.device)
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             args = cache.args(kernels)
