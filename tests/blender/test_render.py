@@ -222,28 +222,32 @@ def test_editing_one_volume_look_leaves_the_other(scene, tmp_path):
 def test_relative_density_is_optical_depth_across_the_volume(scene, tmp_path):
     """Density in RELATIVE units is the contract's density times the bounding-box diagonal:
     the same picture at any scale (a sphere scaled by 1/50 with its camera)."""
-    from .blender_helpers import set_contract_camera, set_look
+    from .blender_helpers import set_look
 
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     world = render_to_exr(scene, tmp_path / "world.exr")
-    from hovr_blender.io import builtin
-
-    v = builtin.sphere().vertices.reshape(-1, 3)
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))  # the box's diagonal (object scale 1)
+    diag = _sphere_diagonal()  # the box's diagonal (object scale 1)
     set_look(obj, SPHERE.STOPS, SPHERE.VALUE_RANGE, SPHERE.DENSITY_SCALE * diag, units="RELATIVE")
     relative = render_to_exr(scene, tmp_path / "relative.exr")
     np.testing.assert_allclose(relative, world, atol=1e-5)
     # 1/50 the size, camera scaled with it: the relative look is unchanged
     s = 0.02
+    _shrink_sphere_scene(scene, obj, s)
+    scene.hovr.h *= s  # Step is in world units (it sets accuracy, not the look)
+    small = render_to_exr(scene, tmp_path / "small.exr")
+    np.testing.assert_allclose(small, world, atol=2e-4)
+
+
+def _shrink_sphere_scene(scene, obj, s):
+    """The sphere volume and its camera scaled by s about the origin (the same picture)."""
+    from .blender_helpers import set_contract_camera
+
     obj.location = [s * x for x in SPHERE.OBJECT_LOCATION]
     obj.scale = (s, s, s)
     c = dict(SPHERE.PERSPECTIVE, eye=[s * x for x in SPHERE.PERSPECTIVE["eye"]],
              target=[s * x for x in SPHERE.PERSPECTIVE["target"]])
     set_contract_camera(scene, c, SPHERE.W, SPHERE.H)
     scene.camera.data.clip_start = 0.001
-    scene.hovr.h *= s  # Step is in world units (it sets accuracy, not the look)
-    small = render_to_exr(scene, tmp_path / "small.exr")
-    np.testing.assert_allclose(small, world, atol=2e-4)
 
 
 def _sphere_diagonal(scale=1.0):
@@ -259,8 +263,6 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     size without touching the step (the sphere scaled by 1/50 with its camera)."""
     from hovr_blender.blender import render
 
-    from .blender_helpers import set_contract_camera
-
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.hovr.step_units, scene.hovr.steps_across = 'RELATIVE', 50
     h = _sphere_diagonal() / 50  # 0.133: coarse enough to show in the image
@@ -271,12 +273,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
     assert np.abs(got[..., :3] - SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)[..., :3]).max() > 1e-3
     s = 0.02
-    obj.location = [s * x for x in SPHERE.OBJECT_LOCATION]
-    obj.scale = (s, s, s)
-    c = dict(SPHERE.PERSPECTIVE, eye=[s * x for x in SPHERE.PERSPECTIVE["eye"]],
-             target=[s * x for x in SPHERE.PERSPECTIVE["target"]])
-    set_contract_camera(scene, c, SPHERE.W, SPHERE.H)
-    scene.camera.data.clip_start = 0.001
+    _shrink_sphere_scene(scene, obj, s)
     obj.hovr.density *= 1 / s  # the look in world units follows the size by hand; the step by itself
     bpy.context.view_layer.update()
     inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))

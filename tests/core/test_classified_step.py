@@ -102,17 +102,13 @@ def test_profiled_render_times_the_step_terms_kernel():
     """A profiled render (profile=True) names every kernel it launched, step_terms included."""
     from hovr_blender.io.synthetic import curved_cube
 
+    from tests.helpers import framing
+
     mesh = curved_cube(2)
-    V = mesh.vertices.reshape(-1, 3)
-    c = 0.5 * (V.min(0) + V.max(0))
-    cam = RayCamera.from_contract({"eye": [float(x) for x in c + [3.0, -2.0, 2.0]], "target": [float(x) for x in c],
-                                   "up": [0, 0, 1], "fov_y_deg": 30}, 24, 16)
     v = mesh.field_samples(3)
-    a, b = float(v.min()), float(v.max())
-    m = 0.5 * (a + b)
-    tf = TransferFunction.from_contract({"color": [[a, 1, 0, 0], [b, 0, 0, 1]],
-                                         "density": [[a, 0.0], [m, 4.0], [b, 0.0]]})
-    res = Renderer(mesh, "cpu").render(cam, tf, np.zeros(3), RenderOptions(method="classified"), profile=True)
+    tf = tents(float(v.min()), float(v.max()), COLORS, 4.0)
+    res = Renderer(mesh, "cpu").render(framing(mesh, 24, 16), tf, np.zeros(3), RenderOptions(method="classified"),
+                                       profile=True)
     assert res.stats["kernel_seconds"]["step_terms"] > 0.0
 
 
