@@ -5,9 +5,13 @@ with split beside them.
 
     python bench/classified_step.py --size 192x108 --out bench/results/cpu/classified_step.json
     python bench/classified_step.py --size 1920x1080 --rows 0:216 --datasets pyfr_tgv_pressure --only auto --repeats 1
+    python bench/classified_step.py --size 320x180 --datasets paper_scale --only auto --step-errors 1e-3,5e-4,2.5e-4 --repeats 1
 
-Scenes: bench/offset.py's (PyFR's Taylor-Green pressure; pascals on the curved mixed cube) and
-bench/convergence.py's sphere with its spikes. The exact image is split in float64 at tolerance
+Scenes: bench/offset.py's (PyFR's Taylor-Green pressure; pascals on the curved mixed cube),
+bench/convergence.py's sphere with its spikes, and the paper-scale channel in the audit's oblique
+view with its transfer function (scripts/audit.py; rays through seven or eight curved elements).
+--step-errors runs the "auto" setting at each of these per-segment error bounds instead of the
+default (core/view.AUTO_STEP_ERROR). The exact image is split in float64 at tolerance
 1e-9 without early termination (core/reference.pixel_exact_reference's settings); every render
 here also runs to T = 0. --rows renders only those rows of the image (a full-size image in bands,
 one process each); --only picks the runs (fixed, diagonal, auto, split). Per run: max |image - exact| over RGBA, pixels above 1e-3, samples per ray
@@ -30,6 +34,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+sys.path.insert(0, str(REPO / "scripts"))
+
+import audit  # noqa: E402  (the paper-scale channel's view and transfer function)
 import convergence  # noqa: E402  (the paper's sphere scene)
 import offset  # noqa: E402  (issue 20's scenes)
 
@@ -48,6 +55,10 @@ def scenes(W, H, names):
         out[name] = (mesh, tf, camera, offset.BACKGROUND)
     out["sphere_spikes"] = (sphere(), TransferFunction.from_contract(convergence.TRANSFER_FUNCTIONS["spikes"]),
                             RayCamera.from_contract(convergence.CAMERA, W, H), convergence.BACKGROUND)
+    if "paper_scale" in names:  # built only when asked for (seconds)
+        mesh, _ = audit.load("paper_scale")
+        out["paper_scale"] = (mesh, audit.transfer_function(mesh),
+                              RayCamera.from_contract(audit.views(mesh)["oblique"], W, H), np.zeros(3))
     return {k: v for k, v in out.items() if not names or k in names}
 
 
@@ -58,11 +69,13 @@ def main(argv=None):
     ap.add_argument("--datasets", default="", help="comma-separated (default all)")
     ap.add_argument("--only", default="fixed,diagonal,auto,split", help="which runs (comma-separated)")
     ap.add_argument("--repeats", type=int, default=2, help="timed renders per run (beyond 1: after one untimed)")
+    ap.add_argument("--step-errors", default="", help="per-segment error bounds for the auto run (default: AUTO_STEP_ERROR)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     import warp as wp
 
+    from hovr_blender.core import renderer as renderer_module
     from hovr_blender.core.renderer import Renderer
     from hovr_blender.core.view import AUTO_STEP_ERROR, RenderOptions
 
@@ -93,15 +106,20 @@ def main(argv=None):
         only = args.only.split(",")
         runs = [("classified", {"h": h}, f"h = {h:g}") for h in FIXED_H if "fixed" in only]
         runs += [("classified", {"h": diag / n}, f"h = diagonal / {n}") for n in DIAGONAL_DIVISIONS if "diagonal" in only]
-        runs += [("classified", {}, "no h (each segment's own step)")] * ("auto" in only)
+        bounds = [float(v) for v in args.step_errors.split(",")] if args.step_errors else [AUTO_STEP_ERROR]
+        runs += [("classified", {"step_error": e}, f"no h (each segment's own step, {e:g} a segment)")
+                 for e in bounds if "auto" in only]
         runs += [("split", {"tolerance": 1e-5}, "tolerance 1e-5")] * ("split" in only)
         case = {"elements": int(mesh.num_elements), "diagonal": diag, "exact_seconds": exact_s,
                 "max_alpha": float(exact[..., 3].max()), "runs": []}
         for method, kw, label in runs:
             row = {"method": method, "setting": label, **kw}
             imgs = {}
+            opts_kw = {k: v for k, v in kw.items() if k != "step_error"}
+            # the renderer reads the bound from its module when it sets up a render's quadrature
+            renderer_module.AUTO_STEP_ERROR = kw.get("step_error", AUTO_STEP_ERROR)
             for precision in ("float32", "float64"):
-                img, stats, secs = render(method=method, precision=precision, **kw)
+                img, stats, secs = render(method=method, precision=precision, **opts_kw)
                 imgs[precision] = img
                 err = np.abs(img - exact).max(axis=-1)
                 j, i = np.unravel_index(int(np.argmax(err)), err.shape)
