@@ -11,8 +11,8 @@ Scenes: bench/offset.py's (PyFR's Taylor-Green pressure; pascals on the curved m
 bench/convergence.py's sphere with its spikes, and the paper-scale channel in the audit's oblique
 view with its transfer function (scripts/audit.py; rays through seven or eight curved elements).
 --step-errors runs the "auto" setting at each of these per-segment error bounds instead of the
-default (core/view.AUTO_STEP_ERROR). The exact image is split in float64 at tolerance
-1e-9 without early termination (core/reference.pixel_exact_reference's settings); every render
+default (engine/view.AUTO_STEP_ERROR). The exact image is split in float64 at tolerance
+1e-9 without early termination (engine/reference.pixel_exact_reference's settings); every render
 here also runs to T = 0. --rows renders only those rows of the image (a full-size image in bands,
 one process each); --only picks the runs (fixed, diagonal, auto, split). Per run: max |image - exact| over RGBA, pixels above 1e-3, samples per ray
 (element and restriction evaluations), seconds (best of --repeats; the CPU is shared, so compare
@@ -45,8 +45,8 @@ DIAGONAL_DIVISIONS = [1000, 2000, 4000]
 
 
 def scenes(W, H, names):
-    from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.transfer_function import TransferFunction
+    from hovr_blender.engine.camera import RayCamera
+    from hovr_blender.engine.transfer_function import TransferFunction
     from hovr_blender.io.builtin import sphere
 
     out = {}
@@ -75,9 +75,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.core import renderer as renderer_module
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import AUTO_STEP_ERROR, RenderOptions
+    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import AUTO_STEP_ERROR, RenderOptions
 
     wp.config.quiet = True
     W, H = map(int, args.size.split("x"))

@@ -26,11 +26,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.reference import reference_render  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.reference import reference_render  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 from hovr_blender.io.builtin import sphere  # noqa: E402
 
 CAMERA = {"projection": "perspective", "eye": [7.0, 5.5, 8.0], "target": [0.0, 0.0, 1.0], "up": [0.0, 0.0, 1.0],

@@ -1,5 +1,5 @@
 """The CPU fallback over every core (issue 21): one frame on one CPU device (Warp runs a CPU
-launch on one thread) against `cpu:all` (core/multi_device.py: one process a core, the frame's
+launch on one thread) against `cpu:all` (engine/multi_device.py: one process a core, the frame's
 rows split over them), on hump3D at the size of a first F12 (480x270).
 
     python bench/cpu_cores.py --out bench/results/cpu/cpu_cores.json
@@ -46,9 +46,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.core.multi_device import make_renderer
-    from hovr_blender.core.renderer import cpu_cores
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.multi_device import make_renderer
+    from hovr_blender.engine.renderer import cpu_cores
+    from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.nektar import read_nektar
 
     wp.config.quiet = True

@@ -20,10 +20,10 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 
-from hovr_blender.core.image_io import to_png_bytes_rgba, write_png  # noqa: E402
-from hovr_blender.core.reference import reference_render  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.view import View  # noqa: E402
+from hovr_blender.engine.image_io import to_png_bytes_rgba, write_png  # noqa: E402
+from hovr_blender.engine.reference import reference_render  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.view import View  # noqa: E402
 from hovr_blender.io import load_view_data  # noqa: E402
 
 VIEW = os.path.join(HERE, "..", "examples", "elvis_sphere.json")

@@ -1,9 +1,9 @@
 """Evaluation error of the device expansions (float32 Warp, kernels/element.py) against the
-float64 numpy oracle (core/expansions.py), every shape x order 1..14.
+float64 numpy oracle (engine/expansions.py), every shape x order 1..14.
 
 The comparison (random fields of each family at random reference points, near the collapsed
 vertex/edges and at the vertices; kernel error and end-to-end error against the float64 oracle)
-is tests/helpers.eval_compare, which tests/core/test_stress.py runs on fewer points; this script
+is tests/helpers.eval_compare, which tests/engine/test_stress.py runs on fewer points; this script
 runs it on every (family, shape, order) and writes the table.
 
     python bench/eval_table.py --device cpu --out bench/results/eval_table.json
@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 
 import warp as wp  # noqa: E402
 
-from hovr_blender.core import shapes  # noqa: E402
+from hovr_blender.engine import shapes  # noqa: E402
 from tests.helpers import EVAL_FAMILIES, eval_compare  # noqa: E402
 
 def markdown(rows, key="max_rel", fmt="{:.1e}"):

@@ -9,7 +9,7 @@ is the full benchmark.
 Each case: the build time, the first render (kernel compile or cache load), then per setting
 the best of --repeats renders: seconds, element segments, curved locations, field and
 restriction evaluations per ray, the empty/smooth/piecewise counts, and the max RGB error
-against core/reference.pixel_exact_reference (float64, split at tolerance 1e-9, no early
+against engine/reference.pixel_exact_reference (float64, split at tolerance 1e-9, no early
 termination; --no-reference skips it).
 """
 from __future__ import annotations
@@ -29,8 +29,8 @@ sys.path.insert(0, HERE)
 
 import suite  # noqa: E402  (datasets, framing and transfer functions are the suite's own)
 
-from hovr_blender.core.reference import pixel_exact_reference  # noqa: E402  (every benchmark's reference)
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.engine.reference import pixel_exact_reference  # noqa: E402  (every benchmark's reference)
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 
 SETTINGS = {
     "split-1e-5": dict(method="split", tolerance=1e-5),

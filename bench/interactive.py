@@ -53,7 +53,7 @@ TARGET_512_FPS = 60.0
 
 
 def _camera(mesh, W, H):
-    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.engine.camera import RayCamera
 
     return RayCamera.from_contract(audit.views(mesh)["oblique"], W, H)
 
@@ -75,7 +75,7 @@ def device_bytes_per_element(renderer, precision="float32") -> float:
 def options(renderer, method, classified_div):
     """Default settings (classified: its own step per segment), or with `classified_div` a fixed
     step of the data's diagonal / classified_div."""
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.view import RenderOptions
 
     extra = {"h": renderer.data_diagonal / classified_div} if method == "classified" and classified_div else {}
     return RenderOptions(method=method, device=renderer.device, **extra)
@@ -103,7 +103,7 @@ def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_
 
 def reference_image(renderer, mesh, tf, W, H):
     """float64 split at tolerance 1e-9 without early termination: converged far below 1e-3."""
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.view import RenderOptions
 
     res = renderer.render(_camera(mesh, W, H), tf, np.zeros(3),
                           RenderOptions(method="split", precision="float64", tolerance=1e-9, min_transmittance=0.0,
@@ -112,7 +112,7 @@ def reference_image(renderer, mesh, tf, W, H):
 
 
 def run_datasets(args, out):
-    from hovr_blender.core.renderer import Renderer, load_kernels
+    from hovr_blender.engine.renderer import Renderer, load_kernels
 
     W, H = map(int, args.size.split("x"))
     for name in args.datasets.split(","):
@@ -151,7 +151,7 @@ def run_datasets(args, out):
 
 
 def million_mesh(target: int):
-    from hovr_blender.core.mesh import concatenate
+    from hovr_blender.engine.mesh import concatenate
     from hovr_blender.io.paper_scale import paper_scale_mesh
 
     base = paper_scale_mesh()
@@ -170,8 +170,8 @@ def million_mesh(target: int):
 
 
 def run_million(args, out):
-    from hovr_blender.core.renderer import Renderer, load_kernels
-    from hovr_blender.core.transfer_function import TransferFunction
+    from hovr_blender.engine.renderer import Renderer, load_kernels
+    from hovr_blender.engine.transfer_function import TransferFunction
 
     W, H = map(int, args.size.split("x"))
     t0 = time.perf_counter()
@@ -186,7 +186,7 @@ def run_million(args, out):
     lo, hi = V.min(0), V.max(0)
     c, rad = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
     d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
-    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.engine.camera import RayCamera
 
     cam = RayCamera.from_contract({"eye": (c + 2.6 * rad * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
                                    "fov_y_deg": 30.0}, W, H)
@@ -214,8 +214,8 @@ def run_million(args, out):
 def cold_child(args):
     """One first image in this (fresh) process: prints a JSON line."""
     t_start = float(os.environ["HOVR_COLD_T0"])
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     mesh, _ = audit.load(args.cold_child)
     tf = audit.transfer_function(mesh)
@@ -276,7 +276,7 @@ def main(argv=None):
         return cold_child(args)
     import warp as wp
 
-    from hovr_blender.core.renderer import resolve_device
+    from hovr_blender.engine.renderer import resolve_device
 
     resolve_device(args.device)
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,

@@ -1,4 +1,4 @@
-"""Where a frame split over several devices (core/multi_device.py) spends its time outside the
+"""Where a frame split over several devices (engine/multi_device.py) spends its time outside the
 devices' renders, on any host (CPU devices work: `--devices cpu,cpu`): a cheap mesh (io/synthetic
 mixed cube) at --size, one frame on one device and over --devices, best of --repeats after a
 first frame. Prints per frame: the one-device render's own seconds and its wall time, the split
@@ -32,9 +32,9 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
     import suite
-    from hovr_blender.core.multi_device import MultiDeviceRenderer
-    from hovr_blender.core.renderer import expand_devices
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.multi_device import MultiDeviceRenderer
+    from hovr_blender.engine.renderer import expand_devices
+    from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io import synthetic
 
     W, H = (int(v) for v in args.size.split("x"))
@@ -45,7 +45,7 @@ def main(argv=None):
     blo, bhi = suite.mesh_bounds(mesh)
     opts = RenderOptions(method="classified", h=float(np.linalg.norm(bhi - blo)) / args.h_div)
     cam = suite.framing(mesh, W, H, distance=args.distance)
-    # the one-device frame from a process started like the split's (tests/core/test_multi_device.py)
+    # the one-device frame from a process started like the split's (tests/engine/test_multi_device.py)
     with MultiDeviceRenderer(mesh, devices[:1]) as one:
         one.render(cam, tf, suite.BACKGROUND, opts)
         single, single_wall = None, None

@@ -53,8 +53,8 @@ def hump3d(data):
 
 def bench_frame(name, mesh, tf, W, H, devices, opts, repeats, direction):
     import suite
-    from hovr_blender.core.multi_device import MultiDeviceRenderer
-    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.engine.multi_device import MultiDeviceRenderer
+    from hovr_blender.engine.renderer import Renderer
 
     cam = suite.framing(mesh, W, H, direction=direction)
     one = Renderer(mesh, devices[0])
@@ -173,8 +173,8 @@ def main(argv=None):
 
     import frame
     import suite
-    from hovr_blender.core.renderer import expand_devices
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.renderer import expand_devices
+    from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.paper_scale import paper_scale_mesh
 
     wp.config.quiet = True

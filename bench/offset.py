@@ -29,7 +29,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hovr_blender.core import field_frame  # noqa: E402
+from hovr_blender.engine import field_frame  # noqa: E402
 from tests.helpers import BACKGROUND, COLORS, framing, pascals, tents  # noqa: E402  (the tests' scenes)
 
 DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
@@ -82,8 +82,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     wp.config.quiet = True
     W, H = map(int, args.size.split("x"))

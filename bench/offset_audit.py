@@ -63,9 +63,9 @@ def main(argv=None):
 
     from hovr_blender.audit import reference as R
     from hovr_blender.audit import vtk_volume
-    from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.camera import RayCamera
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.vtu import read_vtu
 
     wp.config.quiet = True

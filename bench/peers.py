@@ -11,7 +11,7 @@ of ../shared/data that it lists, the paper-scale channel and the curved mixed cu
 Methods (--methods, comma list):
 
 - ours-split (split, tolerance 1e-3) and ours-classified (h = bounding-box diagonal / 400):
-  core.renderer.Renderer in float32 on --device;
+  engine.renderer.Renderer in float32 on --device;
 - vtk-lattice-MAPPER: the Lagrange cells split into linear tetrahedra on their node lattice
   (vtkDataSetTriangleFilter, what ParaView's volume representation does to nonlinear cells);
 - vtk-tessL-MAPPER: vtkTessellatorFilter, every edge halved L times (L = --levels, 0..4: the
@@ -35,7 +35,7 @@ which counts what the method still holds (VTK's textures and buffers, our arrays
 transient peak. Errors: the largest and the mean over pixels of the largest RGB difference
 against the reference image, the mean taken over the pixels where the reference or the image
 is not empty (alpha > 1/255). The reference is our renderer in float64
-(core/reference.pixel_exact_reference: split at 1e-9, no early termination); on --sample
+(engine/reference.pixel_exact_reference: split at 1e-9, no early termination); on --sample
 pixels of each dataset (seeded, where the volume shows) the independent VTK reference
 (hovr_blender/audit, float64, ~1 s a pixel) checks it, and the JSON records the largest
 difference between the two there and every method's error on those pixels against it. Where
@@ -135,9 +135,9 @@ def errors(img, ref):
 # --------------------------------------------------------------------------------- our side
 
 def run_ours(mesh, camera, tf, device, methods, repeats, log):
-    from hovr_blender.core.reference import pixel_exact_reference
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.reference import pixel_exact_reference
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     lo, hi = mesh.vertices.reshape(-1, 3).min(0), mesh.vertices.reshape(-1, 3).max(0)
     diag = float(np.linalg.norm(hi - lo))
@@ -188,7 +188,7 @@ def _mb(b):
 def vtk_grid(name, mesh, data):
     """(vtkUnstructuredGrid of Lagrange cells with the point array 'f', None) or (None, why)."""
     from hovr_blender.audit import vtk_volume
-    from hovr_blender.core import shapes
+    from hovr_blender.engine import shapes
 
     if data is not None and data["path"].endswith(".vtu"):
         return vtk_volume.read_vtu(data["path"], data["field"]), None
@@ -370,7 +370,7 @@ def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, 
 # --------------------------------------------------------------------------------- one dataset
 
 def run_dataset(name, args, deadline, log):
-    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.engine.camera import RayCamera
 
     W, H = (int(v) for v in args.size.split("x"))
     t0 = time.perf_counter()

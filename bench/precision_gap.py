@@ -22,8 +22,8 @@ sys.path.insert(0, HERE)
 
 import suite  # noqa: E402
 
-from hovr_blender.core.reference import pixel_exact_reference  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.engine.reference import pixel_exact_reference  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 
 
 def main(argv=None):

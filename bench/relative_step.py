@@ -22,12 +22,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hovr_blender.blender import framing  # noqa: E402  (bpy-free)
-from hovr_blender.blender.scene import TF_PRESETS, field_samples  # noqa: E402
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.ui import framing  # noqa: E402  (bpy-free)
+from hovr_blender.ui.scene import TF_PRESETS, field_samples  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 from hovr_blender.io.sources import VolumeSource, load_volume  # noqa: E402
 
 DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
@@ -36,7 +36,7 @@ DATASETS = {  # name: (mesh, solution, field)
     "pyfr_tgv_pressure": ("vtu/pyfr_tgv_hexprism_p4_t4.vtu", "", "Pressure"),
 }
 STEPS_ACROSS = (250, 500, 1000, 2000)
-DEFAULT_VIEW = (-7.36, 6.93, -4.96)  # Blender's default camera direction (blender/operators.py)
+DEFAULT_VIEW = (-7.36, 6.93, -4.96)  # Blender's default camera direction (ui/operators.py)
 
 
 def first_picture(mesh, width: int, height: int):

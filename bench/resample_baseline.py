@@ -18,7 +18,7 @@ with trilinear interpolation (as VTK's GPU ray caster does), against the pixel-e
 3. ``compare``: grid build time, render time, grid memory and the largest RGB difference
    (also its 99th percentile and mean over pixels: the largest sits on the domain's
    silhouette, where the grid's boundary is off by up to h_g) against the pixel-exact reference
-   (core/reference.pixel_exact_reference: the Renderer in float64 with RenderOptions.pixel_exact(),
+   (engine/reference.pixel_exact_reference: the Renderer in float64 with RenderOptions.pixel_exact(),
    split at tolerance 1e-9, min_transmittance 0).
 
     python bench/resample_baseline.py --device cpu --size 48x36        (sphere, quick look)
@@ -42,10 +42,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 if os.path.join(HERE, "..") not in sys.path:
     sys.path.insert(0, os.path.join(HERE, ".."))
 
-from hovr_blender.core import expansions as ex  # noqa: E402
-from hovr_blender.core import shapes  # noqa: E402
-from hovr_blender.core.mesh import VolumeMesh, element_boxes  # noqa: E402
-from hovr_blender.core.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
+from hovr_blender.engine import expansions as ex  # noqa: E402
+from hovr_blender.engine import shapes  # noqa: E402
+from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
+from hovr_blender.engine.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
 
 BYTES_PER_POINT = 4  # float32 value; NaN marks empty points
 
@@ -410,9 +410,9 @@ def compare(mesh, camera, tf, background, h_values, reference, device="cpu", ste
 
 
 def main(argv=None):
-    from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.reference import reference_render
-    from hovr_blender.core.transfer_function import TransferFunction
+    from hovr_blender.engine.camera import RayCamera
+    from hovr_blender.engine.reference import reference_render
+    from hovr_blender.engine.transfer_function import TransferFunction
     from hovr_blender.io.builtin import sphere
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -19,12 +19,12 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, ".."))
 
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.image_io import write_png  # noqa: E402
-from hovr_blender.core.mesh import element_boxes  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.image_io import write_png  # noqa: E402
+from hovr_blender.engine.mesh import element_boxes  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 from hovr_blender.io.nektar import read_nektar  # noqa: E402
 from hovr_blender.io.synthetic import with_field  # noqa: E402
 

@@ -10,11 +10,11 @@ DIR/suite_time_vs_error.png, suite_resample.png, suite_scaling.png, suite_paper_
 
 1. methods: time against max error of riemann / trapezoid / classified (a sweep of h) and
    split (a sweep of tolerance) on three datasets: the paper's sphere (reference: the float64
-   integrator, core/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
+   integrator, engine/reference.py), a curved mixed-shape cube (hexahedra, prisms, tetrahedra
    and pyramids, io/synthetic.curved_cube) and the paper-scale
    curved channel (io/paper_scale.paper_scale_mesh: full = 3,328 hexahedra + 7,680 prisms at
    order 6). Curved datasets have no closed-form reference: theirs is the Renderer in float64
-   (core/reference.pixel_exact_reference, RenderOptions.pixel_exact(): split, tolerance 1e-9, curved
+   (engine/reference.pixel_exact_reference, RenderOptions.pixel_exact(): split, tolerance 1e-9, curved
    tails 1e-12, no early termination; on the sphere the suite records how far that is from the integrator). Full: at 1900x950 and 1920x1080.
 2. resample: what users do today (bench/resample_baseline.py): the field resampled onto a
    regular grid of spacing h_g and ray-marched trilinearly (step h_g / 2): error against the
@@ -47,8 +47,8 @@ ROOT = os.path.join(HERE, "..")
 sys.path.insert(0, ROOT)
 sys.path.insert(0, HERE)
 
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.io.synthetic import brick  # noqa: E402
 # the scenes the tests share (one definition: tests/helpers.py)
 from tests.helpers import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents  # noqa: E402
@@ -158,8 +158,8 @@ def row_of(res, **extra):
 def compiled_renderer(mesh, device):
     """(Renderer, seconds of its first render): the first render compiles the kernel (or loads
     it from Warp's cache), so timed renders after it measure the kernel alone."""
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     r = Renderer(mesh, device)
     t0 = time.perf_counter()
@@ -224,15 +224,15 @@ class Suite:
         return compiled_renderer(mesh, self.args.device)
 
     def opts(self, **kw):
-        from hovr_blender.core.view import RenderOptions
+        from hovr_blender.engine.view import RenderOptions
 
         return RenderOptions(device=self.args.device, **kw)
 
     # ------------------------------------------------------------------------------ section 1
 
     def methods(self):
-        from hovr_blender.core.reference import pixel_exact_reference, reference_render
-        from hovr_blender.core.image_io import write_png
+        from hovr_blender.engine.reference import pixel_exact_reference, reference_render
+        from hovr_blender.engine.image_io import write_png
 
         sec = self.out["sections"].setdefault("methods", {})
         cfg = self.cfg
@@ -255,7 +255,7 @@ class Suite:
                 case["renderer_float64_seconds"] = ref_stats["render_seconds"]
                 if name == "sphere":
                     exact, info = reference_render(mesh, cam, tf, BACKGROUND)
-                    case["reference"] = "float64 integrator (core/reference.py)"
+                    case["reference"] = "float64 integrator (engine/reference.py)"
                     case["reference_error_estimate"] = info.get("error_estimate")
                     case["renderer_float64_vs_integrator"] = rgb_error(ref, exact)
                     ref = exact
@@ -296,7 +296,7 @@ class Suite:
 
     def resample(self):
         import resample_baseline as rb
-        from hovr_blender.core.reference import pixel_exact_reference, reference_render
+        from hovr_blender.engine.reference import pixel_exact_reference, reference_render
 
         sec = self.out["sections"].setdefault("resample", {})
         cfg = self.cfg

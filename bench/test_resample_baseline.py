@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import resample_baseline as rb  # bench/ is this module's folder: pytest puts it on the path
-from hovr_blender.core.camera import RayCamera
-from hovr_blender.core.reference import reference_render
-from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.reference import reference_render
+from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.io import paper_scale as ps
 from hovr_blender.io.builtin import SPHERE_LOWER, SPHERE_UPPER, sphere, sphere_field
 

@@ -11,7 +11,7 @@ Datasets, cameras and transfer functions are the audit's (scripts/audit.py: the 
 three density tents over the field's 2..98 % range); paper_scale_straight is the paper-scale
 channel with straight sides. A dataset whose file is missing is skipped and recorded so. The
 edits keep the transfer function's breakpoint band (its lowest and highest breakpoint), so the
-field's frame and with it the cache stay valid (core/field_frame.py): inner breakpoints moved,
+field's frame and with it the cache stay valid (engine/field_frame.py): inner breakpoints moved,
 densities scaled, colours replaced, one tent emptied; edit 0 is the original.
 
 Per setting (bench/frame.py's names; default split-1e-3 and classified-d1600):
@@ -24,7 +24,7 @@ Per setting (bench/frame.py's names; default split-1e-3 and classified-d1600):
 - cache: bytes in all, per ray and per segment (a segment's record, its series and its share of
   the chunks), segments per ray, coefficients per segment;
 - max_abs_difference: the largest |shaded - fresh| over RGBA, depth and error of every edit
-  (0 where they are bitwise equal; see tests/core/test_segment_cache.py for why).
+  (0 where they are bitwise equal; see tests/engine/test_segment_cache.py for why).
 
 The memory limit is raised to --max-memory (default 64G) for the run: at 1920x1080 one launch
 tile's buffers alone are ~7.7 GiB in float32 (Renderer.check_limits), more than the default 4 GiB.
@@ -74,7 +74,7 @@ def edits(tf, n: int, seed: int = 21) -> list:
     """n transfer functions with tf's lowest and highest breakpoints (so its field frame): tf
     itself first, then inner breakpoints moved (their order kept), densities scaled, colours
     replaced at random, and every other one with its largest-density tent emptied."""
-    from hovr_blender.core.transfer_function import TransferFunction
+    from hovr_blender.engine.transfer_function import TransferFunction
 
     rng = np.random.default_rng(seed)
     out = [tf]
@@ -141,7 +141,7 @@ def main(argv=None):
                     help="transfer functions shaded from one cache (the first: the original)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--paper", default="3400,7600", help="the paper-scale channel's requested hexahedra,prisms")
-    ap.add_argument("--max-memory", default="64G", help="the memory limit for the run (core/limits.py)")
+    ap.add_argument("--max-memory", default="64G", help="the memory limit for the run (engine/limits.py)")
     ap.add_argument("--png", action="store_true", help="each dataset's last shaded edit as a PNG beside --out")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
@@ -154,11 +154,11 @@ def main(argv=None):
         ap.error(f"unknown setting(s) {', '.join(unknown)}; known: {', '.join(SETTINGS)}")
     import warp as wp
 
-    from hovr_blender.core import limits
-    from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.image_io import write_png
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine import limits
+    from hovr_blender.engine.camera import RayCamera
+    from hovr_blender.engine.image_io import write_png
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     wp.config.quiet = True
     wp.init()

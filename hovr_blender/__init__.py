@@ -1,7 +1,7 @@
 """HOVR: volume rendering of high-order finite-element fields (Blender add-on and core).
 
-Importing this package, or ``hovr_blender.core``/``hovr_blender.io``, never imports bpy:
-the numerical core runs on machines without Blender. The Blender side is imported only
+Importing this package, or ``hovr_blender.engine``/``hovr_blender.io``, never imports bpy:
+the numerical engine runs on machines without Blender. The Blender side is imported only
 inside register()/unregister(). Installed as an extension the package is
 ``bl_ext.<repo>.hovr_blender``, so everything below uses relative imports.
 """
@@ -20,8 +20,8 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .blender import properties, operators, import_operators, panels, versioning
-    from .blender import engine as render_engine
+    from .ui import properties, operators, import_operators, panels, versioning
+    from .ui import engine as render_engine
 
     return (properties, render_engine, operators, import_operators, panels, versioning)
 
@@ -34,7 +34,7 @@ def register():
     for module in _modules():
         module.register()
     _registered = True
-    from .blender import compat
+    from .ui import compat
 
     compat.unregister_before_exit(_unregister_if_registered)
 

@@ -20,7 +20,7 @@ import tempfile
 import time
 import traceback
 
-from .core.view import METHODS
+from .engine.view import METHODS
 
 EXIT_ERROR = 2
 
@@ -127,9 +127,9 @@ def _write_all(outputs):
 
 
 def _run(args) -> str:
-    from .core import limits
-    from .core.image_io import write_json, write_npy, write_png
-    from .core.view import View
+    from .engine import limits
+    from .engine.image_io import write_json, write_npy, write_png
+    from .engine.view import View
     from .io import load_view_data
 
     out = _output_path(args.output, ".npy", "-o")
@@ -146,7 +146,7 @@ def _run(args) -> str:
         mesh = load_view_data(view)
         load_s = time.perf_counter() - t0
         if args.command == "render":
-            from .core.renderer import render_view
+            from .engine.renderer import render_view
 
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
@@ -158,7 +158,7 @@ def _run(args) -> str:
             for warning in stats.get("warnings", []):
                 print(f"hovr: warning: {warning}", file=sys.stderr)
         else:
-            from .core.reference import reference_render
+            from .engine.reference import reference_render
 
             t0 = time.perf_counter()
             rgba, info = reference_render(mesh, view.camera, view.transfer_function, view.background)
@@ -230,7 +230,7 @@ def _run_blend(args) -> str:
 
 def _run_series(args) -> str:
     """render-series: the frames not yet written, over a Dask cluster (distributed/series.py)."""
-    from .core.view import View
+    from .engine.view import View
     from .distributed import series
 
     if "#" not in args.output:

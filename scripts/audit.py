@@ -93,7 +93,7 @@ def views(mesh):
 def transfer_function(mesh):
     """Three tents over the field's range with an optical depth of a few across the data; a
     constant density where the field is constant (then the image measures the geometry)."""
-    from hovr_blender.core.transfer_function import TransferFunction
+    from hovr_blender.engine.transfer_function import TransferFunction
 
     c, r, lo, hi = framing(mesh)
     vals = mesh.field_samples(4)
@@ -108,9 +108,9 @@ def transfer_function(mesh):
 
 
 def render_stage(args):
-    from hovr_blender.core.camera import RayCamera
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.camera import RayCamera
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     W, H = map(int, args.size.split("x"))
     out = {"size": [W, H], "device": args.device, "gap": GAP, "datasets": {}}
@@ -153,7 +153,7 @@ def render_stage(args):
 
 
 def _pyramid_boxes(mesh):
-    from hovr_blender.core import shapes
+    from hovr_blender.engine import shapes
 
     sel = mesh.shape == shapes.PYR
     return mesh.vertices[sel].min(axis=1), mesh.vertices[sel].max(axis=1)
@@ -164,7 +164,7 @@ def _check_dataset(job):
     name, entry, size = job
     from hovr_blender.audit import reference as R
     from hovr_blender.audit import vtk_volume
-    from hovr_blender.core import shapes
+    from hovr_blender.engine import shapes
 
     mesh, data = load(name)
     tf = entry["transfer_function"]
@@ -211,7 +211,7 @@ def _check_dataset(job):
 
 
 def _without(mesh, keep):
-    from hovr_blender.core.mesh import VolumeMesh
+    from hovr_blender.engine.mesh import VolumeMesh
 
     idx = np.nonzero(keep)[0]
     return VolumeMesh.from_elements(mesh.shape[idx], mesh.modes[idx], [mesh.element_coeffs(e) for e in idx],
@@ -221,7 +221,7 @@ def _without(mesh, keep):
 
 
 def _num_geom(mesh, e):
-    from hovr_blender.core import expansions
+    from hovr_blender.engine import expansions
 
     return expansions.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])
 

@@ -37,7 +37,7 @@ SKIP_DIRS = {"__pycache__", "tests"}
 SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
-# Everything the add-on imports beyond Blender (blender/dependencies.py checks the same list at
+# Everything the add-on imports beyond Blender (ui/dependencies.py checks the same list at
 # enable time): Warp renders, meshio reads VTU (and needs rich at import), h5py reads HDF5
 # solution files. pip resolves their dependencies; numpy is left out: Blender ships its own, and
 # a second copy in the extension's site-packages would shadow it.

@@ -40,7 +40,7 @@ def main(argv=None):
 
     wp.config.quiet = True
     wp.init()
-    from hovr_blender.core.kernels.precision import Precision
+    from hovr_blender.engine.kernels.precision import Precision
 
     raycast = Precision.named(args.precision).kernels
     kernels = []

@@ -68,7 +68,7 @@ def view_directions(n, seed):
 
 
 def full_views(mesh, W, H, n, seed):
-    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.engine.camera import RayCamera
 
     c, r = bounds(mesh)
     return [RayCamera.from_contract({"eye": (c + 2.6 * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
@@ -78,7 +78,7 @@ def full_views(mesh, W, H, n, seed):
 def targets(mesh, limit, seed):
     """Points where defects live: element vertices, edge middles and face centres (the mesh's
     straight-sided skeleton, first-order points), deduplicated, at most `limit` of each kind."""
-    from hovr_blender.core import shapes
+    from hovr_blender.engine import shapes
 
     rng = np.random.default_rng(seed)
     V = mesh.vertices  # (E, 8, 3) for hexahedra
@@ -100,7 +100,7 @@ def targets(mesh, limit, seed):
 def aimed_camera(point, direction, r):
     """A 3x3 orthographic camera whose centre ray passes through `point` along `direction`,
     its other rays 1e-5 r to the sides (near misses of the same vertex, edge or face)."""
-    from hovr_blender.core.camera import RayCamera
+    from hovr_blender.engine.camera import RayCamera
 
     up = [0, 0, 1] if abs(direction[2]) < 0.9 else [1, 0, 0]
     return RayCamera.from_contract({"projection": "orthographic", "eye": (point - 3.0 * r * direction).tolist(),
@@ -132,8 +132,8 @@ def run(args):
     import warp as wp
 
     from hovr_blender.audit import chords
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
 
     wp.config.quiet = True
     W, H = map(int, args.size.split("x"))

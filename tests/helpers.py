@@ -17,12 +17,12 @@ import pytest
 import warp as wp
 
 from hovr_blender.audit.chords import box_chord  # noqa: F401  (the tests' slab test: one home)
-from hovr_blender.core import expansions as ex
-from hovr_blender.core import shapes
-from hovr_blender.core.camera import RayCamera
-from hovr_blender.core.kernels import element as element_kernels
-from hovr_blender.core.mesh import VolumeMesh, element_boxes
-from hovr_blender.core.transfer_function import TransferFunction
+from hovr_blender.engine import expansions as ex
+from hovr_blender.engine import shapes
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.kernels import element as element_kernels
+from hovr_blender.engine.mesh import VolumeMesh, element_boxes
+from hovr_blender.engine.transfer_function import TransferFunction
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -129,7 +129,7 @@ def curved_mixed_scene(cells: int):
     """(mesh, transfer function, camera(w, h)) of io/synthetic.curved_cube(cells): three tents
     over the field's 2..98 % range, framed from the default direction, BACKGROUND behind. The
     benchmark's curved dataset (bench/suite.py: cells 2 small, 4 full) and the scene where the
-    float32 search and Newton bugs showed (tests/core/test_precision.py)."""
+    float32 search and Newton bugs showed (tests/engine/test_precision.py)."""
     from hovr_blender.io.synthetic import curved_cube
 
     mesh = curved_cube(cells)
@@ -209,8 +209,8 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
     def core_render(cls, contract, method, film_transparent, camera=None, matrix=None, h=0.01):
         """The same view through the core API only: contract camera, ramp lists, numpy transform;
         `h` the step in world units."""
-        from hovr_blender.core.renderer import Renderer
-        from hovr_blender.core.view import RenderOptions
+        from hovr_blender.engine.renderer import Renderer
+        from hovr_blender.engine.view import RenderOptions
         from hovr_blender.io import builtin
 
         camera = RayCamera.from_contract(contract, cls.W, cls.H) if camera is None else camera
@@ -239,7 +239,7 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
 # - vtk_lagrange: VTK Lagrange hex / tet / wedge cells, nodal values uniform in [-1, 1] at VTK's
 #                 equispaced nodes, converted by io/vtu.conversion_matrix; oracle: vtu.cell_basis
 #                 (the cell's own nodal basis) in float64.
-# tests/core/test_stress.py runs it on few points; bench/eval_table.py writes the full table.
+# tests/engine/test_stress.py runs it on few points; bench/eval_table.py writes the full table.
 
 EVAL_SHAPES = [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR]
 EVAL_FAMILIES = {"modified": EVAL_SHAPES, "gll_lagrange": [shapes.HEX],

@@ -6,7 +6,7 @@ of every patch are found by float64 Newton on (u, v, t) from a grid of starts, a
 is the sum of the in/out intervals of the sorted crossings.
 
 Nothing here is shared with the renderer (no traversal, no element location, no BVH): the
-patches are power series fitted to the element maps of core/expansions (the mesh's definition),
+patches are power series fitted to the element maps of engine/expansions (the mesh's definition),
 and the Warp kernel below is a brute-force loop over the patches' boxes, in float64, so that
 10 M rays take seconds on a GPU. `chords_numpy` is the same computation in numpy, the
 kernel's own check at small sizes.
@@ -14,8 +14,8 @@ kernel's own check at small sizes.
 
 import numpy as np
 
-from ..core import expansions as ex
-from ..core import shapes
+from ..engine import expansions as ex
+from ..engine import shapes
 
 HEX_FACES = [(0, -1.0), (0, 1.0), (1, -1.0), (1, 1.0), (2, -1.0), (2, 1.0)]  # xi_axis = value
 STARTS = 3  # Newton starts per direction on a patch

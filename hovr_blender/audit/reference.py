@@ -1,5 +1,5 @@
 """An independent float64 reference for chosen pixels: slow (about a second a pixel), sharing no
-code with the Warp kernels or core/expansions.py.
+code with the Warp kernels or engine/expansions.py.
 
 For each pixel ray (render contract §4, computed here from the view):
 1. Where the ray lies in which cell: every cell whose (padded) box the ray meets is sampled

@@ -1,5 +1,5 @@
 """The frames of a saved .blend over a Dask cluster: each task starts Blender headless for one
-frame (blender/batch.py: `blender -b FILE --python batch.py -- N`, or the same script under a
+frame (ui/batch.py: `blender -b FILE --python batch.py -- N`, or the same script under a
 Python with the bpy module), which renders to a temporary file beside the frame's output, named
 as `blender -b FILE -a` names it; the task links it into place (series.link_file: never over a
 frame already written) and logs it. Frames already written are skipped (the script checks before
@@ -15,7 +15,7 @@ import time
 
 from .series import _log, link_file, submit_frames
 
-BATCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "blender", "batch.py")
+BATCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "ui", "batch.py")
 PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 

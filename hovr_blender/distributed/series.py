@@ -25,9 +25,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..core.camera import RayCamera
-from ..core.image_io import write_json, write_npy, write_png
-from ..core.view import View
+from ..engine.camera import RayCamera
+from ..engine.image_io import write_json, write_npy, write_png
+from ..engine.view import View
 from ..io.sources import VolumeSource, cached_volume, frame_path
 
 LOG_NAME = ".hovr-series.log"
@@ -113,7 +113,7 @@ def worker_device(requested: str = "auto") -> str:
     cuda:0), or cpu where there is none."""
     if requested != "auto":
         return requested
-    from ..core.renderer import cuda_devices
+    from ..engine.renderer import cuda_devices
 
     cuda = cuda_devices()
     if not cuda:
@@ -131,7 +131,7 @@ def worker_device(requested: str = "auto") -> str:
 def _renderer_for(mesh, device):
     """This process's Renderer, given `mesh`: kept if it is the same mesh or the same geometry (the
     field replaced), else a new one."""
-    from ..core.renderer import Renderer
+    from ..engine.renderer import Renderer
 
     cur = _WORKER.get("renderer")
     if cur is not None and cur.device == device:
@@ -276,7 +276,7 @@ def local_cluster(workers: int | None = None, device: str = "auto"):
 
     if workers is None:
         workers = 1
-        from ..core.renderer import cpu_cores, cuda_devices
+        from ..engine.renderer import cpu_cores, cuda_devices
 
         if device in ("auto", "cuda:all"):
             workers = len(cuda_devices())

@@ -1,4 +1,4 @@
-"""Readers: files and built-in datasets -> core.mesh.VolumeMesh. No bpy here.
+"""Readers: files and built-in datasets -> engine.mesh.VolumeMesh. No bpy here.
 
 One entry point (sources.py): VolumeSource.resolve / from_view_data describe the data,
 load_volume reads it, cached_volume keeps the last few. The CLI, the render engine and the

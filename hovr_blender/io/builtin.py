@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.expansions import fit_tensor_coefficients
-from ..core.mesh import VolumeMesh
-from ..core.shapes import HEX, VERTICES
+from ..engine.expansions import fit_tensor_coefficients
+from ..engine.mesh import VolumeMesh
+from ..engine.shapes import HEX, VERTICES
 
 # The paper's sphere (Nelson, Kirby, Haimes 2014, §6): one hexahedron, f = x^2 + y^2 + z^2.
 SPHERE_LOWER = np.array([-1.0, -1.0, -2.0])

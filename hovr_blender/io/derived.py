@@ -1,7 +1,7 @@
 """Derived scalar fields: the magnitude |u| = sqrt(u0^2 + u1^2 + ...) of a vector given as
 component fields (Nektar++ velocity u, v, w or momentum rhou, rhov, rhow; a VTU vector array).
 
-The renderer handles per-element polynomial fields (modal expansions, core/expansions.py),
+The renderer handles per-element polynomial fields (modal expansions, engine/expansions.py),
 and |u| is not a polynomial (it has a kink wherever u = 0). Each element's magnitude is
 therefore represented by a least-squares fit at an elevated order: Q = min(2P + 1, 15) modes
 per direction, P the largest component mode count of the element, to the exact pointwise
@@ -19,7 +19,7 @@ Error: every magnitude mesh carries ``derived_error`` (dict) and a line in ``war
 largest |fit - |u|| measured at random points of every element (SAMPLES_PER_ELEMENT each, up to
 MAX_SAMPLE_POINTS in all, then DENSE_SAMPLES more in each of the DENSE_ELEMENTS worst elements),
 and the stated bound ``bound`` = ERROR_SAFETY x that maximum + 1e-12 x max |u| (a sample can
-miss the worst point, so this is an estimate, not a certificate; tests/core/test_derived.py
+miss the worst point, so this is an estimate, not a certificate; tests/engine/test_derived.py
 checks fresh random points against it). Measured with `python -m hovr_blender.io.derived MESH SOLUTION FIELD` (or FILE.vtu
 FIELD), seed 0, 2026-11-22:
 - Tet_channel_m3 |u,v,w| (48 tets, 3 -> 7 modes): 9.7e-16 (u, v vanish and w >= 0 there, so
@@ -40,9 +40,9 @@ import sys
 
 import numpy as np
 
-from ..core import expansions as ex
-from ..core.shapes import MAX_MODES
-from ..core.mesh import MeshError, VolumeMesh, element_field_ranges
+from ..engine import expansions as ex
+from ..engine.shapes import MAX_MODES
+from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
 from . import nektar, vtu
 
 SAMPLES_PER_ELEMENT = 64

@@ -18,7 +18,7 @@ same size and kind (`paper_scale_mesh`):
 - field: ``ChannelFlow``, the streamwise velocity u_x of potential flow past a (regularised)
   cylinder on the block plus a Karman street of Lamb-Oseen vortices whose cores wobble and
   whose strength varies along z, in physical coordinates. The data set IS the order-`order`
-  modal fit (core/expansions.fit_modal) of that field in every element, so a renderer's
+  modal fit (engine/expansions.fit_modal) of that field in every element, so a renderer's
   reference of this mesh is exact for it; ``mesh.paper_scale["source"]`` is the analytic
   field, and ``interpolation_error`` measures how far the data set is from it.
 
@@ -38,9 +38,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core import expansions as ex
-from ..core import shapes
-from ..core.mesh import MeshError, VolumeMesh
+from ..engine import expansions as ex
+from ..engine import shapes
+from ..engine.mesh import MeshError, VolumeMesh
 
 # relative interpolation error bounds of the default flow at order 6, by cells across the block
 STATED_ERROR = {1: 0.08, 2: 0.004, 4: 1e-4}

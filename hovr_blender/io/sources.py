@@ -12,8 +12,8 @@ import os
 import re
 from dataclasses import dataclass
 
-from ..core.cache import LRUCache
-from ..core.mesh import VolumeMesh
+from ..engine.cache import LRUCache
+from ..engine.mesh import VolumeMesh
 from . import builtin, derived, nektar
 
 DATA_EXTENSIONS = (".xml", ".vtu")
@@ -103,7 +103,7 @@ class VolumeSource:
 
     @classmethod
     def from_view_data(cls, data: dict, base_dir: str = ".") -> "VolumeSource":
-        """The view file's `data` object (core.view.data_spec has checked its types)."""
+        """The view file's `data` object (engine.view.data_spec has checked its types)."""
         if "builtin" in data:
             return cls("builtin:" + data["builtin"])
         if not data.get("path"):
@@ -135,7 +135,7 @@ def load_volume(source: VolumeSource) -> VolumeMesh:
 
 
 def load_view_data(view) -> VolumeMesh:
-    """The mesh a view file (core.view.View) names in its `data` object."""
+    """The mesh a view file (engine.view.View) names in its `data` object."""
     return load_volume(VolumeSource.from_view_data(view.data, view.base_dir))
 
 

@@ -6,9 +6,9 @@ from itertools import permutations
 
 import numpy as np
 
-from ..core import expansions as ex
-from ..core import shapes
-from ..core.mesh import MeshError, VolumeMesh
+from ..engine import expansions as ex
+from ..engine import shapes
+from ..engine.mesh import MeshError, VolumeMesh
 from .paper_scale import curved_copy
 
 

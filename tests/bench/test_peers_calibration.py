@@ -21,7 +21,7 @@ sys.path.insert(0, str(REPO / "bench"))
 vtk = pytest.importorskip("vtk")
 import vtk_peer as vp  # noqa: E402
 
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.io.synthetic import brick  # noqa: E402
 
 W, H = 64, 48

@@ -15,10 +15,10 @@ from mathutils import Matrix
 
 
 def compat():
-    """hovr_blender.blender.compat of the loaded add-on: the installed extension's in the
+    """hovr_blender.ui.compat of the loaded add-on: the installed extension's in the
     install test's child process, the repository's otherwise."""
     pkg = next((m for m in ("bl_ext.user_default.hovr_blender", "hovr_blender") if m in sys.modules), "hovr_blender")
-    return importlib.import_module(pkg + ".blender.compat")
+    return importlib.import_module(pkg + ".ui.compat")
 
 
 def look_at(eye, target, up) -> np.ndarray:

@@ -124,7 +124,7 @@ def step():
         log("framed, rendered shading")
         return 0.5
     if phase == "wait":
-        from hovr_blender.blender import render as re_mod
+        from hovr_blender.ui import render as re_mod
 
         states = list(re_mod.VIEWPORTS)
         done = [v for v in states if v.converged]

@@ -24,7 +24,7 @@ def main():
                                                       enable_on_install=True)
     assert result == {"FINISHED"}, result
     assert MODULE in bpy.context.preferences.addons
-    deps = __import__(MODULE + ".blender.dependencies", fromlist=["missing"])
+    deps = __import__(MODULE + ".ui.dependencies", fromlist=["missing"])
     report["missing_after_enable"] = [m for m, *_ in deps.missing()]
     report["origins"] = {m: str(importlib.util.find_spec(m).origin) for m in DEPS}
 

@@ -75,7 +75,7 @@ def step():
         state["wait_from"] = time.time()
         return 0.5
     if state["phase"] == "wait":
-        from hovr_blender.blender import render as re_mod
+        from hovr_blender.ui import render as re_mod
 
         states = list(re_mod.VIEWPORTS)
         done = [v for v in states if v.converged]

@@ -24,6 +24,6 @@ def main():
 
 if __name__ == "__main__":
     main()
-    from hovr_blender.blender import compat
+    from hovr_blender.ui import compat
 
     compat.finish_script(0)

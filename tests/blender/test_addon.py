@@ -7,8 +7,8 @@ pytestmark = pytest.mark.blender
 
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
-from hovr_blender.blender import compat, operators, panels  # noqa: E402
-from hovr_blender.blender.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
+from hovr_blender.ui import compat, operators, panels  # noqa: E402
+from hovr_blender.ui.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
 
 
 def _operator_registered(name):
@@ -82,7 +82,7 @@ def test_properties_defaults_and_enum_indices(scene):
     assert settings.step_units == "RELATIVE" and props["steps_across"].type == 'INT'
     # Defaults agree with the core's RenderOptions, so an untouched scene renders like the CLI
     # (but for the step, which the CLI takes in world units).
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.engine.view import RenderOptions
 
     core = RenderOptions()
     assert (settings.method, settings.device) == (core.method, core.device)

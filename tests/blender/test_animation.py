@@ -16,11 +16,11 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import render  # noqa: E402
-from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 from hovr_blender.io.nektar import read_nektar  # noqa: E402
 
 from ..helpers import data_file  # noqa: E402

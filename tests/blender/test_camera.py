@@ -11,7 +11,7 @@ pytestmark = pytest.mark.blender
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
-from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
 
 from .blender_helpers import add_camera  # noqa: E402
 
@@ -89,7 +89,7 @@ def test_image_corners_follow_view_frame(scene, kind, fit, res, aspect, shift):
 
 
 def test_panoramic_camera_is_refused(scene):
-    from hovr_blender.core.camera import CameraError
+    from hovr_blender.engine.camera import CameraError
 
     cam = _camera(scene, "PANO", "AUTO", (32, 24, 100), (1, 1), (0, 0))
     with pytest.raises(CameraError, match="panoramic"):

@@ -31,7 +31,7 @@ def build_zip(out_dir: Path) -> Path:
 def test_zip_layout(tmp_path):
     names = zipfile.ZipFile(build_zip(tmp_path)).namelist()
     assert "blender_manifest.toml" in names and "__init__.py" in names  # side by side at the root
-    assert "blender/engine.py" in names and "blender/panels.py" in names and "io/builtin.py" in names
+    assert "ui/engine.py" in names and "ui/panels.py" in names and "io/builtin.py" in names
     assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc") or n.startswith("tests/")]
 
 
@@ -162,7 +162,7 @@ def test_platform_zip_works_in_a_blender_without_the_dependencies(tmp_path):
     dependency comes from the zip's wheels."""
     import sysconfig
 
-    from ..core.test_nektar import hdf5_field
+    from ..engine.test_nektar import hdf5_field
 
     zip_path = _platform_zip(tmp_path / "dist")
     venv_site = Path(sysconfig.get_paths()["purelib"])

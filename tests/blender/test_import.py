@@ -14,11 +14,11 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import render, scene as blender_scene  # noqa: E402
-from hovr_blender.core.outline import outline_edges  # noqa: E402
+from hovr_blender.ui import render, scene as blender_scene  # noqa: E402
+from hovr_blender.engine.outline import outline_edges  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io import nektar  # noqa: E402
-from hovr_blender.blender import import_operators, panels  # noqa: E402
+from hovr_blender.ui import import_operators, panels  # noqa: E402
 
 from ..helpers import data_file  # noqa: E402
 from .blender_helpers import TET, add_camera, copy_tet, datablock_counts, render_to_exr, set_contract_camera  # noqa: E402
@@ -244,9 +244,9 @@ def _render(scene):
 
 def test_imported_volume_renders_like_the_core(scene, tmp_path):
     """F12 of the moved, rotated import equals the core renderer's image of the derived mesh."""
-    from hovr_blender.blender.camera import ray_camera_from_blender
-    from hovr_blender.core.renderer import Renderer
-    from hovr_blender.core.view import RenderOptions
+    from hovr_blender.ui.camera import ray_camera_from_blender
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.derived import read_nektar_field
 
     xml = copy_tet(tmp_path)

@@ -1,5 +1,5 @@
 """Long waits in Blender without background threads (Blender supports Python threads only when
-they end before the script that started them; blender/jobs.py says why): an import read in
+they end before the script that started them; ui/jobs.py says why): an import read in
 stages with its progress, the same volume as before, a failed read making nothing, and F12
 compiling the render kernels in place, saying so, once a session."""
 import numpy as np
@@ -8,8 +8,8 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import engine as render_engine  # noqa: E402
-from hovr_blender.blender import import_operators, jobs  # noqa: E402
+from hovr_blender.ui import engine as render_engine  # noqa: E402
+from hovr_blender.ui import import_operators, jobs  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import copy_tet, render_to_exr  # noqa: E402

@@ -8,12 +8,12 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import compat  # noqa: E402
-from hovr_blender.blender import engine as render_engine  # noqa: E402
-from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.core.view import RenderOptions  # noqa: E402
+from hovr_blender.ui import compat  # noqa: E402
+from hovr_blender.ui import engine as render_engine  # noqa: E402
+from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
+from hovr_blender.engine.view import RenderOptions  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
@@ -185,7 +185,7 @@ def test_progress_stats_and_cancel_latency(scene, tmp_path, monkeypatch):
 
 
 def test_a_transfer_function_float32_cannot_resolve_is_reported(scene, tmp_path, monkeypatch):
-    """The renderer's precision warning (core/field_frame.py) reaches the user as a WARNING
+    """The renderer's precision warning (engine/field_frame.py) reaches the user as a WARNING
     report of F12; the image is still written."""
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE, method="split")
     obj.hovr.value_min, obj.hovr.value_max = 5.0, 5.000001

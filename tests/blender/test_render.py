@@ -6,8 +6,8 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import render  # noqa: E402
-from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import render_to_exr, volume  # noqa: E402
@@ -56,7 +56,7 @@ def test_save_reload_renders_identically(scene, tmp_path):
 
 def test_f12_over_every_cpu_core_equals_one_core(scene, tmp_path):
     """Device "All CPU Cores" (cpu:all, one process a core) renders the one-core image; the
-    processes are those of core/multi_device.py, started from inside Blender."""
+    processes are those of engine/multi_device.py, started from inside Blender."""
     SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     one = render_to_exr(scene, tmp_path / "one.exr")
     scene.hovr.device = "cpu:all"
@@ -261,7 +261,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     """Step Units Across Volume: the core gets h = the volume's bounding-box diagonal (world
     units, the object's scale included) / Steps Across, so the picture keeps its sampling at any
     size without touching the step (the sphere scaled by 1/50 with its camera)."""
-    from hovr_blender.blender import render
+    from hovr_blender.ui import render
 
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.hovr.step_units, scene.hovr.steps_across = 'RELATIVE', 50
@@ -305,7 +305,7 @@ def test_a_file_saved_before_step_units_keeps_its_world_step(scene, tmp_path):
     """tests/data/blender/legacy_world_step.blend was saved before Step Units, its step never set
     (the world default 0.01). Opened, its scene keeps that step in world units (load_post) and F12
     gives the image the old version gave; a scene of it never used with HOVR takes the new default."""
-    from hovr_blender.blender import versioning
+    from hovr_blender.ui import versioning
 
     from ..helpers import data_file
 
@@ -324,7 +324,7 @@ def test_a_file_saved_with_the_scene_look_renders_the_same(scene, tmp_path):
     """tests/data/blender/legacy_scene_look.blend was saved before looks moved onto volumes (its
     transfer function, value range and density per world unit are the scene's). Opened, its
     volume gets that look (load_post) and F12 gives the image the old version gave."""
-    from hovr_blender.blender import versioning
+    from hovr_blender.ui import versioning
 
     from ..helpers import data_file
 
@@ -352,7 +352,7 @@ def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path,
     (render.FINAL) and gives the same picture; an F12 after an edit of the look alone (ramp
     colour, density, world colour) shades from them without a trace and gives the picture of a
     fresh render of the new look. A moved camera renders plainly again."""
-    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.engine.renderer import Renderer
 
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
@@ -380,9 +380,9 @@ def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path,
 def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_path, monkeypatch):
     """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
     picture) and does not try to keep its segments again."""
-    from hovr_blender.core import limits
-    from hovr_blender.core import renderer as renderer_module
-    from hovr_blender.core.renderer import Renderer
+    from hovr_blender.engine import limits
+    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine.renderer import Renderer
 
     SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()

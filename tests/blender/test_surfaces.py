@@ -1,18 +1,18 @@
 """Opaque surfaces in F12 (issue 17): a plane object cutting the sphere volume renders as the
-core test's independent reference (tests/core/test_surfaces.py): the exact integral from the
+core test's independent reference (tests/engine/test_surfaces.py): the exact integral from the
 eye to the plane composited over the plane's shaded material colour; which objects count
-(blender/surfaces.py): modifiers, instances, hidden, camera-invisible and holdout objects."""
+(ui/surfaces.py): modifiers, instances, hidden, camera-invisible and holdout objects."""
 import numpy as np
 import pytest
 
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender import render  # noqa: E402
-from hovr_blender.blender.surfaces import scene_surfaces  # noqa: E402
-from hovr_blender.core.camera import RayCamera  # noqa: E402
+from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui.surfaces import scene_surfaces  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
 
-from ..core import test_surfaces as ref  # noqa: E402
+from ..engine import test_surfaces as ref  # noqa: E402
 from .blender_helpers import add_camera, material, render_to_exr, set_contract_camera, set_look, z_combine  # noqa: E402
 
 
@@ -163,7 +163,7 @@ def test_depth_pass_z_combines_with_cycles(scene, tmp_path):
     Depth (the view-axis distance where the volume's opacity reaches 0.5, else the clip end) is
     nearer than Cycles' Depth of the plane, else Cycles', against that choice made here from the
     two images and depths rendered apart."""
-    from hovr_blender.blender.compat import new_compositor
+    from hovr_blender.ui.compat import new_compositor
 
     sphere_volume = sphere_scene(scene)
     sphere_volume.hovr.density = 6.0  # opaque enough to reach 0.5 in front of the plane in places

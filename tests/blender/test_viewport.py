@@ -12,8 +12,8 @@ pytestmark = pytest.mark.blender
 from bpy_extras import view3d_utils  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
-from hovr_blender.blender import render  # noqa: E402
-from hovr_blender.blender.viewport import ProgressiveViewport  # noqa: E402
+from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui.viewport import ProgressiveViewport  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import look_at, render_to_exr  # noqa: E402

@@ -1,5 +1,5 @@
 """Import > Walls as Mesh: the domain's boundary, or a Nektar++ file's chosen boundary regions, as
-a triangle mesh beside the HOVR volume (core/walls.py), and the volume still renders; hump3D's
+a triangle mesh beside the HOVR volume (engine/walls.py), and the volume still renders; hump3D's
 hump wall shaded by Cycles under its exact volume (the user guide's picture: HOVR_UPDATE_DOCS=1
 copies it into docs/)."""
 import math
@@ -12,10 +12,10 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.blender.camera import ray_camera_from_blender  # noqa: E402
-from hovr_blender.core import image_io  # noqa: E402
-from hovr_blender.core import walls as core_walls  # noqa: E402
-from hovr_blender.core.surfaces import SurfaceMesh, SurfaceScene  # noqa: E402
+from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.engine import image_io  # noqa: E402
+from hovr_blender.engine import walls as core_walls  # noqa: E402
+from hovr_blender.engine.surfaces import SurfaceMesh, SurfaceScene  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io.nektar import mesh_boundaries, read_nektar  # noqa: E402
 
@@ -131,7 +131,7 @@ def test_import_options_list_the_files_regions(scene):
     composites Walls From can name."""
     from types import SimpleNamespace
 
-    from hovr_blender.blender.import_operators import HOVR_OT_import_nektar
+    from hovr_blender.ui.import_operators import HOVR_OT_import_nektar
 
     labels = []
 

@@ -12,9 +12,9 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from hovr_blender.core.camera import RayCamera  # noqa: E402
-from hovr_blender.core.renderer import Renderer  # noqa: E402
-from hovr_blender.core.view import View  # noqa: E402
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+from hovr_blender.engine.renderer import Renderer  # noqa: E402
+from hovr_blender.engine.view import View  # noqa: E402
 from hovr_blender.distributed import series  # noqa: E402
 from hovr_blender.io.sources import VolumeSource, load_volume  # noqa: E402
 

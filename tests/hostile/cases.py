@@ -41,7 +41,7 @@ def nektar_mesh(composite="H[0]", domain="C[0]", vertex_scale=1.0, extra_composi
 
 def hex_coefficients() -> np.ndarray:
     """Modified_A coefficients (3 modes per direction) of x^2 + y^2 + z^2 on the hexahedron."""
-    from hovr_blender.core.expansions import fit_tensor_coefficients
+    from hovr_blender.engine.expansions import fit_tensor_coefficients
 
     return fit_tensor_coefficients(lambda a, b, c: a * a + b * b + (c - 3.0) ** 2, (3, 3, 3))
 

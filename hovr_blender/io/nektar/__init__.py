@@ -1,9 +1,9 @@
 """Nektar++ reader: mesh XML (plain or B64Z-compressed, curved edges and faces, all four 3-D
 shapes) and field files (.fld/.chk/.rst in XML or HDF5, multi-part .fld/ directories), following
 docs/spec/formats.md §2. The result is a VolumeMesh whose field and geometry are both modal
-expansions of Nektar++'s MODIFIED family in Nektar++'s storage order (core/expansions.py).
+expansions of Nektar++'s MODIFIED family in Nektar++'s storage order (engine/expansions.py).
 
-Untrusted input (core/limits.py is the policy): only regular files are opened; the mesh is
+Untrusted input (engine/limits.py is the policy): only regular files are opened; the mesh is
 read first and every size a field file declares is checked against it before anything is
 inflated or allocated; zlib output is bounded; HDF5 objects are followed through hard links
 only and their data must lie in the file itself. Every failure is a NektarError naming the file

@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...core import expansions as ex
-from ...core.shapes import HEX, MAX_MODES, NAMES, PRISM, PYR, TET
+from ...engine import expansions as ex
+from ...engine.shapes import HEX, MAX_MODES, NAMES, PRISM, PYR, TET
 from .errors import NektarError
 
 FIELD_SHAPES = {"Hexahedron": HEX, "Prism": PRISM, "Tetrahedron": TET, "Pyramid": PYR}

@@ -1,5 +1,5 @@
 """The mesh's composites and the CONDITIONS' boundary regions (docs/spec/formats.md §2.2,
-§5.1): which element faces a face composite holds, for the walls (core/walls.py), and which
+§5.1): which element faces a face composite holds, for the walls (engine/walls.py), and which
 composites each boundary region names, with the names and condition types the file gives.
 
 A composite <C ID="i" NAME="optional"> lists entities of one dimension; a face composite lists
@@ -11,7 +11,7 @@ optional USERDEFINEDTYPE such as WallViscous).
 A face is given as (element, face): the element's index among the DOMAIN's elements (the
 VolumeMesh's order) and its face in shapes.FACE_PLANES' numbering (shapes.PLANE_OF_FACE maps
 Nektar++'s local face, the face's position in the element's entry). A face shared by two of
-the DOMAIN's elements is given once, on the first of them in ID order (core/walls.py then winds
+the DOMAIN's elements is given once, on the first of them in ID order (engine/walls.py then winds
 its triangles outward from that element).
 
 Untrusted input: ID lists are kept as ranges and matched against the IDs that exist
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.shapes import PLANE_OF_FACE
+from ...engine.shapes import PLANE_OF_FACE
 from .errors import NektarError
 from .ranges import first_missing, parse_ranges, range_count, select
 from .xmlfile import entity_id, parse_xml

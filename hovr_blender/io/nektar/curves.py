@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.shapes import MAX_MODES
+from ...engine.shapes import MAX_MODES
 from .entities import check_coordinates
 from .errors import NektarError
 from .points import POINTS_ENUM

@@ -6,7 +6,7 @@ import re
 
 import numpy as np
 
-from ...core.shapes import NAMES
+from ...engine.shapes import NAMES
 from .composites import read_composites
 from .entities import ELEMENT_TAGS
 from .errors import NektarError

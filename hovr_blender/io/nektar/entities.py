@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core.shapes import HEX, NAMES, PRISM, PYR, TET
+from ...engine.shapes import HEX, NAMES, PRISM, PYR, TET
 from .errors import NektarError
 from .xmlfile import endianness, entity_id, parse_floats, parse_ints, parse_number, records
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...core import limits
-from ...core.mesh import MeshError
+from ...engine import limits
+from ...engine.mesh import MeshError
 
 
 class NektarError(ValueError):

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import expansions as ex
-from ...core import limits
+from ...engine import expansions as ex
+from ...engine import limits
 from .blocks import Block, ElementBudget, coefficient_counts, finish_block, parse_header
 from .errors import NektarError, guard
 from .ranges import expand_ranges, parse_ranges, range_count

@@ -9,9 +9,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ...core import expansions as ex
-from ...core.expansions import gll_points
-from ...core.shapes import EDGES, FACES, NAMES, VERTICES
+from ...engine import expansions as ex
+from ...engine.expansions import gll_points
+from ...engine.shapes import EDGES, FACES, NAMES, VERTICES
 from .errors import NektarError
 from .mesh import NektarMesh
 from .points import lagrange_matrix, points_1d, tri_evenly_spaced

@@ -11,8 +11,8 @@ from __future__ import annotations
 import h5py
 import numpy as np
 
-from ...core import limits
-from ...core.shapes import MAX_MODES, NAMES
+from ...engine import limits
+from ...engine.shapes import MAX_MODES, NAMES
 from .blocks import Block, checked_coefficient_counts, finish_block, mode_counts, parse_header
 from .errors import NektarError
 

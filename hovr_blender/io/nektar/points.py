@@ -7,7 +7,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.polynomial import legendre
 
-from ...core.expansions import gll_points
+from ...engine.expansions import gll_points
 from .errors import NektarError
 
 # PointsType enum order (docs/spec/formats.md §2.3): compressed meshes store the index

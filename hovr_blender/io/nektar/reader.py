@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import expansions as ex
-from ...core.cache import LRUCache
-from ...core.mesh import MeshError, VolumeMesh
-from ...core.shapes import NAMES
+from ...engine import expansions as ex
+from ...engine.cache import LRUCache
+from ...engine.mesh import MeshError, VolumeMesh
+from ...engine.shapes import NAMES
 from .composites import Boundaries, read_boundaries
 from .errors import NektarError, guard
 from .fields import read_field_file

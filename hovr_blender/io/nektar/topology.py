@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ...core.shapes import EDGES, FACES, HEX, NAMES, PRISM, PYR, TET
+from ...engine.shapes import EDGES, FACES, HEX, NAMES, PRISM, PYR, TET
 from .errors import NektarError
 from .mesh import NektarMesh
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import limits
+from ...engine import limits
 from .errors import NektarError
 
 _FORBIDDEN = (b"<!doctype", b"<!entity")

@@ -6,7 +6,7 @@ node count), and the linear VTK_TETRA 10 / VTK_HEXAHEDRON 12 / VTK_WEDGE 13 as d
 Pyramids (14, 74, 81) are refused: VTK's higher-order pyramid space is not Nektar++'s.
 Field and geometry are converted exactly to modal expansions (docs/spec/formats.md §4).
 
-Untrusted input (core/limits.py is the policy): the file is opened as a regular file within
+Untrusted input (engine/limits.py is the policy): the file is opened as a regular file within
 the memory limit; every DataArray is decoded to the size the piece's counts give it: a block
 header that declares another size is refused before anything is allocated or inflated, and
 each block is inflated, bounded, to exactly its declared size. Every failure is a VtuError.

@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ...core import expansions as ex
-from ...core.shapes import HEX, PRISM, TET
+from ...engine import expansions as ex
+from ...engine.shapes import HEX, PRISM, TET
 from .cells import hex_order, tet_order, wedge_order
 from .errors import VtuError
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import limits
+from ...engine import limits
 from .errors import VtuError
 
 NUMPY_TYPES = {"Int8": "i1", "UInt8": "u1", "Int16": "i2", "UInt16": "u2", "Int32": "i4", "UInt32": "u4",

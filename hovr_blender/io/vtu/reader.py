@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import limits
-from ...core.mesh import MeshError, VolumeMesh
-from ...core.shapes import HEX, MAX_MODES, PRISM, TET
+from ...engine import limits
+from ...engine.mesh import MeshError, VolumeMesh
+from ...engine.shapes import HEX, MAX_MODES, PRISM, TET
 from .cells import CELL_TYPES, PYRAMIDS, infer_degrees, node_count
 from .conversion import conversion_matrix, mirrored_cells, modes_for
 from .decoding import LoadedFile, decode

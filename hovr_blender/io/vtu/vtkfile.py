@@ -1,7 +1,7 @@
 """A .vtu file opened: its header checked, the XML up to <AppendedData> parsed with ElementTree,
 the appended data located; and what the XML says (version, pieces, point arrays).
 
-The file is read through core/limits.py (regular files only, size within the memory limit).
+The file is read through engine/limits.py (regular files only, size within the memory limit).
 Reading is done here, not by meshio: its VtuReader refuses VTKFile versions other than 0.1/1.0
 and keeps only the last <Piece>, and its decoders trust the block headers (unbounded, quadratic
 inflation of zlib/lzma blocks; raw appended data re-encoded as base64).
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import limits
+from ...engine import limits
 from .decoding import CODECS, NUMPY_TYPES, LoadedFile
 from .errors import VtuError
 

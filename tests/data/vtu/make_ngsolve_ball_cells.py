@@ -1,7 +1,7 @@
 """Writes ngsolve_ball_cells.npz: the geometry of a few cells of NGSolve's ball
 (../shared/data/vtu/ngsolve_ball_poisson_hex_p6.vtu, 512 curved order-6 hexahedra), as the
-VTU reader turns them into modal expansions (core/expansions), for the watertightness
-regressions in tests/core/test_watertight_real.py. The cells are those the regression rays
+VTU reader turns them into modal expansions (engine/expansions), for the watertightness
+regressions in tests/engine/test_watertight_real.py. The cells are those the regression rays
 cross where the traversal lost length; several meet the sphere along an edge where their
 Jacobian vanishes.
 
@@ -18,7 +18,7 @@ if __name__ == "__main__":
 
     here = Path(__file__).resolve().parent
     sys.path.insert(0, str(here.parents[2]))
-    from hovr_blender.core import expansions as ex
+    from hovr_blender.engine import expansions as ex
     from hovr_blender.io.vtu import read_vtu
 
     mesh = read_vtu(here.parents[3] / "shared" / "data" / "vtu" / "ngsolve_ball_poisson_hex_p6.vtu", "u")

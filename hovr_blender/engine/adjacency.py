@@ -1,0 +1,72 @@
+"""Host-side inputs of the traversal: which element lies across each face, and a straight-sided
+guess of every element's world -> reference map.
+
+Faces are numbered as the kernels' element.face_plane numbers them (shapes.FACE_PLANES;
+tests/engine/test_adjacency.py checks the two agree). Two faces are the same when
+their corner vertices coincide (to 1e-9 of the mesh's size); a face met by more or fewer than
+two elements has no neighbour, and the traversal searches the BVH there instead of walking.
+Matching corners only is enough: a wrong match (two curved faces with the same corners but
+different shapes) costs the kernel one failed inside test, never a wrong segment.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .shapes import MAX_FACES, VERTICES, plane_vertices
+
+def face_neighbours(mesh) -> np.ndarray:
+    """(N * MAX_FACES,) int32: the element across face f of element e at e * MAX_FACES + f, -1 if none."""
+    n = mesh.num_elements
+    out = np.full(n * MAX_FACES, -1, np.int32)
+    pts = mesh.vertices.reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    quantum = max(float(np.max(hi - lo)), 1e-300) * 1e-9
+    keys, slots = [], []
+    for shape in np.unique(mesh.shape):
+        elems = np.nonzero(mesh.shape == shape)[0]
+        for f, idx in enumerate(plane_vertices(int(shape))):
+            corners = np.round((mesh.vertices[elems][:, idx] - lo) / quantum).astype(np.int64)  # (m, k, 3)
+            # a face's key: its corners sorted (lexicographically), padded to four
+            order = np.lexsort((corners[..., 2], corners[..., 1], corners[..., 0]), axis=-1)
+            corners = np.take_along_axis(corners, order[..., None], axis=1)
+            if corners.shape[1] == 3:
+                corners = np.concatenate([corners, np.full((len(elems), 1, 3), -1, np.int64)], axis=1)
+            keys.append(corners.reshape(len(elems), 12))
+            slots.append(elems * MAX_FACES + f)
+    keys = np.concatenate(keys)
+    slots = np.concatenate(slots)
+    order = np.lexsort(keys.T[::-1])
+    keys, slots = keys[order], slots[order]
+    same = np.all(keys[1:] == keys[:-1], axis=1)
+    # runs of exactly two equal keys are shared faces
+    start = np.concatenate([[True], ~same])
+    run_id = np.cumsum(start) - 1
+    run_len = np.bincount(run_id)
+    pair = np.nonzero(same & (run_len[run_id[1:]] == 2))[0]
+    a, b = slots[pair], slots[pair + 1]
+    out[a] = b // MAX_FACES
+    out[b] = a // MAX_FACES
+    return out
+
+
+def vertex_affine_guess(mesh) -> np.ndarray:
+    """(N, 3, 4): xi ~ M[:, :3] x + M[:, 3], exact for affine elements and, for curved ones,
+    the map of their straight-sided twin through vertex 0 and its three axis neighbours: the
+    start of Newton's inversion (kernels/geometry.start_guess)."""
+    M = mesh.ref_from_world.copy()
+    if mesh.affine is None or mesh.affine.all():
+        return M
+    for shape in np.unique(mesh.shape[~mesh.affine]):
+        V = VERTICES[int(shape)]
+        axes = [int(np.nonzero((V == -1 + 2 * np.eye(3)[d]).all(axis=1))[0][0]) for d in range(3)]
+        elems = np.nonzero((mesh.shape == shape) & ~mesh.affine)[0]
+        X = mesh.vertices[elems]
+        J = 0.5 * np.transpose(X[:, axes] - X[:, :1], (0, 2, 1))  # columns dx/dxi_d
+        det = np.linalg.det(J)
+        good = np.isfinite(det) & (np.abs(det) > 0)
+        A = np.zeros_like(J)
+        A[good] = np.linalg.inv(J[good])
+        M[elems, :, :3] = A
+        # xi = A (x - x_0) - 1; degenerate twins: xi = 0 (Newton starts from the centre)
+        M[elems, :, 3] = np.where(good[:, None], -np.einsum("mij,mj->mi", A, X[:, 0]) - 1.0, 0.0)
+    return M

@@ -1,0 +1,147 @@
+"""The view file of render contract §1, and the project's own render options."""
+from __future__ import annotations
+
+import json
+import numbers
+import os
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .camera import RayCamera
+from .limits import read_regular
+from .strict_json import as_integer, as_object, as_string, as_vector3
+from .transfer_function import TransferFunction
+
+METHODS = ("riemann", "trapezoid", "classified", "split")
+FIXED_STEP_METHODS = ("riemann", "trapezoid")  # the baselines: a step h is what they are
+# classified without h: each piecewise-smooth segment's trapezoid step is the largest whose error
+# bound on the segment is at most this (kernels/quadrature.auto_steps). A quarter of the contract's
+# aim for a whole image (§6): a ray's errors add up over the segments it marches (the paper-scale
+# channel at 1e-3 a segment: 1.6e-3 at its worst pixel; docs/methods.md, "classified's step")
+AUTO_STEP_ERROR = 2.5e-4
+
+
+MAX_IMAGE_SIDE = 32768
+MAX_VIEW_BYTES = 1 << 20
+
+
+class ViewError(ValueError):
+    """A view file that cannot be rendered; the message names the key."""
+
+
+def data_spec(data) -> dict:
+    """The view's ``data`` object, its keys type-checked: {"builtin": name} or {"path": ...,
+    "solution": ..., "field": ..., "component": index or "magnitude"}."""
+    data = as_object(data, "data", ViewError)
+    for key in ("builtin", "path", "solution", "field"):
+        if key in data and data[key] is not None:
+            as_string(data[key], f"data.{key}", ViewError)
+    comp = data.get("component")
+    if comp is not None and comp != "magnitude":
+        as_integer(comp, "data.component (an index or \"magnitude\")", ViewError, 0)
+    return dict(data)
+
+
+@dataclass(frozen=True)
+class RenderOptions:
+    """Quadrature settings; optional keys of the view file ("render": {...})."""
+
+    method: str = "classified"
+    # fixed step (world units) of Riemann/trapezoid and of classified's piecewise-smooth segments;
+    # None: classified chooses each segment's step from its error bound (AUTO_STEP_ERROR)
+    h: float | None = None
+    tolerance: float = 1e-5  # absolute error target of each adaptive Gauss-Kronrod panel
+    min_transmittance: float = 1e-5  # early ray termination: stop once T falls below this
+    inner: str = "spectral"  # smooth/smooth inner integral: "spectral" or the paper's "trapezoid"
+    device: str = "cpu"
+    precision: str = "float32"  # kernel arithmetic: "float32" or "float64" (same kernel source)
+
+    def __post_init__(self):
+        for name in ("method", "inner", "device", "precision"):
+            if not isinstance(getattr(self, name), str):
+                raise ViewError(f"render option {name} must be a string, got {getattr(self, name)!r}")
+        for name in ("h", "tolerance", "min_transmittance"):
+            v = getattr(self, name)
+            if name == "h" and v is None:
+                continue
+            if not isinstance(v, numbers.Real) or isinstance(v, bool):
+                raise ViewError(f"render option {name} must be a number, got {v!r}")
+        if self.method not in METHODS:
+            raise ViewError(f"unknown method {self.method!r}; one of {', '.join(METHODS)}")
+        if self.h is None:
+            if self.method in FIXED_STEP_METHODS:
+                raise ViewError(f"method {self.method} marches with a fixed step: give h in world units "
+                                f"(--h, or \"render\": {{\"h\": ...}} in the view file)")
+        elif not (np.isfinite(self.h) and self.h > 0):
+            raise ViewError(f"h must be a positive step, got {self.h}")
+        if not (np.isfinite(self.tolerance) and self.tolerance > 0):
+            raise ViewError(f"tolerance must be positive, got {self.tolerance}")
+        if not (0.0 <= self.min_transmittance < 1.0):
+            raise ViewError(f"min_transmittance must be in [0, 1), got {self.min_transmittance}")
+        if self.inner not in ("spectral", "trapezoid"):
+            raise ViewError(f"inner must be 'spectral' or 'trapezoid', got {self.inner!r}")
+        if self.precision not in ("float32", "float64"):
+            raise ViewError(f"precision must be 'float32' or 'float64', got {self.precision!r}")
+
+    @classmethod
+    def pixel_exact(cls, device: str = "cpu") -> "RenderOptions":
+        """The settings of the pixel-exact reference image (engine/reference.pixel_exact_reference):
+        the breakpoint-split method in float64, Gauss-Kronrod panels to 1e-9 (curved interpolants
+        to a tail of 1e-12), no early ray termination. Independent of the float32 kernels'
+        rounding and of their tolerance, so an error measured against it includes both."""
+        return cls(method="split", tolerance=1e-9, min_transmittance=0.0, precision="float64", device=device)
+
+    def with_(self, **kw) -> "RenderOptions":
+        return replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+    def as_dict(self) -> dict:
+        return {k: getattr(self, k) for k in ("method", "h", "tolerance", "min_transmittance", "inner", "device", "precision")}
+
+
+@dataclass
+class View:
+    camera: RayCamera
+    transfer_function: TransferFunction
+    background: np.ndarray
+    data: dict
+    options: RenderOptions = field(default_factory=RenderOptions)
+    base_dir: str = "."
+
+    @classmethod
+    def from_dict(cls, d: dict, base_dir: str = ".") -> "View":
+        d = as_object(d, "a view", ViewError)
+        for key in ("image", "camera", "transfer_function", "data"):
+            if key not in d:
+                raise ViewError(f"view needs '{key}'")
+        img = as_object(d["image"], "image", ViewError)
+        if "width" not in img or "height" not in img:
+            raise ViewError("view needs image.width and image.height")
+        w = as_integer(img["width"], "image size: width", ViewError, 1, MAX_IMAGE_SIDE)
+        h = as_integer(img["height"], "image size: height", ViewError, 1, MAX_IMAGE_SIDE)
+        bg = as_vector3(d.get("background", [0.0, 0.0, 0.0]), "background [r, g, b]", ViewError)
+        opts = as_object(d.get("render", {}), "render", ViewError)
+        try:
+            options = RenderOptions(**opts)
+        except TypeError as exc:
+            raise ViewError(f"render options: {exc}") from exc
+        return cls(
+            camera=RayCamera.from_contract(d["camera"], w, h),
+            transfer_function=TransferFunction.from_contract(d["transfer_function"]),
+            background=bg,
+            data=data_spec(d["data"]),
+            options=options,
+            base_dir=base_dir,
+        )
+
+    @classmethod
+    def load(cls, path: str) -> "View":
+        raw = read_regular(path, "view file")
+        if len(raw) > MAX_VIEW_BYTES:
+            raise ViewError(f"view file {path} is {len(raw)} bytes; a view is a small JSON object "
+                            f"(at most {MAX_VIEW_BYTES} bytes)")
+        try:
+            d = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+            raise ViewError(f"{path}: not valid JSON ({exc})") from exc
+        return cls.from_dict(d, base_dir=os.path.dirname(os.path.abspath(path)))

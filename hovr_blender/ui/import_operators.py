@@ -1,0 +1,586 @@
+"""File > Import > HOVR Nektar++ (.xml) / HOVR VTU (.vtu): a finite-element volume as an object.
+
+The file is read first; only a successful read creates anything (the outline mesh, the
+object and its own look: a transfer function, the field's range, a density relative to its
+size; with Walls as Mesh, the domain's boundary faces, or a Nektar++ file's chosen composites or
+boundary regions, as a triangle mesh, engine/walls.py), so a malformed file or a selection the
+file cannot satisfy leaves the .blend as it was and the error names the file (and the element,
+record or composite where the reader can tell). Add Walls (hovr.add_walls) makes the same mesh
+for a volume already imported. Importing never changes another volume. By default the scene
+camera (made if there is none) then frames the new volume.
+
+The reading runs in Blender's main thread, its stages in the progress bar (a thread left
+running after the operator returns is not supported by Blender: jobs.py says why).
+
+The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
+that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
+remapping does not see add-on properties).
+"""
+import os
+from dataclasses import dataclass, field as dc_field
+
+import bpy
+from bpy.app.handlers import persistent
+from bpy.props import BoolProperty, FloatProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper
+
+from ..engine import walls as core_walls
+from ..io import nektar, vtu
+from ..io.sources import VolumeSource, cached_volume, parse_component
+from . import operators
+from .jobs import Job
+from .render import failure_text, volume_extent, volume_points
+from .scene import field_samples
+
+
+def _relative_wanted() -> bool:
+    prefs = getattr(bpy.context, "preferences", None)
+    return prefs is None or prefs.filepaths.use_relative_paths
+
+
+def stored_path(path: str) -> str:
+    """How Object.hovr keeps a data path: '//'-relative to the saved .blend (Blender's relative
+    paths preference, on by default), else absolute."""
+    if not path or not bpy.data.filepath or not _relative_wanted():
+        return path
+    try:
+        return bpy.path.relpath(path)
+    except ValueError:  # another drive (Windows): no relative form
+        return path
+
+
+def _absolute(path: str, base_dir: str) -> str:
+    """A path typed in the operator: '//' is the .blend's folder, other relative paths the data's."""
+    path = path.strip()
+    if not path:
+        return ""
+    if path.startswith("//"):
+        path = bpy.path.abspath(path)
+    elif not os.path.isabs(path):
+        path = os.path.join(base_dir, path)
+    return os.path.abspath(path)
+
+
+def _fail(op, path, exc) -> set:
+    if isinstance(exc, ImportError):
+        what = failure_text(exc)
+    else:
+        what = str(exc) if isinstance(exc, (ValueError, OSError)) else f"unexpected {type(exc).__name__}: {exc}"
+    op.report({'ERROR'}, f"HOVR: cannot import {os.path.basename(path)}: {what}")
+    return {'CANCELLED'}
+
+
+@dataclass
+class ImportRequest:
+    """An import's settings as plain values, taken from the operator on the main thread (the
+    reading thread must not touch Blender's data, operator properties included)."""
+
+    kind: str  # "nektar" or "vtu"
+    path: str  # absolute
+    solution: str = ""  # Nektar++: absolute, or "" to pick the likeliest beside the mesh
+    field: str = ""
+    component: str = ""  # VTU
+    fit_range: bool = True
+    walls: bool = False
+    walls_tolerance: float = core_walls.DEFAULT_RELATIVE_TOLERANCE
+    frame: int = 1
+    walls_from: str = ""  # Nektar++: composites or boundary regions for the walls ("" = every boundary face)
+
+    @property
+    def steps(self) -> int:
+        return 3 + int(self.fit_range) + int(self.walls)
+
+
+@dataclass
+class ImportRead:
+    """What read_import found and read, for conclude_import to turn into objects."""
+
+    request: ImportRequest
+    source: VolumeSource
+    mesh: object  # engine.mesh.VolumeMesh
+    solution: str
+    field: str
+    component: str
+    notes: list = dc_field(default_factory=list)
+    warnings: list = dc_field(default_factory=list)
+    values: object = None  # sampled field values (Fit Value Range)
+    walls: object = None  # engine.walls.Walls (Walls as Mesh)
+
+
+def resolve_nektar(request: ImportRequest):
+    """(solution, field, component, notes, warnings) of a Nektar++ import: the solution named or
+    the likeliest beside the mesh, the field named or the file's first; raises for bad settings."""
+    path = request.path
+    notes, warnings = [], []
+    solution = request.solution
+    if not solution:
+        picked, why, others = nektar.pick_solution(path)
+        if picked is not None:
+            solution = str(picked)
+            rest = [p.name for p in others if p != picked]
+            notes.append(f"solution {picked.name} ({why})"
+                         + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
+                            if rest else ""))
+        elif others:
+            warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
+    field = request.field.strip()
+    if solution and not field:
+        names = nektar.list_fields(solution)
+        if not names:
+            raise nektar.NektarError(f"{solution}: holds no fields")
+        field = names[0]
+        if len(names) > 1:
+            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+    if not solution and field:
+        raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
+                                 "found beside the mesh")
+    return solution, field, "", notes, warnings
+
+
+def resolve_vtu(request: ImportRequest):
+    """(solution, field, component, notes, warnings) of a VTU import: the array named or the first."""
+    parse_component(request.component)  # a bad entry is reported before the file is read
+    field, notes = request.field.strip(), []
+    if not field:
+        names = list(vtu.list_fields(request.path))
+        if not names:
+            raise vtu.VtuError(f"{request.path}: no point-data array to render")
+        field = names[0]
+        if len(names) > 1:
+            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+    return "", field, request.component.strip(), notes, []
+
+
+RESOLVE = {"nektar": resolve_nektar, "vtu": resolve_vtu}
+
+
+def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
+    """Everything an import reads and computes, with no bpy: the solution and field, the data
+    (kept in io.sources' cache for the first render), its extent and corner points (the panel's
+    step, Frame Camera), the sampled field (Fit Value Range) and the walls. step(stage) is called
+    before each stage (a jobs.Job's step: the progress bar)."""
+    step("finding the solution and field")
+    solution, field, component, notes, warnings = RESOLVE[request.kind](request)
+    step("reading the data")
+    source = VolumeSource.resolve(request.path, solution, field, request.frame, component=component)
+    mesh = cached_volume(source)
+    step("measuring the volume")
+    volume_extent(source)
+    volume_points(source)
+    values = walls = None
+    if request.fit_range:
+        step("sampling the field")
+        values = field_samples(mesh)
+    if request.walls:
+        step("tessellating the walls")
+        walls = make_walls(mesh, request.path, request.walls_from, request.walls_tolerance)
+    return ImportRead(request, source, mesh, solution, field, component, notes, warnings, values, walls)
+
+
+def import_job(request: ImportRequest, on_step=None) -> Job:
+    """The import's reading as a Job (run() it), on_step(job) called at each stage."""
+    return Job(lambda job: read_import(request, job.step), f"importing {os.path.basename(request.path)}",
+               steps=request.steps, on_step=on_step)
+
+
+def finish_import(op, context, request: ImportRequest, job: Job, frame_camera: bool = True) -> set:
+    """The end of an import: the error for a failed read (nothing was made), else the objects
+    (conclude_import)."""
+    if job.error is not None:  # a reader bug too must end as a message, not a traceback
+        return _fail(op, request.path, job.error)
+    return conclude_import(op, context, job.result, frame_camera)
+
+
+def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) -> set:
+    """The volume object (and walls) of a finished read, its look fitted, the camera framed, the
+    report."""
+    path, mesh = read.request.path, read.mesh
+    notes, warnings = list(read.notes), list(read.warnings)
+    stem = os.path.splitext(os.path.basename(path))[0]
+    try:
+        obj = operators.create_volume_object(context, stem, mesh, stored_path(path), stored_path(read.solution),
+                                             read.field, read.component)
+    except Exception as exc:
+        return _fail(op, path, exc)
+    if read.walls is not None:
+        walls = read.walls
+        try:
+            create_walls_object(context, obj, walls)
+            note, warning = walls_report(walls, read.request.walls_from)
+            notes.append(note)
+            if warning:
+                warnings.append(warning)
+        except Exception as exc:  # the volume itself was imported
+            warnings.append(f"walls not made: {failure_text(exc)}")
+        context.view_layer.objects.active = obj
+    if read.values is not None and read.values.size:
+        operators.fit_value_range(obj, context.scene, read.values)
+    if getattr(mesh, "has_field", True) is False:
+        warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
+    for w in getattr(mesh, "warnings", [])[:5]:
+        notes.append(w)
+    if frame_camera:
+        try:
+            operators.frame_volumes(context, [o for o in context.scene.objects
+                                              if o.hovr.is_volume and o.visible_get()] or [obj])
+        except Exception as exc:  # framing is a convenience: the import itself succeeded
+            notes.append(f"camera not framed: {failure_text(exc)}")
+    label = f" field {mesh.field_name}" if mesh.field_name else ""
+    op.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}" + "".join(f"; {n}" for n in notes))
+    for w in warnings:
+        op.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
+    return {'FINISHED'}
+
+
+class _ImportVolume(ImportHelper):
+    bl_options = {'REGISTER', 'UNDO', 'PRESET'}
+
+    fit_range: BoolProperty(name="Fit Value Range", default=True,
+                            description="Set the new volume's Value Min/Max to its field's range")
+    frame: BoolProperty(name="Frame Camera", default=True,
+                        description="Point the scene camera (a new one if there is none) at the HOVR volumes and "
+                                    "set its clip start/end from their size")
+    walls: BoolProperty(name="Walls as Mesh", default=False,
+                        description="Also make the domain's boundary faces a triangle mesh (\"<volume> Walls\", a child "
+                                    "of the volume), curved faces tessellated within the tolerance, for a Cycles "
+                                    "material. With HOVR's Surfaces on, the walls are opaque and hide the volume inside")
+    walls_tolerance: FloatProperty(name="Wall Tolerance", default=core_walls.DEFAULT_RELATIVE_TOLERANCE,
+                                   min=1e-6, max=0.1, precision=6, step=0.01,
+                                   description="Largest distance of the walls' triangles from the true curved "
+                                               "faces, as a fraction of the volume's bounding-box diagonal")
+
+    def request(self, context, path: str) -> ImportRequest:
+        """The settings as plain values."""
+        raise NotImplementedError
+
+    def execute(self, context):
+        path = os.path.abspath(bpy.path.abspath(self.filepath))
+        request = self.request(context, path)
+        wm = context.window_manager
+        job = import_job(request, on_step=lambda j: wm.progress_update(j.step_index))
+        wm.progress_begin(0, request.steps)
+        try:
+            job.run()
+        finally:
+            wm.progress_end()
+        return finish_import(self, context, request, job, self.frame)
+
+
+def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
+    """core_walls.Walls of the volume `mesh` read from `path`: its boundary faces, or with a
+    selection (C[...], B[...] or names) those of a Nektar++ file's composites or boundary regions."""
+    faces = None
+    if selection.strip():
+        if not path.lower().endswith(".xml"):
+            raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a Nektar++ "
+                             f"mesh's (.xml), not {os.path.basename(path) or path}'s; leave the selection empty "
+                             "for all boundary faces")
+        faces = nektar.mesh_boundaries(path).select(selection)
+    return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
+
+
+def walls_report(walls, selection: str):
+    """(note, warning or None) for the report of a walls mesh."""
+    what = f" of {selection.strip()}" if selection.strip() else ""
+    note = f"walls{what}: {len(walls.element)} faces, {len(walls.triangles)} triangles within {walls.tolerance:.3g}"
+    warning = None
+    if walls.cap_hit:
+        warning = (f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "
+                   f"triangles still farther than {walls.tolerance:.3g} from the true surface")
+    return note, warning
+
+
+def create_walls_object(context, volume, walls, name=None):
+    """The tessellated boundary (core_walls.Walls) as the mesh object `name` (default "<volume>
+    Walls"), a child of the volume with an identity local transform (the volume's own transform),
+    smooth shaded, in the volume's collections. Vertices of neighbouring faces are not welded
+    (engine/walls.py)."""
+    name = name or f"{volume.name} Walls"
+    me = obj = None
+    try:
+        me = bpy.data.meshes.new(name)
+        me.from_pydata(walls.vertices.tolist(), [], walls.triangles.tolist())
+        me.update()
+        if hasattr(me, "shade_smooth"):  # Blender 4.1+
+            me.shade_smooth()
+        else:
+            me.polygons.foreach_set("use_smooth", [True] * len(me.polygons))
+        obj = bpy.data.objects.new(name, me)
+        obj.parent = volume
+        for collection in volume.users_collection or [context.scene.collection]:
+            collection.objects.link(obj)
+    except Exception:
+        operators.discard(obj, me)
+        raise
+    return obj
+
+
+# The file browser redraws the operator's panel often: field-file scans per folder and field
+# names per file are remembered (by modification time) so drawing stays cheap.
+_SCAN_CACHE: dict = {}
+
+
+def _cached(key, stamp_path, compute):
+    try:
+        stamp = os.stat(stamp_path).st_mtime_ns
+    except OSError:
+        return None
+    hit = _SCAN_CACHE.get(key)
+    if hit is not None and hit[0] == stamp:
+        return hit[1]
+    try:
+        value = compute()
+    except Exception:
+        value = None
+    if len(_SCAN_CACHE) > 64:
+        _SCAN_CACHE.clear()
+    _SCAN_CACHE[key] = (stamp, value)
+    return value
+
+
+WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domain's boundary faces; or the "
+                          "file's composites C[1,3-4], boundary regions B[0] (from its CONDITIONS), or names "
+                          "(a composite's or region's NAME, or a condition type such as WallViscous), "
+                          "separated by commas")
+
+
+def draw_wall_choices(layout, path):
+    """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
+    choices = _cached(("walls", path), path, lambda: nektar.mesh_boundaries(path).choices())
+    box = layout.box()
+    if choices is None:
+        box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
+        return
+    if not choices:
+        box.label(text="No face composites: all boundary faces", icon='INFO')
+        return
+    box.label(text="Walls From (empty: all boundary faces):")
+    for _, label in choices[:12]:
+        box.label(text=label[:60])
+    if len(choices) > 12:
+        box.label(text=f"... {len(choices) - 12} more")
+
+
+class HOVR_OT_add_walls(bpy.types.Operator):
+    """Add a triangle mesh of the active HOVR volume's walls: its boundary faces, or a Nektar++
+    mesh's chosen composites or boundary regions, curved faces tessellated within the tolerance"""
+
+    bl_idname = "hovr.add_walls"
+    bl_label = "Add Walls"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
+    walls_tolerance: FloatProperty(name="Wall Tolerance", default=core_walls.DEFAULT_RELATIVE_TOLERANCE,
+                                   min=1e-6, max=0.1, precision=6, step=0.01,
+                                   description="Largest distance of the walls' triangles from the true curved "
+                                               "faces, as a fraction of the volume's bounding-box diagonal")
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.hovr.is_volume and bool(obj.hovr.source.strip())
+
+    def invoke(self, context, _event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "walls_from")
+        layout.prop(self, "walls_tolerance")
+        path = context.object.hovr.source
+        if path.lower().endswith(".xml"):
+            try:
+                draw_wall_choices(layout, operators.volume_source(context.object, context.scene).path)
+            except ValueError:
+                pass
+
+    def execute(self, context):
+        volume = context.object
+        try:
+            source = operators.volume_source(volume, context.scene)
+            mesh = cached_volume(source)
+            walls = make_walls(mesh, source.path, self.walls_from, self.walls_tolerance)
+        except Exception as exc:
+            self.report({'ERROR'}, f"HOVR: no walls for {volume.name}: {failure_text(exc)}")
+            return {'CANCELLED'}
+        selection = self.walls_from.strip()
+        obj = create_walls_object(context, volume, walls,
+                                  f"{volume.name} Walls {selection}" if selection else None)
+        note, warning = walls_report(walls, selection)
+        self.report({'INFO'}, f"HOVR: {obj.name}: {note}")
+        if warning:
+            self.report({'WARNING'}, f"HOVR: {obj.name}: {warning}")
+        return {'FINISHED'}
+
+
+class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
+    """Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume"""
+
+    bl_idname = "import_scene.hovr_nektar"
+    bl_label = "Import Nektar++ Volume"
+
+    filename_ext = ".xml"
+    filter_glob: StringProperty(default="*.xml", options={'HIDDEN'})
+    solution: StringProperty(name="Solution", default="",
+                             description="Field file (.fld/.chk/.rst or a .fld/ folder), relative to the mesh's "
+                                         "folder; empty: the likeliest field file in the mesh's folder (its name "
+                                         "like the mesh's, the latest of a numbered series), as listed below")
+    field: StringProperty(name="Field", default="",
+                          description='Field to render; "|u,v,w|" is the magnitude of u, v, w. '
+                                      "Empty: the file's first field")
+    walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
+
+    def request(self, context, path):
+        return ImportRequest("nektar", path, _absolute(self.solution, os.path.dirname(path)), self.field, "",
+                             self.fit_range, self.walls, self.walls_tolerance, context.scene.frame_current,
+                             self.walls_from)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "solution")
+        layout.prop(self, "field")
+        layout.prop(self, "fit_range")
+        layout.prop(self, "frame")
+        layout.prop(self, "walls")
+        col = layout.column()
+        col.enabled = self.walls
+        col.prop(self, "walls_tolerance")
+        col.prop(self, "walls_from")
+        path = bpy.path.abspath(self.filepath)
+        if self.walls and path.lower().endswith(".xml"):
+            draw_wall_choices(col, path)
+        if self.solution.strip() or not path.lower().endswith(".xml"):
+            return
+        folder = os.path.dirname(path) or "."
+        found = _cached(("scan", path), folder, lambda: nektar.pick_solution(path))
+        box = layout.box()
+        if not found:
+            return
+        picked, why, others = found
+        if picked is None:
+            box.label(text="No solution picked:", icon='ERROR')
+            box.label(text="geometry only (zero field)")
+            for p in others[:6]:
+                box.label(text=p.name, icon='FILE')
+            return
+        box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
+        box.label(text=why[:60])
+        fields = _cached(("fields", str(picked)), str(picked), lambda: nektar.list_fields(picked))
+        if fields:
+            box.label(text="Fields: " + ", ".join(fields[:8]))
+        for p in [p for p in others if p != picked][:5]:
+            box.label(text=f"also: {p.name}", icon='FILE')
+
+
+class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
+    """Import a VTK unstructured grid (.vtu, Lagrange or Bezier cells) as a HOVR volume"""
+
+    bl_idname = "import_scene.hovr_vtu"
+    bl_label = "Import VTU Volume"
+
+    filename_ext = ".vtu"
+    filter_glob: StringProperty(default="*.vtu", options={'HIDDEN'})
+    field: StringProperty(name="Field", default="",
+                          description="Point-data array to render; empty: the file's first one")
+    component: StringProperty(name="Component", default="",
+                              description="For vector arrays: empty or \"magnitude\" renders the magnitude, "
+                                          "an index (0, 1, 2, ...) that component")
+
+    def request(self, context, path):
+        return ImportRequest("vtu", path, "", self.field, self.component, self.fit_range, self.walls,
+                             self.walls_tolerance, context.scene.frame_current)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "field")
+        layout.prop(self, "component")
+        layout.prop(self, "fit_range")
+        layout.prop(self, "frame")
+        layout.prop(self, "walls")
+        row = layout.row()
+        row.enabled = self.walls
+        row.prop(self, "walls_tolerance")
+
+
+def menu_import(self, _context):
+    self.layout.operator(HOVR_OT_import_nektar.bl_idname, text="HOVR Nektar++ (.xml)")
+    self.layout.operator(HOVR_OT_import_vtu.bl_idname, text="HOVR VTU (.vtu)")
+
+
+# ------------------------------------------------------------------------- relative paths on save
+
+_BEFORE_SAVE: list = []  # (object, property, value) changed by the last save_pre
+
+
+def _saved_path(args) -> str:
+    return next((a for a in args if isinstance(a, str)), "")
+
+
+@persistent
+def remap_paths_before_save(*args):
+    """Object.hovr paths relative to the folder the .blend is being saved to: '//' paths are
+    re-based (Save As elsewhere), absolute ones made relative when the preference asks for it."""
+    _BEFORE_SAVE.clear()
+    target = _saved_path(args)
+    if not target:
+        return
+    new_dir = os.path.dirname(os.path.abspath(target))
+    for obj in bpy.data.objects:
+        if obj.library is not None or not obj.hovr.is_volume:
+            continue
+        for prop in ("source", "solution"):
+            value = getattr(obj.hovr, prop)
+            if not value or value.startswith("builtin:"):
+                continue
+            relative = value.startswith("//")
+            if relative and not bpy.data.filepath:  # typed into a new file: already meant for this save
+                continue
+            if not relative and not _relative_wanted():
+                continue
+            absolute = bpy.path.abspath(value)
+            try:
+                new = bpy.path.relpath(os.path.abspath(absolute), start=new_dir)
+            except ValueError:
+                new = os.path.abspath(absolute)
+            if new != value:
+                _BEFORE_SAVE.append((obj, prop, value))
+                setattr(obj.hovr, prop, new)
+
+
+@persistent
+def restore_paths_after_copy(*args):
+    """Save Copy leaves the session on the old file: give the objects their old paths back."""
+    target = _saved_path(args)
+    try:
+        copy = bool(target) and os.path.abspath(target) != os.path.abspath(bpy.data.filepath or "")
+        if copy:
+            for obj, prop, value in _BEFORE_SAVE:
+                setattr(obj.hovr, prop, value)
+    finally:
+        _BEFORE_SAVE.clear()
+
+
+classes = (HOVR_OT_import_nektar, HOVR_OT_import_vtu, HOVR_OT_add_walls)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(menu_import)
+    if remap_paths_before_save not in bpy.app.handlers.save_pre:
+        bpy.app.handlers.save_pre.append(remap_paths_before_save)
+    if restore_paths_after_copy not in bpy.app.handlers.save_post:
+        bpy.app.handlers.save_post.append(restore_paths_after_copy)
+
+
+def unregister():
+    for handlers, fn in ((bpy.app.handlers.save_post, restore_paths_after_copy),
+                         (bpy.app.handlers.save_pre, remap_paths_before_save)):
+        if fn in handlers:
+            handlers.remove(fn)
+    bpy.types.TOPBAR_MT_file_import.remove(menu_import)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

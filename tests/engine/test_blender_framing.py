@@ -1,0 +1,150 @@
+"""The bpy-free numbers of a first picture (hovr_blender/ui/framing.py) and the Nektar++
+importer's solution discovery (io/nektar/reader.py): density and step relative to the volume's
+size, a camera that sees every point, clip planes around them, and the words for an empty, faint or
+clipped render."""
+import numpy as np
+import pytest
+
+from hovr_blender.ui import framing
+from hovr_blender.io import nektar
+
+
+def test_relative_density_is_optical_depth_along_the_diagonal():
+    lo, hi = (0.0, 0.0, 0.0), (0.02, 0.01, 0.005)
+    diag = framing.volume_diagonal(lo, hi)
+    assert diag == pytest.approx(np.sqrt(0.02**2 + 0.01**2 + 0.005**2))
+    assert framing.density_per_world_unit(4.0, "RELATIVE", diag) * diag == pytest.approx(4.0)
+    assert framing.density_per_world_unit(4.0, "WORLD", diag) == 4.0
+    # the object's matrix: rotation keeps the diagonal, scale scales it
+    c, s = np.cos(0.7), np.sin(0.7)
+    rot = np.array([[c, -s, 0, 5], [s, c, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    assert framing.volume_diagonal(lo, hi, rot) == pytest.approx(diag)
+    assert framing.volume_diagonal(lo, hi, np.diag([3.0, 3.0, 3.0, 1.0])) == pytest.approx(3 * diag)
+    with pytest.raises(ValueError, match="no extent"):
+        framing.density_per_world_unit(1.0, "RELATIVE", 0.0)
+    with pytest.raises(ValueError):
+        framing.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
+
+
+def test_relative_step_is_the_smallest_diagonal_over_steps_across():
+    assert framing.step_world_length(0.01, 1000, "RELATIVE", [0.0226]) == pytest.approx(2.26e-5)
+    # several volumes: each sampled at least Steps Across times along its diagonal
+    assert framing.step_world_length(0.01, 500, "RELATIVE", [10.0, 2.0, 4.0]) == pytest.approx(2.0 / 500)
+    assert framing.step_world_length(0.03, 1000, "WORLD", []) == 0.03  # World Units: h itself, no data needed
+    with pytest.raises(ValueError, match="no extent"):
+        framing.step_world_length(0.01, 1000, "RELATIVE", [1.0, 0.0])
+    with pytest.raises(ValueError, match="at least 1"):
+        framing.step_world_length(0.01, 0, "RELATIVE", [1.0])
+    with pytest.raises(ValueError, match="no volume"):
+        framing.step_world_length(0.01, 10, "RELATIVE", [])
+    with pytest.raises(ValueError, match="unknown step units"):
+        framing.step_world_length(0.01, 10, "PER_PARSEC", [1.0])
+
+
+@pytest.mark.parametrize("scale", [0.02, 1.0, 300.0])
+@pytest.mark.parametrize("forward", [(-7.36, 6.93, -4.96), (0.0, 1.0, 0.0), (0.0, 0.0, -1.0)])
+def test_fit_view_sees_every_corner_and_clip_planes_hold_them(scale, forward):
+    corners = framing.box_corners(np.array([-1.0, -0.3, 0.1]) * scale, np.array([2.0, 0.4, 0.3]) * scale)
+    W, H, fov = 96, 54, 40.0
+    ty = np.tan(np.radians(fov) / 2)
+    tx = ty * W / H
+    eye, _, near, far = framing.fit_view(corners, forward, (0, 0, 1), tx, ty, margin=1.1)
+    f, r, u = framing._axes(forward, (0, 0, 1))
+    rel = corners - eye
+    z = rel @ f
+    assert np.all(z > 0)
+    px, py = np.abs(rel @ r) / z / tx, np.abs(rel @ u) / z / ty
+    assert max(px.max(), py.max()) <= 1 / 1.1 + 1e-9  # inside the frame, with the margin
+    assert max(px.max(), py.max()) == pytest.approx(1 / 1.1, rel=1e-6)  # and as large as that allows
+    assert (near, far) == pytest.approx((z.min(), z.max()))
+    start, end = framing.clip_planes(near, far)
+    assert 0 < start < near and end > far
+    assert framing.clip_warning(corners, eye, f, start, end) is None
+
+
+def test_fit_view_orthographic_height():
+    corners = framing.box_corners((-1, -1, -1), (1, 1, 1))
+    eye, height, near, far = framing.fit_view(corners, (0, 1, 0), (0, 0, 1), 1.0, 0.5, orthographic=True, margin=1.0)
+    assert height == pytest.approx(2.0 * max(1.0, 1.0 * 0.5 / 1.0))  # z extent 1 vs x extent 1 at aspect 2
+    assert near > 0 and far - near == pytest.approx(2.0)
+
+
+def test_clip_warnings_name_the_cause():
+    corners = framing.box_corners((-0.01, -0.01, -0.01), (0.01, 0.01, 0.01))  # a 2 cm box
+    eye, fwd = np.array([0.0, -0.06, 0.0]), (0.0, 1.0, 0.0)
+    hidden = framing.clip_warning(corners, eye, fwd, 0.1, 100.0)  # Blender's default clip start
+    assert "entirely before" in hidden and "Clip Start (0.1 m" in hidden and "Frame Volume" in hidden
+    assert "cuts into" in framing.clip_warning(corners, eye, fwd, 0.06, 100.0)
+    assert "beyond" in framing.clip_warning(corners, eye, fwd, 0.001, 0.04)
+    assert "cuts off" in framing.clip_warning(corners, eye, fwd, 0.001, 0.06)
+    assert "behind" in framing.clip_warning(corners, eye, (0.0, -1.0, 0.0), 0.001, 100.0)
+    assert framing.clip_warning(corners, eye, fwd, 0.01, 1.0) is None
+    assert "0.1 m" in hidden and "0.20000000298" not in hidden  # numbers without float noise
+
+
+def test_image_warnings():
+    assert "empty" in framing.image_warning(np.zeros((4, 4)), {"field_evaluations": 0})
+    assert "empty" in framing.image_warning(np.zeros((4, 4)), {"field_evaluations": 100})
+    faint = framing.image_warning(np.full((4, 4), 0.005), {"field_evaluations": 100})
+    assert "nearly transparent" in faint and "0.5%" in faint
+    assert framing.image_warning(np.full((4, 4), 0.3), {"field_evaluations": 100}) is None
+
+
+@pytest.fixture
+def folder(tmp_path):
+    def make(*names):
+        for n in names:
+            if n.endswith("/"):
+                (tmp_path / n).mkdir()
+                (tmp_path / n / "Info.xml").write_text("<x/>")
+            else:
+                (tmp_path / n).write_text("")
+        return tmp_path
+    return make
+
+
+def test_solution_named_like_the_mesh_first(folder):
+    d = folder("flow.xml", "flow.fld", "flow_3.chk", "other.fld")
+    picked, why, others = nektar.pick_solution(d / "flow.xml")
+    assert picked.name == "flow.fld" and why == "named like the mesh" and len(others) == 3
+
+
+def test_solution_of_a_decorated_mesh_name(folder):
+    d = folder("hump3D_GLL.xml", "hump3D.rst", "Tet_channel_m3.fld", "Hex_Mushroom.fld")
+    picked, why, _ = nektar.pick_solution(d / "hump3D_GLL.xml")
+    assert picked.name == "hump3D.rst" and "hump3D" in why
+
+
+def test_solution_latest_of_a_numbered_series(folder):
+    d = folder("session.xml", "session_9.chk", "session_12.chk", "session_123.chk", "unrelated.fld")
+    picked, why, others = nektar.pick_solution(d / "session.xml")
+    assert picked.name == "session_123.chk" and "latest of 3" in why
+    assert [p.name for p in others][:3] == ["session_123.chk", "session_12.chk", "session_9.chk"]
+
+
+def test_solution_folder_and_lone_file(folder):
+    d = folder("mesh.xml", "run.fld/")
+    picked, why, _ = nektar.pick_solution(d / "mesh.xml")
+    assert picked.name == "run.fld" and "only field file" in why
+
+
+def test_no_guess_among_unrelated_files(folder):
+    d = folder("mesh.xml", "a.fld", "b.chk")
+    picked, why, others = nektar.pick_solution(d / "mesh.xml")
+    assert picked is None and "none named like the mesh" in why and len(others) == 2
+    for p in others:
+        p.unlink()
+    picked, why, others = nektar.pick_solution(d / "mesh.xml")
+    assert picked is None and others == [] and "no .fld" in why
+
+
+def test_missing_dependencies_are_named_with_what_to_do():
+    from hovr_blender.ui import dependencies
+
+    assert dependencies.missing(lambda name: object()) == []
+    assert dependencies.report_lines([]) == []
+    absent = dependencies.missing(lambda name: None if name in ("meshio", "h5py") else object())
+    assert [m for m, *_ in absent] == ["meshio", "h5py"]
+    lines = dependencies.report_lines(absent, python="/blender/python")
+    assert "meshio is missing" in lines[0] and "VTU" in lines[0]
+    assert '"/blender/python" -m pip install meshio h5py' in lines[-1] and "extension zip" in lines[-1]

@@ -1,0 +1,132 @@
+"""The bpy-free steps of the Blender render path (that they and the core import without bpy:
+test_layers.py)."""
+import numpy as np
+import pytest
+
+from hovr_blender.ui.scene import combined_pass, render_background, transfer_function_from_ramp
+from hovr_blender.io.sources import SourceError, VolumeSource, frame_path, load_volume
+from hovr_blender.engine.transfer_function import TransferFunctionError
+from hovr_blender.io import builtin
+
+POS = [0.0, 0.25, 1.0]
+RGBA = [(0.0, 0.0, 0.0, 0.0), (1.0, 0.5, 0.25, 1.0), (0.0, 1.0, 0.0, 0.5)]
+
+
+def test_ramp_maps_positions_onto_value_range():
+    tf = transfer_function_from_ramp("LINEAR", "RGB", POS, RGBA, 4.0, -2.0, 6.0)
+    np.testing.assert_allclose(tf.color_s, [-2.0, 0.0, 6.0])
+    np.testing.assert_allclose(tf.color([0.0, 6.0, 100.0]), [[1.0, 0.5, 0.25], [0, 1, 0], [0, 1, 0]])
+    np.testing.assert_allclose(tf.density([-5.0, 0.0, 3.0]), [0.0, 4.0, 4.0 * 0.75])
+
+
+@pytest.mark.parametrize("interp,mode,match", [
+    ("EASE", "RGB", "Linear"), ("CONSTANT", "RGB", "Linear"), ("B_SPLINE", "RGB", "Linear"),
+    ("LINEAR", "HSV", "RGB"),
+])
+def test_ramp_refuses_other_interpolations(interp, mode, match):
+    with pytest.raises(TransferFunctionError, match=match):
+        transfer_function_from_ramp(interp, mode, POS, RGBA, 1.0, 0.0, 1.0)
+
+
+@pytest.mark.parametrize("vmin,vmax,scale", [(1.0, 1.0, 1.0), (2.0, 1.0, 1.0), (0.0, float("nan"), 1.0), (0.0, 1.0, -1.0)])
+def test_ramp_refuses_bad_range_or_scale(vmin, vmax, scale):
+    with pytest.raises(TransferFunctionError):
+        transfer_function_from_ramp("LINEAR", "RGB", POS, RGBA, scale, vmin, vmax)
+
+
+def test_combined_pass_flips_rows_and_sets_alpha():
+    rng = np.random.default_rng(1)
+    img = rng.random((3, 5, 4)).astype(np.float32)  # core image, row 0 at the top
+    opaque = combined_pass(img, film_transparent=False).reshape(3, 5, 4)
+    assert opaque.dtype == np.float32 and opaque.flags.c_contiguous
+    np.testing.assert_array_equal(opaque[..., :3], img[::-1, :, :3])  # Blender: row 0 at the bottom
+    np.testing.assert_array_equal(opaque[..., 3], 1.0)
+    clear = combined_pass(img, film_transparent=True).reshape(3, 5, 4)
+    np.testing.assert_array_equal(clear, img[::-1])
+    np.testing.assert_array_equal(img, img.copy())  # input untouched
+
+
+def test_background():
+    np.testing.assert_array_equal(render_background((0.1, 0.2, 0.3), False), [0.1, 0.2, 0.3])
+    np.testing.assert_array_equal(render_background((0.1, 0.2, 0.3), True), [0, 0, 0])
+    np.testing.assert_array_equal(render_background(None, False), [0, 0, 0])
+
+
+def test_volume_sources():
+    mesh = load_volume(VolumeSource.resolve("builtin:sphere"))
+    np.testing.assert_array_equal(mesh.vertices, builtin.sphere().vertices)
+    with pytest.raises(SourceError, match="unknown built-in"):
+        load_volume(VolumeSource.resolve("builtin:teapot"))
+    with pytest.raises(SourceError, match="unsupported"):
+        load_volume(VolumeSource.resolve("/data/flow.cgns"))  # .vtu became a supported source with the VTU reader
+    with pytest.raises(SourceError, match="not found: /nonexistent/flow.vtu"):
+        load_volume(VolumeSource.resolve("/nonexistent/flow.vtu"))
+
+
+# --- numbered series, passes, presets, histogram ------------------------------------------
+
+from hovr_blender.ui.scene import (  # noqa: E402
+    TF_PRESETS, depth_pass, field_samples, flip_rows, value_histogram,
+)
+from hovr_blender.engine.camera import RayCamera  # noqa: E402
+
+
+@pytest.mark.parametrize("path,frame,want", [
+    ("flow_####.vtu", 12, "flow_0012.vtu"), ("a#/b_##.fld", 7, "a#/b_07.fld"), ("x.fld", 5, "x.fld"),
+    ("f_#.fld", 123, "f_123.fld"), ("f_###.fld", -4, "f_-004.fld"), ("", 3, ""),
+])
+def test_frame_path(path, frame, want):
+    assert frame_path(path, frame) == want
+
+
+def test_volume_source_key_follows_the_frames_file(tmp_path):
+    for n in (1, 2):
+        (tmp_path / f"s_{n:03d}.fld").write_text(f"frame {n}")
+    (tmp_path / "m.xml").write_text("mesh")
+    rel = lambda p: str(tmp_path / p[2:]) if p.startswith("//") else p  # Blender's '//' = the .blend's folder
+    a1 = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
+    a1b = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel)
+    a2 = VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 2, abspath=rel)
+    assert a1.path == str(tmp_path / "m.xml") and a1.solution == str(tmp_path / "s_001.fld")
+    assert a1.key == a1b.key and a1.key != a2.key  # same file: no re-read; next frame: re-read
+    (tmp_path / "s_001.fld").write_text("frame 1, rewritten")
+    assert VolumeSource.resolve("//m.xml", "//s_###.fld", "p", 1, abspath=rel).key != a1.key  # edited file
+    assert VolumeSource.resolve("builtin:sphere", "x", "y", 9).key == ("builtin:sphere", "", "", ())
+    with pytest.raises(SourceError, match="no data"):
+        VolumeSource.resolve("  ", "", "", 1)
+
+
+def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():
+    from hovr_blender.ui.camera import clipped
+
+    cam = clipped(RayCamera.from_contract({"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0],
+                                           "fov_y_deg": 60}, 4, 3, ), 0.1, 20.0)
+    t = np.full((3, 4), 4.0)
+    alpha = np.array([[0.9] * 4, [0.5, 0.49, 0.0, 1.0], [0.7] * 4])
+    z = depth_pass(cam, t, alpha).reshape(3, 4)[::-1]  # back to rows from the top
+    _, d = cam.rays()
+    want = np.where(alpha >= 0.5, 4.0 * -d[..., 2], 20.0)
+    np.testing.assert_allclose(z, want, atol=1e-6)
+    assert np.all(z[alpha >= 0.5] < 4.0)  # off-axis: the view-axis distance is shorter than t
+    np.testing.assert_array_equal(flip_rows(np.arange(6.0).reshape(2, 3)), [3, 4, 5, 0, 1, 2])
+
+
+def test_presets_are_valid_linear_ramps():
+    for key, (label, desc, stops) in TF_PRESETS.items():
+        pos = [p for p, _ in stops]
+        assert label and desc and pos == sorted(pos) and 0.0 <= pos[0] and pos[-1] <= 1.0, key
+        tf = transfer_function_from_ramp("LINEAR", "RGB", pos, [c for _, c in stops], 1.0, 0.0, 1.0)
+        assert tf.density_tau.max() > 0 and np.all(tf.density_tau >= 0)
+
+
+def test_field_samples_and_histogram_on_the_sphere():
+    mesh = builtin.sphere()
+    values = field_samples(mesh, 9)
+    corners = mesh.vertices[0]
+    assert values.max() == pytest.approx(builtin.sphere_field(*corners.T).max())
+    assert 0.0 <= values.min() < 0.5
+    hist = value_histogram(values, values.min(), values.max(), 16)
+    assert hist.shape == (16,) and hist.sum() == pytest.approx(1.0) and np.all(hist >= 0)
+    half = value_histogram(values, values.min(), np.median(values), 4)
+    assert half.sum() == pytest.approx(0.5, abs=0.05)  # values above the range are not counted
+    assert np.all(value_histogram([], 0.0, 1.0, 5) == 0)

@@ -1,0 +1,246 @@
+"""The `hovr` command line and view-file validation (render contract §1, §5)."""
+import json
+
+import numpy as np
+import pytest
+
+from hovr_blender import cli
+from hovr_blender.engine.camera import CameraError, RayCamera
+from hovr_blender.engine.transfer_function import TransferFunction, TransferFunctionError
+from hovr_blender.engine.view import View, ViewError
+
+VIEW = {
+    "data": {"builtin": "sphere"},
+    "camera": {"projection": "perspective", "eye": [7.0, 5.5, 8.0], "target": [0, 0, 1], "up": [0, 0, 1], "fov_y_deg": 40},
+    "image": {"width": 40, "height": 30},
+    "transfer_function": {"color": [[1, 1, 0.5, 0], [9, 0, 0.5, 1]],
+                          "density": [[1.5, 0], [2, 3], [2.5, 0], [8.5, 0], [9, 2], [9.5, 0]]},
+    "background": [0.1, 0.2, 0.3],
+}
+
+
+def write_view(tmp_path, view=VIEW, name="view.json"):
+    p = tmp_path / name
+    p.write_text(json.dumps(view))
+    return p
+
+
+def test_render_writes_npy_png_stats(tmp_path):
+    p = write_view(tmp_path)
+    out, png, st = tmp_path / "o.npy", tmp_path / "o.png", tmp_path / "s.json"
+    assert cli.main(["render", str(p), "-o", str(out), "--png", str(png), "--stats", str(st), "--method", "split"]) == 0
+    img = np.load(out)
+    assert img.shape == (30, 40, 4) and img.dtype == np.float32
+    # background where rays miss: RGB = background, alpha 0 (top-left corner misses the box)
+    np.testing.assert_allclose(img[0, 0], [0.1, 0.2, 0.3, 0.0], atol=1e-7)
+    assert img[..., 3].max() > 0.2
+    stats = json.loads(st.read_text())
+    for key in ("device", "render_seconds", "field_evaluations", "method", "parameters"):
+        assert key in stats
+    assert stats["method"] == "split" and stats["field_evaluations"] > 0
+    from PIL import Image
+
+    assert Image.open(png).size == (40, 30)
+
+
+def test_cli_options_override_view(tmp_path):
+    v = dict(VIEW, render={"method": "riemann", "h": 0.5})
+    p = write_view(tmp_path, v)
+    st = tmp_path / "s.json"
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy"), "--stats", str(st), "--h", "0.05",
+                     "--method", "trapezoid"]) == 0
+    stats = json.loads(st.read_text())
+    assert stats["method"] == "trapezoid" and stats["parameters"]["h"] == 0.05
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda v: v.pop("camera"), "camera"),
+    (lambda v: v["camera"].update(projection="fisheye"), "projection"),
+    (lambda v: v["camera"].pop("fov_y_deg"), "fov_y_deg"),
+    (lambda v: v["camera"].update(up=[7, 5.5, 7]), "parallel"),
+    (lambda v: v["transfer_function"].update(density=[[2, 0], [1, 1]]), "increasing"),
+    (lambda v: v["transfer_function"].update(density=[[1, 0], [2, -1]]), ">= 0"),
+    (lambda v: v["image"].update(width=0), "image size"),
+    (lambda v: v.update(data={"builtin": "teapot"}), "teapot"),
+    (lambda v: v.update(data={"path": "missing.xml"}), "missing.xml"),
+    (lambda v: v.update(render={"method": "magic"}), "magic"),
+    (lambda v: v.update(render={"h": -1}), "h must be"),
+])
+def test_bad_views_give_clear_errors(tmp_path, capsys, mutate, message):
+    v = json.loads(json.dumps(VIEW))
+    mutate(v)
+    p = write_view(tmp_path, v)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    err = capsys.readouterr().err
+    assert "hovr: error:" in err and message in err
+    assert not (tmp_path / "o.npy").exists()
+
+
+def test_malformed_json(tmp_path, capsys):
+    p = tmp_path / "bad.json"
+    p.write_text("{not json")
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    assert "not valid JSON" in capsys.readouterr().err
+
+
+def test_contract_rays():
+    cam = RayCamera.from_contract({"eye": [0, 0, 0], "target": [0, 0, -1], "up": [0, 1, 0], "fov_y_deg": 90}, 4, 2)
+    o, d = cam.rays()
+    # pixel (i=3, j=0): u = (2*3.5/4 - 1)*2 = 1.5, v = 1 - 0.5 = 0.5; right = +x, up' = +y
+    np.testing.assert_allclose(d[0, 3], np.array([1.5, 0.5, -1.0]) / np.linalg.norm([1.5, 0.5, -1.0]))
+    np.testing.assert_allclose(o, 0.0)
+    ortho = RayCamera.from_contract({"projection": "orthographic", "eye": [0, 0, 5], "target": [0, 0, 0],
+                                     "up": [0, 1, 0], "height": 2.0}, 4, 2)
+    o, d = ortho.rays()
+    np.testing.assert_allclose(o[1, 0], [-1.5, -0.5, 5.0])
+    np.testing.assert_allclose(d[1, 0], [0, 0, -1])
+    with pytest.raises(CameraError):
+        RayCamera.from_contract({"eye": [0, 0, 0], "target": [0, 0, 0], "up": [0, 1, 0], "fov_y_deg": 30}, 4, 2)
+
+
+def test_ramp_to_transfer_function():
+    tf = TransferFunction.from_rgba_ramp([0.0, 0.5, 0.5, 1.0], [[1, 0, 0, 0], [0, 1, 0, 1], [0, 0, 1, 0.5], [1, 1, 1, 0]],
+                                         density_scale=4.0, value_min=10.0, value_max=20.0)
+    assert np.all(np.diff(tf.density_s) > 0)  # the step stays a (near-vertical) ramp
+    np.testing.assert_allclose(tf.density(15.0 - 1e-6), 4.0, atol=1e-3)
+    np.testing.assert_allclose(tf.color(12.5), [0.5, 0.5, 0.0])
+    with pytest.raises(TransferFunctionError):
+        TransferFunction.from_contract({"color": [[0, 1, 1, float("nan")]], "density": [[0, 1]]})
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda v: v.update(camera=[1, 2, 3]), "camera must be a JSON object"),
+    (lambda v: v.update(data=5), "data must be a JSON object"),
+    (lambda v: v.update(data={"path": 5}), "data.path must be a string"),
+    (lambda v: v.update(data={"builtin": [1]}), "data.builtin must be a string"),
+    (lambda v: v["image"].update(width=float("inf")), "width must be a whole number"),
+    (lambda v: v["image"].update(width=True), "width must be a whole number"),
+    (lambda v: v["image"].update(width=1.9), "width must be a whole number"),
+    (lambda v: v["image"].update(height="32"), "height must be a whole number"),
+    (lambda v: v["camera"].update(eye=[0, "1", 2]), "camera.eye"),
+    (lambda v: v["camera"].update(fov_y_deg=True), "fov_y_deg must be a finite number"),
+    (lambda v: v["transfer_function"].update(color=[[1, 1, 0.5, "0"]]), "transfer_function.color"),
+    (lambda v: v["transfer_function"].update(density=[[1, True]]), "transfer_function.density"),
+    (lambda v: v.update(background=[0, 0]), "background"),
+    (lambda v: v.update(render={"h": "0.1"}), "h must be a number"),
+    (lambda v: v.update(render={"method": 3}), "method must be a string"),
+    (lambda v: v.update(render=[1]), "render must be a JSON object"),
+])
+def test_view_values_are_read_strictly(tmp_path, capsys, mutate, message):
+    """JSON types the contract does not mean are refused, never coerced (true, 1.9, "32", 1e400)."""
+    v = json.loads(json.dumps(VIEW))
+    mutate(v)
+    p = tmp_path / "view.json"
+    p.write_text(json.dumps(v, allow_nan=True).replace("Infinity", "1e400"))
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hovr: error:") and message in err and "Traceback" not in err
+
+
+def test_ramp_value_range_must_increase():
+    with pytest.raises(TransferFunctionError, match="Value Max > Value Min"):
+        TransferFunction.from_rgba_ramp([0.0, 1.0], [[1, 1, 1, 0], [1, 1, 1, 1]], 1.0, 2.0, 1.0)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["-o", "{d}"], "must end with .npy"),
+    (["-o", "{d}/name"], "must end with .npy"),
+    (["-o", "{d}/missing/o.npy"], "does not exist"),
+    (["-o", "{d}/o.npy", "--png", "{d}/o.jpg"], "must end with .png"),
+    (["-o", "{d}/o.npy", "--stats", "{d}/missing/s.json"], "does not exist"),
+])
+def test_output_paths_are_checked_before_rendering(tmp_path, capsys, args, message):
+    p = write_view(tmp_path)
+    argv = ["render", str(p)] + [a.format(d=tmp_path) for a in args]
+    assert cli.main(argv) == 2
+    assert message in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.npy")) and not list(tmp_path.glob(".*tmp"))
+
+
+def test_fifo_output_is_refused(tmp_path, capsys):
+    import os
+
+    fifo = tmp_path / "o.npy"
+    os.mkfifo(fifo)
+    assert cli.main(["render", str(write_view(tmp_path)), "-o", str(fifo)]) == 2
+    assert "not a regular file" in capsys.readouterr().err
+
+
+def test_outputs_written_together_or_not_at_all(tmp_path, capsys, monkeypatch):
+    """A failing PNG leaves neither the .npy nor a temporary file behind."""
+    from hovr_blender.engine import image_io
+
+    def broken(fh, rgba, alpha=True):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(image_io, "write_png", broken)
+    out = tmp_path / "o.npy"
+    assert cli.main(["render", str(write_view(tmp_path)), "-o", str(out), "--png", str(tmp_path / "o.png")]) == 2
+    assert "disk full" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["view.json"]
+
+
+def test_output_name_is_exactly_the_one_given(tmp_path):
+    out = tmp_path / "frame.NPY"
+    assert cli.main(["render", str(write_view(tmp_path)), "-o", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.NPY", "view.json"]
+    assert np.load(out).shape == (30, 40, 4)
+
+
+@pytest.mark.parametrize("method", ["riemann", "trapezoid", "classified"])
+def test_tiny_step_is_refused_with_the_limit_named(tmp_path, capsys, method):
+    """h far below the data's scale: refused before any work (the sphere's box diagonal is ~6.6);
+    the kernel's step count cannot overflow into a wrong image."""
+    p = write_view(tmp_path)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy"), "--method", method, "--h", "1e-12"]) == 2
+    err = capsys.readouterr().err
+    assert "h = 1e-12" in err and "diagonal is 6.6" in err and "100000 samples per ray" in err
+
+
+def test_sample_limit_can_be_raised_and_is_honoured(tmp_path):
+    p = write_view(tmp_path)
+    out = tmp_path / "o.npy"
+    # diagonal 6.63 / h 1e-3 = 6633 samples: refused at 5000, rendered at 10000
+    assert cli.main(["render", str(p), "-o", str(out), "--method", "riemann", "--h", "1e-3",
+                     "--max-samples-per-ray", "5000"]) == 2
+    assert cli.main(["render", str(p), "-o", str(out), "--method", "riemann", "--h", "1e-3",
+                     "--max-samples-per-ray", "10000"]) == 0
+
+
+def test_memory_limit_refuses_a_huge_image_before_allocating(tmp_path, capsys):
+    v = json.loads(json.dumps(VIEW))
+    v["image"] = {"width": 32768, "height": 32768}
+    p = write_view(tmp_path, v)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    err = capsys.readouterr().err
+    assert "32768x32768 image" in err and "memory limit of 4 GiB" in err
+
+
+def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, capsys, monkeypatch):
+    from hovr_blender import io
+
+    def bug(view):
+        raise KeyError("boom")
+
+    monkeypatch.setattr(io, "load_view_data", bug)
+    p = write_view(tmp_path)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hovr: error: unexpected KeyError") and "Traceback" not in err
+    assert cli.main(["--debug", "render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
+    assert "Traceback" in capsys.readouterr().err
+
+
+def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, capsys):
+    """Breakpoints a millionth apart where the sphere's field is ~10: float32 rounds the field by
+    more than that, even in the transfer function's frame (engine/field_frame.py): the render
+    still runs, and says to use float64; in float64 it says nothing."""
+    view = json.loads(json.dumps(VIEW))
+    view["transfer_function"] = {"color": [[5, 1, 1, 1], [5.000002, 1, 0, 0]],
+                                 "density": [[5, 0], [5.000001, 3], [5.000002, 0]]}
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "a.npy")]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("hovr: warning: ") and "precision float64" in err
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
+    assert capsys.readouterr().err == ""

@@ -1,0 +1,182 @@
+"""The layers hold: hovr_blender.engine imports no reader and no Blender module, the add-on package
+imports without bpy, and no module of the package edits sys.path.
+
+Two independent checks of the engine: every engine module is imported in a fresh Python whose
+import system refuses bpy, gpu, blf, hovr_blender.io and hovr_blender.ui (a module that
+catches the refusal still fails the test: every attempt is recorded); and the sources are read
+(an AST walk over every import statement, those inside functions included), which also sees
+imports no module runs at import time.
+"""
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ..helpers import REPO
+
+PACKAGE = REPO / "hovr_blender"
+ENGINE = PACKAGE / "engine"
+BLENDER_MODULES = ("bpy", "gpu", "blf", "bmesh", "mathutils", "bpy_extras", "addon_utils")
+ABOVE_ENGINE = ("hovr_blender.io", "hovr_blender.ui", "hovr_blender.cli")
+BLOCKED_AT_RUNTIME = ("bpy", "gpu", "blf", "hovr_blender.io", "hovr_blender.ui")
+
+
+_IMPORT_EVERY_ENGINE_MODULE = r"""
+import importlib, importlib.abc, json, pkgutil, sys
+
+BLOCKED = tuple(json.loads(sys.argv[1]))
+touched = []
+
+class Refuse(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if any(name == b or name.startswith(b + ".") for b in BLOCKED):
+            touched.append((name, importer()))
+            raise ImportError(f"layering test: {name} may not be imported by hovr_blender.engine")
+        return None
+
+def importer():
+    f = sys._getframe(2)
+    while f is not None:
+        mod = f.f_globals.get("__name__", "")
+        if mod.startswith("hovr_blender") and not mod.startswith("importlib"):
+            return mod
+        f = f.f_back
+    return "?"
+
+sys.meta_path.insert(0, Refuse())
+import hovr_blender.engine as engine
+
+names = [engine.__name__] + [m.name for m in pkgutil.walk_packages(engine.__path__, engine.__name__ + ".")]
+failed = {}
+for name in names:
+    try:
+        importlib.import_module(name)
+    except Exception as exc:
+        failed[name] = f"{type(exc).__name__}: {exc}"
+loaded = sorted(m for m in sys.modules if any(m == b or m.startswith(b + ".") for b in BLOCKED))
+print(json.dumps({"modules": names, "touched": touched, "failed": failed, "loaded": loaded}))
+"""
+
+
+def _run(code, *args):
+    proc = subprocess.run([sys.executable, "-c", code, *args], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc.stdout
+
+
+def test_every_core_module_imports_with_readers_and_blender_blocked():
+    out = json.loads(_run(_IMPORT_EVERY_ENGINE_MODULE, json.dumps(BLOCKED_AT_RUNTIME)).splitlines()[-1])
+    want = {"hovr_blender.engine." + ".".join(p.relative_to(ENGINE).with_suffix("").parts)
+            for p in ENGINE.rglob("*.py") if p.name != "__init__.py"}
+    assert want <= set(out["modules"]), f"not walked: {sorted(want - set(out['modules']))}"
+    assert out["touched"] == [], f"hovr_blender.engine tried to import (module, importer): {out['touched']}"
+    assert out["failed"] == {}, out["failed"]
+    assert out["loaded"] == []
+
+
+def test_addon_package_and_its_bpy_free_modules_import_without_bpy():
+    """The add-on's package imports bpy only inside register(): the package, the Blender layer's
+    bpy-free helpers (camera and scene conversions), the renderer and a reader load without it."""
+    code = (
+        "import sys, hovr_blender, hovr_blender.ui.camera, hovr_blender.ui.scene, "
+        "hovr_blender.ui.framing, hovr_blender.ui.viewport, hovr_blender.ui.dependencies, "
+        "hovr_blender.ui.jobs, "
+        "hovr_blender.engine.renderer, hovr_blender.io.builtin, hovr_blender.ui; "
+        "assert 'bpy' not in sys.modules, 'bpy imported'; "
+        "assert callable(hovr_blender.register) and hovr_blender.bl_info['name'] == 'HOVR'"
+    )
+    _run(code)
+
+
+# ----------------------------------------------------------------------------- the sources
+
+
+def _modules(root: Path):
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent)
+        parts = rel.with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        package = ".".join(parts[:-1])
+        yield path, name, package, ast.parse(path.read_text(), str(path))
+
+
+def _imported_names(tree, package):
+    """(line, absolute module name) of every import statement, relative ones resolved."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, alias.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module
+            yield node.lineno, mod
+            for alias in node.names:  # "from .. import io" names a module too
+                yield node.lineno, f"{mod}.{alias.name}"
+
+
+def _under(name, prefixes):
+    return any(name == p or name.startswith(p + ".") for p in prefixes)
+
+
+def test_core_sources_import_nothing_above_the_core():
+    bad = [f"{path.relative_to(REPO)}:{line}: {mod}"
+           for path, name, package, tree in _modules(ENGINE)
+           for line, mod in _imported_names(tree, package)
+           if _under(mod, ABOVE_ENGINE + BLENDER_MODULES)]
+    assert bad == [], "the core imports a layer above it or Blender:\n" + "\n".join(bad)
+
+
+def _edits_sys_path(tree):
+    """Lines that change sys.path: a call of one of its mutating methods, an assignment to it or
+    to an item of it, an augmented assignment, site.addsitedir."""
+    def is_sys_path(node):
+        return (isinstance(node, ast.Attribute) and node.attr == "path" and isinstance(node.value, ast.Name)
+                and node.value.id == "sys")
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            f = node.func
+            if is_sys_path(f.value) and f.attr in ("insert", "append", "extend", "remove", "pop", "clear"):
+                yield node.lineno
+            if f.attr == "addsitedir" and isinstance(f.value, ast.Name) and f.value.id == "site":
+                yield node.lineno
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+            node, (ast.AugAssign, ast.AnnAssign)) else []
+        for t in targets:
+            if is_sys_path(t) or (isinstance(t, ast.Subscript) and is_sys_path(t.value)):
+                yield node.lineno
+
+
+def test_no_module_of_the_package_edits_sys_path():
+    found = {str(path.relative_to(REPO)): lines for path, _, _, tree in _modules(PACKAGE)
+             if (lines := sorted(set(_edits_sys_path(tree))))}
+    assert found == {}, f"sys.path edited at {found}: import through the package instead"
+
+
+@pytest.mark.parametrize("source,expect", [
+    ("import sys\nsys.path.insert(0, 'x')", [2]),
+    ("import sys\nsys.path.append('x')", [2]),
+    ("import sys\nsys.path[:0] = ['x']", [2]),
+    ("import sys\nsys.path += ['x']", [2]),
+    ("import site\nsite.addsitedir('x')", [2]),
+    ("import sys\nprint(sys.path[0])\nsys.modules.pop('x', None)", []),
+])
+def test_the_sys_path_check_sees_each_way(source, expect):
+    assert sorted(_edits_sys_path(ast.parse(source))) == expect
+
+
+def test_the_import_check_resolves_relative_imports():
+    tree = ast.parse("from ..io import sources\nfrom .. import ui\nfrom . import mesh\n"
+                     "def f():\n    import bpy\n")
+    got = [m for _, m in _imported_names(tree, "hovr_blender.engine")]
+    assert "hovr_blender.io" in got and "hovr_blender.ui" in got and "bpy" in got
+    assert "hovr_blender.engine.mesh" in got
+    assert [m for m in got if _under(m, ABOVE_ENGINE + BLENDER_MODULES)] == [
+        "hovr_blender.io", "hovr_blender.io.sources", "hovr_blender.ui", "bpy"]

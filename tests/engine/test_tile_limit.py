@@ -1,0 +1,28 @@
+"""Launch tiles follow the resource policy's memory limit (engine/limits.py): a render whose
+one-tile buffers would exceed the limit is split into more tiles instead of being refused, and
+the tiles do not change a pixel."""
+import numpy as np
+
+from hovr_blender.engine import limits
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.view import RenderOptions
+from hovr_blender.io.synthetic import curved_cube
+
+from ..helpers import COLORS, framing, tents
+
+
+def test_tile_follows_memory_limit_and_keeps_pixels():
+    mesh = curved_cube(2)
+    cam = framing(mesh, 96, 64)
+    v = mesh.field_samples(3)
+    tf = tents(float(v.min()), float(v.max()), COLORS, 3.0)
+    r = Renderer(mesh, "cpu")
+    prec = r._upload("float32").precision
+    whole = r.render(cam, tf, np.zeros(3), RenderOptions())
+    small = limits.ResourceLimits(max_memory=int(6000 * r._ray_bytes(prec)))  # tiles of ~3000 rays
+    with limits.using(small):
+        tile = r._tile_limit(prec)
+        assert tile * r._ray_bytes(prec) <= 0.5 * small.max_memory
+        assert tile < cam.width * cam.height  # the 96x64 image takes several tiles
+        tiled = r.render(cam, tf, np.zeros(3), RenderOptions())
+    np.testing.assert_array_equal(tiled.rgba, whole.rgba)
