@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import field_frame, limits, shapes
+from .isosurfaces import Surfaces, reference_gradient
 from .adjacency import face_neighbours, vertex_affine_guess
 from .camera import RayCamera
 from .kernels import quadrature_tables
@@ -269,6 +270,7 @@ class Renderer:
         self.volumes = int(self._volume.max()) + 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
+        self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
@@ -325,9 +327,11 @@ class Renderer:
         self._field_version += 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
+        self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         for upload in self._uploads.values():
             upload.field_key = None  # _set_field maps and uploads the new coefficients
+            upload.gradient = None
 
     def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
@@ -488,6 +492,39 @@ class Renderer:
         self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
         return self._uploads[name]
 
+    def _surface_args(self, upload: _Upload, fr: field_frame.FieldFrame, surfaces: Surfaces | None,
+                      options: RenderOptions):
+        """The kernels' SurfaceArgs of `surfaces` with the field in frame `fr` (none: the default
+        struct, which changes nothing); the reference gradient is uploaded once per frame."""
+        prec = upload.precision
+        surf = prec.kernels.SurfaceArgs()
+        if not surfaces:
+            return surf
+        if options.method not in _SAMPLING_METHODS:
+            raise RenderError(f"isosurfaces and planes are found on the segments' series: method classified or "
+                              f"split, not {options.method}")
+        surfaces.check(self.data_ranges, self._box_lo.min(axis=0), self._box_hi.max(axis=0))
+        lo, hi, _ = upload.field
+        arrays = surfaces.device_arrays(fr.scale, fr.shift, self._volume, lo, hi, self._box_lo, self._box_hi)
+        if upload.gradient is None or upload.gradient[0] != fr.key:
+            if self._gradient is None:
+                self._gradient = reference_gradient(self.mesh)
+            counts = np.diff(np.append(self.mesh.coeff_offset, self.mesh.coeffs.shape[0]))
+            scale = np.repeat(fr.scale[self._volume], counts)  # f' = a f + b: its gradient is a grad f
+            with wp.ScopedDevice(self.device):
+                upload.gradient = (fr.key, wp.array((self._gradient * scale).ravel().astype(prec.dtype), dtype=prec.scalar))
+        with wp.ScopedDevice(self.device):
+            surf.n_iso = len(arrays["iso_s"])
+            surf.n_planes = len(arrays["plane"])
+            surf.iso_s = wp.array(arrays["iso_s"].astype(prec.dtype), dtype=prec.scalar)
+            surf.iso_rgba = wp.array(arrays["iso_rgba"].astype(prec.dtype), dtype=prec.vec4)
+            surf.plane = wp.array(arrays["plane"].astype(prec.dtype), dtype=prec.vec4)
+            surf.plane_style = wp.array(arrays["plane_style"].astype(prec.dtype), dtype=prec.vec4)
+            surf.keep = wp.array(arrays["keep"], dtype=wp.int32)
+        surf.grad_stride = int(self.mesh.coeffs.shape[0])
+        surf.grad = upload.gradient[1]
+        return surf
+
     def identity_frame(self) -> field_frame.FieldFrame:
         return field_frame.FieldFrame(np.ones(self.volumes), np.zeros(self.volumes))
 
@@ -537,7 +574,7 @@ class Renderer:
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
                rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None,
-               surface_t=None) -> RenderResult:
+               surface_t=None, surfaces: Surfaces | None = None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -553,7 +590,8 @@ class Renderer:
         `surface_t`, an (H, W) array of the whole image (rows from the top), each pixel's ray
         integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
         surface: engine/surfaces.py; +inf where none); the depth output is then that t where the
-        volume's opacity stays under 0.5."""
+        volume's opacity stays under 0.5. `surfaces`: isosurfaces and cut planes (contract §7),
+        composited with the volume in depth order."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -563,11 +601,12 @@ class Renderer:
         if not 0 <= row0 < row1 <= H:
             raise RenderError(f"rows {row0}..{row1} are not inside a {W}x{H} image")
         first, end = row0 * W, row1 * W
-        _, tf_frame, warnings = self.field_frame(tf, options.precision)
+        fr, tf_frame, warnings = self.field_frame(tf, options.precision)
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
+            transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             tile = self._launch_tile(prec, end - first, progress, tile_pixels)
             self.check_limits(W, H, options, tile)
@@ -786,7 +825,7 @@ class Renderer:
                             counts=store.used(), complete=complete, stats=info, warnings=warnings)
 
     def shade(self, cache: SegmentCache, tf, background, options: RenderOptions, progress=None,
-              tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
+              tile_pixels: int | None = None, profile: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """The render of the cache's view through `tf` (a TransferFunction or one per volume), with
         this background and these options, from the cached segments alone: one kernel, a thread per
         ray, integrating as the render's integrate kernel does (kernels/raycast.py shade), so the
@@ -813,13 +852,14 @@ class Renderer:
         W = int(camera.width)
         row0, row1 = cache.rows
         n = cache.rays
-        _, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
+        fr, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
         num_stats = kernels.NUM_STATS
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
         limits.check_bytes(cache.nbytes + n * per_ray, f"a {W}x{row1 - row0} image shaded in {options.precision}")
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
+            transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             try:
                 rgba = wp.zeros(n, dtype=prec.vec4)
@@ -878,6 +918,7 @@ class _Upload:
     sample: object
     field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
     field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
+    gradient: tuple | None = None  # (field_key, the reference gradient on the device in that frame)
 
 
 @dataclass
@@ -1125,7 +1166,7 @@ def _cache_struct(kernels, arrays: dict):
 def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions,
                   cache: SegmentCache | None = None, rows: tuple[int, int] | None = None, surface_t=None,
                   surface_key=None, held_bytes: int = 0, progress=None,
-                  tile_pixels: int | None = None) -> tuple[RenderResult, SegmentCache | None]:
+                  tile_pixels: int | None = None, surfaces: Surfaces | None = None) -> tuple[RenderResult, SegmentCache | None]:
     """(RenderResult, SegmentCache or None): the view shaded from `cache` where it holds this
     view's segments (Renderer.cache_fits), else traced anew (Renderer.trace) and shaded, the new
     cache returned for the next call; the image is renderer.render's either way. A renderer that
@@ -1133,18 +1174,19 @@ def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOp
     whose cache the memory limit or the device refuses (stats["segment_cache"] says why); None
     comes back then. A cancelled trace (progress returned False) gives a cancelled result."""
     if not isinstance(renderer, Renderer):
-        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t)) if v is not None}
+        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t), ("surfaces", surfaces)) if v is not None}
         return renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, **kw), None
     if surface_t is not None and surface_key is None:
         surface_key = surface_digest(surface_t)
     if renderer.cache_fits(cache, camera, tf, options, rows, surface_key):
-        return renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels), cache
+        return renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
+                              surfaces=surfaces), cache
     try:
         cache = renderer.trace(camera, tf, options, rows=rows, surface_t=surface_t, surface_key=surface_key,
                                progress=progress, tile_pixels=tile_pixels, held_bytes=held_bytes)
     except (limits.ResourceLimitError, SegmentCacheError) as exc:
         res = renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, rows=rows,
-                              surface_t=surface_t)
+                              surface_t=surface_t, surfaces=surfaces)
         res.stats["segment_cache"] = {"refused": str(exc)}
         return res, None
     if not cache.complete:
@@ -1154,7 +1196,7 @@ def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOp
         return RenderResult(rgba=np.zeros((r1 - r0, W, 4), dtype), stats={"segment_cache": cache.describe()},
                             depth=np.zeros((r1 - r0, W), dtype), error=np.zeros((r1 - r0, W), dtype),
                             cancelled=True), None
-    res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels)
+    res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels, surfaces=surfaces)
     res.stats["render_seconds"] += cache.stats["trace_seconds"]  # this call traced and shaded
     return res, cache
 
@@ -1190,6 +1232,9 @@ def render_view(view: View, mesh: VolumeMesh) -> RenderResult:
     if len(devices) > 1:
         from .multi_device import MultiDeviceRenderer
 
+        if view.surfaces:
+            raise RenderError("isosurfaces and planes render on one device; give one --device")
         with MultiDeviceRenderer(mesh, devices) as r:
             return r.render(view.camera, view.transfer_function, view.background, view.options)
-    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options)
+    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options,
+                                             surfaces=view.surfaces)

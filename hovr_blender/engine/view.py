@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .camera import RayCamera
+from .isosurfaces import Surfaces, surfaces_from_view
 from .limits import read_regular
 from .strict_json import as_integer, as_object, as_string, as_vector3
 from .transfer_function import TransferFunction
@@ -107,6 +108,7 @@ class View:
     data: dict
     options: RenderOptions = field(default_factory=RenderOptions)
     base_dir: str = "."
+    surfaces: Surfaces = field(default_factory=Surfaces)  # contract §7: isosurfaces and planes
 
     @classmethod
     def from_dict(cls, d: dict, base_dir: str = ".") -> "View":
@@ -132,6 +134,7 @@ class View:
             data=data_spec(d["data"]),
             options=options,
             base_dir=base_dir,
+            surfaces=surfaces_from_view(d, ViewError),
         )
 
     @classmethod

@@ -92,11 +92,33 @@ class CameraArgs:
 
 
 @wp.struct
+class SurfaceArgs:
+    """The look's surfaces (render contract §7; kernels/isosurface.py): isosurfaces, cut planes
+    and the clipping they do. A default struct (no isosurface, no plane) changes nothing."""
+
+    n_iso: wp.int32
+    iso_s: wp.array(dtype=wp.float32)  # the levels, in the field's frame (engine/field_frame.py)
+    iso_rgba: wp.array(dtype=wp.vec4)  # each level's linear colour and opacity
+    n_planes: wp.int32
+    plane: wp.array(dtype=wp.vec4)  # (n, c): the plane n . x = c, |n| = 1, world units
+    # (opacity, clip, 0, 0): clip +1 removes the volume where n . x > c, -1 where n . x < c, 0 none
+    plane_style: wp.array(dtype=wp.vec4)
+    # per element: 1 where a level lies in its certified range or a plane crosses its box, so
+    # the walk samples it even where the density is 0 (raycast.element_transparent)
+    keep: wp.array(dtype=wp.int32)
+    # the reference gradient of the field, component k of element e's expansion at
+    # k * grad_stride + MeshArgs.coeff_offset[e] (engine/isosurfaces.reference_gradient); 0: none
+    grad_stride: wp.int32
+    grad: wp.array(dtype=wp.float32)
+
+
+@wp.struct
 class TransferArgs:
     color_s: wp.array(dtype=wp.float32)
     color_rgb: wp.array(dtype=wp.vec3)
     density_s: wp.array(dtype=wp.float32)
     density_tau: wp.array(dtype=wp.float32)
+    surf: SurfaceArgs  # isosurfaces and planes: part of the look, as the transfer function is
 
 
 @wp.struct

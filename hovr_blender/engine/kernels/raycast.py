@@ -33,17 +33,18 @@ import warp as wp
 
 from . import element
 from . import geometry
+from . import isosurface
 from . import quadrature
 from . import restriction
 from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
                    STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments,
-                   TransferArgs)
+                   SurfaceArgs, TransferArgs)
 from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
+__all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "SurfaceArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
            "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients", "integrate",
            "finalize", "trace_reserve", "trace_write", "trace_ends", "shade", "sum_counts"]
 
@@ -513,8 +514,12 @@ def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b
 
 @wp.func
 def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
-    """1 where the density is 0 over element e's whole certified range: classified and split
-    take no samples there (traverse) and integrate nothing (shade)."""
+    """1 where the density is 0 over element e's whole certified range and no surface needs
+    the element (SurfaceArgs.keep): classified and split take no samples there (traverse) and
+    integrate nothing (shade)."""
+    if tf.surf.n_iso + tf.surf.n_planes > 0:
+        if tf.surf.keep[e] == 1:
+            return 0
     if quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
         return 1
     return 0
@@ -769,11 +774,11 @@ def step_terms(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, segs: Segments, sl
 
 @wp.func
 def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
-                      b: float, deg: int, flags: int, coeffs: wp.array(dtype=wp.float32), base: int,
-                      terms: wp.vec3, state_in: RayIntegral):
-    """One segment into the ray state (its series at coeffs[base ..], restriction.py's layout,
-    wherever it is kept: a round's slot or a cached segment; `terms`: its step_error_terms, for
-    classified without a fixed step); returns the new state and
+                      b: float, lo: float, hi: float, deg: int, flags: int, coeffs: wp.array(dtype=wp.float32),
+                      base: int, terms: wp.vec3, state_in: RayIntegral):
+    """The piece [lo, hi] of segment [a, b] into the ray state (its series at coeffs[base ..],
+    restriction.py's layout, wherever it is kept: a round's slot or a cached segment; `terms`:
+    its step_error_terms, for classified without a fixed step); returns the new state and
     (element evaluations, restriction evaluations, class: 1 empty, 2 smooth, 3
     piecewise-smooth, 0 unclassified)."""
     state = state_in
@@ -804,21 +809,22 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     if mode == 0:
         n = int(0)
         if q.h > 0.0:
-            n = quadrature.fixed_steps(q, a, b)
+            n = quadrature.fixed_steps(q, lo, hi)
         else:  # classified without a fixed step (riemann and trapezoid always have one: engine/view.py)
-            nb = quadrature.auto_steps(q, terms, a, b, state.transmittance)
+            nb = quadrature.auto_steps(q, terms, lo, hi, state.transmittance)
             n = int(nb[0])
             state.error = state.error + nb[1]
-        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, n, state)
+        state, nev = quadrature.march(mesh, tf, q, trapezoid, e, xo, xd, evaluate, coeffs, base, deg, a, b, lo, hi, n,
+                                      state)
         counts[0] = nev[0]
         counts[1] = nev[1]
     else:
-        piece = a
-        while piece < b and state.transmittance >= q.min_transmittance:
-            cut = b
+        piece = lo
+        while piece < hi and state.transmittance >= q.min_transmittance:
+            cut = hi
             if piecewise == 1:
                 nc = quadrature.next_cut(tf, coeffs, base, deg, a, b, piece)
-                cut = nc[0]
+                cut = wp.min(nc[0], hi)
                 counts[1] = counts[1] + nc[1]
             state = quadrature.gauss_kronrod_smooth(tf, q, coeffs, base, deg, a, b, piece, cut, emitting, state)
             piece = cut
@@ -848,15 +854,9 @@ def no_tally() -> Tally:
 
 
 @wp.func
-def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
-                      b: float, deg: int, flags: int, tail: float, coeffs: wp.array(dtype=wp.float32), base: int,
-                      terms: wp.vec3, state_in: RayIntegral, tally_in: Tally):
-    """integrate_segment, the segment's tail added to the error estimate first, its counts to
-    the tally: one segment as the integrate and shade kernels both take it."""
-    state = state_in
+def tally_counts(tally_in: Tally, counts: wp.vec3) -> Tally:
+    """integrate_segment's counts (evaluations, class) added to the tally."""
     tally = tally_in
-    state.error = state.error + tail
-    state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, deg, flags, coeffs, base, terms, state)
     tally.field_evals += int(counts[0])
     tally.restriction_evals += counts[1]
     cls = int(counts[2])
@@ -866,7 +866,44 @@ def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
         tally.smooth += 1
     elif cls == 3:
         tally.piecewise += 1
+    return tally
+
+@wp.func
+def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3, a: float,
+                      b: float, deg: int, flags: int, tail: float, coeffs: wp.array(dtype=wp.float32), base: int,
+                      terms: wp.vec3, state_in: RayIntegral, tally_in: Tally):
+    """integrate_segment, the segment's tail added to the error estimate first, its counts to
+    the tally: one segment as the integrate and shade kernels both take it. With surfaces
+    (TransferArgs.surf), the volume is integrated between the surfaces the segment meets, each
+    composited where it lies (isosurface.composite_event), within the span the clipping planes
+    keep; their root finding counts as restriction evaluations, their points as field ones."""
+    state = state_in
+    tally = tally_in
+    state.error = state.error + tail
+    if tf.surf.n_iso + tf.surf.n_planes == 0:
+        state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, a, b, deg, flags, coeffs, base, terms, state)
+        return state, tally_counts(tally, counts)
+    span = isosurface.kept_span(tf.surf, o, d)
+    times, ids, n, evals = isosurface.segment_events(mesh, tf.surf, e, o, d, a, b, deg, coeffs, base, span)
+    tally.restriction_evals += float(evals)
+    lo = wp.max(a, span[0])
+    for k in range(n + 1):
+        if state.transmittance < q.min_transmittance:
+            break
+        hi = b
+        if k < n:
+            hi = times[k]
+        hi = wp.min(hi, span[1])
+        if hi > lo:
+            state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, lo, hi, deg, flags, coeffs, base, terms,
+                                              state)
+            tally = tally_counts(tally, counts)
+            lo = hi
+        if k < n:
+            state, nev = isosurface.composite_event(mesh, tf, e, o, d, times[k], ids[k], state)
+            tally.field_evals += nev
     return state, tally
+
 
 
 @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
