@@ -77,3 +77,102 @@ def test_sphere_depth_float32_bound(ball_mesh, device):
     hit = disc.reshape(res.depth.shape) > 1e-3
     err = np.abs(res.depth[hit] - t.reshape(res.depth.shape)[hit])
     assert err.max() < 2e-4, err.max()
+
+
+def _bump(x, y, z):
+    return -((x - 0.5) ** 2 + (y - 0.5) ** 2 + (z - 0.5) ** 2)
+
+
+def test_thin_feature_a_linearised_contour_misses(device):
+    """One quadratic hexahedron whose field peaks at its centre: the level -0.01 is a sphere of
+    radius 0.1 inside it. Its vertex values are all -0.75, so the contour of the linearised cell
+    (the vertices' trilinear interpolant, what a tessellated contour filter sees) is empty; the
+    render finds the sphere at its exact depth."""
+    from hovr_blender.io.synthetic import brick
+
+    mesh = brick((0, 0, 0), (1, 1, 1), (1, 1, 1), 3, _bump)
+    vertex_values = _bump(*mesh.vertices[0].T)
+    assert vertex_values.max() < -0.01  # the linearised cell holds no point of the level set
+    cam = framing(mesh, 24, 24, distance=1.4)
+    iso = Surfaces((Isosurface(-0.01, (1.0, 1.0, 1.0), 1.0),))
+    res = Renderer(mesh, device).render(cam, _clear_tf(), np.zeros(3), RenderOptions(precision="float64", device=device),
+                                        surfaces=iso)
+    t, disc = _sphere_depth(cam, np.array([0.5, 0.5, 0.5]), 0.1)
+    hit = disc.reshape(res.depth.shape) > 1e-6
+    assert hit.sum() >= 8
+    assert np.abs(res.depth[hit] - t.reshape(res.depth.shape)[hit]).max() < 1e-6
+    assert np.all(res.rgba[~hit & (disc.reshape(res.depth.shape) < -1e-6)][:, 3] == 0.0)
+
+
+def test_plane_takes_the_fields_colour_at_the_crossing(ball_mesh, device):
+    """A plane through the curved cube, the colour ramp red = f over [0, 1]: each pixel's red is
+    f at the ray's crossing with the plane (float64), where the ray meets the data."""
+    tf = TransferFunction(np.array([0.0, 1.0]), np.array([[0.0, 0.2, 1.0], [1.0, 0.2, 0.0]]), np.array([0.0, 1.0]),
+                          np.zeros(2))
+    normal = np.array([0.3, -0.2, 1.0])
+    plane = CutPlane.through((0.5, 0.5, 0.5), normal, opacity=1.0)
+    cam = framing(ball_mesh, 20, 16)
+    res = Renderer(ball_mesh, device).render(cam, tf, np.zeros(3), RenderOptions(precision="float64", device=device),
+                                             surfaces=Surfaces((), (plane,)))
+    o, d = cam.rays()
+    n = np.asarray(plane.normal)
+    t = (plane.offset - o @ n) / (d @ n)
+    x = o + t[..., None] * d
+    inside = (x > 0.05).all(axis=-1) & (x < 0.95).all(axis=-1)  # well inside the bent cube
+    assert inside.sum() > 30
+    got = res.rgba[inside]
+    assert np.all(got[:, 3] == 1.0)
+    # the point located by Newton in its curved element (geometry.invert_point's stop): 3e-9 measured
+    assert np.abs(got[:, 0] - _ball(*x[inside].T)).max() < 1e-8
+    assert np.abs(res.depth[inside] - t[inside]).max() < 1e-9
+
+
+def test_clipping_plane_removes_the_volume_on_its_front(device):
+    """Constant density 2 in the unit box, a clipping plane x + y = 1 that removes the side its
+    normal points to and draws nothing (opacity 0): each ray's transmittance is exp(-2 L), L its
+    chord in the box's half x + y <= 1."""
+    from hovr_blender.io.synthetic import brick
+
+    mesh = brick((0, 0, 0), (1, 1, 1), (2, 2, 2), 2, lambda x, y, z: x + 0.0 * y)
+    tf = TransferFunction(np.array([0.0, 1.0]), np.ones((2, 3)), np.array([0.0, 1.0]), np.full(2, 2.0))
+    plane = CutPlane.through((0.5, 0.5, 0.5), (1.0, 1.0, 0.0), opacity=0.0, clip=1)
+    cam = framing(mesh, 16, 12, direction=(0.3, -1.0, 0.5))
+    res = Renderer(mesh, device).render(cam, tf, np.zeros(3), RenderOptions(precision="float64", device=device),
+                                        surfaces=Surfaces((), (plane,)))
+    o, d = cam.rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (0.0 - o) / d, (1.0 - o) / d
+    t0 = np.nanmax(np.minimum(ta, tb), axis=-1)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
+    n = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    g0, g1 = o @ n - 0.5 * np.sqrt(2), d @ n  # kept where g0 + t g1 <= 0
+    tc = -g0 / g1
+    t0 = np.where(g1 < 0, np.maximum(t0, tc), t0)
+    t1 = np.where(g1 > 0, np.minimum(t1, tc), t1)
+    chord = np.maximum(t1 - t0, 0.0)
+    assert (chord > 0).sum() > 20 and (chord == 0).sum() > 5
+    assert np.abs(res.rgba[..., 3] - (1.0 - np.exp(-2.0 * chord))).max() < 1e-7
+
+
+def test_bad_surfaces_get_one_line_messages(ball_mesh):
+    from hovr_blender.engine.isosurfaces import surfaces_from_view
+    from hovr_blender.engine.view import ViewError
+
+    r = Renderer(ball_mesh, "cpu")
+    cam = framing(ball_mesh, 4, 3)
+    with pytest.raises(SurfaceError, match=r"value 5 is outside the field's range"):
+        r.render(cam, _clear_tf(), np.zeros(3), RenderOptions(), surfaces=Surfaces((Isosurface(5.0, (1, 1, 1)),)))
+    with pytest.raises(SurfaceError, match="misses the volume's box"):
+        r.render(cam, _clear_tf(), np.zeros(3), RenderOptions(),
+                 surfaces=Surfaces((), (CutPlane.through((0, 0, 9), (0, 0, 1)),)))
+    with pytest.raises(RenderError, match="method classified or split"):
+        r.render(cam, _clear_tf(), np.zeros(3), RenderOptions(method="riemann", h=0.1),
+                 surfaces=Surfaces((Isosurface(0.09, (1, 1, 1)),)))
+    for bad, msg in (({"isosurfaces": [{"color": [1, 1, 1]}]}, "needs a value"),
+                     ({"isosurfaces": [{"value": 1, "opacity": 2}]}, r"opacity must be in \[0, 1\]"),
+                     ({"isosurfaces": [{"value": 1, "colour": [1, 0, 0]}]}, "unknown key 'colour'"),
+                     ({"planes": [{"point": [0, 0, 0], "normal": [0, 0, 0]}]}, "non-zero vector"),
+                     ({"planes": [{"point": [0, 0, 0], "normal": [0, 0, 1], "clip": "left"}]}, "clip must be one of"),
+                     ({"planes": {"point": [0, 0, 0]}}, "planes must be a list")):
+        with pytest.raises(ViewError, match=msg):
+            surfaces_from_view(bad, ViewError)
