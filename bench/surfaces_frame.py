@@ -38,8 +38,8 @@ import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functio
 import suite  # noqa: E402  (git helpers, JSON conversion)
 
 DEFAULT_DATASETS = "ngsolve_ball,mfem_fichera,pyfr_tgv,hump3D"
-COUNTERS = ("field_evals_per_ray", "restriction_evals_per_ray", "segments", "segments_empty", "segments_smooth",
-            "segments_piecewise")
+COUNTERS = ("field_evaluations", "restriction_evaluations", "samples_per_ray", "segments", "segments_empty",
+            "segments_smooth", "segments_piecewise_smooth")
 
 
 def frames(mesh, tf):
@@ -69,7 +69,7 @@ def timed(r, cam, tf, surfaces, opts, repeats: int) -> dict:
         walls.append(time.perf_counter() - t0)
         times.append(res.stats["render_seconds"])
     out = {"render_seconds": min(times), "wall_seconds": min(walls)}
-    out.update({k: res.stats[k] for k in COUNTERS if k in res.stats})
+    out.update({k: res.stats[k] for k in COUNTERS})
     out["covered_fraction"] = float((res.rgba[..., 3] > 0.5).mean())
     return out
 
