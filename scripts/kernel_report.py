@@ -5,6 +5,7 @@ compile, and report each kernel's registers, stack frame and spills.
     python scripts/kernel_report.py --cache .gpu/kcache          # also fill a Warp kernel cache
     python scripts/kernel_report.py --precision float64 --arch 90
     python scripts/kernel_report.py --modes 0,2,3,4,5,6,7,8,9,10,11   # every sample specialisation
+    python scripts/kernel_report.py --only integrate,shade       # those kernels alone (both variants)
 
 --cache writes the compiled modules (PTX and CUBIN) where Warp looks for them when
 WARP_CACHE_PATH points there, so a GPU machine given that folder loads the kernels instead of
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -26,6 +28,23 @@ ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 sys.path.insert(0, ROOT)
 
 
+def run_ptxas(ptxas: str, arch: int, ptx: str):
+    """ptxas -v on the PTX file; where this ptxas is older than the PTX's .version (CUDA 13.0's
+    reads PTX 9.0, Warp's NVRTC 13.4 writes 9.4), again with the header lowered to the version
+    ptxas names (the kernels use nothing newer)."""
+    r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", ptx, "-o", os.devnull], capture_output=True, text=True)
+    m = re.search(r"Unsupported \.version (\S+); current version is '(\S+)'", r.stderr)
+    if m:
+        with open(ptx, "rb") as f:
+            text = f.read()
+        with open(ptx, "wb") as f:
+            f.write(text.replace(f".version {m.group(1)}".encode(), f".version {m.group(2)}".encode(), 1))
+        r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", ptx, "-o", os.devnull], capture_output=True, text=True)
+    if r.returncode != 0:
+        print("    ptxas failed:", r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode)
+    return r
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--arch", type=int, default=90)
@@ -33,6 +52,8 @@ def main(argv=None):
     ap.add_argument("--cache", default=None, help="a Warp kernel cache folder to fill (WARP_CACHE_PATH)")
     ap.add_argument("--modes", default="0,7", type=lambda v: [int(x) for x in v.split(",")],
                     help="sample kernels to build: 0 generic, N unrolled for N modes (7: order 6, the paper's)")
+    ap.add_argument("--only", default=None, type=lambda v: v.split(","),
+                    help="report only kernels whose names start with one of these (e.g. integrate,shade)")
     args = ap.parse_args(argv)
     if args.cache:
         os.environ["WARP_CACHE_PATH"] = os.path.abspath(args.cache)
@@ -49,12 +70,17 @@ def main(argv=None):
         kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
         kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
                     for m in args.modes]
-    kernels.append(("integrate", raycast.integrate))
-    kernels.append(("shade (transfer-function edits from a segment cache)", raycast.shade))
+    for iso in (False, True):
+        integrate, shade = raycast.integrate_kernels(iso)
+        with_iso = " with isosurfaces and planes" if iso else ""
+        kernels.append((f"integrate{with_iso}", integrate))
+        kernels.append((f"shade{with_iso} (transfer-function edits from a segment cache)", shade))
     # the module's own kernels: init_rays, refine, coefficients, finalize, trace_*, sum_counts
     kernels.append(("init_rays, refine, coefficients, finalize, trace_reserve, trace_write, trace_ends, sum_counts",
                     raycast.finalize))
     kernels.append(("step_terms", raycast.step_terms))
+    if args.only:
+        kernels = [(name, kern) for name, kern in kernels if name.startswith(tuple(args.only))]
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:
@@ -70,8 +96,7 @@ def main(argv=None):
             clean = os.path.join(tmp, "clean.ptx")
             with open(ptx, "rb") as src, open(clean, "wb") as dst:
                 dst.write(src.read().replace(b"\x00", b""))
-            r = subprocess.run([ptxas, f"-arch=sm_{args.arch}", "-v", clean, "-o", os.devnull],
-                               capture_output=True, text=True)
+            r = run_ptxas(ptxas, args.arch, clean)
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:

@@ -168,22 +168,24 @@ def kernel_variant(meshes) -> tuple[bool, int]:
     return bool(curved), int(modes)
 
 
-def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> list:
-    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant`."""
+def render_kernels(variant: tuple[bool, int], precision: str = "float32", isosurfaces: bool = False) -> list:
+    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant` (with
+    `isosurfaces`: a look with isosurfaces or planes, contract §7)."""
     kernels = Precision.named(precision).kernels
     search, traverse, sample = kernels.walk_kernels(*variant)
-    # coefficients lives in the module of integrate
-    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.step_terms,
-            kernels.finalize]
+    # coefficients lives in the module of finalize
+    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate_kernels(isosurfaces)[0],
+            kernels.step_terms, kernels.finalize]
 
 
 def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
-                 surfaces: bool = False) -> None:
+                 surfaces: bool = False, isosurfaces: bool = False) -> None:
     """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
-    (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
-    read from Warp's kernel cache on disk. The modules compile side by side in worker threads
-    joined before it returns."""
-    kernels = render_kernels(variant, precision)
+    (and the surface cast with `surfaces`; with `isosurfaces`, integrate's variant for
+    isosurfaces and planes): compiled on first use, tens of seconds on a CPU, else read from
+    Warp's kernel cache on disk. The modules compile side by side in worker threads joined
+    before it returns."""
+    kernels = render_kernels(variant, precision, isosurfaces)
     if surfaces:
         from .kernels import surfaces as surface_kernels
 
@@ -617,7 +619,8 @@ class Renderer:
                 buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            load_kernels(self.kernel_variant, self.device, options.precision)  # compiled outside the timed region
+            load_kernels(self.kernel_variant, self.device, options.precision,  # compiled outside the timed region
+                         isosurfaces=bool(surfaces))
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             t0 = time.perf_counter()
@@ -678,8 +681,8 @@ class Renderer:
                 if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
                     launch("step_terms", kernels.step_terms, listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
-                launch("integrate", kernels.integrate, active,
-                       [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+                integrate = kernels.integrate_kernels(transfer.surf.n_iso + transfer.surf.n_planes > 0)[0]
+                launch("integrate", integrate, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             else:
                 record(active)
             rounds += 1
@@ -869,7 +872,8 @@ class Renderer:
                 nonfinite = wp.zeros(1, dtype=wp.int32)
             except RuntimeError as exc:
                 raise RenderError(f"cannot allocate a {W}x{row1 - row0} image on {self.device}: {exc}") from exc
-            load_modules([kernels.shade, kernels.sum_counts], self.device)
+            shade = kernels.integrate_kernels(bool(surfaces))[1]
+            load_modules([shade, kernels.sum_counts], self.device)
             wp.synchronize_device(self.device)
             launch = _Launcher(self.device, profile)
             args = cache.args(kernels)
@@ -878,7 +882,7 @@ class Renderer:
             cancelled = False
             for start in range(0, n, tile):
                 k = min(tile, n - start)
-                launch("shade", kernels.shade, k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
+                launch("shade", shade, k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
                                                    aux, counters, nonfinite])
                 if progress is not None:
                     wp.synchronize_device(self.device)

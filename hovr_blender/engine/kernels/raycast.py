@@ -45,8 +45,8 @@ from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayInte
 wp.set_module_options({"enable_backward": False})
 
 __all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "SurfaceArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
-           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients", "integrate",
-           "finalize", "trace_reserve", "trace_write", "trace_ends", "shade", "sum_counts"]
+           "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients",
+           "integrate_kernels", "finalize", "trace_reserve", "trace_write", "trace_ends", "sum_counts"]
 
 WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
 LOCATED = 32  # curved candidates an entry search remembers having located
@@ -513,6 +513,14 @@ def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b
 
 
 @wp.func
+def density_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
+    """1 where the density is 0 over element e's whole certified range."""
+    if quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
+        return 1
+    return 0
+
+
+@wp.func
 def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
     """1 where the density is 0 over element e's whole certified range and no surface needs
     the element (SurfaceArgs.keep): classified and split take no samples there (traverse) and
@@ -520,9 +528,7 @@ def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
     if tf.surf.n_iso + tf.surf.n_planes > 0:
         if tf.surf.keep[e] == 1:
             return 0
-    if quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
-        return 1
-    return 0
+    return density_transparent(mesh, tf, e)
 
 
 @wp.func
@@ -873,16 +879,25 @@ def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
                       b: float, deg: int, flags: int, tail: float, coeffs: wp.array(dtype=wp.float32), base: int,
                       terms: wp.vec3, state_in: RayIntegral, tally_in: Tally):
     """integrate_segment, the segment's tail added to the error estimate first, its counts to
-    the tally: one segment as the integrate and shade kernels both take it. With surfaces
-    (TransferArgs.surf), the volume is integrated between the surfaces the segment meets, each
-    composited where it lies (isosurface.composite_event), within the span the clipping planes
-    keep; their root finding counts as restriction evaluations, their points as field ones."""
+    the tally: one segment as the integrate and shade kernels both take it."""
+    state = state_in
+    state.error = state.error + tail
+    state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, a, b, deg, flags, coeffs, base, terms, state)
+    return state, tally_counts(tally_in, counts)
+
+
+@wp.func
+def integrate_counted_surfaces(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: wp.vec3, d: wp.vec3,
+                               a: float, b: float, deg: int, flags: int, tail: float,
+                               coeffs: wp.array(dtype=wp.float32), base: int, terms: wp.vec3, state_in: RayIntegral,
+                               tally_in: Tally):
+    """integrate_counted with the look's surfaces (TransferArgs.surf): the volume is integrated
+    between the surfaces the segment meets, each composited where it lies
+    (isosurface.composite_event), within the span the clipping planes keep; their root finding
+    counts as restriction evaluations, their points as field ones."""
     state = state_in
     tally = tally_in
     state.error = state.error + tail
-    if tf.surf.n_iso + tf.surf.n_planes == 0:
-        state, counts = integrate_segment(mesh, tf, q, e, o, d, a, b, a, b, deg, flags, coeffs, base, terms, state)
-        return state, tally_counts(tally, counts)
     span = isosurface.kept_span(tf.surf, o, d)
     times, ids, n, evals = isosurface.segment_events(mesh, tf.surf, e, o, d, a, b, deg, coeffs, base, span)
     tally.restriction_evals += float(evals)
@@ -905,42 +920,48 @@ def integrate_counted(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     return state, tally
 
 
+def _make_integrate_kernel(ISOSURFACES: bool):
+    # ISOSURFACES: the look has isosurfaces or planes (integrate_counted_surfaces); without, none
+    # of their code is compiled in, so a plain volume's kernel pays nothing for them
+    counted = integrate_counted_surfaces if ISOSURFACES else integrate_counted
 
-@wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
-def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
-              rays: RayState, segs: Segments):
-    i = rays.active[wp.tid()]
-    if rays.phase[i] == 2:
-        return
-    pixel = i + pixel_offset
-    o, d = camera_ray(cam, pixel)
-    ct = rays.color_t[i]
-    de = rays.depth_err[i]
-    state = RayIntegral()
-    state.color = wp.vec3(ct[0], ct[1], ct[2])
-    state.transmittance = ct[3]
-    state.restriction_evals = 0.0
-    state.depth = de[0]
-    state.error = de[1]
-    tally = no_tally()
-    for k in range(segs.count[i]):
-        if state.transmittance < q.min_transmittance:
-            break
-        slot = i * SEGMENTS_PER_ROUND + k
-        state, tally = integrate_counted(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
-                                         segs.degree[slot], segs.flags[slot], segs.tail[slot], segs.coeffs,
-                                         slot * MAX_SAMPLES, segs.step_terms[slot], state, tally)
-    rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
-    rays.depth_err[i] = wp.vec2(state.depth, state.error)
-    rays.stats[pixel, STAT_FIELD_EVALS] += tally.field_evals
-    rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(tally.restriction_evals + state.restriction_evals)
-    rays.stats[pixel, STAT_EMPTY] += tally.empty
-    rays.stats[pixel, STAT_SMOOTH] += tally.smooth
-    rays.stats[pixel, STAT_PIECEWISE] += tally.piecewise
-    if state.transmittance < q.min_transmittance or rays.phase[i] == 1:
-        rays.phase[i] = 2
-    else:
-        rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
+    @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
+    def integrate(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
+                  rays: RayState, segs: Segments):
+        i = rays.active[wp.tid()]
+        if rays.phase[i] == 2:
+            return
+        pixel = i + pixel_offset
+        o, d = camera_ray(cam, pixel)
+        ct = rays.color_t[i]
+        de = rays.depth_err[i]
+        state = RayIntegral()
+        state.color = wp.vec3(ct[0], ct[1], ct[2])
+        state.transmittance = ct[3]
+        state.restriction_evals = 0.0
+        state.depth = de[0]
+        state.error = de[1]
+        tally = no_tally()
+        for k in range(segs.count[i]):
+            if state.transmittance < q.min_transmittance:
+                break
+            slot = i * SEGMENTS_PER_ROUND + k
+            state, tally = wp.static(counted)(mesh, tf, q, segs.element[slot], o, d, segs.t0[slot], segs.t1[slot],
+                                              segs.degree[slot], segs.flags[slot], segs.tail[slot], segs.coeffs,
+                                              slot * MAX_SAMPLES, segs.step_terms[slot], state, tally)
+        rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
+        rays.depth_err[i] = wp.vec2(state.depth, state.error)
+        rays.stats[pixel, STAT_FIELD_EVALS] += tally.field_evals
+        rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(tally.restriction_evals + state.restriction_evals)
+        rays.stats[pixel, STAT_EMPTY] += tally.empty
+        rays.stats[pixel, STAT_SMOOTH] += tally.smooth
+        rays.stats[pixel, STAT_PIECEWISE] += tally.piecewise
+        if state.transmittance < q.min_transmittance or rays.phase[i] == 1:
+            rays.phase[i] = 2
+        else:
+            rays.active_next[wp.atomic_add(rays.active_count, 0, 1)] = i
+
+    return integrate
 
 
 @wp.func
@@ -1044,68 +1065,75 @@ def trace_ends(rays: RayState, cache: SegmentCache, ray_offset: wp.int32):
     cache.t_end[i + ray_offset] = rays.t_end[i]
 
 
-@wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
-def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
-          ray_offset: wp.int32, cache: SegmentCache, rgba: wp.array(dtype=wp.vec4), aux: wp.array(dtype=wp.vec2),
-          stats: wp.array2d(dtype=wp.int32), nonfinite: wp.array(dtype=wp.int32)):
-    """One thread per ray of a trace (ray i is pixel i + pixel_offset): its cached segments front
-    to back through integrate_counted, as the integrate kernel takes them round by round, then
-    its pixel (pixel_values) into rgba[i], aux[i]. Classified and split skip the elements the
-    traverse kernel would not have sampled under tf (element_transparent), and the ray stops
-    where integrate stops it (transmittance below q.min_transmittance), so the pixel is a fresh
-    render's. Its counters go to stats[i] (segments: those walked up to the stop), and a pixel
-    that is not finite counts in nonfinite[0]."""
-    i = wp.tid() + ray_offset
-    o, d = camera_ray(cam, i + pixel_offset)
-    state = RayIntegral()
-    state.color = wp.vec3(0.0, 0.0, 0.0)
-    state.transmittance = 1.0
-    state.restriction_evals = 0.0
-    state.depth = -1.0
-    state.error = 0.0
-    tally = no_tally()
-    skip_transparent = int(0)
-    if q.method >= METHOD_CLASSIFIED:
-        skip_transparent = 1
-    n_seg = int(0)
-    n_skipped = int(0)
-    going = int(1)
-    c = cache.head[i]
-    while c >= 0 and going == 1:
-        s = cache.chunk_start[c]
-        s_end = s + cache.chunk_count[c]
-        while s < s_end:
-            e = cache.element[s]
-            if skip_transparent == 1 and element_transparent(mesh, tf, e) == 1:
-                n_skipped += 1
-            else:
-                if state.transmittance < q.min_transmittance:
-                    going = 0
-                    break
-                terms = wp.vec3(0.0, 0.0, 0.0)
-                if q.method == METHOD_CLASSIFIED and q.h <= 0.0:  # its own steps: step_terms' work, here
-                    terms = segment_step_terms(mesh, tf, q, e, cache.flags[s], cache.coeffs, cache.coeff_offset[s],
-                                               cache.degree[s], cache.t0[s], cache.t1[s])
-                state, tally = integrate_counted(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
-                                                 cache.flags[s], cache.tail[s], cache.coeffs, cache.coeff_offset[s],
-                                                 terms, state, tally)
-            n_seg += 1
-            s += 1
-        c = cache.chunk_next[c]
-    px, ax = pixel_values(q, wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance),
-                          wp.vec2(state.depth, state.error), cache.t_end[i])
-    rgba[i] = px
-    aux[i] = ax
-    if not (wp.isfinite(px) and wp.isfinite(ax)):
-        wp.atomic_add(nonfinite, 0, 1)
-    stats[i, STAT_FIELD_EVALS] = tally.field_evals
-    stats[i, STAT_RESTRICTION_EVALS] = int(tally.restriction_evals + state.restriction_evals)
-    stats[i, STAT_SEGMENTS] = n_seg
-    stats[i, STAT_EMPTY] = n_skipped + tally.empty
-    stats[i, STAT_SMOOTH] = tally.smooth
-    stats[i, STAT_PIECEWISE] = tally.piecewise
-    stats[i, STAT_LOCATES] = 0
-    stats[i, STAT_WALKS] = 0
+def _make_shade_kernel(ISOSURFACES: bool):
+    # ISOSURFACES as in _make_integrate_kernel; without surfaces no element is kept for them
+    counted = integrate_counted_surfaces if ISOSURFACES else integrate_counted
+    transparent = element_transparent if ISOSURFACES else density_transparent
+
+    @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
+    def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
+              ray_offset: wp.int32, cache: SegmentCache, rgba: wp.array(dtype=wp.vec4), aux: wp.array(dtype=wp.vec2),
+              stats: wp.array2d(dtype=wp.int32), nonfinite: wp.array(dtype=wp.int32)):
+        """One thread per ray of a trace (ray i is pixel i + pixel_offset): its cached segments front
+        to back through integrate_counted (or _surfaces), as the integrate kernel takes them, then
+        its pixel (pixel_values) into rgba[i], aux[i]. Classified and split skip the elements the
+        traverse kernel would not have sampled under tf (element_transparent), and the ray stops
+        where integrate stops it (transmittance below q.min_transmittance), so the pixel is a fresh
+        render's. Its counters go to stats[i] (segments: those walked up to the stop), and a pixel
+        that is not finite counts in nonfinite[0]."""
+        i = wp.tid() + ray_offset
+        o, d = camera_ray(cam, i + pixel_offset)
+        state = RayIntegral()
+        state.color = wp.vec3(0.0, 0.0, 0.0)
+        state.transmittance = 1.0
+        state.restriction_evals = 0.0
+        state.depth = -1.0
+        state.error = 0.0
+        tally = no_tally()
+        skip_transparent = int(0)
+        if q.method >= METHOD_CLASSIFIED:
+            skip_transparent = 1
+        n_seg = int(0)
+        n_skipped = int(0)
+        going = int(1)
+        c = cache.head[i]
+        while c >= 0 and going == 1:
+            s = cache.chunk_start[c]
+            s_end = s + cache.chunk_count[c]
+            while s < s_end:
+                e = cache.element[s]
+                if skip_transparent == 1 and wp.static(transparent)(mesh, tf, e) == 1:
+                    n_skipped += 1
+                else:
+                    if state.transmittance < q.min_transmittance:
+                        going = 0
+                        break
+                    terms = wp.vec3(0.0, 0.0, 0.0)
+                    if q.method == METHOD_CLASSIFIED and q.h <= 0.0:  # its own steps: step_terms' work, here
+                        terms = segment_step_terms(mesh, tf, q, e, cache.flags[s], cache.coeffs, cache.coeff_offset[s],
+                                                   cache.degree[s], cache.t0[s], cache.t1[s])
+                    state, tally = wp.static(counted)(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
+                                                      cache.flags[s], cache.tail[s], cache.coeffs,
+                                                      cache.coeff_offset[s], terms, state, tally)
+                n_seg += 1
+                s += 1
+            c = cache.chunk_next[c]
+        px, ax = pixel_values(q, wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance),
+                              wp.vec2(state.depth, state.error), cache.t_end[i])
+        rgba[i] = px
+        aux[i] = ax
+        if not (wp.isfinite(px) and wp.isfinite(ax)):
+            wp.atomic_add(nonfinite, 0, 1)
+        stats[i, STAT_FIELD_EVALS] = tally.field_evals
+        stats[i, STAT_RESTRICTION_EVALS] = int(tally.restriction_evals + state.restriction_evals)
+        stats[i, STAT_SEGMENTS] = n_seg
+        stats[i, STAT_EMPTY] = n_skipped + tally.empty
+        stats[i, STAT_SMOOTH] = tally.smooth
+        stats[i, STAT_PIECEWISE] = tally.piecewise
+        stats[i, STAT_LOCATES] = 0
+        stats[i, STAT_WALKS] = 0
+
+    return shade
 
 
 @wp.kernel(enable_backward=False)
@@ -1120,3 +1148,15 @@ def sum_counts(stats: wp.array2d(dtype=wp.int32), threads: wp.int32, out: wp.arr
         r += threads
     for k in range(NUM_STATS):
         wp.atomic_add(out, k, acc[k])
+
+
+_INTEGRATE = {}
+
+
+def integrate_kernels(isosurfaces: bool = False):
+    """(integrate, shade), specialised at compile time: with `isosurfaces` False (a look without
+    isosurfaces or planes) the root finding and the surface points are compiled out."""
+    key = bool(isosurfaces)
+    if key not in _INTEGRATE:
+        _INTEGRATE[key] = (_make_integrate_kernel(key), _make_shade_kernel(key))
+    return _INTEGRATE[key]
