@@ -32,6 +32,10 @@ class Isosurface:
     color: tuple  # linear RGB
     opacity: float = 1.0
     volume: int = 0  # which volume's field (several volumes: engine/field_frame.py)
+    # coloured by this field of the derived field's velocity (contract §8: "speed", ...) through
+    # color_ramp ((value, r, g, b), ... ascending) instead of `color`
+    color_by: str | None = None
+    color_ramp: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -81,6 +85,21 @@ class Surfaces:
             if side.min() > 0 or side.max() < 0:
                 raise SurfaceError(f"plane {k} (normal {list(np.round(plane.normal, 6))}, offset {plane.offset:g}) "
                                    f"misses the volume's box {list(lower)} .. {list(upper)}")
+
+    def color_ramp(self, spec) -> dict:
+        """The isosurfaces' colouring for the kernels: per isosurface its colour field's name or
+        None ("by"), and the one colour ramp ("s", "rgb"); SurfaceError where an isosurface is
+        coloured by a field the data cannot give (spec: the mesh's DerivedSpec, or None)."""
+        coloured = [i for i in self.isosurfaces if i.color_by is not None]
+        for k, iso in enumerate(self.isosurfaces):
+            if iso.color_by is not None and (spec is None or not spec.velocity):
+                raise SurfaceError(f"isosurface {k}: color_by {iso.color_by!r} needs a velocity's derived field "
+                                   f"(e.g. Q(u,v,w)); the field is {'a plain field' if spec is None else spec.name}")
+        ramps = {i.color_ramp for i in coloured}
+        if len(ramps) > 1:
+            raise SurfaceError("isosurfaces coloured by a field share one color_ramp; they differ")
+        ramp = np.array(next(iter(ramps)) if ramps else [(0.0, 1.0, 1.0, 1.0)], np.float64).reshape(-1, 4)
+        return {"by": [i.color_by for i in self.isosurfaces], "s": ramp[:, 0], "rgb": ramp[:, 1:]}
 
     def device_arrays(self, scale, shift, volume, field_lo, field_hi, box_lo, box_hi) -> dict:
         """The kernels' SurfaceArgs as numpy float64 arrays: levels mapped into the field's frame
@@ -136,7 +155,7 @@ def _opacity(v, what: str, exc) -> float:
 
 def _isosurface(v, what: str, exc) -> Isosurface:
     v = as_object(v, what, exc)
-    _known_keys(v, what, ("value", "color", "opacity", "volume"), exc)
+    _known_keys(v, what, ("value", "color", "opacity", "volume", "color_by", "color_ramp"), exc)
     if "value" not in v:
         raise exc(f"{what} needs a value")
     color = as_vector3(v.get("color", [1.0, 1.0, 1.0]), f"{what}.color [r, g, b]", exc)
@@ -145,8 +164,31 @@ def _isosurface(v, what: str, exc) -> Isosurface:
     volume = v.get("volume", 0)
     if not isinstance(volume, int) or isinstance(volume, bool) or volume < 0:
         raise exc(f"{what}.volume must be a volume's index (0, 1, ...), got {volume!r}")
+    by, ramp = _color_by(v, what, exc)
     return Isosurface(as_number(v["value"], f"{what}.value", exc), tuple(float(c) for c in color),
-                      _opacity(v.get("opacity", 1.0), what, exc), volume)
+                      _opacity(v.get("opacity", 1.0), what, exc), volume, by, ramp)
+
+
+COLOR_BY = ("speed", "vorticity", "Q")  # a velocity's fields an isosurface can be coloured by
+MAX_RAMP_STOPS = 64
+
+
+def _color_by(v: dict, what: str, exc):
+    """(color_by, color_ramp) of an isosurface entry: both or neither."""
+    if ("color_by" in v) != ("color_ramp" in v):
+        raise exc(f"{what}: color_by and color_ramp go together (a field name and [[value, r, g, b], ...])")
+    if "color_by" not in v:
+        return None, ()
+    by = as_string(v["color_by"], f"{what}.color_by", exc)
+    if by not in COLOR_BY:
+        raise exc(f"{what}.color_by must be one of {', '.join(COLOR_BY)}, got {by!r}")
+    stops = as_numbers(v["color_ramp"], f"{what}.color_ramp [[value, r, g, b], ...]", exc, columns=4)
+    if len(stops) > MAX_RAMP_STOPS:
+        raise exc(f"{what}.color_ramp has {len(stops)} stops; at most {MAX_RAMP_STOPS}")
+    ramp = tuple(tuple(float(x) for x in row) for row in stops)
+    if any(b[0] <= a[0] for a, b in zip(ramp, ramp[1:])) or any(min(s[1:]) < 0 for s in ramp):
+        raise exc(f"{what}.color_ramp: values must increase and colours must not be negative")
+    return by, ramp
 
 
 def _plane(v, what: str, exc) -> CutPlane:

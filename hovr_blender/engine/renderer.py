@@ -159,13 +159,15 @@ SUM_THREADS = 1 << 14  # threads summing a shade's per-ray counters on the devic
 INT32_MAX = 2**31 - 1
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
-def kernel_variant(meshes) -> tuple[bool, int]:
-    """(curved, modes): what the walk kernels of a render of `meshes` (one mesh, or several
-    merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
+def kernel_variant(meshes) -> tuple[bool, int, bool]:
+    """(curved, modes, derived): what the walk kernels of a render of `meshes` (one mesh, or
+    several merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
     meshes = list(meshes)
     curved = any(m.affine is not None and not m.affine.all() for m in meshes)
-    modes = static_modes(np.concatenate([m.shape for m in meshes]), np.concatenate([m.modes for m in meshes]))
-    return bool(curved), int(modes)
+    derived = any(m.derived is not None for m in meshes)
+    modes = 0 if derived else static_modes(np.concatenate([m.shape for m in meshes]),
+                                           np.concatenate([m.modes for m in meshes]))
+    return bool(curved), int(modes), derived
 
 
 def render_kernels(variant: tuple[bool, int], precision: str = "float32", isosurfaces: bool = False) -> list:
@@ -264,7 +266,8 @@ class Renderer:
         self._id = next(_RENDERER_IDS)
         self._field_version = 0  # replace_field counts up: segment caches of an older field are stale
         self.kernel_variant = kernel_variant([mesh])
-        self._curved = self.kernel_variant[0]
+        # curved segments and a derived field's are interpolants, refined where their tails say
+        self._interpolants = self.kernel_variant[0] or self.kernel_variant[2]
         self._uploads = {}  # precision name -> _Upload
         # the field's frame (engine/field_frame.py) follows the transfer functions: the float64
         # data stays here, the device holds it mapped into the last frame rendered
@@ -316,7 +319,7 @@ class Renderer:
         def same(a, b):
             return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
-        return all(same(getattr(mesh, k), getattr(old, k)) for k in (
+        return kernel_variant([mesh]) == self.kernel_variant and all(same(getattr(mesh, k), getattr(old, k)) for k in (
             "shape", "modes", "basis", "coeff_offset", "geom_modes", "geom_offset", "geom_coeffs", "affine", "volume"))
 
     def replace_field(self, mesh: VolumeMesh):
@@ -429,7 +432,11 @@ class Renderer:
                                   f"a {width}x{height} image in {options.precision}")
 
     def _check_steps(self, options: RenderOptions):
-        """The fixed-step methods' samples per ray across the data against the resource policy."""
+        """The fixed-step methods' samples per ray across the data against the resource policy;
+        a derived field only with a method that samples it."""
+        if self.mesh.derived is not None and options.method not in _SAMPLING_METHODS:
+            raise RenderError(f"{self.mesh.field_name} is sampled exactly at each point and integrated on its "
+                              f"series: method classified or split, not {options.method}")
         lim = limits.current()
         if options.method != "split" and options.h is not None:
             steps = self.data_diagonal / float(options.h)
@@ -505,6 +512,7 @@ class Renderer:
         if options.method not in _SAMPLING_METHODS:
             raise RenderError(f"isosurfaces and planes are found on the segments' series: method classified or "
                               f"split, not {options.method}")
+        colour = surfaces.color_ramp(self.mesh.derived.spec if self.mesh.derived is not None else None)
         surfaces.check(self.data_ranges, self._box_lo.min(axis=0), self._box_hi.max(axis=0))
         lo, hi, _ = upload.field
         arrays = surfaces.device_arrays(fr.scale, fr.shift, self._volume, lo, hi, self._box_lo, self._box_hi)
@@ -523,6 +531,10 @@ class Renderer:
             surf.plane = wp.array(arrays["plane"].astype(prec.dtype), dtype=prec.vec4)
             surf.plane_style = wp.array(arrays["plane_style"].astype(prec.dtype), dtype=prec.vec4)
             surf.keep = wp.array(arrays["keep"], dtype=wp.int32)
+            surf.iso_color_by = wp.array(np.array([-1 if by is None else _derived_kernels(prec).OPERATION_IDS[by]
+                                                   for by in colour["by"]], np.int32), dtype=wp.int32)
+            surf.ramp_s = wp.array(colour["s"].astype(prec.dtype), dtype=prec.scalar)
+            surf.ramp_rgb = wp.array(colour["rgb"].astype(prec.dtype), dtype=prec.vec3)
         surf.grad_stride = int(self.mesh.coeffs.shape[0])
         surf.grad = upload.gradient[1]
         return surf
@@ -554,6 +566,8 @@ class Renderer:
         rounding = prec.eps * element_coefficient_scale(mesh, coeffs) + eps64 * (a * self._coeff_scale + 8 * np.abs(b))
         with wp.ScopedDevice(self.device):
             m.coeffs = wp.array(coeffs.astype(prec.dtype), dtype=prec.scalar)
+            if mesh.derived is not None:
+                m.derived = _derived_args(prec, mesh.derived, a, b)
             m.field_lo = wp.array(flo, dtype=prec.scalar)
             m.field_hi = wp.array(fhi, dtype=prec.scalar)
             m.field_err = wp.array((EVAL_ERROR_FACTOR * rounding).astype(prec.dtype), dtype=prec.scalar)
@@ -705,7 +719,7 @@ class Renderer:
         stride = self._sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
-        if self._curved:
+        if self._interpolants:
             slots, count, n_slots = segs.list, segs.list_count, listed
             for p in range(2):
                 again_count[p].zero_()
@@ -978,6 +992,32 @@ def _surface_limit(prec: Precision, surface_t, width: int, height: int) -> tuple
     if np.isnan(t).any() or (t < 0).any():
         raise RenderError("surface_t must be >= 0 (+inf where no surface), without NaN")
     return wp.array(np.minimum(t, 1e30).astype(prec.dtype).ravel(), dtype=prec.scalar), 1
+
+
+def _derived_kernels(prec: Precision):
+    """kernels/derived.py of this precision (its operation ids)."""
+    return sys.modules[prec.kernels.__name__.rpartition(".")[0] + ".derived"]
+
+
+def _derived_args(prec: Precision, field, scale, shift):
+    """The kernels' DerivedArgs of a mesh's DerivedField (engine/derived_fields.py), its
+    samples mapped into the frame f' = scale f + shift (per element)."""
+    dk = _derived_kernels(prec)
+    kind = dk.OPERATION_IDS[field.spec.operation] + (dk.PER_DENSITY if field.components == 4 else 0)
+    if field.coeffs.size >= 2**31:
+        raise RenderError("derived field too large for 32-bit coefficient offsets")
+    if prec.name == "float32":
+        _check_float32_range("derived field components", field.coeffs, field.offset)
+    d = prec.kernels.DerivedArgs()
+    d.active = 1
+    d.kind = wp.array(np.where(field.derived, kind, dk.FIELD).astype(np.int32), dtype=wp.int32)
+    d.offset = wp.array(field.offset.astype(np.int32), dtype=wp.int32)
+    d.size = wp.array(field.size.astype(np.int32), dtype=wp.int32)
+    d.modes = wp.array(field.modes.astype(np.int32), dtype=wp.vec3i)
+    d.coeffs = wp.array(field.coeffs.astype(prec.dtype), dtype=prec.scalar)
+    d.axes = wp.array(field.axes.astype(prec.dtype), dtype=prec.mat33)
+    d.frame = wp.array(np.stack([scale, shift], axis=1).astype(prec.dtype), dtype=prec.vec2)
+    return d
 
 
 def _transfer_args(prec: Precision, tf: TransferFunction):

@@ -41,6 +41,7 @@ import sys
 import numpy as np
 
 from ..engine import expansions as ex
+from ..engine.derived_fields import DerivedFieldError, derived_mesh, not_a_velocity, parse_derived
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
 from . import nektar, vtu
@@ -217,22 +218,54 @@ def _nektar_component(first: VolumeMesh, field_file: nektar.FieldFile, name: str
     return out
 
 
+def component_reads(spec, sizes: dict | None) -> list[tuple[str, int | None]]:
+    """The (field, component index or None) reads of derived field `spec` (engine/derived_fields.py):
+    a velocity's one name is a vector of three (sizes: {name: components} of the file's fields;
+    None: scalars only, the reader checks the names), the density last."""
+    names = spec.components
+    if sizes is not None:
+        for n in names + ((spec.density,) if spec.density else ()):
+            if n not in sizes:
+                raise DerivedFieldError(f"{spec.name}: no field {n!r} in the file (it has {', '.join(sizes)})")
+    sizes = sizes or {}
+    if spec.velocity and len(names) == 1:
+        if sizes.get(names[0], 1) != 3:
+            raise not_a_velocity(spec, names[0], sizes.get(names[0], 1))
+        reads = [(names[0], i) for i in range(3)]
+    else:
+        for n in names:
+            if sizes.get(n, 1) != 1:
+                raise DerivedFieldError(f"{spec.name}: {n!r} is a vector of {sizes[n]} components; "
+                                        f"name its components or the vector alone")
+        reads = [(n, None) for n in names]
+    return reads + ([(spec.density, None)] if spec.density else [])
+
+
 def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
-    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    names = parse_magnitude(field)
+    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c, and the derived
+    fields of engine/derived_fields.py (Q(u,v,w), vorticity(rhou,rhov,rhow/rho), |grad|(p), ...)."""
+    spec = parse_derived(field)
+    names = [n for n, _ in component_reads(spec, None)] if spec is not None else parse_magnitude(field)
     if names is None:
         return nektar.read_nektar(mesh_path, solution_path, field)
     first = nektar.read_nektar(mesh_path, solution_path, names[0])
     solution = solution_path if solution_path is not None else nektar.find_solution(mesh_path)
     field_file = nektar.read_field_file(solution, first.num_elements)
     components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
+    if spec is not None:
+        return derived_mesh(spec, components)
     return magnitude_mesh(components, "|" + ",".join(names) + "|")
 
 
 def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
     """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
     is derived here from its exact component polynomials (read_vtu interpolates the nodal
-    magnitudes instead, as VTK does)."""
+    magnitudes instead, as VTK does); field Q(Velocity) and the other derived fields of
+    engine/derived_fields.py from its arrays' exact polynomials."""
+    spec = parse_derived(field)
+    if spec is not None:
+        reads = component_reads(spec, vtu.list_fields(path))
+        return derived_mesh(spec, [vtu.read_vtu(path, name, index) for name, index in reads])
     if component in (None, "magnitude"):
         available = vtu.list_fields(path)
         name = field if field is not None else next(iter(available), None)

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import warp as wp
 
+from . import derived
 from . import element
 from . import geometry
 from .args import MAX_SAMPLES, MeshArgs, SurfaceArgs, TransferArgs
-from .quadrature import RayIntegral, tf_color
+from .quadrature import RayIntegral, ramp_segment, tf_color
 from .restriction import series_weights
 
 wp.set_module_options({"enable_backward": False})
@@ -424,6 +425,16 @@ def headlight(rgb: wp.vec3, g: wp.vec3, d: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def ramp_color(surf: SurfaceArgs, v: float) -> wp.vec3:
+    """The isosurfaces' colour ramp at v (piecewise linear, held beyond its ends)."""
+    kw = ramp_segment(surf.ramp_s, v, -1)
+    k = int(kw[0])
+    if surf.ramp_s.shape[0] == 1:
+        return surf.ramp_rgb[0]
+    return surf.ramp_rgb[k] + kw[1] * (surf.ramp_rgb[k + 1] - surf.ramp_rgb[k])
+
+
+@wp.func
 def composite_event(mesh: MeshArgs, tf: TransferArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, event: int,
                     state_in: RayIntegral):
     """Surface `event` met at t into the ray's state: C += T alpha colour, T *= 1 - alpha, the
@@ -440,7 +451,7 @@ def composite_event(mesh: MeshArgs, tf: TransferArgs, e: int, o: wp.vec3, d: wp.
         rgba = surf.iso_rgba[event]
         alpha = rgba[3]
         g = field_gradient(mesh, surf, e, xi, Jinv)
-        if mesh.affine[e] == 0 and ok == 1 and surf.grad_stride > 0:
+        if mesh.affine[e] == 0 and ok == 1 and surf.grad_stride > 0 and mesh.derived.active == 0:
             # the root of the interpolant, corrected by a Newton step on the field itself
             slope = wp.dot(g, d)
             f = element.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
@@ -452,10 +463,20 @@ def composite_event(mesh: MeshArgs, tf: TransferArgs, e: int, o: wp.vec3, d: wp.
                     xi, Jinv, ok = locate(mesh, e, o + t * d)
                     g = field_gradient(mesh, surf, e, xi, Jinv)
         evals += 3
-        rgb = headlight(wp.vec3(rgba[0], rgba[1], rgba[2]), g, d)
+        rgb = wp.vec3(rgba[0], rgba[1], rgba[2])
+        by = surf.iso_color_by[event]
+        if by >= 0 and mesh.derived.active == 1:  # coloured by a field of the mesh's velocity there
+            kind = by + mesh.derived.kind[e] - mesh.derived.kind[e] % derived.PER_DENSITY
+            rgb = ramp_color(surf, derived.derived_of(mesh, e, xi, Jinv, kind))
+            evals += 1
+        rgb = headlight(rgb, g, d)
     else:
         alpha = surf.plane_style[-1 - event][0]
-        f = element.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
+        f = float(0.0)
+        if mesh.derived.active == 1:
+            f = derived.sample_value(mesh, e, xi, Jinv)  # the derived field itself, exact at the point
+        else:
+            f = element.eval_element(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         evals += 1
         rgb = tf_color(tf, f)
     T0 = state.transmittance

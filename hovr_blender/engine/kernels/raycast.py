@@ -31,20 +31,21 @@ from __future__ import annotations
 
 import warp as wp
 
+from . import derived
 from . import element
 from . import geometry
 from . import isosurface
 from . import quadrature
 from . import restriction
-from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
+from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY,
                    STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
-                   STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments,
-                   SurfaceArgs, TransferArgs)
+                   STAT_SMOOTH, STAT_WALKS, CameraArgs, DerivedArgs, MeshArgs, QuadArgs, RayState, SegmentCache,
+                   Segments, SurfaceArgs, TransferArgs)
 from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
 wp.set_module_options({"enable_backward": False})
 
-__all__ = ["MeshArgs", "CameraArgs", "TransferArgs", "SurfaceArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
+__all__ = ["MeshArgs", "DerivedArgs", "CameraArgs", "TransferArgs", "SurfaceArgs", "QuadArgs", "RayState", "Segments", "SegmentCache", "NUM_STATS",
            "MAX_SAMPLES", "SEGMENTS_PER_ROUND", "walk_kernels", "init_rays", "refine", "coefficients",
            "integrate_kernels", "finalize", "trace_reserve", "trace_write", "trace_ends", "sum_counts"]
 
@@ -507,7 +508,7 @@ def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b
     else:
         deg = restriction.restriction_degree(mesh, e)
     segs.degree[slot] = deg
-    segs.flags[slot] = curved * SEG_CURVED
+    segs.flags[slot] = curved * SEG_CURVED + mesh.derived.active * SEG_INTERPOLANT
     segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
     return deg + 1
 
@@ -639,9 +640,10 @@ def _make_traverse_kernel(CURVED: bool):
     return traverse
 
 
-def _make_sample_kernel(CURVED: bool, MODES: int):
+def _make_sample_kernel(CURVED: bool, MODES: int, DERIVED: bool):
     # MODES > 0: hexahedra and prisms of (MODES,) * 3 modes evaluate through the unrolled
-    # element.static_evaluator (its loops need max_unroll >= MODES)
+    # element.static_evaluator (its loops need max_unroll >= MODES); DERIVED: samples of the
+    # mesh's derived field (kernels/derived.py) from its components, exact at each point
     opts = {"max_unroll": max(4, MODES)} if CURVED or MODES else {}
     evaluate = element.static_evaluator(MODES) if MODES else element.eval_element
 
@@ -664,9 +666,13 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        xi, w = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w, dxi_dx = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
         e = segs.element[slot]
-        f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
+        f = float(0.0)
+        if wp.static(DERIVED):
+            f = derived.sample_value(mesh, e, xi, dxi_dx)
+        else:
+            f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         segs.samples[slot * MAX_SAMPLES + j] = f * w * w
         if j == 0:
             ends = restriction.end_weights(mesh, o, d, segs, slot, curved)
@@ -707,7 +713,7 @@ def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.arr
     if idx >= count[0]:
         return
     slot = slots[idx]
-    if (segs.flags[slot] & SEG_CURVED) == 0:
+    if (segs.flags[slot] & (SEG_CURVED | SEG_INTERPOLANT)) == 0:
         return
     if restriction.refine_degree(segs, slot, allow) == 1:
         again[wp.atomic_add(again_count, 0, 1)] = slot
@@ -718,15 +724,16 @@ _WALK = {}
 _SAMPLE = {}
 
 
-def walk_kernels(curved: bool, modes: int = 0):
+def walk_kernels(curved: bool, modes: int = 0, derived: bool = False):
     """(search, traverse, sample), specialised at compile time: with `curved` False the Newton
     location and curved sampling are compiled out (affine meshes pay only for what they use);
     with `modes` N > 0 (element.static_modes of the mesh) the sample kernel evaluates
-    hexahedra and prisms of N modes unrolled."""
+    hexahedra and prisms of N modes unrolled; with `derived` it samples the mesh's derived
+    field (MeshArgs.derived) instead of its own."""
     key = bool(curved)
     if key not in _WALK:
         _WALK[key] = (_make_search_kernel(key), _make_traverse_kernel(key))
-    skey = (key, int(modes))
+    skey = (key, int(modes), bool(derived))
     if skey not in _SAMPLE:
         _SAMPLE[skey] = _make_sample_kernel(*skey)
     return _WALK[key] + (_SAMPLE[skey],)
@@ -738,7 +745,7 @@ def classify(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, flags: int, 
     """classified and split: (lo, hi) bounding f on the segment, emitting (1 where the colour is not 0
     over them), and the segment's class: 1 empty, 2 smooth, 3 piecewise-smooth."""
     bnd = wp.vec2(0.0, 0.0)
-    if (flags & SEG_CURVED) != 0 and q.method != METHOD_SPLIT:
+    if (flags & (SEG_CURVED | SEG_INTERPOLANT)) != 0 and q.method != METHOD_SPLIT:
         # the paper's classes bound the true field; a curved segment's interpolant is no bound
         # of it (split integrates the interpolant itself, so its bounds decide there)
         bnd = wp.vec2(mesh.field_lo[e], mesh.field_hi[e])
