@@ -1,7 +1,7 @@
 """Run by Debian's Blender 3.4 *with a window* (under Xvfb) on the scene legacy_make_scene.py
 saved: switch the 3D view to camera view in Rendered shading with overlays off, wait for the
 HOVR viewport to converge, screenshot the window, then F12 the same view at the region's
-size. Writes report.json beside the images; the pytest side compares the pixels."""
+size, and again on All CPU Cores. Writes report.json beside the images; the pytest side compares the pixels."""
 import json
 import os
 import sys
@@ -106,6 +106,12 @@ def step():
         bpy.ops.render.render(write_still=True)
         report["f12"] = f12
         log("f12 written")
+        # the same F12 on "All CPU Cores": processes started from the Blender program
+        sc.hovr.device = "cpu:all"
+        sc.render.filepath = report["f12_all_cores"] = os.path.join(OUT, "f12_all_cores.png")
+        bpy.ops.render.render(write_still=True)
+        sc.hovr.device = "cpu"
+        log("f12 on all cores written")
         # The HOVR render panels (ramp, presets, value range, histogram) for the user guide.
         with bpy.context.temp_override(window=win, area=area, region=region):
             bpy.ops.hovr.fit_value_range()

@@ -81,4 +81,7 @@ def test_viewport_screenshot_matches_f12(legacy_env):
           f"max {d.max()}")
     assert f12.std() > 5  # the volume is in the picture
     assert d.mean() < 0.5 and np.percentile(d, 99) <= 3 and d.max() < 40
+    # "All CPU Cores" from the Blender program: its processes neither re-run this script nor hang
+    every_core = np.asarray(Image.open(report["f12_all_cores"]).convert("RGB")).astype(float)
+    np.testing.assert_array_equal(every_core, f12)
     assert Path(report["panels"]).is_file()  # the render panels drew (screenshot for the guide)
