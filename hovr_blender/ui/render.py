@@ -562,7 +562,7 @@ def final_render(engine, api, depsgraph):
         api.report({'WARNING'}, f"HOVR: {w}")
     from .framing import image_warning
 
-    empty = image_warning(result.rgba[..., 3], result.stats)
+    empty = image_warning(result.rgba[..., 3])
     if empty:
         api.report({'WARNING'}, f"HOVR: {empty}")
         warnings.append(f"HOVR: {empty}")

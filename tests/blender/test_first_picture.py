@@ -97,6 +97,27 @@ def test_empty_and_faint_renders_are_warnings(factory_scene, tmp_path, capfd):
     assert any("image is empty" in w for w in warnings), warnings
 
 
+def test_frames_shaded_from_cached_segments_raise_no_empty_warning(factory_scene, tmp_path, capfd):
+    """Issue 30: from a view's third F12 on, and after a ramp edit, the frame is shaded from cached
+    segments (no field evaluations): the picture is there, and so no "empty" warning."""
+    from hovr_blender.ui import render
+
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    bpy.ops.hovr.frame_volume()
+    first, warnings = f12(scene, tmp_path / "1.exr", capfd)
+    assert warnings == [] and coverage(first, scene.world.color) >= 0.10
+    for k in (2, 3):
+        again, warnings = f12(scene, tmp_path / f"{k}.exr", capfd)
+        assert warnings == [], (k, warnings)
+    assert render.FINAL.cache is not None  # the third F12 was shaded from the second's segments
+    np.testing.assert_allclose(again, first, atol=1e-5)
+    obj.hovr.transfer_function.color_ramp.elements[0].color = (1.0, 0.2, 0.1, 1.0)
+    edited, warnings = f12(scene, tmp_path / "edited.exr", capfd)
+    assert warnings == [] and np.abs(edited - first).max() > 1e-3
+
+
 def _tet_as(folder, mesh_name, solution_names):
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copy(data_file("nektar", "Tet_channel_m3.xml"), folder / mesh_name)

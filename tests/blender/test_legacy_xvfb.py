@@ -43,6 +43,9 @@ def legacy_env(tmp_path_factory):
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(root / "scripts"), BLENDER_USER_CONFIG=str(root / "config"),
                HOVR_EXTRA_SITE=site)
     env.pop("PYTHONPATH", None)
+    # Debian's Blender takes the first python3.11 on PATH as sys.executable, which All CPU Cores'
+    # processes run: the system's, whose standard library is the one Blender loaded, not a shim's
+    env["PATH"] = os.pathsep.join(["/usr/bin", env.get("PATH", "")])
     return root, env
 
 
