@@ -214,7 +214,9 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
             warnings.append(f"walls not made: {failure_text(exc)}")
         context.view_layer.objects.active = obj
     if read.values is not None and read.values.size:
-        operators.fit_value_range(obj, context.scene, read.values)
+        warning = operators.fit_value_range(obj, context.scene, read.values)[3]
+        if warning:
+            warnings.append(warning)
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     for w in getattr(mesh, "warnings", [])[:5]:

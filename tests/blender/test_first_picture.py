@@ -143,3 +143,30 @@ def test_geometry_only_import_is_a_warning(factory_scene, tmp_path, capfd):
     out = capfd.readouterr().out
     assert "Warning: HOVR: lonely: no solution file: geometry only" in out
     assert volume(factory_scene).hovr.solution == ""
+
+
+@pytest.mark.parametrize("name,field,words", [
+    ("Tet_channel_m3.xml", "u", "zero up to rounding"),  # u is 0 up to +-1.7e-16
+    ("wss_3D_periodic.xml", "rho", "constant up to rounding"),  # rho is 0.0247601 everywhere
+])
+def test_a_field_constant_up_to_rounding_imports_with_a_warning_and_renders(factory_scene, tmp_path, capfd, name,
+                                                                            field, words):
+    """Issue 30: round-off is not stretched over the ramp, and a constant field does not fail at F12."""
+    scene = factory_scene
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", name))) == {'FINISHED'}
+    out = capfd.readouterr().out
+    obj = bpy.context.active_object
+    assert obj.hovr.field == field
+    assert any(line.startswith("Warning") and words in line for line in out.splitlines()), out
+    assert obj.hovr.value_max > obj.hovr.value_min
+    if words.startswith("zero"):
+        assert (obj.hovr.value_min, obj.hovr.value_max) == (-1.0, 1.0)
+    else:
+        assert obj.hovr.value_min < 0.0247601 < obj.hovr.value_max
+    scene.render.resolution_percentage = 2
+    img, warnings = f12(scene, tmp_path / "f12.exr", capfd)  # renders: no "Value Max > Value Min" error
+    assert img.shape[0] > 0
+    capfd.readouterr()
+    assert bpy.ops.hovr.fit_value_range() == {'FINISHED'}
+    assert words in capfd.readouterr().out
