@@ -244,3 +244,53 @@ def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, ca
     assert err.startswith("hovr: warning: ") and "precision float64" in err
     assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_png_is_flattened_on_the_view_background_unless_asked_otherwise(tmp_path):
+    """Issue 30: the PNG shows what the .npy's RGB shows (no alpha a viewer would composite over
+    white); --png-background transparent keeps the volume alone with straight alpha, R,G,B
+    flattens on another colour."""
+    from PIL import Image
+
+    from hovr_blender.engine.image_io import to_png_bytes_rgba
+
+    p = write_view(tmp_path)
+    out = tmp_path / "o.npy"
+    pngs = {k: tmp_path / f"{k}.png" for k in ("default", "transparent", "white")}
+    for name, extra in (("default", []), ("transparent", ["--png-background", "transparent"]),
+                        ("white", ["--png-background", "1,1,1"])):
+        assert cli.main(["render", str(p), "-o", str(out), "--png", str(pngs[name]), *extra]) == 0
+    img = np.load(out).astype(np.float64)
+    default = Image.open(pngs["default"])
+    assert default.mode == "RGB"
+    np.testing.assert_array_equal(np.asarray(default), to_png_bytes_rgba(img)[..., :3])
+    transparent = np.asarray(Image.open(pngs["transparent"]))
+    assert transparent.shape[2] == 4 and transparent[0, 0, 3] == 0  # a missed ray: see-through
+    assert (transparent[..., 3] == 255).sum() < transparent[..., 3].size
+    white = np.asarray(Image.open(pngs["white"]), dtype=float)
+    assert white[0, 0].tolist() == [255, 255, 255]
+    with pytest.raises(SystemExit) as refused:  # argparse's one-line usage error
+        cli.main(["render", str(p), "-o", str(out), "--png", str(pngs["white"]), "--png-background", "2,0"])
+    assert refused.value.code == 2
+
+
+def test_png_pixels_recompose_the_contract_image():
+    """Flattened on the view's own background, the transparent PNG's straight alpha gives the
+    contract's RGB back; flattened on a colour, it is C + T colour."""
+    from hovr_blender.engine.image_io import png_pixels
+
+    rng = np.random.default_rng(1)
+    background = np.array([0.1, 0.2, 0.3])
+    alpha = rng.uniform(0, 1, (5, 6, 1))
+    alpha[0, 0] = 0.0
+    emitted = alpha * rng.uniform(0, 1, (5, 6, 3))  # C <= 1 - T for colours within 0..1
+    rgba = np.concatenate([emitted + (1 - alpha) * background, alpha], axis=2)
+    view = png_pixels(rgba, background)
+    np.testing.assert_array_equal(view[..., :3], rgba[..., :3])
+    assert (view[..., 3] == 1).all()
+    straight = png_pixels(rgba, background, "transparent")
+    np.testing.assert_allclose(straight[..., :3] * straight[..., 3:] + (1 - straight[..., 3:]) * background,
+                               rgba[..., :3], atol=1e-12)
+    np.testing.assert_allclose(png_pixels(rgba, background, (1.0, 1.0, 1.0))[..., :3], emitted + (1 - alpha), atol=1e-12)
+    with pytest.raises(ValueError, match="PNG background"):
+        png_pixels(rgba, background, "checkerboard")
