@@ -97,7 +97,9 @@ def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 2
     if samples_per_axis is None:
         samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
     values = mesh.field_samples(samples_per_axis)
-    return values[np.isfinite(values)]
+    values = values[np.isfinite(values)]
+    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/derived.py)
+    return values if true_range is None else np.clip(values, *true_range)
 
 
 def value_histogram(values, value_min: float, value_max: float, bins: int = 16) -> np.ndarray:
