@@ -19,8 +19,9 @@ from .camera import border_region, ray_camera_from_blender, ray_camera_from_view
 from ..engine.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
+from . import compat
 from .compat import write_pass_pixels
-from .jobs import KERNELS, kernel_key
+from .jobs import KERNELS, ProgressLines, kernel_key
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -499,11 +500,29 @@ def declare_passes(engine, scene, renderlayer):
         engine.register_pass(scene, renderlayer, "HOVR Error", 1, "X", 'VALUE')
 
 
+def stage_reporter(api, background: bool, printed_by_blender: bool):
+    """status(text, fraction=None): the stage or progress in the status bar (update_stats); in
+    background mode, where the output is the log, progress only a few times a frame
+    (jobs.ProgressLines), each line printed by HOVR where Blender does not print update_stats
+    itself (5.0; 4.x prints each one)."""
+    lines = ProgressLines()
+
+    def status(text: str, fraction: float | None = None):
+        if background and fraction is not None and not lines.due(fraction):
+            return
+        api.update_stats("", text)
+        if background and not printed_by_blender:
+            print(text, flush=True)
+
+    return status
+
+
 def final_render(engine, api, depsgraph):
     """F12: snapshot, load (cached), render in progress tiles, write the passes. Blender's
     progress/break/stats calls go through `api` (the engine itself; tests wrap it, since RNA
     methods cannot be patched on the class)."""
-    api.update_stats("", "HOVR | reading scene")
+    status = stage_reporter(api, bpy.app.background, compat.update_stats_printed_in_background())
+    status("HOVR | reading scene")
     try:
         job = snapshot(engine, depsgraph)
     except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
@@ -517,7 +536,7 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
-    api.update_stats("", f"HOVR | reading {names}")
+    status(f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
@@ -534,7 +553,7 @@ def final_render(engine, api, depsgraph):
         return
     try:
         if not KERNELS.is_ready(key):  # their first use in this session: tens of seconds on a CPU
-            api.update_stats("", f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
+            status(f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -545,8 +564,8 @@ def final_render(engine, api, depsgraph):
 
     def progress(fraction):
         api.update_progress(fraction)
-        api.update_stats("", f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
-                              f"{time.perf_counter() - t1:.1f} s")
+        status(f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
+               f"{time.perf_counter() - t1:.1f} s", fraction)
         return not api.test_break()
 
     try:
@@ -556,7 +575,7 @@ def final_render(engine, api, depsgraph):
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
     if result.cancelled or api.test_break():
-        api.update_stats("", "HOVR | cancelled")
+        status("HOVR | cancelled")
         return
     for w in result.stats.get("warnings", []):
         api.report({'WARNING'}, f"HOVR: {w}")
@@ -587,7 +606,7 @@ def final_render(engine, api, depsgraph):
                         load_seconds=t1 - t0)
     if warnings:  # the status line keeps the last word: say the picture is suspect there too
         text += f" | WARNING: {warnings[-1].removeprefix('HOVR: ')}"
-    api.update_stats("", text)
+    status(text)
 
 
 def view_update(engine, context, depsgraph):

@@ -170,3 +170,28 @@ def test_a_field_constant_up_to_rounding_imports_with_a_warning_and_renders(fact
     capfd.readouterr()
     assert bpy.ops.hovr.fit_value_range() == {'FINISHED'}
     assert words in capfd.readouterr().out
+
+
+def test_a_background_render_logs_a_few_progress_lines(factory_scene, tmp_path, capfd):
+    """Issue 30: in background mode (bpy is one) F12 says what it does, a few lines a frame:
+    Blender 5.0 printed nothing for 425 s, 4.2 printed ~900 "tracing rays" lines."""
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    bpy.ops.hovr.frame_volume()
+    scene.render.resolution_percentage = 10  # 192 x 108: many progress tiles
+    capfd.readouterr()
+    render_to_exr(scene, tmp_path / "f12.exr")
+    out = capfd.readouterr().out
+    tracing = [line for line in out.splitlines() if "tracing rays" in line]
+    assert 2 <= len(tracing) <= 12, out
+    assert any("HOVR | reading" in line for line in out.splitlines()), out
+    assert "tracing rays 100%" in tracing[-1]
+
+
+def test_per_face_import_warnings_are_summarised(factory_scene, capfd):
+    """Issue 30: Womersley's 136 per-face notes were repeated and ran into each other in one line."""
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", "Womersley_PipeFlow.xml"))) == {'FINISHED'}
+    out = capfd.readouterr().out
+    faces = [line for line in out.splitlines() if "curved triangle face" in line]
+    assert len(faces) == 1 and faces[0].startswith("Warning") and "more faces like it" in faces[0], out
