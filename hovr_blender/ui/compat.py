@@ -55,6 +55,27 @@ def update_stats_printed_in_background() -> bool:
     return bpy.app.version < (5, 0, 0)
 
 
+def flat_color_shader():
+    """The built-in shader of 2-D triangles with a colour per vertex: FLAT_COLOR from 4.0
+    (2D_FLAT_COLOR before)."""
+    import gpu
+
+    try:
+        return gpu.shader.from_builtin('FLAT_COLOR')
+    except (ValueError, TypeError):
+        return gpu.shader.from_builtin('2D_FLAT_COLOR')
+
+
+def blf_size(font: int, size: int) -> None:
+    """blf.size in pixels: (font, size) from 4.0, (font, size, dpi) before."""
+    import blf
+
+    try:
+        blf.size(font, size)
+    except TypeError:
+        blf.size(font, size, 72)
+
+
 def eevee_engine() -> str:
     """The identifier of Blender's EEVEE render engine in this Blender."""
     items = bpy.types.RenderSettings.bl_rna.properties["engine"].enum_items

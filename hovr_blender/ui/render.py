@@ -340,6 +340,21 @@ def volume_inputs(obj, hovr, scene) -> VolumeInputs:
                         transfer_function=tf, density=float(look.density), density_units=look.density_units)
 
 
+def legend_volume_inputs(obj, scene):
+    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
+    (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
+    from .versioning import volume_look
+
+    look = volume_look(obj.hovr, scene)
+    texture = look.texture
+    if texture is None or not texture.use_color_ramp or texture.color_ramp is None:
+        raise SceneError(f"{obj.name!r} has no transfer function ramp")
+    ramp = texture.color_ramp
+    tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
+                                     [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
+    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
+
+
 def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     """The volumes, their looks and the settings of the scene, as plain records.
 

@@ -115,6 +115,24 @@ def step():
         # The HOVR render panels (ramp, presets, value range, histogram) for the user guide.
         with bpy.context.temp_override(window=win, area=area, region=region):
             bpy.ops.hovr.fit_value_range()
+        # the colour legend overlay (drawn with the viewport's overlays): off, then on
+        space.overlay.show_overlays = True
+        sc.hovr.show_legend = False
+        state["phase"] = "legend_off"
+        return 1.0
+    if state["phase"] in ("legend_off", "legend_on"):
+        name = state["phase"] + ".png"
+        with bpy.context.temp_override(window=win, area=area, region=region):
+            bpy.ops.screen.screenshot(filepath=os.path.join(OUT, name))
+        report[state["phase"]] = os.path.join(OUT, name)
+        if state["phase"] == "legend_off":
+            sc.hovr.show_legend = True
+            state["phase"] = "legend_on"
+            return 1.0
+        from hovr_blender.engine.legend import legend_layout  # noqa: F401  (the layout the overlay drew)
+        from hovr_blender.ui import legend_overlay
+
+        report["legend_bar"] = list(legend_overlay.legend_for_region(sc, region, area.spaces.active).bar)
         area.type = 'PROPERTIES'  # the big 3D view area becomes a Properties editor: legible panels
         state["phase"] = "panels"
         return 1.0

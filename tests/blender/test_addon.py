@@ -241,3 +241,23 @@ def test_panels_draw_existing_properties(scene, with_tf):
     assert ("color_ramp" in names) == with_tf
     context.engine = 'CYCLES'
     assert not any(cls.poll(context) for cls in panels.classes)
+
+
+def test_legend_overlay_layout_of_the_active_volume(scene):
+    """Issue 30: the viewport legend is the active volume's look (ui/legend_overlay.py draws
+    engine/legend.py's layout with gpu and blf; the window test sees it drawn)."""
+    from hovr_blender.ui import legend_overlay, render
+
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    obj.hovr.field = "f"
+    tf, lo, hi, title = render.legend_volume_inputs(obj, scene)
+    assert (lo, hi) == (pytest.approx(obj.hovr.value_min), pytest.approx(obj.hovr.value_max)) and title == "f"
+    from hovr_blender.engine.legend import legend_layout
+
+    layout = legend_layout(tf, lo, hi, title, 400, 300)
+    positions, colours = legend_overlay.bar_triangles(layout, 300)
+    x0, y0, x1, y1 = layout.bar
+    assert positions.shape == (6 * (y1 - y0), 2) and colours.shape == (6 * (y1 - y0), 4)
+    assert positions[:, 1].max() == 300 - y0 and positions[:, 1].min() == 300 - y1  # region rows count up
+    assert scene.hovr.show_legend and legend_overlay._handle is None  # no viewport to draw on in background mode

@@ -87,4 +87,12 @@ def test_viewport_screenshot_matches_f12(legacy_env):
     # "All CPU Cores" from the Blender program: its processes neither re-run this script nor hang
     every_core = np.asarray(Image.open(report["f12_all_cores"]).convert("RGB")).astype(float)
     np.testing.assert_array_equal(every_core, f12)
+    # the colour legend over the Rendered viewport (ui/legend_overlay.py): its bar is drawn where
+    # the layout puts it, and nothing changes left of its labels
+    off = np.asarray(Image.open(report["legend_off"]).convert("RGB")).astype(int)
+    on = np.asarray(Image.open(report["legend_on"]).convert("RGB")).astype(int)
+    x0, y0, x1, y1 = report["legend_bar"]
+    top = H - (ry + _rh)  # the region's top row in the screenshot
+    bar = np.abs(on - off).max(axis=2)[top + y0: top + y1, rx + x0: rx + x1]
+    assert (bar > 0).mean() > 0.3, "the legend's bar is not drawn"
     assert Path(report["panels"]).is_file()  # the render panels drew (screenshot for the guide)
