@@ -55,6 +55,7 @@ def step():
     space = area.spaces.active
     sc = bpy.context.scene
     if state["phase"] == "setup":
+        sc.hovr.show_legend = False  # the viewport against F12 without the legend (drawn in its own phase)
         space.overlay.show_overlays = False
         space.show_gizmo = False
         space.show_region_toolbar = False
