@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
 """Build and validate the Blender extension.
 
-  python scripts/build_extension.py [--output-dir dist]
+  python -m scripts.build_extension [--output-dir dist]
       dist/hovr_blender-<version>.zip: no bundled wheels (warp-lang must already be
       importable in Blender's Python); fast, used by the tests.
-  python scripts/build_extension.py --wheels [--platforms linux-x64,windows-x64,macos-arm64]
+  python -m scripts.build_extension --wheels [--platforms linux-x64,windows-x64,macos-arm64]
       one zip per platform, dist/hovr_blender-<version>-<platform>.zip, each carrying that
       platform's wheels of every runtime dependency (RUNTIME_REQUIREMENTS and what they need,
       numpy excepted: Blender ships it; downloaded with pip into build/wheels/<platform>/, not
       committed) and a manifest with `platforms` and `wheels` filled in (as Blender's
       --split-platforms does). Installed, such a zip needs nothing else.
-  python scripts/build_extension.py validate PATH
+  python -m scripts.build_extension validate PATH
       checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 

@@ -160,6 +160,21 @@ def test_no_module_of_the_package_edits_sys_path():
     assert found == {}, f"sys.path edited at {found}: import through the package instead"
 
 
+def test_bench_and_scripts_run_as_modules_without_sys_path_or_the_tests():
+    """bench/ and scripts/ run as modules from the repository's root (python -m bench.suite): none
+    edits sys.path, and none imports the tests (what both use is in the package or bench/common.py)."""
+    found = {}
+    for root in (REPO / "bench", REPO / "scripts"):
+        for path, _, package, tree in _modules(root):
+            if path.name.startswith("test_"):
+                continue  # bench's own checks are tests, collected by pytest
+            lines = sorted(set(_edits_sys_path(tree))) + [
+                f"{line}: {mod}" for line, mod in _imported_names(tree, package) if _under(mod, ("tests",))]
+            if lines:
+                found[str(path.relative_to(REPO))] = lines
+    assert found == {}, f"bench/scripts edit sys.path or import the tests at {found}"
+
+
 @pytest.mark.parametrize("source,expect", [
     ("import sys\nsys.path.insert(0, 'x')", [2]),
     ("import sys\nsys.path.append('x')", [2]),
