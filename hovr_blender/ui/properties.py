@@ -196,12 +196,12 @@ class HovrPreferences(bpy.types.AddonPreferences):
                                            "(from the next Blender session on; silent otherwise)")
 
     def draw(self, context):
-        from .dependencies import DEPENDENCIES, missing, report_lines
+        from .dependencies import dependencies, missing, report_lines
 
         layout = self.layout
         absent = missing()
         col = layout.column(align=True)
-        for module, package, purpose, _required in DEPENDENCIES:
+        for module, package, purpose, _required in dependencies():
             ok = all(m != module for m, *_ in absent)
             col.label(text=f"{package}: {'installed' if ok else 'MISSING'} ({purpose})",
                       icon='CHECKMARK' if ok else 'ERROR')
