@@ -3,15 +3,19 @@ and ViewLayer.hovr (extra passes)."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-# Explicit indices so items can be renamed or reordered without breaking saved .blend files.
+from ..engine.methods import METHOD_IDS
+
+# Explicit indices (the methods' ids) so items can be renamed or reordered without breaking saved .blend files.
 METHOD_ITEMS = (
-    ("riemann", "Riemann", "Left Riemann sum with a fixed Step: the classic ray marcher, for comparison", 0),
-    ("trapezoid", "Trapezoid", "Trapezoidal rule with a fixed Step: for comparison with other renderers", 1),
+    ("riemann", "Riemann", "Left Riemann sum with a fixed Step: the classic ray marcher, for comparison",
+     METHOD_IDS["riemann"]),
+    ("trapezoid", "Trapezoid", "Trapezoidal rule with a fixed Step: for comparison with other renderers",
+     METHOD_IDS["trapezoid"]),
     ("classified", "Classified", "The paper's Algorithm 1: skips ray segments the transfer function leaves empty, "
                                  "integrates smooth ones adaptively to Tolerance and marches the rest with Step. "
-                                 "The default", 2),
+                                 "The default", METHOD_IDS["classified"]),
     ("split", "Split", "Cuts each ray where the field crosses a ramp stop, so every piece is smooth, and integrates "
-                       "each adaptively to Tolerance (Step unused). Best for sharp, spiky ramps", 3),
+                       "each adaptively to Tolerance (Step unused). Best for sharp, spiky ramps", METHOD_IDS["split"]),
 )
 PRECISION_ITEMS = (
     ("float32", "Float32", "Single-precision kernels: fastest; about 1e-5 relative error", 0),

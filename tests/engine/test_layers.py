@@ -175,6 +175,28 @@ def test_bench_and_scripts_run_as_modules_without_sys_path_or_the_tests():
     assert found == {}, f"bench/scripts edit sys.path or import the tests at {found}"
 
 
+def _private_imports(tree, package):
+    """(line, module.name) of every `from module import _name` (a private name of another module)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__"):
+                    yield node.lineno, f"{'.' * node.level}{node.module or ''}.{alias.name}"
+
+
+# the one left, in the traversal's code (issue 27's kernel-side part removes it with the renderer's split)
+PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/surfaces.py", ".renderer._camera_args")}
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = [f"{path.relative_to(REPO)}:{line}: {name}"
+             for root in (PACKAGE, REPO / "bench", REPO / "scripts")
+             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)
+             if (str(path.relative_to(REPO)), name) not in PRIVATE_IMPORTS_LEFT]
+    assert found == [], "private names used across modules (make them public with a name that says what they " \
+                        "are, or move them):\n" + "\n".join(found)
+
+
 @pytest.mark.parametrize("source,expect", [
     ("import sys\nsys.path.insert(0, 'x')", [2]),
     ("import sys\nsys.path.append('x')", [2]),
