@@ -107,7 +107,7 @@ def test_import_picks_the_first_field_and_reports_the_others(scene, tmp_path):
 
 
 def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
-    mfem = data_file("vtu", "mfem_fichera_poisson_mixed_p4.vtu")
+    mfem = data_file("vtu", "mfem_fichera_cells_p4.vtu")  # MFEM's cells at the corner, where u peaks
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(mfem)) == {'FINISHED'}
     obj = bpy.context.active_object
     assert obj.hovr.source == str(mfem) and obj.hovr.field == "u" and len(obj.data.edges) > 0
