@@ -1,6 +1,7 @@
 """What the tests share: where the data files are, scenes, cameras, chords and the float32
 evaluation check. Plain functions and constants (fixtures are in conftest.py); test modules
-import from here, never from each other and never from bench/. The scenes and the evaluation
+import from here, never from bench/ (docs/architecture.md names the few Blender tests that reuse
+another test module's builders). The scenes and the evaluation
 check that bench/ and scripts/ use too have their one definition in the package
 (hovr_blender/audit/scenes.py, hovr_blender/audit/evaluation.py) and are imported here.
 

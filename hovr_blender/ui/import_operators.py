@@ -30,7 +30,7 @@ from bpy_extras.io_utils import ImportHelper
 from ..engine import walls as core_walls
 from ..io import formats
 from ..io.sources import VolumeSource, cached_volume, parse_component
-from . import operators
+from . import compat, operators
 from .jobs import Job
 from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
@@ -274,10 +274,7 @@ def create_walls_object(context, volume, walls, name=None):
         me = bpy.data.meshes.new(name)
         me.from_pydata(walls.vertices.tolist(), [], walls.triangles.tolist())
         me.update()
-        if hasattr(me, "shade_smooth"):  # Blender 4.1+
-            me.shade_smooth()
-        else:
-            me.polygons.foreach_set("use_smooth", [True] * len(me.polygons))
+        compat.shade_smooth(me)
         obj = bpy.data.objects.new(name, me)
         obj.parent = volume
         for collection in volume.users_collection or [context.scene.collection]:

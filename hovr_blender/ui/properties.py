@@ -4,6 +4,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from ..engine.methods import METHOD_IDS
+from . import compat
 
 # Explicit indices (the methods' ids) so items can be renamed or reordered without breaking saved .blend files.
 METHOD_ITEMS = (
@@ -40,15 +41,7 @@ SURFACE_ITEMS = (
 )
 
 
-def _path_options() -> set:
-    """String options of a data path: Blender 4.5+ wants '//' paths declared as supported
-    (older versions have no such option; their Property has no is_path_supports_blend_relative)."""
-    if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties:
-        return {'ANIMATABLE', 'PATH_SUPPORTS_BLEND_RELATIVE'}
-    return {'ANIMATABLE'}
-
-
-PATH_OPTIONS = _path_options()
+PATH_OPTIONS = compat.path_property_options()
 
 
 DENSITY_UNIT_ITEMS = (
