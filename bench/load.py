@@ -1,6 +1,6 @@
 """Load time and memory of the real Nektar++ files (issue: open real data).
 
-    python bench/load.py [--out bench/results/cpu/load.json]
+    python -m bench.load [--out bench/results/cpu/load.json]
 
 Each file is read in a fresh subprocess: wall time of read_nektar, the process's peak
 resident memory growth during the read (ru_maxrss), and the bytes of the arrays the
@@ -16,13 +16,13 @@ import subprocess
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-DATA = os.path.join(HERE, "..", "..", "shared", "data", "nektar")
+from bench import common
+
+DATA = str(common.DATA / "nektar")
 CASES = {"hump3D": ("hump3D_GLL.xml", "hump3D.rst", "rho"), "scaleHO": ("scaleHO.xml", None, None)}
 
 CHILD = r"""
-import json, resource, sys, time
-sys.path.insert(0, {repo!r})
+import json, resource, time
 import numpy as np
 from hovr_blender.io.nektar import read_nektar
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -38,15 +38,14 @@ print(json.dumps({{"seconds": dt, "peak_rss_growth_MB": (after - before) / 1024.
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "cpu", "load.json"))
+    ap.add_argument("--out", default=str(common.RESULTS / "cpu" / "load.json"))
     args = ap.parse_args(argv)
-    repo = os.path.abspath(os.path.join(HERE, ".."))
     out = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.processor() or platform.machine()}, "
-           f"{os.cpu_count()} cores", "command": "python bench/load.py", "files": {}}
+           f"{os.cpu_count()} cores", "command": "python -m bench.load", "files": {}}
     for name, (mesh, sol, field) in CASES.items():
-        code = CHILD.format(repo=repo, mesh=os.path.join(DATA, mesh), sol=os.path.join(DATA, sol) if sol else None,
+        code = CHILD.format(mesh=os.path.join(DATA, mesh), sol=os.path.join(DATA, sol) if sol else None,
                             field=field)
-        res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        res = subprocess.run([sys.executable, "-c", code], cwd=common.REPO, capture_output=True, text=True, check=True)
         out["files"][name] = json.loads(res.stdout.strip().splitlines()[-1])
         print(name, out["files"][name], flush=True)
     os.makedirs(os.path.dirname(args.out), exist_ok=True)

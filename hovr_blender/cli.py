@@ -31,7 +31,10 @@ class OutputError(ValueError):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hovr", description=__doc__.split("\n\n")[0])
+    from .io import formats
+
+    p = argparse.ArgumentParser(prog="hovr", description=__doc__.split("\n\n")[0],
+                                epilog=f"The view's data.path: builtin:NAME or a file of {formats.described()}.")
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = p.add_subparsers(dest="command", required=True)
 

@@ -13,7 +13,7 @@ import subprocess
 import sys
 import time
 
-from .series import _log, link_file, submit_frames
+from .series import append_log, link_file, submit_frames
 
 BATCH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "ui", "batch.py")
 PACKAGE_PARENT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -51,7 +51,7 @@ def render_blend_frame(blend: str, frame: int, blender: str | None = None, pytho
             os.unlink(tmp)
     record.update(status="written" if written else "exists", output=out, seconds=seconds)
     if written:
-        _log(os.path.dirname(out), {**record, "time": time.time()})
+        append_log(os.path.dirname(out), {**record, "time": time.time()})
     return record
 
 

@@ -168,7 +168,8 @@ def _link_into_place(path: str, writer) -> bool:
         os.unlink(tmp)
 
 
-def _log(folder: str, record: dict):
+def append_log(folder: str, record: dict):
+    """One record appended to the folder's series log, in one write (workers share the file)."""
     line = (json.dumps(record) + "\n").encode()
     fd = os.open(os.path.join(folder, LOG_NAME), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
@@ -228,7 +229,7 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     record.update(status="written" if written else "exists", device=renderer.device, load_seconds=load_s,
                   upload_seconds=upload_s, upload=upload, render_seconds=result.stats["render_seconds"])
     if written:
-        _log(os.path.dirname(out), {**record, "time": time.time()})
+        append_log(os.path.dirname(out), {**record, "time": time.time()})
     return record
 
 

@@ -23,11 +23,11 @@ from .kernels.element import static_modes
 from .kernels.precision import Precision
 from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients)
+from .methods import METHOD_IDS
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
 from .view import AUTO_STEP_ERROR, RenderOptions, View
 
-_METHOD_IDS = {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
 
 
@@ -636,7 +636,7 @@ class Renderer:
             launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
-                if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
+                if listed and quad.method == METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
                     launch("step_terms", kernels.step_terms, listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
                 launch("integrate", kernels.integrate, active,
@@ -946,7 +946,7 @@ def _transfer_args(prec: Precision, tf: TransferFunction):
 
 def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload, diagonal: float):
     quad = prec.kernels.QuadArgs()
-    quad.method = _METHOD_IDS[options.method]
+    quad.method = METHOD_IDS[options.method]
     quad.inner = _INNER_IDS[options.inner]
     quad.h = 0.0 if options.h is None else float(options.h)  # 0: classified's own step per segment
     max_samples = int(limits.current().max_samples_per_ray)

@@ -10,10 +10,10 @@ import numpy as np
 
 from .camera import RayCamera
 from .limits import read_regular
+from .methods import METHODS
 from .strict_json import as_integer, as_object, as_string, as_vector3
 from .transfer_function import TransferFunction
 
-METHODS = ("riemann", "trapezoid", "classified", "split")
 FIXED_STEP_METHODS = ("riemann", "trapezoid")  # the baselines: a step h is what they are
 # classified without h: each piecewise-smooth segment's trapezoid step is the largest whose error
 # bound on the segment is at most this (kernels/quadrature.auto_steps). A quarter of the contract's
