@@ -39,9 +39,10 @@ SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same list at
 # enable time): Warp renders, meshio reads VTU (and needs rich at import), h5py reads HDF5
-# solution files. pip resolves their dependencies; numpy is left out: Blender ships its own, and
+# solution files, defusedxml parses every XML file (DTDs refused in any encoding: io/safe_xml.py).
+# pip resolves their dependencies; numpy is left out: Blender ships its own, and
 # a second copy in the extension's site-packages would shadow it.
-RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "meshio==5.3.5", "h5py==3.16.0")
+RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "meshio==5.3.5", "h5py==3.16.0", "defusedxml==0.7.1")
 NOT_BUNDLED = {"numpy"}
 PYTHON_VERSION = "3.11"  # Blender 4.2 to 5.0; h5py's wheels are per Python version
 # Blender platform -> the pip platform tag of the wheels. numpy is not bundled: Blender ships its own.

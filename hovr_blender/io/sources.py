@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from ..engine.cache import LRUCache
 from ..engine.mesh import VolumeMesh
-from . import builtin, derived, nektar
+from . import builtin, derived, isolation, nektar
 
 DATA_EXTENSIONS = (".xml", ".vtu")
 
@@ -113,15 +113,18 @@ class VolumeSource:
                            component="" if comp is None else comp)
 
 
-def load_volume(source: VolumeSource) -> VolumeMesh:
+def load_volume(source: VolumeSource, **progress) -> VolumeMesh:
     """The mesh (object space) of a resolved source. Nektar++ field "|u,v,w|" and a VTU vector
     (the default for vector arrays) are magnitudes derived from the exact components
-    (io/derived.py); `component` picks one component of a VTU vector instead."""
-    kind, _, name = source.path.partition(":")
-    if kind == "builtin":
-        if name not in builtin.BUILTIN:
-            raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
-        return builtin.BUILTIN[name]()
+    (io/derived.py); `component` picks one component of a VTU vector instead. Files are read in
+    a reader process (io/isolation.py; progress: its on_stage and cancelled)."""
+    if source.path.startswith("builtin:"):
+        return read_volume(source)
+    _check_file_source(source)
+    return isolation.read_volume(source, **progress)
+
+
+def _check_file_source(source: VolumeSource) -> str:
     ext = os.path.splitext(source.path)[1].lower()
     if ext not in DATA_EXTENSIONS:
         raise SourceError(f"{source.path}: unsupported data format {ext!r} (use builtin:NAME, a Nektar++ .xml "
@@ -129,6 +132,17 @@ def load_volume(source: VolumeSource) -> VolumeMesh:
     for p in (source.path, source.solution):
         if p and not os.path.exists(p):
             raise SourceError(f"data file not found: {p}")
+    return ext
+
+
+def read_volume(source: VolumeSource) -> VolumeMesh:
+    """load_volume in this process (the reader process's task)."""
+    kind, _, name = source.path.partition(":")
+    if kind == "builtin":
+        if name not in builtin.BUILTIN:
+            raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
+        return builtin.BUILTIN[name]()
+    ext = _check_file_source(source)
     if ext == ".xml":
         return derived.read_nektar_field(source.path, source.solution or None, field=source.field or None)
     return derived.read_vtu_field(source.path, source.field or None, parse_component(source.component))

@@ -14,6 +14,7 @@ DEPENDENCIES = (
     ("warp", "warp-lang", "rendering (the ray kernels)", True),
     ("meshio", "meshio", "File > Import > HOVR VTU (.vtu)", False),
     ("h5py", "h5py", "Nektar++ HDF5 solution files (.fld/.chk in HDF5)", False),
+    ("defusedxml", "defusedxml", "File > Import > HOVR (every Nektar++ and VTU file is XML)", False),
 )
 
 

@@ -25,7 +25,7 @@ from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
-from ..io import nektar, vtu
+from ..io import isolation, nektar, vtu
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
 from .jobs import Job
@@ -125,7 +125,7 @@ def resolve_nektar(request: ImportRequest):
             warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
     field = request.field.strip()
     if solution and not field:
-        names = nektar.list_fields(solution)
+        names = isolation.list_fields("nektar", solution)
         if not names:
             raise nektar.NektarError(f"{solution}: holds no fields")
         field = names[0]
@@ -142,7 +142,7 @@ def resolve_vtu(request: ImportRequest):
     parse_component(request.component)  # a bad entry is reported before the file is read
     field, notes = request.field.strip(), []
     if not field:
-        names = list(vtu.list_fields(request.path))
+        names = list(isolation.list_fields("vtu", request.path))
         if not names:
             raise vtu.VtuError(f"{request.path}: no point-data array to render")
         field = names[0]
@@ -275,7 +275,7 @@ def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
             raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a Nektar++ "
                              f"mesh's (.xml), not {os.path.basename(path) or path}'s; leave the selection empty "
                              "for all boundary faces")
-        faces = nektar.mesh_boundaries(path).select(selection)
+        faces = isolation.wall_faces(path, selection)
     return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
 
 
@@ -346,7 +346,7 @@ WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domai
 
 def draw_wall_choices(layout, path):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
-    choices = _cached(("walls", path), path, lambda: nektar.mesh_boundaries(path).choices())
+    choices = _cached(("walls", path), path, lambda: isolation.wall_choices(path))
     box = layout.box()
     if choices is None:
         box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
@@ -467,7 +467,7 @@ class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
             return
         box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
         box.label(text=why[:60])
-        fields = _cached(("fields", str(picked)), str(picked), lambda: nektar.list_fields(picked))
+        fields = _cached(("fields", str(picked)), str(picked), lambda: isolation.list_fields("nektar", picked))
         if fields:
             box.label(text="Fields: " + ", ".join(fields[:8]))
         for p in [p for p in others if p != picked][:5]:

@@ -209,6 +209,55 @@ def hdf5_field(path: Path, data=None, data_kwargs=None, mutate=None):
             mutate(h5, folder=path.parent)
 
 
+# BasisType enum indices (io/nektar/hdf5.BASIS_ENUM) of the bases XML field files name
+_BASIS_INDEX = {"Modified_A": 4, "Modified_B": 5, "Modified_C": 6, "ModifiedPyr_C": 8, "GLL_Lagrange": 10}
+
+
+def nektar_hdf5_from_xml(xml_field: Path, out: Path) -> Path:
+    """An XML field file (.fld) rewritten as Nektar++ writes HDF5 field files (FieldIOHdf5,
+    docs/spec/formats.md §2.7): /NEKTAR with FORMAT_VERSION, a Metadata group (its Provenance
+    subgroup) of variable-length string attributes, one definition group per block named by a
+    hash, with FIELDS (a variable-length string array), BASIS (BasisType indices), SHAPE and
+    NUMMODESPERDIR; DECOMPOSITION, ELEMENTIDS and DATA. The strings are variable-length, as
+    Nektar++'s H5::DataType::String(0) makes them, so they live in HDF5's global heap."""
+    import h5py
+
+    from hovr_blender.io.nektar.blocks import FIELD_SHAPES
+    from hovr_blender.io.nektar.fields import read_field_file
+
+    shape_names = {shape: name for name, shape in FIELD_SHAPES.items()}
+
+    blocks = read_field_file(xml_field, num_elements=1 << 30).blocks
+    text = lambda s: np.array(s, dtype=h5py.string_dtype())  # noqa: E731
+    with h5py.File(out, "w") as h5:
+        root = h5.create_group("NEKTAR")
+        root.attrs["FORMAT_VERSION"] = np.uint32(1)
+        meta = root.create_group("Metadata")
+        for key, value in (("ChkFileNum", "0"), ("SessionName0", xml_field.with_suffix(".xml").name), ("Time", "0")):
+            meta.attrs[key] = text(value)
+        prov = meta.create_group("Provenance")
+        for key, value in (("GitBranch", "refs/heads/master"), ("GitSHA1", "72b466000a11"),
+                           ("Hostname", "hovr-tests"), ("NektarVersion", "5.9.0"),
+                           ("Timestamp", "25-Aug-2025 12:00:00")):
+            prov.attrs[key] = text(value)
+        decomposition, ids, data = [], [], []
+        for k, block in enumerate(blocks):
+            definition = 1_000_003 * (k + 1)
+            group = root.create_group(str(definition))
+            group.attrs["FIELDS"] = text(block.fields)
+            group.attrs["BASIS"] = np.array([_BASIS_INDEX[b] for b in block.basis], dtype=np.int32)
+            group.attrs["SHAPE"] = text(shape_names[block.shape])
+            modes = ",".join(str(int(m)) for m in block.modes[0])
+            group.attrs["NUMMODESPERDIR"] = text(f"UNIORDER:{modes}")
+            decomposition.extend([len(block.ids), block.data.size, 0, 0, 0, 0, definition])
+            ids.extend(block.ids.tolist())
+            data.append(block.data)
+        root.create_dataset("DECOMPOSITION", data=np.array(decomposition, np.uint64))
+        root.create_dataset("ELEMENTIDS", data=np.array(ids, np.uint64))
+        root.create_dataset("DATA", data=np.concatenate(data).astype("<f8"))
+    return out
+
+
 def _external_data(target):
     def build(path):
         hdf5_field(path, data_kwargs=dict(shape=(27,), dtype="<f8", external=[(str(target), 0, 27 * 8)]))

@@ -11,28 +11,25 @@ from pathlib import Path
 import numpy as np
 
 from ...engine import limits
+from .. import safe_xml
 from .errors import NektarError
 
-_FORBIDDEN = (b"<!doctype", b"<!entity")
 # Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
 MESH_INFLATE_RATIO = 200
 
 
 def parse_xml(path: Path, what: str) -> ET.Element:
-    """The <NEKTAR> root of an XML file, read through the resource policy."""
+    """The <NEKTAR> root of an XML file, read through the resource policy and parsed by
+    io/safe_xml.py (no DTDs in any encoding, bounded nesting)."""
     try:
         raw = limits.read_regular(path, what)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    lowered = raw.lower()
-    # DTDs can define entities (exponential expansion, external files): no Nektar++ file has one.
-    for pattern in _FORBIDDEN:
-        for encoding in ("ascii", "utf-16-le", "utf-16-be"):
-            if pattern.decode().encode(encoding) in lowered:
-                raise NektarError(f"{path}: DOCTYPE/ENTITY declarations are refused")
     try:
-        root = ET.fromstring(raw)
-    except ET.ParseError as exc:
+        root = safe_xml.parse(raw)
+    except (safe_xml.XmlRefused, limits.ResourceLimitError) as exc:
+        raise NektarError(f"{path}: {exc}") from None
+    except safe_xml.ParseError as exc:
         raise NektarError(f"{path}: not well-formed XML ({exc})") from exc
     if root.tag != "NEKTAR":
         raise NektarError(f"{path}: root element is <{root.tag}>, expected <NEKTAR>")
