@@ -208,10 +208,12 @@ class InflationBudget:
                 f"(real data compress far less; raise HOVR_MAX_INFLATE_RATIO if this file is genuine)")
 
 
-def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
+def inflate(data, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
     """(output, unused input) of one compressed stream, never producing more than max_bytes
-    (checked against the memory limit first). exact: the output must be exactly max_bytes.
-    Raises ValueError naming `what` for a broken, truncated or oversized stream."""
+    (checked against the memory limit first). data: bytes, or an iterable of byte chunks, taken
+    only as long as the output stays within the bound (a stream refused early is never decoded
+    whole). exact: the output must be exactly max_bytes. Raises ValueError naming `what` for a
+    broken, truncated or oversized stream."""
     check_bytes(max_bytes, f"inflating {what}")
     if codec == "zlib":
         d = zlib.decompressobj()
@@ -221,15 +223,26 @@ def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: 
         err = lzma.LZMAError
     else:
         raise ValueError(f"{what}: unknown compression {codec!r}")
-    try:
-        out = d.decompress(data, max_bytes + 1)
-    except (err, EOFError) as exc:
-        raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
-    if len(out) > max_bytes:
-        raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+    chunks = (data,) if isinstance(data, (bytes, bytearray, memoryview)) else data
+    out, unused = [], []
+    produced = 0
+    for chunk in chunks:
+        if d.eof:
+            unused.append(bytes(chunk))
+            continue
+        try:
+            piece = d.decompress(chunk, max_bytes + 1 - produced)
+        except (err, EOFError) as exc:
+            raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
+        out.append(piece)
+        produced += len(piece)
+        if produced > max_bytes or getattr(d, "unconsumed_tail", b""):
+            raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+        if d.eof:
+            unused.append(d.unused_data)
     if not d.eof:
         raise ValueError(f"{what}: {codec} stream is truncated")
-    if exact and len(out) != max_bytes:
-        raise ValueError(f"{what}: inflates to {len(out)} bytes, its header says {max_bytes}")
-    return out, d.unused_data
-
+    result = out[0] if len(out) == 1 else b"".join(out)
+    if exact and len(result) != max_bytes:
+        raise ValueError(f"{what}: inflates to {len(result)} bytes, its header says {max_bytes}")
+    return result, b"".join(unused)

@@ -43,6 +43,7 @@ from ..engine import limits
 
 ENV_SWITCH = "HOVR_ISOLATION"
 LIST_SECONDS = 30.0  # listing fields or composites reads headers only; the dialog waits for it
+START_SECONDS = 120.0  # for a reader process to start (import numpy, the readers) before its time limit runs
 ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allocations during a task
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
@@ -342,13 +343,14 @@ class Request:
         self._file = what
         self._limits = limits.current()
         self._worker = _take()
-        self._deadline = time.monotonic() + self.seconds
+        self._deadline = time.monotonic() + START_SECONDS  # then the time limit, from its "started"
         self._pending = bytearray(HEADER.size)  # what is being read: a length, a message or an array
         self._got = 0
         self._on_filled = self._length_read
         self._arrays: list = []
         self._specs: list = []
         self._reply = None
+        self._started = False
         try:
             send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits),
                                       "seconds": self.seconds})
@@ -369,7 +371,8 @@ class Request:
             now = time.monotonic()
             if now >= self._deadline:
                 self._stop(f"reading took longer than the limit of {self.seconds:g} s and was stopped (raise it "
-                           "with HOVR_MAX_READ_SECONDS if the file is genuine)")
+                           "with HOVR_MAX_READ_SECONDS if the file is genuine)" if self._started else
+                           f"the reader process did not start within {START_SECONDS:g} s")
                 break
             wait = min(end, self._deadline) - now
             if not _wait_readable(self._worker.stdout.fileno(), max(wait, 0.0)):
@@ -409,6 +412,9 @@ class Request:
             self._stop("the reader process sent a malformed message")
             return
         if "stage" in message:
+            if not self._started:
+                self._started = True
+                self._deadline = time.monotonic() + self.seconds
             self.stage = _one_line(message["stage"], 200)
             self._file = _one_line(message.get("file", self._file), 1000)
             self._expect(HEADER.size, self._length_read)

@@ -102,6 +102,7 @@ def _stage_reporter(fd: int):
 
 
 def _run(request: dict, out: int, config: dict):
+    isolation.send(out, {"stage": "reading"})  # the parent's time limit starts now
     task = TASKS[request["task"]]
     lim = limits.ResourceLimits(**request["limits"])
     _limit_memory(lim.max_memory, int(config["address_slack"]))

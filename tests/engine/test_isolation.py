@@ -199,3 +199,30 @@ def test_reader_processes_end_with_their_parent():
         parent.wait()
     assert _gone(idle), "the idle reader outlived its parent"
     assert _gone(busy), "the stuck reader outlived its parent"
+
+
+_BARE_READ = "import sys; from hovr_blender.io.nektar import list_fields; list_fields(sys.argv[1])"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals")
+@pytest.mark.parametrize("mutant,outcome", [("VLEN_TYPE_BITS", "crash"), ("HEAP_OBJECT_SIZE", "hang"),
+                                            ("VLEN_LENGTH", "hang")])
+def test_the_hostile_hdf5_mutants_crash_or_hang_libhdf5_itself(tmp_path, mutant, outcome):
+    """The hostile suite's HDF5 cases are what the issue found: read without the reader process
+    (list_fields here, in a bare Python), libhdf5 itself crashes or never returns. Should a
+    libhdf5 release fix one, this fails: the case then no longer shows containment."""
+    from tests.hostile import cases
+
+    getattr(cases, mutant)(tmp_path / "m.fld")
+    proc = subprocess.Popen([sys.executable, "-c", _BARE_READ, str(tmp_path / "m.fld")], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    try:
+        code = proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        code = "hang"
+    assert (code == -signal.SIGSEGV) if outcome == "crash" else (code == "hang"), code
+    with pytest.raises(isolation.ReaderFailure, match="m.fld"):
+        with limits.using(limits.ResourceLimits(max_read_seconds=2.0)):
+            isolation.list_fields("nektar", tmp_path / "m.fld")
