@@ -14,6 +14,7 @@ all of them succeeded: a failed run leaves no partial result.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
@@ -137,10 +138,10 @@ def _run(args) -> str:
     png = _output_path(args.png, ".png", "--png") if args.png else None
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
     lim = limits.current()
-    if args.max_memory:
-        lim = limits.ResourceLimits(limits.parse_size(args.max_memory), lim.max_samples_per_ray)
+    if args.max_memory:  # the other limits (inflation, read time) stay as the environment sets them
+        lim = dataclasses.replace(lim, max_memory=limits.parse_size(args.max_memory))
     if getattr(args, "max_samples_per_ray", None) is not None:
-        lim = limits.ResourceLimits(lim.max_memory, args.max_samples_per_ray)
+        lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         view = View.load(args.view)
         t0 = time.perf_counter()

@@ -489,7 +489,10 @@ class Request:
         worker.kill()
         code = worker.proc.returncode
         if code is not None and code < 0:
-            name = signal.Signals(-code).name if -code in signal.Signals._value2member_map_ else f"signal {-code}"
+            try:
+                name = signal.Signals(-code).name
+            except ValueError:
+                name = f"signal {-code}"
             if -code == getattr(signal, "SIGALRM", None):
                 why = f"reading took longer than the limit of {self.seconds:g} s and was stopped"
             elif -code == signal.SIGKILL:

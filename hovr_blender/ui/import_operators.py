@@ -253,6 +253,10 @@ class _ImportVolume(ImportHelper):
         """The settings as plain values."""
         raise NotImplementedError
 
+    def invoke(self, context, event):
+        isolation.prestart()  # the reader process starts while the user picks a file
+        return super().invoke(context, event)
+
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         request = self.request(context, path)

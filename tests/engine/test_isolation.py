@@ -226,3 +226,15 @@ def test_the_hostile_hdf5_mutants_crash_or_hang_libhdf5_itself(tmp_path, mutant,
     with pytest.raises(isolation.ReaderFailure, match="m.fld"):
         with limits.using(limits.ResourceLimits(max_read_seconds=2.0)):
             isolation.list_fields("nektar", tmp_path / "m.fld")
+
+
+def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):
+    """tests/fuzz/hdf5_mutation.py on 30 mutants, the hostile suite's three first: each loads or
+    is refused with one line naming the file; this process lives on."""
+    from tests.fuzz import hdf5_mutation as fuzz
+
+    items = fuzz.mutants(np.random.default_rng(7), fuzz.sources(tmp_path), 30, tmp_path)
+    summary = fuzz.run_here(items, tmp_path, seconds=2.0)
+    assert summary["mutants"] == 30 and not summary["problems"], summary
+    assert summary["outcomes"].get("reader crashed", 0) >= 1, summary  # the SIGSEGV mutant, contained
+    assert summary["outcomes"].get("reader stopped (time limit)", 0) >= 2, summary  # the loops, stopped
