@@ -128,12 +128,14 @@ def _write_all(outputs):
 
 
 def _run(args) -> str:
+    from .io import isolation
+
+    isolation.prestart()  # the reader process starts while this one imports numpy and the engine
     from .engine import limits
     from .engine.image_io import write_json, write_npy, write_png
     from .engine.view import View
-    from .io import isolation, load_view_data
+    from .io import load_view_data
 
-    isolation.prestart()  # the reader process starts while the command checks its arguments
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None

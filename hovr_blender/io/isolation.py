@@ -37,8 +37,6 @@ import time
 from dataclasses import asdict, fields as dataclass_fields
 from pathlib import Path
 
-import numpy as np
-
 from ..engine import limits
 
 ENV_SWITCH = "HOVR_ISOLATION"
@@ -48,7 +46,7 @@ ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allo
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
 # dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
-ARRAY_DTYPES = frozenset(np.dtype(t).str for t in ("?", "u1", "i4", "i8", "u4", "u8", "f4", "f8"))
+ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
 
 BOOT = (
@@ -116,9 +114,13 @@ def _write_all(fd: int, data):
 def encode(value, arrays: list):
     """A task's result as JSON, its arrays appended to `arrays`: numbers, strings, lists,
     tuples, dicts with string keys, arrays and VolumeMesh."""
+    import numpy as np
+
     from ..engine.mesh import VolumeMesh
 
     if isinstance(value, np.ndarray):
+        if value.dtype.str not in ARRAY_DTYPES:  # a big-endian array goes as its native copy
+            value = value.astype(value.dtype.newbyteorder("<")) if value.dtype.byteorder == ">" else value
         if value.dtype.str not in ARRAY_DTYPES:
             raise TypeError(f"array of dtype {value.dtype} cannot leave the reader process")
         arrays.append(np.ascontiguousarray(value))
@@ -423,6 +425,8 @@ class Request:
             self._finish()
         else:
             self._reply = message
+            import numpy as np
+
             try:
                 self._specs = _array_specs(message.get("result"), [])
                 total = 0
@@ -441,6 +445,8 @@ class Request:
             self._next_array()
 
     def _next_array(self):
+        import numpy as np
+
         if len(self._arrays) == len(self._specs):
             self._finish()
             return
