@@ -127,10 +127,21 @@ def _write_all(outputs):
         raise
 
 
+def _reads_a_file(view_path) -> bool:
+    """Whether a view names a data file (not builtin:): a cheap first look, errors left to the run."""
+    from .engine.view import View
+
+    try:
+        return "path" in View.load(view_path).data
+    except Exception:  # noqa: BLE001  (the run itself reports what is wrong)
+        return False
+
+
 def _run(args) -> str:
     from .io import isolation
 
-    isolation.prestart()  # the reader process starts while this one imports numpy and the engine
+    if _reads_a_file(args.view):
+        isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
     from .engine.image_io import write_json, write_npy, write_png
     from .engine.view import View
