@@ -1,6 +1,7 @@
 """`hovr`: render a view file exactly per the render contract, without Blender.
 
-    hovr render VIEW.json -o out.npy [--png out.png] [--stats stats.json]
+    hovr render VIEW.json -o out.npy [--png out.png [--png-background view|transparent|R,G,B] [--legend]]
+                [--stats stats.json]
                 [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cpu:all|cuda:0|cuda:0,cuda:1|cuda:all]
     hovr reference VIEW.json -o ref.npy [--png ref.png]    (float64 certifying reference)
     hovr render-series VIEW.json -o out/frame_####.npy --frames 1-100 [--png] [--orbit DEG]
@@ -39,6 +40,11 @@ def _parser() -> argparse.ArgumentParser:
         q.add_argument("view", help="view JSON (docs/spec/render-contract.md)")
         q.add_argument("-o", "--output", required=True, help="float32 (H, W, 4) RGBA .npy (its folder must exist)")
         q.add_argument("--png", help="also write an sRGB 8-bit .png")
+        q.add_argument("--png-background", default="view", type=_png_background, metavar="view|transparent|R,G,B",
+                       help="the PNG's background: view (default: flattened on the view's background colour, "
+                       "no alpha), transparent (the volume alone, straight alpha) or a linear colour R,G,B")
+        q.add_argument("--legend", action="store_true", help="draw the colour legend on the PNG: the transfer "
+                       "function's bar over its value range, with the field's name (engine/legend.py)")
         q.add_argument("--stats", help="write render statistics as .json")
         q.add_argument("--max-memory", help="memory limit of the load and the render, e.g. 8G (default 4G, "
                        "or HOVR_MAX_MEMORY)")
@@ -93,6 +99,21 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _png_background(text: str):
+    """--png-background: "view", "transparent" or "r,g,b" (linear, each 0..1)."""
+    from .engine.image_io import PNG_BACKGROUNDS
+
+    if text in PNG_BACKGROUNDS:
+        return text
+    try:
+        rgb = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        rgb = ()
+    if len(rgb) != 3 or not all(0.0 <= c <= 1.0 for c in rgb):
+        raise argparse.ArgumentTypeError(f"{text!r}: give view, transparent or a linear colour R,G,B (each 0..1)")
+    return rgb
+
+
 def _output_path(path: str, suffix: str, what: str) -> str:
     """The absolute path to write `what` to: it ends with `suffix`, its folder exists, and if it
     exists already it is a regular file (never a folder, FIFO or device)."""
@@ -143,12 +164,14 @@ def _run(args) -> str:
     if _reads_a_file(args.view):
         isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
-    from .engine.image_io import write_json, write_npy, write_png
+    from .engine.image_io import png_pixels, write_json, write_npy, write_png
     from .engine.view import View
     from .io import load_view_data
 
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
+    if args.legend and not png:
+        raise OutputError("--legend draws on the PNG: give --png too")
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
     lim = limits.current()
     if args.max_memory:  # the other limits (inflation, read time) stay as the environment sets them
@@ -182,7 +205,15 @@ def _run(args) -> str:
     stats["load_seconds"] = load_s
     outputs = [(out, lambda fh: write_npy(fh, rgba))]
     if png:
-        outputs.append((png, lambda fh: write_png(fh, rgba)))
+        shown = png_pixels(rgba, view.background, args.png_background)
+        if args.legend:
+            from .engine.legend import draw_legend, legend_layout, tf_value_range
+
+            over = view.background if isinstance(args.png_background, str) else args.png_background
+            title = mesh.field_name or view.data.get("field") or "value"
+            shown = draw_legend(shown, legend_layout(view.transfer_function, *tf_value_range(view.transfer_function),
+                                                     title, view.camera.width, view.camera.height, over))
+        outputs.append((png, lambda fh: write_png(fh, shown, alpha=args.png_background == "transparent")))
     if st_path:
         outputs.append((st_path, lambda fh: write_json(fh, stats)))
     _write_all(outputs)

@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from ..engine.camera import RayCamera
-from ..engine.image_io import write_json, write_npy, write_png
+from ..engine.image_io import png_pixels, write_json, write_npy, write_png
 from ..engine.view import View
 from ..io.sources import VolumeSource, cached_volume, frame_path
 
@@ -223,7 +223,7 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     if job.stats:
         _link_into_place(base + ".json", lambda fh: write_json(fh, stats))
     if job.png:
-        _link_into_place(base + ".png", lambda fh: write_png(fh, result.rgba))
+        _link_into_place(base + ".png", lambda fh: write_png(fh, png_pixels(result.rgba, view.background), alpha=False))
     written = _link_into_place(out, lambda fh: write_npy(fh, result.rgba))  # last: the frame is done
     record.update(status="written" if written else "exists", device=renderer.device, load_seconds=load_s,
                   upload_seconds=upload_s, upload=upload, render_seconds=result.stats["render_seconds"])

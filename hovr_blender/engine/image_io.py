@@ -19,6 +19,35 @@ def to_png_bytes_rgba(rgba: np.ndarray) -> np.ndarray:
     return out
 
 
+PNG_BACKGROUNDS = ("view", "transparent")  # or an (r, g, b) colour
+
+
+def png_pixels(rgba: np.ndarray, background, over="view") -> np.ndarray:
+    """(H, W, 4) linear RGBA to encode as a PNG, from the contract's image (RGB = C + T background,
+    alpha = 1 - T, T the transmittance): over "view", the image flattened on the view's background
+    (alpha 1: what the .npy's RGB shows); over an (r, g, b), flattened on that colour instead
+    (C + T colour); "transparent", the volume alone with straight alpha (C / (1 - T), 1 - T), which
+    image viewers composite over their own background as PNG intends."""
+    rgba = np.asarray(rgba, dtype=np.float64)
+    transmittance = 1.0 - rgba[..., 3:4]
+    emitted = rgba[..., :3] - transmittance * np.asarray(background, dtype=np.float64)[:3]
+    out = np.empty_like(rgba)
+    if isinstance(over, str) and over == "transparent":
+        alpha = rgba[..., 3:4]
+        out[..., :3] = np.where(alpha > 0, emitted / np.maximum(alpha, 1e-12), 0.0)
+        out[..., 3:] = alpha
+        return out
+    if isinstance(over, str) and over == "view":
+        out[..., :3] = rgba[..., :3]
+    elif isinstance(over, str):
+        raise ValueError(f"PNG background must be one of {', '.join(PNG_BACKGROUNDS)} or an r,g,b colour, "
+                         f"not {over!r}")
+    else:
+        out[..., :3] = emitted + transmittance * np.asarray(over, dtype=np.float64)[:3]
+    out[..., 3] = 1.0
+    return out
+
+
 def write_png(target, rgba: np.ndarray, alpha: bool = True) -> None:
     """target: a path or a binary file object."""
     from PIL import Image

@@ -6,7 +6,9 @@ same ray whichever device traces it: Renderer.render's `rows`).
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
 kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork). Every process gets its request before any reply is waited for; each writes
+not survive a fork), each running device_bootstrap.py first: it never re-runs the parent's script
+(a bpy script, with or without a main guard), and imports the package under the parent's name
+(`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any reply is waited for; each writes
 its rows into one shared-memory image (SharedImage, made once per image size) and answers with its
 stats and row costs only, and the parent copies each band out as it is answered. The renderer
 module is imported at the top: the CLI and the add-on import
@@ -14,9 +16,16 @@ this module only when they render, as they do the renderer.
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import multiprocessing.connection
+import os
+import pickle
+import runpy
+import sys
+import threading
 import time
+import types
 
 import numpy as np
 
@@ -170,6 +179,35 @@ def _serve(conn, mesh, device, max_tile_rays):
             shared.close()
 
 
+def serve_spawned(conn, payload: bytes):
+    """A device's process once device_bootstrap.py has imported the package: its mesh, device
+    and tile limit unpickled (the package's classes resolve now), then _serve."""
+    try:
+        mesh, device, max_tile_rays = pickle.loads(payload)
+    except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    del payload
+    _serve(conn, mesh, device, max_tile_rays)
+
+
+_STARTING = threading.Lock()
+
+
+@contextlib.contextmanager
+def _main_script_hidden():
+    """The spawn method re-runs the parent's __main__ in the child (as __mp_main__) before anything
+    else: the user's bpy script, which would import bpy and render again there. The child needs
+    nothing from it, so a bare __main__ stands in while a process starts (spawn reads it then)."""
+    with _STARTING:
+        main = sys.modules.get("__main__")
+        sys.modules["__main__"] = types.ModuleType("__main__")
+        try:
+            yield
+        finally:
+            sys.modules["__main__"] = main
+
+
 class DeviceProcess:
     """A process holding a Renderer of one mesh on one device (_serve). send() a request, then
     reply() its answer: requests to several processes run at once."""
@@ -178,9 +216,14 @@ class DeviceProcess:
         ctx = multiprocessing.get_context("spawn")
         self.device = device
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, mesh, device, max_tile_rays), daemon=True,
-                                 name=f"hovr-{device}")
-        self._proc.start()
+        engine_folder = os.path.dirname(os.path.abspath(__file__))
+        start = {"conn": child, "package": __name__.rsplit(".", 2)[0], "folder": os.path.dirname(engine_folder),
+                 "payload": pickle.dumps((mesh, device, max_tile_rays), protocol=pickle.HIGHEST_PROTOCOL)}
+        bootstrap = os.path.join(engine_folder, "device_bootstrap.py")
+        self._proc = ctx.Process(target=runpy.run_path, args=(bootstrap, {"START": start}, "__hovr_device_process__"),
+                                 daemon=True, name=f"hovr-{device}")
+        with _main_script_hidden():
+            self._proc.start()
         child.close()
 
     def send(self, *msg):
@@ -194,6 +237,12 @@ class DeviceProcess:
         return self._conn.fileno()
 
     def reply(self):
+        # the pipe or the process's end, whichever comes first: a process that died without
+        # closing its end (a child of its own holding it) is not waited for
+        multiprocessing.connection.wait([self._conn, self._proc.sentinel])
+        if not self._conn.poll():
+            raise RenderError(f"the process rendering on {self.device} ended unexpectedly "
+                              f"(exit code {self._proc.exitcode})")
         try:
             kind, value = self._conn.recv()
         except EOFError as exc:

@@ -30,6 +30,10 @@ FIELD), seed 0, 2026-11-22:
   velocity's zeros), stated bound 0.31; read_vtu's interpolated nodal magnitudes are off the
   true magnitude by up to 0.33 on the same cells.
 
+True range: ``true_range`` (min, max) of the exact |u| at the fit points and the random check
+points; the Blender layer takes value ranges and histograms from samples clipped to it, so the
+fit's dips below zero near u = 0 never make a negative Value Min (docs/methods.md).
+
 Field syntax: "|a,b,c|" (any number of names, spaces allowed) is the magnitude of those fields.
 """
 from __future__ import annotations
@@ -100,10 +104,24 @@ def _magnitude_at(blocks, shape, component_modes, xi):
     return np.sqrt(squares)
 
 
-def _fit_error(blocks, fit, shape, q, component_modes, xi):
+class _Extremes:
+    """The smallest and largest exact |u| and fitted value seen over every point sampled."""
+
+    def __init__(self):
+        self.true_min, self.true_max, self.fit_min = np.inf, -np.inf, np.inf
+
+    def see(self, truth, approx=None):
+        self.true_min = min(self.true_min, float(truth.min()))
+        self.true_max = max(self.true_max, float(truth.max()))
+        if approx is not None:
+            self.fit_min = min(self.fit_min, float(approx.min()))
+
+
+def _fit_error(blocks, fit, shape, q, component_modes, xi, extremes: _Extremes):
     """(per-element max |fit - |u|| at xi, largest |u| seen, number of points)."""
     truth = _magnitude_at(blocks, shape, component_modes, xi)
     approx = fit @ ex.basis_matrix(shape, (q, q, q), xi).T
+    extremes.see(truth, approx)
     return np.abs(approx - truth).max(axis=1), float(truth.max()), truth.size
 
 
@@ -143,6 +161,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     rng = np.random.default_rng(seed)
     elem_err = np.zeros(n)
     peak, points, groups = 0.0, 0, []
+    extremes = _Extremes()
 
     keys = np.concatenate([base.shape[:, None], Q[:, None]] + [c.modes for c in components], axis=1)
     for key in np.unique(keys, axis=0):
@@ -152,9 +171,10 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         blocks = [_element_blocks(c, idx, shape, modes) for c, modes in zip(components, component_modes)]
         at_fit_points = _magnitude_at(blocks, shape, component_modes, ex.fit_points(shape, (q, q, q)))
         fit = ex.fit_modal(shape, (q, q, q), at_fit_points.T).T
+        extremes.see(at_fit_points, fit @ ex.basis_matrix(shape, (q, q, q), ex.fit_points(shape, (q, q, q))).T)
         coeffs[offsets[idx][:, None] + np.arange(fit.shape[1])[None, :]] = fit
         err, top, count = _fit_error(blocks, fit, shape, q, component_modes,
-                                     _random_inside(shape, samples_per_element, rng))
+                                     _random_inside(shape, samples_per_element, rng), extremes)
         elem_err[idx], peak, points = err, max(peak, top), points + count
         groups.append((idx, shape, q, component_modes, blocks, fit))
     # the sample can miss an element's worst point (near a zero of u, where |u| has its kink):
@@ -164,7 +184,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         sel = np.array([k for k, e in enumerate(idx) if e in worst_elements], dtype=np.int64)
         if sel.size:
             err, top, count = _fit_error([b[sel] for b in blocks], fit[sel], shape, q, component_modes,
-                                         _random_inside(shape, DENSE_SAMPLES, rng))
+                                         _random_inside(shape, DENSE_SAMPLES, rng), extremes)
             elem_err[idx[sel]] = np.maximum(elem_err[idx[sel]], err)
             peak, points = max(peak, top), points + count
     worst = float(elem_err.max())
@@ -183,10 +203,17 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     bound = ERROR_SAFETY * worst + 1e-12 * peak  # the floor covers rounding where the fit is exact
     rel = worst / peak if peak > 0 else 0.0
     out.derived_error = {"max_error": worst, "bound": bound, "max_value": peak, "relative": rel, "points": points,
-                         "modes": sorted(set(int(q) for q in Q))}
+                         "modes": sorted(set(int(q) for q in Q)), "fit_min": extremes.fit_min,
+                         "true_min": extremes.true_min}
+    # what Fit Value Range and the histogram read: the exact magnitudes' range, never the fit's dips
+    out.true_range = (extremes.true_min, extremes.true_max)
     note = (f"{name}: magnitude fitted with {'/'.join(str(q) for q in sorted(set(Q.tolist())))} modes per "
             f"direction; max error {worst:.3g} ({100 * rel:.3g} % of max {peak:.4g}) at {points} random points, "
             f"stated bound {bound:.3g}")
+    if extremes.fit_min < extremes.true_min:
+        note += (f"; the fit dips to {extremes.fit_min:.3g} near the vector's zeros, where the true magnitude has "
+                 f"a kink (true minimum {extremes.true_min:.3g}): the value range comes from the true magnitudes, "
+                 "so those dips show as Value Min")
     warnings = []
     for c in components:
         warnings += [w for w in getattr(c, "warnings", []) if w not in warnings]

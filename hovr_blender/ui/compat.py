@@ -7,6 +7,7 @@ version number. Everything else in the Blender layer calls these instead of bran
   node); 5.0 links a node group (scene.compositing_node_group, a Group Output node).
 - Still-image output: 5.0 adds ImageFormatSettings.media_type, which must say IMAGE before a
   still format is chosen.
+- Background mode's log: 4.x prints every update_stats, 5.0 none (HOVR prints its own lines there).
 - RenderPass.rect.foreach_set takes a flat buffer in 4.x/5.x and (pixels, channels) in 3.4.
 - bpy as a Python module (`pip install bpy`) hangs at interpreter exit in 4.5 while a Python
   class is still registered, so the add-on unregisters itself first; in 4.2 (and 4.3) it crashes
@@ -45,6 +46,34 @@ def finish_script(code: int = 0):
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
+
+
+def update_stats_printed_in_background() -> bool:
+    """Whether Blender in background mode prints each RenderEngine.update_stats as a log line
+    ("Fra:1 Mem:... | HOVR | ..."): 4.x does, 5.0 prints none. Only the version tells (nothing to
+    look for), so this one branch is on it."""
+    return bpy.app.version < (5, 0, 0)
+
+
+def flat_color_shader():
+    """The built-in shader of 2-D triangles with a colour per vertex: FLAT_COLOR from 4.0
+    (2D_FLAT_COLOR before)."""
+    import gpu
+
+    try:
+        return gpu.shader.from_builtin('FLAT_COLOR')
+    except (ValueError, TypeError):
+        return gpu.shader.from_builtin('2D_FLAT_COLOR')
+
+
+def blf_size(font: int, size: int) -> None:
+    """blf.size in pixels: (font, size) from 4.0, (font, size, dpi) before."""
+    import blf
+
+    try:
+        blf.size(font, size)
+    except TypeError:
+        blf.size(font, size, 72)
 
 
 def eevee_engine() -> str:

@@ -28,7 +28,7 @@ from ..engine import walls as core_walls
 from ..io import isolation, nektar, vtu
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import operators
-from .jobs import Job
+from .jobs import Job, summarise_warnings
 from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
 
@@ -214,11 +214,12 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
             warnings.append(f"walls not made: {failure_text(exc)}")
         context.view_layer.objects.active = obj
     if read.values is not None and read.values.size:
-        operators.fit_value_range(obj, context.scene, read.values)
+        warning = operators.fit_value_range(obj, context.scene, read.values)[3]
+        if warning:
+            warnings.append(warning)
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
-    for w in getattr(mesh, "warnings", [])[:5]:
-        notes.append(w)
+    warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart
     if frame_camera:
         try:
             operators.frame_volumes(context, [o for o in context.scene.objects

@@ -99,6 +99,9 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
     # Off in a new scene: data imported into Blender's startup scene sits inside the default cube
     surfaces: EnumProperty(name="Surfaces", items=SURFACE_ITEMS, default="NONE",
                            description="What the scene's visible mesh objects do to the volume's rays")
+    show_legend: BoolProperty(name="Legend", default=True,
+                              description="Draw the active volume's colour legend (its ramp over Value Min..Max, "
+                                          "with the field's name) over the viewport in Rendered shading")
     # Before 0.2 the look was the scene's, shared by every volume. Kept registered (never drawn)
     # so old .blend files keep their values: versioning.py moves them onto the volumes, and
     # render.py reads them for a volume that has no look of its own yet.

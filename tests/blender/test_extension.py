@@ -52,11 +52,12 @@ def test_install_enable_and_render(tmp_path):
         "report": str(tmp_path / "report.json"), "contract": SPHERE.PERSPECTIVE, "width": SPHERE.W, "height": SPHERE.H,
         "stops": SPHERE.STOPS, "value_range": SPHERE.VALUE_RANGE, "density_scale": SPHERE.DENSITY_SCALE,
         "background": SPHERE.BACKGROUND, "location": SPHERE.OBJECT_LOCATION, "angle_z": SPHERE.OBJECT_ANGLE_Z,
-        "method": "classified",
+        "method": "classified", "out_all_cores": str(tmp_path / "rgba_all.npy"),
     }
     proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]  # nothing at exit either (unregistered once)
     report = json.loads(Path(spec["report"]).read_text())
     assert report["engine_module"].startswith("bl_ext.user_default.hovr_blender")
     assert report["renderer_loaded"] and report["foreign_modules"] == []
@@ -66,6 +67,7 @@ def test_install_enable_and_render(tmp_path):
     got = np.load(spec["out"])
     want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
     np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
+    np.testing.assert_array_equal(np.load(spec["out_all_cores"]), got)  # All CPU Cores: the one-core image
 
     spec.update(mode="uninstall", report=str(tmp_path / "uninstall.json"))
     proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],
@@ -76,6 +78,37 @@ def test_install_enable_and_render(tmp_path):
     assert report["disabled"] == {"in_addons": False, "engine": False, "scene_prop": False}
     assert report["uninstalled"] == ["FINISHED"]
     assert not (user / "extensions" / "user_default" / "hovr_blender").exists()
+
+
+def _user_env(user: Path) -> dict:
+    """The environment of a bpy script with a throw-away Blender user directory (BLENDER_USER_*
+    are honoured when set before bpy is imported) and no repository on the path."""
+    env = dict(os.environ)
+    env.update({"BLENDER_USER_RESOURCES": str(user / "resources"), "BLENDER_USER_CONFIG": str(user / "config"),
+                "BLENDER_USER_SCRIPTS": str(user / "scripts"), "BLENDER_USER_EXTENSIONS": str(user / "extensions")})
+    env.pop("PYTHONPATH", None)
+    return env
+
+
+@pytest.mark.slow
+def test_script_without_main_guard_renders_on_every_cpu_core(tmp_path):
+    """Issue 30: a bpy script written without `if __name__ == "__main__"` installs the extension and
+    renders F12 on All CPU Cores: the image is the one-core image, the devices' processes never run
+    the script again (it counts its runs), and nothing is printed as a traceback, at exit included."""
+    zip_path = build_zip(tmp_path / "dist")
+    spec = {"zip": str(zip_path), "runs": str(tmp_path / "runs.txt"), "one": str(tmp_path / "one.npy"),
+            "every": str(tmp_path / "every.npy"), "exr": str(tmp_path / "f12.exr"), "contract": SPHERE.PERSPECTIVE,
+            "width": SPHERE.W, "height": SPHERE.H, "stops": SPHERE.STOPS, "value_range": SPHERE.VALUE_RANGE,
+            "density_scale": SPHERE.DENSITY_SCALE, "background": SPHERE.BACKGROUND,
+            "location": SPHERE.OBJECT_LOCATION, "angle_z": SPHERE.OBJECT_ANGLE_Z}
+    proc = subprocess.run([sys.executable, str(HERE / "every_core_script.py"), json.dumps(spec)], cwd=tmp_path,
+                          env=_user_env(tmp_path / "blender-user"), capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert Path(spec["runs"]).read_text().splitlines() == ["run"]
+    one = np.load(spec["one"])
+    assert one[..., :3].std() > 0.01  # the sphere is in the picture
+    np.testing.assert_array_equal(np.load(spec["every"]), one)
 
 
 from scripts import build_extension as be  # noqa: E402  (scripts/ as a namespace package of the repository)

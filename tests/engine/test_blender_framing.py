@@ -83,11 +83,10 @@ def test_clip_warnings_name_the_cause():
 
 
 def test_image_warnings():
-    assert "empty" in framing.image_warning(np.zeros((4, 4)), {"field_evaluations": 0})
-    assert "empty" in framing.image_warning(np.zeros((4, 4)), {"field_evaluations": 100})
-    faint = framing.image_warning(np.full((4, 4), 0.005), {"field_evaluations": 100})
+    assert "empty" in framing.image_warning(np.zeros((4, 4)))
+    faint = framing.image_warning(np.full((4, 4), 0.005))
     assert "nearly transparent" in faint and "0.5%" in faint
-    assert framing.image_warning(np.full((4, 4), 0.3), {"field_evaluations": 100}) is None
+    assert framing.image_warning(np.full((4, 4), 0.3)) is None
 
 
 @pytest.fixture

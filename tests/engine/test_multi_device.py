@@ -160,3 +160,79 @@ def test_split_frame_shared_memory_is_freed_when_the_parent_dies():
     while name in _segments() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert name not in _segments()
+
+
+_SCRIPT_WITHOUT_MAIN_GUARD = r"""
+import json, sys
+sys.path.insert(0, {repo!r})
+with open({runs!r}, "a") as fh:
+    fh.write("run\n")  # a device's process that re-ran this script would add a line
+from hovr_blender.engine.device_bootstrap import import_package
+ext = "fake_bl_ext.user_repo.hovr_blender"  # the package under an installed extension's kind of name
+import_package(ext, {repo!r} + "/hovr_blender")
+import importlib
+md = importlib.import_module(ext + ".engine.multi_device")
+synthetic = importlib.import_module(ext + ".io.synthetic")
+view = importlib.import_module(ext + ".engine.view")
+camera = importlib.import_module(ext + ".engine.camera")
+tf = importlib.import_module(ext + ".engine.transfer_function")
+mesh = synthetic.brick((0, 0, 0), (1, 1, 1), (2, 2, 2), 3, lambda x, y, z: x + y * z)
+cam = camera.RayCamera.from_contract({{"eye": [2.6, -2.1, 1.8], "target": [0.5, 0.5, 0.5], "up": [0, 0, 1],
+                                      "fov_y_deg": 30.0}}, 16, 12)
+ramp = tf.TransferFunction.from_rgba_ramp([0.0, 1.0], [(0, 0, 1, 0), (1, 0.5, 0, 1)], 4.0, 0.0, 2.0)
+images = {{}}
+for devices in (["cpu"], ["cpu", "cpu"]):
+    with md.MultiDeviceRenderer(mesh, devices) as r:
+        images[len(devices)] = r.render(cam, ramp, (0, 0, 0), view.RenderOptions()).rgba
+print(json.dumps({{"equal": bool((images[1] == images[2]).all()), "alpha": float(images[1][..., 3].max()),
+                  "mesh_class": type(mesh).__module__}}))
+"""
+
+
+def test_device_processes_neither_rerun_the_script_nor_need_the_package_on_sys_path(tmp_path):
+    """Issue 30: the parent's script has no main guard (a device's process that re-ran it would
+    start processes of its own and count a second run) and its package is imported under a name
+    no folder on sys.path gives (as Blender's bl_ext.<repo>.hovr_blender): the split frame still
+    equals the one-device frame, and the script ran once."""
+    from ..helpers import REPO
+
+    script = tmp_path / "user_script.py"
+    runs = tmp_path / "runs.txt"
+    script.write_text(_SCRIPT_WITHOUT_MAIN_GUARD.format(repo=str(REPO), runs=str(runs)))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    import json
+
+    out = json.loads(proc.stdout.splitlines()[-1])
+    assert out["mesh_class"].startswith("fake_bl_ext.user_repo.hovr_blender.")
+    assert out["equal"] and out["alpha"] > 0.05
+    assert runs.read_text().splitlines() == ["run"]
+
+
+def test_a_device_process_that_cannot_import_the_package_says_so():
+    """A failure before the device's loop (here, the package's folder missing) is answered on the
+    pipe at once, in words, instead of leaving the parent waiting."""
+    import multiprocessing
+
+    from hovr_blender.engine.device_bootstrap import start
+
+    parent, child = multiprocessing.Pipe()
+    start(child, "nowhere_ext.repo.hovr_blender", "/nonexistent/hovr_blender", b"")
+    kind, message = parent.recv()
+    assert kind == "error" and message.startswith("cannot import nowhere_ext.repo.hovr_blender in a device process")
+    assert "nowhere_ext.repo.hovr_blender" not in sys.modules
+
+
+def test_a_device_process_that_dies_at_start_is_reported_within_seconds(monkeypatch):
+    """A process that ends before it answers (here its payload cannot be unpickled) fails the
+    start-up with an error, not a wait."""
+    from hovr_blender.engine import multi_device
+
+    mesh, _, _ = curved_mixed_scene(1)
+    monkeypatch.setattr(multi_device.pickle, "dumps", lambda *a, **k: b"not a pickle")
+    t0 = time.monotonic()
+    with pytest.raises(RenderError, match="cpu: UnpicklingError"):
+        multi_device.start_processes([mesh], ["cpu"])
+    assert time.monotonic() - t0 < 60
