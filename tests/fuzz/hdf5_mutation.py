@@ -11,7 +11,7 @@ sources are the shared XML field files rewritten as Nektar++ writes HDF5
 heap): Hex_01_01_01_03Modes_x2_Offset3 (12.7 KB, the size of the issue's file), Hex_CurvedFace,
 wss_3D_periodic and Tet_channel_m3. Each mutant changes one byte (xor 0xFF, zero, a random value
 or one bit) at a random position; the hostile suite's three named mutants (a vlen string type's
-class bits: SIGSEGV; a global heap object of size 0 and a 4 GiB string length: loops) come first.
+class bits: SIGSEGV; a global heap object of size 0: loops; a 4 GiB string length) come first.
 
 Every mutant is loaded here through io.sources.load_volume (the reader process, a read time
 limit of --seconds); --cli of them (every one the reader died or was stopped on, then others) run
