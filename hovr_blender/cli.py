@@ -15,6 +15,7 @@ all of them succeeded: a failed run leaves no partial result.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
@@ -150,7 +151,21 @@ def _write_all(outputs):
         raise
 
 
+def _reads_a_file(view_path) -> bool:
+    """Whether a view names a data file (not builtin:): a cheap first look, errors left to the run."""
+    from .engine.view import View
+
+    try:
+        return "path" in View.load(view_path).data
+    except Exception:  # noqa: BLE001  (the run itself reports what is wrong)
+        return False
+
+
 def _run(args) -> str:
+    from .io import isolation
+
+    if _reads_a_file(args.view):
+        isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
     from .engine.view import View
@@ -162,10 +177,10 @@ def _run(args) -> str:
         raise OutputError("--legend draws on the PNG: give --png too")
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
     lim = limits.current()
-    if args.max_memory:
-        lim = limits.ResourceLimits(limits.parse_size(args.max_memory), lim.max_samples_per_ray)
+    if args.max_memory:  # the other limits (inflation, read time) stay as the environment sets them
+        lim = dataclasses.replace(lim, max_memory=limits.parse_size(args.max_memory))
     if getattr(args, "max_samples_per_ray", None) is not None:
-        lim = limits.ResourceLimits(lim.max_memory, args.max_samples_per_ray)
+        lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         view = View.load(args.view)
         t0 = time.perf_counter()

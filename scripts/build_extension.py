@@ -39,9 +39,10 @@ SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
 # enable time, tests/engine/test_blender_framing.py that they agree): Warp renders, h5py reads
-# HDF5 solution files. pip resolves their dependencies; numpy is left out: Blender ships its own,
+# HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
+# io/safe_xml.py). pip resolves their dependencies; numpy is left out: Blender ships its own,
 # and a second copy in the extension's site-packages would shadow it.
-RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "h5py==3.16.0")
+RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "h5py==3.16.0", "defusedxml==0.7.1")
 NOT_BUNDLED = {"numpy"}
 PYTHON_VERSION = "3.11"  # Blender 4.2 to 5.0; h5py's wheels are per Python version
 # Blender platform -> the pip platform tag of the wheels. numpy is not bundled: Blender ships its own.

@@ -11,8 +11,8 @@ user's unsaved scene, so every reader and the renderer go through this one modul
   limit, and a ray's march against a limit on samples per ray; the error names the limit
   and how to raise it.
 
-Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY)
-and can be overridden for a block of code with `using(ResourceLimits(...))` (the CLI's
+Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY;
+HOVR_MAX_INFLATE_RATIO; HOVR_MAX_READ_SECONDS, one read's wall time in the reader process) and can be overridden for a block of code with `using(ResourceLimits(...))` (the CLI's
 --max-memory and --max-samples-per-ray do this).
 """
 from __future__ import annotations
@@ -33,6 +33,9 @@ DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h
 # sizes agree with each other is still refused when they are far beyond what its bytes can hold.
 DEFAULT_MAX_INFLATE_RATIO = 100
 INFLATE_FLOOR = 64 << 20
+# One read of a file (io/isolation.py's reader process stops it after this): hump3D takes ~1 s,
+# scaleHO ~10 s on a laptop core; minutes mean a hang (libhdf5 loops on some damaged files).
+DEFAULT_MAX_READ_SECONDS = 600.0
 
 
 class ResourceLimitError(ValueError):
@@ -68,9 +71,12 @@ class ResourceLimits:
     max_memory: int = DEFAULT_MAX_MEMORY
     max_samples_per_ray: int = DEFAULT_MAX_SAMPLES_PER_RAY
     max_inflate_ratio: int = DEFAULT_MAX_INFLATE_RATIO
+    max_read_seconds: float = DEFAULT_MAX_READ_SECONDS
 
     def __post_init__(self):
         if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0 or int(self.max_inflate_ratio) <= 0:
+            raise ValueError("resource limits must be positive")
+        if not float(self.max_read_seconds) > 0:
             raise ValueError("resource limits must be positive")
 
     @classmethod
@@ -82,6 +88,8 @@ class ResourceLimits:
             out = replace(out, max_samples_per_ray=int(float(os.environ["HOVR_MAX_SAMPLES_PER_RAY"])))
         if os.environ.get("HOVR_MAX_INFLATE_RATIO"):
             out = replace(out, max_inflate_ratio=int(float(os.environ["HOVR_MAX_INFLATE_RATIO"])))
+        if os.environ.get("HOVR_MAX_READ_SECONDS"):
+            out = replace(out, max_read_seconds=float(os.environ["HOVR_MAX_READ_SECONDS"]))
         return out
 
 
@@ -140,9 +148,16 @@ def check_regular(path, what: str = "data file") -> os.stat_result:
     return st
 
 
+# Called with (path, what) before each file is opened: the reader process reports its progress
+# (and the file a crash happened in) through this (io/reader_process.py).
+OPEN_OBSERVERS: list = []
+
+
 def open_regular(path, what: str = "data file"):
     """A binary file object for a regular file. Opened without blocking and checked on the open
     descriptor, so a FIFO swapped in after a check cannot hold the process."""
+    for observe in OPEN_OBSERVERS:
+        observe(path, what)
     check_regular(path, what)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
@@ -193,10 +208,12 @@ class InflationBudget:
                 f"(real data compress far less; raise HOVR_MAX_INFLATE_RATIO if this file is genuine)")
 
 
-def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
+def inflate(data, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
     """(output, unused input) of one compressed stream, never producing more than max_bytes
-    (checked against the memory limit first). exact: the output must be exactly max_bytes.
-    Raises ValueError naming `what` for a broken, truncated or oversized stream."""
+    (checked against the memory limit first). data: bytes, or an iterable of byte chunks, taken
+    only as long as the output stays within the bound (a stream refused early is never decoded
+    whole). exact: the output must be exactly max_bytes. Raises ValueError naming `what` for a
+    broken, truncated or oversized stream."""
     check_bytes(max_bytes, f"inflating {what}")
     if codec == "zlib":
         d = zlib.decompressobj()
@@ -206,15 +223,26 @@ def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: 
         err = lzma.LZMAError
     else:
         raise ValueError(f"{what}: unknown compression {codec!r}")
-    try:
-        out = d.decompress(data, max_bytes + 1)
-    except (err, EOFError) as exc:
-        raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
-    if len(out) > max_bytes:
-        raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+    chunks = (data,) if isinstance(data, (bytes, bytearray, memoryview)) else data
+    out, unused = [], []
+    produced = 0
+    for chunk in chunks:
+        if d.eof:
+            unused.append(bytes(chunk))
+            continue
+        try:
+            piece = d.decompress(chunk, max_bytes + 1 - produced)
+        except (err, EOFError) as exc:
+            raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
+        out.append(piece)
+        produced += len(piece)
+        if produced > max_bytes or getattr(d, "unconsumed_tail", b""):
+            raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+        if d.eof:
+            unused.append(d.unused_data)
     if not d.eof:
         raise ValueError(f"{what}: {codec} stream is truncated")
-    if exact and len(out) != max_bytes:
-        raise ValueError(f"{what}: inflates to {len(out)} bytes, its header says {max_bytes}")
-    return out, d.unused_data
-
+    result = out[0] if len(out) == 1 else b"".join(out)
+    if exact and len(result) != max_bytes:
+        raise ValueError(f"{what}: inflates to {len(result)} bytes, its header says {max_bytes}")
+    return result, b"".join(unused)

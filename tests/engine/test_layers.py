@@ -138,7 +138,7 @@ LAYERS = (
      ("engine/kernels", "io", "ui", "distributed", "cli", "audit")),
     ("engine/kernels", "hovr_blender.engine.kernels", ("hovr_blender.engine.shapes", "hovr_blender.engine.methods"),
      ("numpy", "warp"), ("engine", "audit")),
-    ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py"), ("ui", "distributed", "cli", "audit")),
+    ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py", "defusedxml"), ("ui", "distributed", "cli", "audit")),
     ("ui", "hovr_blender.ui", ("engine", "io", "package"), ("numpy",) + BLENDER, ("package",)),
     ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed"), ("cli",)),
     ("cli", "hovr_blender.cli", ("engine", "io", "distributed"), ("distributed",), ()),

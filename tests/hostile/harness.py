@@ -50,17 +50,20 @@ class Case:
     env: dict = field(default_factory=dict)
 
 
-# The measured command: `hovr` itself, reporting its own peak resident memory (VmHWM) at exit.
+# The measured command: `hovr` itself, reporting its own peak resident memory (VmHWM) at exit, or
+# its reader process's if that was larger.
 # The parent's getrusage would count the pytest process the child was forked from (its pages
 # are the child's until exec), so the child reads its own high-water mark after exec.
 _WRAPPER = """
-import atexit, os, sys
+import atexit, os, resource, sys
 def _report_peak():
     try:
         with open('/proc/self/status') as fh:
-            kb = next(line.split()[1] for line in fh if line.startswith('VmHWM:'))
+            kb = int(next(line.split()[1] for line in fh if line.startswith('VmHWM:')))
+        # the reader process (io/isolation.py), reaped by then: its own peak counts too
+        kb = max(kb, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
         with open(os.environ['HOVR_PEAK_FILE'], 'w') as out:
-            out.write(kb)
+            out.write(str(kb))
     except (OSError, StopIteration):
         pass
 atexit.register(_report_peak)
