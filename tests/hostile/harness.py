@@ -48,6 +48,7 @@ class Case:
     expect_rc: int = 2
     expect: tuple = ()  # words the error line must contain
     env: dict = field(default_factory=dict)
+    after: object = None  # callable(Path folder, Outcome) -> list of problems (what the run left behind)
 
 
 # The measured command: `hovr` itself, reporting its own peak resident memory (VmHWM) at exit.
@@ -140,7 +141,10 @@ def judge(case: Case, o: Outcome) -> list[str]:
 def run_case(case: Case, folder: Path) -> tuple[Outcome, list[str]]:
     args = case.build(folder)
     o = run_hovr(args, folder, case.env)
-    return o, judge(case, o)
+    problems = judge(case, o)
+    if case.after is not None:
+        problems += case.after(folder, o)
+    return o, problems
 
 
 def write_view(folder: Path, view: dict, name: str = "view.json") -> Path:
