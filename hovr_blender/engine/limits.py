@@ -146,9 +146,10 @@ def check_processes(n: int, what: str) -> int:
     """Refuse starting `n` processes for `what` beyond the process limit, before any starts."""
     limit = current().max_processes or default_max_processes()
     if not 0 <= n <= limit:
+        source = "HOVR_MAX_PROCESSES" if current().max_processes else "one a CPU core here"
         raise ResourceLimitError(
             f"{what} would start {n} processes, more than the limit of {limit} processes a run may start "
-            f"(one a CPU core here; each holds its own copy of the data: raise it with HOVR_MAX_PROCESSES)")
+            f"({source}; each holds its own copy of the data: raise it with HOVR_MAX_PROCESSES)")
     return int(n)
 
 

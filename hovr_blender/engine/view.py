@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .camera import RayCamera
+from . import limits
 from .limits import read_regular
 from .strict_json import as_integer, as_object, as_string, as_vector3, loads
 from .transfer_function import TransferFunction
@@ -46,6 +47,13 @@ def data_spec(data) -> dict:
     if comp is not None and comp != "magnitude":
         as_integer(comp, "data.component (an index or \"magnitude\")", ViewError, 0)
     return dict(data)
+
+
+def device_processes(device: str) -> int:
+    """The processes a device list starts, as far as its names say without asking Warp: one a
+    name, a core for "cpu:all" ("cuda:all" counts one here; its devices are counted when they start)."""
+    names = [d.strip() for d in device.split(",") if d.strip()]
+    return sum(limits.cpu_cores() if d == "cpu:all" else 1 for d in names)
 
 
 @dataclass(frozen=True)
@@ -88,6 +96,9 @@ class RenderOptions:
             raise ViewError(f"inner must be 'spectral' or 'trapezoid', got {self.inner!r}")
         if self.precision not in ("float32", "float64"):
             raise ViewError(f"precision must be 'float32' or 'float64', got {self.precision!r}")
+        processes = device_processes(self.device)
+        if processes > 1:  # refused here, before the data is read (start_processes checks the final count)
+            limits.check_processes(processes, f"device {self.device[:80]!r}")
 
     @classmethod
     def pixel_exact(cls, device: str = "cpu") -> "RenderOptions":

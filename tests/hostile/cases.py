@@ -456,8 +456,3 @@ CASES = [
          expect=("does not exist",)),
     Case("-o .npy in an existing folder renders", "output paths", _output("{d}/out.npy"), expect_rc=0),
 ]
-
-# issue 29's runs (budgets, messages, output links, fixed steps, render-series, render-blend)
-from .run_cases import RUN_CASES  # noqa: E402  (it builds on the helpers above)
-
-CASES += RUN_CASES
