@@ -230,6 +230,15 @@ class _dask_client:  # noqa: N801  (a context manager read as a function)
                 self.cluster.close()
 
 
+_BAR_OPEN = []  # a progress bar is drawn and its line not ended yet (a message starts below it)
+
+
+def _end_progress_line():
+    if _BAR_OPEN:
+        print(file=sys.stderr)
+        _BAR_OPEN.clear()
+
+
 def _progress_bar(t0):
     """progress(done, total, record): one line on stderr, redrawn, with a bar over the frames."""
     def progress(done, total, rec):
@@ -237,6 +246,7 @@ def _progress_bar(t0):
         bar = "#" * (30 * done // total) + "." * (30 - 30 * done // total)
         print(f"\rhovr: [{bar}] {done}/{total} frames, {rate:.2f} frames/s (frame {rec['frame']}: {rec['status']})",
               end="" if done < total else "\n", file=sys.stderr, flush=True)
+        _BAR_OPEN[:] = [True] if done < total else []
 
     return progress
 
@@ -315,23 +325,28 @@ def main(argv=None) -> int:
     try:
         message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
+        _end_progress_line()
         print("hovr: interrupted", file=sys.stderr)
         return 130
     except Terminated:
+        _end_progress_line()
         print("hovr: terminated (SIGTERM)", file=sys.stderr)
         return 143
     except MemoryError:
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print("hovr: error: out of memory (lower the image size, or set --max-memory below what this "
               "machine has so that the run is refused before it starts)", file=sys.stderr)
         return EXIT_ERROR
     except (ValueError, RuntimeError, OSError) as exc:  # the readers' and renderer's clear errors
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print(f"hovr: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
     except Exception as exc:  # a bug: still one line, the traceback only when asked for
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print(f"hovr: error: unexpected {type(exc).__name__}: {exc} (a bug: please report it; "

@@ -4,6 +4,8 @@ made (it imports dask.distributed)."""
 from __future__ import annotations
 
 import os
+import signal
+import threading
 
 from distributed import WorkerPlugin
 
@@ -20,7 +22,9 @@ def close_http(dask_scheduler=None, dask_worker=None):
 
 class LocalWorkerConfinement(WorkerPlugin):
     """Each worker ends with the process that made the cluster (its nanny lives there:
-    engine/processes.watch_parent) and, unless a dashboard was asked for, closes its HTTP listener."""
+    engine/processes.watch_parent), ignores SIGINT (Ctrl-C in a terminal signals the whole process
+    group: the process that made the cluster closes it, with one line, instead of every worker
+    printing a traceback) and, unless a dashboard was asked for, closes its HTTP listener."""
 
     name = "hovr-local-worker"
 
@@ -29,5 +33,7 @@ class LocalWorkerConfinement(WorkerPlugin):
 
     def setup(self, worker):
         watch_parent(os.getppid())
+        if threading.current_thread() is threading.main_thread():  # where signal handlers are set
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         if self.no_http:
             close_http(dask_worker=worker)

@@ -1,5 +1,6 @@
 """render-blend's Blender ends with `hovr` (issue 29: the Blender child outlived a SIGTERM): a frame
-stuck in an endless driver expression, then SIGTERM (one line, exit 143) or SIGKILL of `hovr`, and
+stuck in an endless driver expression, then SIGTERM (one line, exit 143), SIGKILL of `hovr`, or
+Ctrl-C to the whole process group (one line, exit 130), and
 the Blender is gone within seconds (the worker watches its parent, Blender has the parent-death
 signal of the task that started it)."""
 import importlib.util
@@ -35,8 +36,12 @@ def _running(p):
         return False
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
-def test_blender_ends_with_hovr(tmp_path, sig):
+@pytest.mark.parametrize("sig, group, code, line", [
+    (signal.SIGTERM, False, 143, "hovr: terminated (SIGTERM)"),
+    (signal.SIGKILL, False, None, None),
+    (signal.SIGINT, True, 130, "hovr: interrupted"),  # Ctrl-C: the terminal signals the whole group
+])
+def test_blender_ends_with_hovr(tmp_path, sig, group, code, line):
     (tmp_path / "scene").mkdir()
     blend = tmp_path / "scene" / "s.blend"
     subprocess.run([sys.executable, str(REPO / "tests" / "hostile" / "make_blend.py"), "driver", str(blend)],
@@ -54,16 +59,16 @@ def test_blender_ends_with_hovr(tmp_path, sig):
         assert blenders, "no Blender started"
         time.sleep(2.0)  # inside the endless driver
         assert all(_running(b) for b in blenders)
-        os.kill(proc.pid, sig)
+        (os.killpg if group else os.kill)(proc.pid, sig)
         _, err = proc.communicate(timeout=60)
         deadline = time.monotonic() + 15
         while any(_running(b) for b in blenders) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert not any(_running(b) for b in blenders)
-        if sig == signal.SIGTERM:
-            assert proc.returncode == 143
-            assert [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("hovr: [")] == \
-                ["hovr: terminated (SIGTERM)"], err[-2000:]
+        if line is not None:
+            assert proc.returncode == code
+            assert [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("hovr: [")] == [line], \
+                err[-2000:]
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
