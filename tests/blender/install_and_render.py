@@ -35,7 +35,7 @@ def main():
     loaded = sorted(m for m in sys.modules if "hovr_blender" in m)
     report = {
         "engine_module": engine.__module__,
-        "renderer_loaded": f"{REPO_MODULE}.core.renderer" in sys.modules,
+        "renderer_loaded": f"{REPO_MODULE}.engine.renderer" in sys.modules,
         "foreign_modules": [m for m in loaded if m == "hovr_blender" or m.startswith("hovr_blender.")],
         "user_extensions": bpy.utils.user_resource("EXTENSIONS"),
     }
