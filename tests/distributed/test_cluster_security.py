@@ -162,3 +162,23 @@ def _alive(pid):
         return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
     except psutil.NoSuchProcess:
         return False
+
+
+def test_scheduler_option_connects_with_the_users_tls_files(cluster, tmp_path):
+    """--scheduler with --tls-ca-file/--tls-cert/--tls-key (series.remote_client): the cluster's CA
+    and a certificate it signed connect; half the files, or a plain address, are refused."""
+    cluster, _ = cluster
+    files = {}
+    for name, pem in (("ca", cluster.security.tls_ca_file), ("cert", cluster.security.tls_client_cert),
+                      ("key", cluster.security.tls_client_key)):
+        files[name] = tmp_path / f"{name}.pem"
+        files[name].write_text(pem)
+        os.chmod(files[name], 0o600)
+    with series.remote_client(cluster.scheduler_address, str(files["ca"]), str(files["cert"]),
+                              str(files["key"])) as client:
+        assert client.run(os.getpid)
+    with pytest.raises(ValueError, match="go together"):
+        series.remote_client(cluster.scheduler_address, str(files["ca"]))
+    with pytest.raises(RuntimeError, match="encryption required"):  # a plain tcp address is refused
+        series.remote_client(cluster.scheduler_address.replace("tls://", "tcp://"), str(files["ca"]),
+                             str(files["cert"]), str(files["key"]))
