@@ -140,7 +140,7 @@ LAYERS = (
      ("numpy", "warp"), ("engine", "audit")),
     ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py", "defusedxml"), ("ui", "distributed", "cli", "audit")),
     ("ui", "hovr_blender.ui", ("engine", "io", "package"), ("numpy",) + BLENDER, ("package",)),
-    ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed"), ("cli",)),
+    ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed", "dask"), ("cli",)),
     ("cli", "hovr_blender.cli", ("engine", "io", "distributed"), ("distributed",), ()),
     ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk"), ()),
     ("package", "hovr_blender", ("ui",), (), ("ui",)),

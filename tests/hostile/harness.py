@@ -48,6 +48,8 @@ class Case:
     expect_rc: int = 2
     expect: tuple = ()  # words the error line must contain
     env: dict = field(default_factory=dict)
+    after: object = None  # callable(Path folder, Outcome) -> list of problems (what the run left behind)
+    max_seconds: float = MAX_SECONDS  # more only where the refusal needs a Dask cluster or Blender started first
 
 
 # The measured command: `hovr` itself, reporting its own peak resident memory (VmHWM) at exit, or
@@ -133,8 +135,8 @@ def judge(case: Case, o: Outcome) -> list[str]:
         for word in case.expect:
             if word not in o.stderr:
                 problems.append(f"message lacks {word!r}: {o.stderr[-400:]!r}")
-    if o.seconds > MAX_SECONDS:
-        problems.append(f"took {o.seconds:.1f} s (limit {MAX_SECONDS} s)")
+    if o.seconds > case.max_seconds:
+        problems.append(f"took {o.seconds:.1f} s (limit {case.max_seconds} s)")
     if o.peak_mb > MAX_PEAK_MB:
         problems.append(f"peak memory {o.peak_mb:.0f} MB (limit {MAX_PEAK_MB} MB)")
     return problems
@@ -143,7 +145,10 @@ def judge(case: Case, o: Outcome) -> list[str]:
 def run_case(case: Case, folder: Path) -> tuple[Outcome, list[str]]:
     args = case.build(folder)
     o = run_hovr(args, folder, case.env)
-    return o, judge(case, o)
+    problems = judge(case, o)
+    if case.after is not None:
+        problems += case.after(folder, o)
+    return o, problems
 
 
 def write_view(folder: Path, view: dict, name: str = "view.json") -> Path:
