@@ -200,7 +200,7 @@ def test_riemann_refused(q_mesh):
 
 def test_nektar_channel_vorticity_and_q():
     """Nektar++'s Tet_channel_m3: w = y (1 - y), u = v = 0, so |curl u| = |1 - 2y| and Q = 0."""
-    from hovr_blender.io.derived import read_nektar_field
+    from hovr_blender.io.nektar.format import read_nektar_field
     from tests.helpers import data_file
 
     path, fld = data_file("nektar", "Tet_channel_m3.xml"), data_file("nektar", "Tet_channel_m3.fld")
@@ -215,7 +215,8 @@ def test_nektar_channel_vorticity_and_q():
 
 
 def test_reader_errors_are_one_line():
-    from hovr_blender.io.derived import read_nektar_field, read_vtu_field
+    from hovr_blender.io.nektar.format import read_nektar_field
+    from hovr_blender.io.vtu.format import read_vtu_field
     from tests.helpers import data_file
 
     tgv = data_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu")
