@@ -1,11 +1,13 @@
 """Isosurface and plane frames against the volume frame of the same data (issue 31): per dataset,
-the audit's volume render (three density tents, scripts/audit.py's oblique view), an isosurface
-frame (one opaque level at the field's 60th percentile, no volume), a plane frame (a plane through
-the data's centre coloured by the field, no volume) and both surfaces over the volume, each timed
-in one command on one device.
+the audit's volume render (three density tents, the audit's oblique view), an isosurface frame
+(one opaque level at the field's 60th percentile, no volume), a plane frame (a plane through the
+data's centre coloured by the field, no volume) and both surfaces over the volume; and, for the
+CFD datasets, the derived-field frames (contract §8: Q of the velocity, sampled exactly at each
+sample point): its volume (the audit's tents over Q's range) and the Q isosurface coloured by the
+speed, no volume. Each timed in one command on one device.
 
-    python bench/surfaces_frame.py --device cuda:0 --size 1920x1080 --out $OUT/surfaces_frame.json
-    python bench/surfaces_frame.py --device cpu --size 64x36 --datasets mfem_fichera --repeats 1 \\
+    python -m bench.surfaces_frame --device cuda:0 --size 1920x1080 --out $OUT/surfaces_frame.json
+    python -m bench.surfaces_frame --device cpu --size 64x36 --datasets mfem_fichera --repeats 1 \\
         --out /tmp/surfaces_frame.json   (a small CPU check)
 
 Per dataset and frame: render_seconds (the best of --repeats after a warm-up call: the renderer's
@@ -22,22 +24,17 @@ import argparse
 import datetime
 import json
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-for p in (REPO, HERE, REPO / "scripts"):
-    if str(p) not in sys.path:
-        sys.path.insert(0, str(p))
-
-import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functions)
-import suite  # noqa: E402  (git helpers, JSON conversion)
+from bench import common
+from hovr_blender.audit import datasets, scenes  # the audit's datasets, views, transfer functions
 
 DEFAULT_DATASETS = "ngsolve_ball,mfem_fichera,pyfr_tgv,hump3D"
+# the derived field each CFD dataset's Q frames render (contract §8)
+DERIVED = {"pyfr_tgv": "Q(Velocity)", "hump3D": "Q(rhou,rhov,rhow/rho)"}
 COUNTERS = ("field_evaluations", "restriction_evaluations", "samples_per_ray", "segments", "segments_empty",
             "segments_smooth", "segments_piecewise_smooth")
 
@@ -59,8 +56,26 @@ def frames(mesh, tf):
             "volume_isosurface_clipping_plane": (tf, Surfaces((Isosurface(level, (1.0, 0.85, 0.4), 0.5),), (clipping,)))}
 
 
+def q_level(mesh) -> float:
+    """The Q isosurface's level: a fifth of the 99th percentile of Q's fit at a lattice of points
+    (the vortex cores, well inside Q's positive range)."""
+    return 0.2 * float(np.percentile(mesh.field_samples(4), 99))
+
+
+def derived_frames(mesh) -> dict:
+    """{name: (transfer function, Surfaces)}: Q's volume, and its isosurface coloured by the speed."""
+    from hovr_blender.engine.isosurfaces import Isosurface, Surfaces
+    from hovr_blender.engine.transfer_function import TransferFunction
+
+    tf = datasets.transfer_function(mesh)
+    none = TransferFunction(tf.color_s, tf.color_rgb, tf.density_s, np.zeros_like(tf.density_tau))
+    ramp = ((0.0, 0.1, 0.2, 0.9), (0.5, 0.9, 0.9, 0.9), (1.0, 0.9, 0.2, 0.1))
+    iso = Isosurface(q_level(mesh), (1.0, 1.0, 1.0), 1.0, color_by="speed", color_ramp=ramp)
+    return {"derived_volume": (tf, Surfaces()), "derived_isosurface": (none, Surfaces((iso,)))}
+
+
 def timed(r, cam, tf, surfaces, opts, repeats: int) -> dict:
-    bg = suite.BACKGROUND
+    bg = scenes.BACKGROUND
     res = r.render(cam, tf, bg, opts, surfaces=surfaces)  # warm-up (compiles on first use)
     times, walls = [], []
     for _ in range(repeats):
@@ -95,26 +110,39 @@ def main(argv=None):
     opts = RenderOptions(method=args.method, precision=args.precision, device=args.device)
     report = {"bench": "surfaces_frame", "date": datetime.date.today().isoformat(), "device": args.device,
               "host": platform.node(), "size": [W, H], "method": args.method, "precision": args.precision,
-              "repeats": args.repeats, "commit": suite._git("rev-parse", "HEAD"),
+              "repeats": args.repeats, "commit": common.git("rev-parse", "HEAD"),
               "datasets": {}}
     lim = limits.ResourceLimits(limits.parse_size(args.max_memory), limits.current().max_samples_per_ray)
     with limits.using(lim):
         for name in args.datasets.split(","):
             try:
-                mesh, _ = audit.load(name)
+                mesh, data = datasets.load(name)
             except FileNotFoundError as exc:
                 report["datasets"][name] = {"skipped": str(exc)}
                 continue
-            tf = audit.transfer_function(mesh)
-            cam = RayCamera.from_contract(dict(audit.views(mesh)["oblique"], projection="perspective"), W, H)
+            tf = datasets.transfer_function(mesh)
+            cam = RayCamera.from_contract(dict(datasets.views(mesh)["oblique"], projection="perspective"), W, H)
             r = Renderer(mesh, args.device)
             entry = {"elements": mesh.num_elements}
             for frame, (ftf, surfaces) in frames(mesh, tf).items():
                 entry[frame] = timed(r, cam, ftf, surfaces, opts, args.repeats)
                 print(f"{name} {frame}: {entry[frame]['render_seconds']:.4f} s", flush=True)
+            if name in DERIVED:
+                from hovr_blender.io.sources import VolumeSource, load_volume
+
+                t0 = time.perf_counter()
+                derived = load_volume(VolumeSource.from_view_data({**data, "field": DERIVED[name]}))
+                entry["derived"] = {"field": DERIVED[name], "load_seconds": time.perf_counter() - t0,
+                                    "q_level": q_level(derived), "fit": derived.warnings[-1]}
+                rd = Renderer(derived, args.device)
+                for frame, (ftf, surfaces) in derived_frames(derived).items():
+                    entry[frame] = timed(rd, cam, ftf, surfaces, opts, args.repeats)
+                    print(f"{name} {frame}: {entry[frame]['render_seconds']:.4f} s", flush=True)
             v = entry["volume"]["render_seconds"]
             entry["isosurface_over_volume"] = entry["isosurface"]["render_seconds"] / v
             entry["plane_over_volume"] = entry["plane"]["render_seconds"] / v
+            if name in DERIVED:
+                entry["derived_isosurface_over_volume"] = entry["derived_isosurface"]["render_seconds"] / v
             report["datasets"][name] = entry
             Path(args.out).write_text(json.dumps(report, indent=1, default=float))
     Path(args.out).write_text(json.dumps(report, indent=1, default=float))

@@ -272,3 +272,14 @@ def test_cli_field_option(tmp_path, capsys):
     assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy"), "--field", "Q(p)"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a velocity" in err[0], err
+
+
+def test_derived_mesh_leaves_the_reader_process(q_mesh):
+    """The reader process's encoding carries the components (io/isolation.py encode / decode)."""
+    from hovr_blender.io.isolation import decode, encode
+
+    arrays = []
+    back = decode(encode(q_mesh, arrays), arrays)
+    assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
+    for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
+        np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
