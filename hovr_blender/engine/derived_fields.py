@@ -98,6 +98,26 @@ def parse_derived(text) -> DerivedSpec | None:
     return DerivedSpec(operation, names, density)
 
 
+# component names a Nektar++ (or any scalar-field) file gives a velocity or momenta by
+VELOCITY_NAMES = (("u", "v", "w"), ("rhou", "rhov", "rhow"))
+DENSITY_NAMES = ("rho",)
+
+
+def derived_field_names(fields) -> list[str]:
+    """The derived fields a file's fields can give (a field chooser's list, after the fields
+    themselves): fields {name: components} (or a list of scalar names). Per 3-vector V and per
+    velocity triple (u,v,w; rhou,rhov,rhow over rho): Q, vorticity, speed; per scalar f: |grad|(f)."""
+    sizes = dict(fields) if isinstance(fields, dict) else {str(n): 1 for n in fields}
+    velocities = [n for n, k in sizes.items() if k == 3]
+    for triple in VELOCITY_NAMES:
+        if all(n in sizes for n in triple):
+            density = next((d for d in DENSITY_NAMES if d in sizes), None) if triple[0].startswith("rho") else None
+            if not triple[0].startswith("rho") or density is not None:
+                velocities.append(",".join(triple) + (f"/{density}" if density else ""))
+    out = [f"{op}({v})" for v in velocities for op in ("Q", "vorticity", "speed")]
+    return out + [f"|grad|({n})" for n, k in sizes.items() if k == 1]
+
+
 def not_a_velocity(spec: DerivedSpec, name: str, components: int) -> DerivedFieldError:
     """The one-line error where a velocity's one name is not a vector of three components."""
     return DerivedFieldError(f"{spec.name}: {name!r} has {components} component(s), not a velocity: give three "

@@ -283,3 +283,15 @@ def test_derived_mesh_leaves_the_reader_process(q_mesh):
     assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
     for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
         np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
+
+
+def test_derived_field_names():
+    from hovr_blender.engine.derived_fields import derived_field_names
+
+    names = derived_field_names({"Density": 1, "Velocity": 3, "Pressure": 1})
+    assert names[:3] == ["Q(Velocity)", "vorticity(Velocity)", "speed(Velocity)"]
+    assert "|grad|(Pressure)" in names and all(parse_derived(n) is not None for n in names)
+    hump = derived_field_names(["rho", "rhou", "rhov", "rhow", "E"])
+    assert "Q(rhou,rhov,rhow/rho)" in hump and "|grad|(rho)" in hump
+    assert "Q(u,v,w)" in derived_field_names(["u", "v", "w", "p"])
+    assert not any(n.startswith("Q(") for n in derived_field_names(["rhou", "rhov", "rhow"]))  # no density
