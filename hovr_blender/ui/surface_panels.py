@@ -101,16 +101,17 @@ class HOVR_OT_isosurface_add(bpy.types.Operator):
         return {'FINISHED'}
 
 
-class HOVR_OT_isosurface_remove(bpy.types.Operator):
-    """Remove this isosurface"""
+class HOVR_OT_surface_remove(bpy.types.Operator):
+    """Remove this isosurface or cut plane (a plane's object stays)"""
 
-    bl_idname = "hovr.isosurface_remove"
-    bl_label = "Remove Isosurface"
+    bl_idname = "hovr.surface_remove"
+    bl_label = "Remove"
     bl_options = {'REGISTER', 'UNDO'}
+    collection: EnumProperty(items=(("isosurfaces", "Isosurface", ""), ("planes", "Cut Plane", "")))
     index: IntProperty()
 
     def execute(self, context):
-        items = context.object.hovr_surfaces.isosurfaces
+        items = getattr(context.object.hovr_surfaces, self.collection)
         if 0 <= self.index < len(items):
             items.remove(self.index)
         return {'FINISHED'}
@@ -148,21 +149,6 @@ class HOVR_OT_plane_add(bpy.types.Operator):
             context.collection.objects.link(picked)
         item = obj.hovr_surfaces.planes.add()
         item.object = picked
-        return {'FINISHED'}
-
-
-class HOVR_OT_plane_remove(bpy.types.Operator):
-    """Remove this cut plane (the object stays)"""
-
-    bl_idname = "hovr.plane_remove"
-    bl_label = "Remove Cut Plane"
-    bl_options = {'REGISTER', 'UNDO'}
-    index: IntProperty()
-
-    def execute(self, context):
-        items = context.object.hovr_surfaces.planes
-        if 0 <= self.index < len(items):
-            items.remove(self.index)
         return {'FINISHED'}
 
 
@@ -242,14 +228,16 @@ class HOVR_OBJECT_PT_surfaces(HovrButtonsPanel, bpy.types.Panel):
             row = box.row(align=True)
             row.prop(item, "value")
             row.prop(item, "color", text="")
-            row.operator("hovr.isosurface_remove", text="", icon='X').index = k
+            remove = row.operator("hovr.surface_remove", text="", icon='X')
+            remove.collection, remove.index = "isosurfaces", k
             box.prop(item, "opacity", slider=True)
         layout.operator("hovr.isosurface_add", icon='ADD')
         for k, item in enumerate(settings.planes):
             box = layout.box()
             row = box.row(align=True)
             row.prop(item, "object", text="")
-            row.operator("hovr.plane_remove", text="", icon='X').index = k
+            remove = row.operator("hovr.surface_remove", text="", icon='X')
+            remove.collection, remove.index = "planes", k
             row = box.row(align=True)
             row.prop(item, "opacity", slider=True)
             row.prop(item, "clip", text="")
@@ -258,8 +246,8 @@ class HOVR_OBJECT_PT_surfaces(HovrButtonsPanel, bpy.types.Panel):
             layout.label(text="Needs the Classified or Split method", icon='ERROR')
 
 
-classes = (HovrIsosurfaceItem, HovrPlaneItem, HovrSurfaceSettings, HOVR_OT_isosurface_add, HOVR_OT_isosurface_remove,
-           HOVR_OT_plane_add, HOVR_OT_plane_remove, HOVR_OT_choose_field, HOVR_OBJECT_PT_surfaces)
+classes = (HovrIsosurfaceItem, HovrPlaneItem, HovrSurfaceSettings, HOVR_OT_isosurface_add, HOVR_OT_surface_remove,
+           HOVR_OT_plane_add, HOVR_OT_choose_field, HOVR_OBJECT_PT_surfaces)
 
 
 def register():

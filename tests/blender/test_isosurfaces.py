@@ -133,3 +133,18 @@ def test_a_plane_missing_the_volume_is_reported(scene):
     plane.rotation_euler = (0.0, 0.0, 0.0)
     with pytest.raises(RuntimeError, match="plane 0 .* misses the volume"):
         bpy.ops.render.render(write_still=False)
+
+
+def test_operators_add_and_remove(scene):
+    vol = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    bpy.context.view_layer.objects.active = vol
+    vol.select_set(True)
+    assert bpy.ops.hovr.isosurface_add() == {'FINISHED'}
+    assert vol.hovr_surfaces.isosurfaces[0].value == 0.5 * (vol.hovr.value_min + vol.hovr.value_max)
+    assert bpy.ops.hovr.plane_add() == {'FINISHED'}  # nothing else selected: a new plane through the volume
+    plane = vol.hovr_surfaces.planes[0].object
+    assert plane is not None and plane.hide_render and plane.name in scene.objects
+    assert bpy.ops.hovr.surface_remove(collection="planes", index=0) == {'FINISHED'}
+    assert bpy.ops.hovr.surface_remove(collection="isosurfaces", index=0) == {'FINISHED'}
+    assert len(vol.hovr_surfaces.planes) == 0 and len(vol.hovr_surfaces.isosurfaces) == 0
+    assert plane.name in scene.objects  # the object stays
