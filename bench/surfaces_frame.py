@@ -33,8 +33,6 @@ from bench import common
 from hovr_blender.audit import datasets, scenes  # the audit's datasets, views, transfer functions
 
 DEFAULT_DATASETS = "ngsolve_ball,mfem_fichera,pyfr_tgv,hump3D"
-# the derived field each CFD dataset's Q frames render (contract §8)
-DERIVED = {"pyfr_tgv": "Q(Velocity)", "hump3D": "Q(rhou,rhov,rhow/rho)"}
 COUNTERS = ("field_evaluations", "restriction_evaluations", "samples_per_ray", "segments", "segments_empty",
             "segments_smooth", "segments_piecewise_smooth")
 
@@ -56,12 +54,6 @@ def frames(mesh, tf):
             "volume_isosurface_clipping_plane": (tf, Surfaces((Isosurface(level, (1.0, 0.85, 0.4), 0.5),), (clipping,)))}
 
 
-def q_level(mesh) -> float:
-    """The Q isosurface's level: a fifth of the 99th percentile of Q's fit at a lattice of points
-    (the vortex cores, well inside Q's positive range)."""
-    return 0.2 * float(np.percentile(mesh.field_samples(4), 99))
-
-
 def derived_frames(mesh) -> dict:
     """{name: (transfer function, Surfaces)}: Q's volume, and its isosurface coloured by the speed."""
     from hovr_blender.engine.isosurfaces import Isosurface, Surfaces
@@ -69,8 +61,8 @@ def derived_frames(mesh) -> dict:
 
     tf = datasets.transfer_function(mesh)
     none = TransferFunction(tf.color_s, tf.color_rgb, tf.density_s, np.zeros_like(tf.density_tau))
-    ramp = ((0.0, 0.1, 0.2, 0.9), (0.5, 0.9, 0.9, 0.9), (1.0, 0.9, 0.2, 0.1))
-    iso = Isosurface(q_level(mesh), (1.0, 1.0, 1.0), 1.0, color_by="speed", color_ramp=ramp)
+    iso = Isosurface(datasets.q_level(mesh), (1.0, 1.0, 1.0), 1.0, color_by="speed",
+                     color_ramp=datasets.speed_ramp(mesh))
     return {"derived_volume": (tf, Surfaces()), "derived_isosurface": (none, Surfaces((iso,)))}
 
 
@@ -116,7 +108,7 @@ def main(argv=None):
     with limits.using(lim):
         for name in args.datasets.split(","):
             try:
-                mesh, data = datasets.load(name)
+                mesh, _ = datasets.load(name)
             except FileNotFoundError as exc:
                 report["datasets"][name] = {"skipped": str(exc)}
                 continue
@@ -127,13 +119,11 @@ def main(argv=None):
             for frame, (ftf, surfaces) in frames(mesh, tf).items():
                 entry[frame] = timed(r, cam, ftf, surfaces, opts, args.repeats)
                 print(f"{name} {frame}: {entry[frame]['render_seconds']:.4f} s", flush=True)
-            if name in DERIVED:
-                from hovr_blender.io.sources import VolumeSource, load_volume
-
+            if name in datasets.Q_FIELDS:
                 t0 = time.perf_counter()
-                derived = load_volume(VolumeSource.from_view_data({**data, "field": DERIVED[name]}))
-                entry["derived"] = {"field": DERIVED[name], "load_seconds": time.perf_counter() - t0,
-                                    "q_level": q_level(derived), "fit": derived.warnings[-1]}
+                derived = datasets.load_field(name, datasets.Q_FIELDS[name])
+                entry["derived"] = {"field": datasets.Q_FIELDS[name], "load_seconds": time.perf_counter() - t0,
+                                    "q_level": datasets.q_level(derived), "fit": derived.warnings[-1]}
                 rd = Renderer(derived, args.device)
                 for frame, (ftf, surfaces) in derived_frames(derived).items():
                     entry[frame] = timed(rd, cam, ftf, surfaces, opts, args.repeats)
@@ -141,7 +131,7 @@ def main(argv=None):
             v = entry["volume"]["render_seconds"]
             entry["isosurface_over_volume"] = entry["isosurface"]["render_seconds"] / v
             entry["plane_over_volume"] = entry["plane"]["render_seconds"] / v
-            if name in DERIVED:
+            if name in datasets.Q_FIELDS:
                 entry["derived_isosurface_over_volume"] = entry["derived_isosurface"]["render_seconds"] / v
             report["datasets"][name] = entry
             Path(args.out).write_text(json.dumps(report, indent=1, default=float))

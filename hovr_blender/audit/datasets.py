@@ -31,6 +31,35 @@ DATASETS = {
 }
 
 
+# the velocity's Q-criterion of the CFD datasets (contract §8), and the level drawn of it
+Q_FIELDS = {"pyfr_tgv": "Q(Velocity)", "hump3D": "Q(rhou,rhov,rhow/rho)"}
+
+
+def load_field(name, field: str):
+    """The file dataset's `field` instead of its own (e.g. Q_FIELDS[name]): a VolumeMesh."""
+    from ..io.sources import VolumeSource, load_volume
+
+    return load_volume(VolumeSource.from_view_data({**_data(name), "field": field}))
+
+
+def q_level(mesh) -> float:
+    """The Q isosurface's level: a fifth of the 99th percentile of Q's fit at a lattice of points
+    (the vortex cores, well inside Q's positive range)."""
+    return 0.2 * float(np.percentile(mesh.field_samples(4), 99))
+
+
+# the colour ramp of the Q isosurfaces' speed, over [0, the speed's 99th percentile]
+SPEED_STOPS = ((0.0, 0.05, 0.15, 0.6), (0.35, 0.1, 0.6, 0.8), (0.65, 0.85, 0.85, 0.3), (1.0, 0.9, 0.25, 0.1))
+
+
+def speed_ramp(mesh) -> tuple:
+    """The isosurfaces' colour_ramp of a velocity's derived mesh: SPEED_STOPS over its speed."""
+    from ..engine.derived_fields import lattice_values
+
+    top = float(np.percentile(lattice_values(mesh, "speed"), 99)) or 1.0
+    return tuple((p * top, r, g, b) for p, r, g, b in SPEED_STOPS)
+
+
 def load(name):
     """(VolumeMesh, data spec or None) of a dataset."""
     spec = DATASETS[name]
@@ -44,11 +73,17 @@ def load(name):
         return curved_cube(4), None  # the benchmark suite's curved mixed cube (full size)
     from ..io.sources import VolumeSource, load_volume
 
-    data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in spec.items()}
+    data = _data(name)
+    return load_volume(VolumeSource.from_view_data(data)), data
+
+
+def _data(name) -> dict:
+    """A file dataset's view-file `data` (absolute paths); FileNotFoundError where a file is missing."""
+    data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in DATASETS[name].items()}
     for k in ("path", "solution"):
         if k in data and not os.path.exists(data[k]):
             raise FileNotFoundError(data[k])
-    return load_volume(VolumeSource.from_view_data(data)), data
+    return data
 
 
 def framing(mesh):

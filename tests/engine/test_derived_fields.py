@@ -295,3 +295,32 @@ def test_derived_field_names():
     assert "Q(rhou,rhov,rhow/rho)" in hump and "|grad|(rho)" in hump
     assert "Q(u,v,w)" in derived_field_names(["u", "v", "w", "p"])
     assert not any(n.startswith("Q(") for n in derived_field_names(["rhou", "rhov", "rhow"]))  # no density
+
+
+def test_q_equals_vtk_on_the_lagrange_cells_of_pyfr():
+    """An independent reference: VTK's gradient filter on PyFR's Lagrange cells themselves (each
+    node belongs to one cell, so its point gradient is that cell's own derivative there) gives Q
+    at the nodes; the derived field at the same points (the equispaced lattice of each order-4
+    cell) is the same set of values. The linearised cells' point gradients (ParaView after
+    tessellation) flatten Q's peaks: the contrast of docs/user-guide.md's picture."""
+    vtk = pytest.importorskip("vtk")
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    from hovr_blender.engine.derived_fields import lattice_values
+    from hovr_blender.io.vtu.format import read_vtu_field
+    from tests.helpers import data_file
+
+    path = data_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu")
+    mesh = read_vtu_field(path, "Q(Velocity)")
+    reader = vtk.vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    grad = vtk.vtkGradientFilter()
+    grad.SetInputConnection(reader.GetOutputPort())
+    grad.SetInputArrayToProcess(0, 0, 0, vtk.vtkDataObject.FIELD_ASSOCIATION_POINTS, "Velocity")
+    grad.ComputeQCriterionOn()
+    grad.SetQCriterionArrayName("Q")
+    grad.Update()
+    theirs = np.sort(vtk_to_numpy(grad.GetOutput().GetPointData().GetArray("Q")).astype(np.float64))
+    mine = np.sort(lattice_values(mesh, per_axis=5))  # order 4: 5 equispaced nodes a direction
+    assert mine.shape == theirs.shape
+    np.testing.assert_allclose(mine, theirs, atol=1e-6 * np.abs(theirs).max())
