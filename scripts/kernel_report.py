@@ -67,6 +67,7 @@ def main(argv=None):
         kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
         kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
                     for m in args.modes]
+        kernels.append((f"sample ({kind}, a derived field)", raycast.walk_kernels(kind == "curved", 0, True)[2]))
     for iso in (False, True):
         integrate, shade = raycast.integrate_kernels(iso)
         with_iso = " with isosurfaces and planes" if iso else ""

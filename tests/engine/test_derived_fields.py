@@ -324,3 +324,19 @@ def test_q_equals_vtk_on_the_lagrange_cells_of_pyfr():
     mine = np.sort(lattice_values(mesh, per_axis=5))  # order 4: 5 equispaced nodes a direction
     assert mine.shape == theirs.shape
     np.testing.assert_allclose(mine, theirs, atol=1e-6 * np.abs(theirs).max())
+
+
+def test_isosurface_coloured_by_the_speed(q_mesh, device):
+    """A Q isosurface coloured by the speed through the ramp red = speed / 4, blue = 1: the
+    headlight scales both channels alike, so red / blue is the speed at the surface point / 4,
+    the speed exact there (the closed form at the point of the render's depth)."""
+    cam = framing(q_mesh, 16, 12)
+    iso = Isosurface(-0.8, (1.0, 1.0, 1.0), 1.0, color_by="speed", color_ramp=((0.0, 0.0, 0.0, 1.0), (4.0, 1.0, 0.0, 1.0)))
+    res = Renderer(q_mesh, device).render(cam, _clear_tf(-4.0, 3.0), np.zeros(3),
+                                          RenderOptions(precision="float64", device=device), surfaces=Surfaces((iso,)))
+    hit = res.rgba[..., 3] > 0.5
+    assert hit.sum() > 20
+    o, d = cam.rays()
+    x = o[hit] + res.depth[hit][:, None] * d[hit]
+    speed = np.linalg.norm(velocity(*x.T), axis=0)
+    np.testing.assert_allclose(res.rgba[hit][:, 0] / res.rgba[hit][:, 2], np.minimum(speed / 4.0, 1.0), atol=1e-6)
