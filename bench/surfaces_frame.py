@@ -4,7 +4,7 @@ the audit's volume render (three density tents, the audit's oblique view), an is
 data's centre coloured by the field, no volume) and both surfaces over the volume; and, for the
 CFD datasets, the derived-field frames (contract §8: Q of the velocity, sampled exactly at each
 sample point): its volume (the audit's tents over Q's range) and the Q isosurface coloured by the
-speed, no volume. Each timed in one command on one device.
+speed, no volume (audit/datasets.q_level's level). Each timed in one command on one device.
 
     python -m bench.surfaces_frame --device cuda:0 --size 1920x1080 --out $OUT/surfaces_frame.json
     python -m bench.surfaces_frame --device cpu --size 64x36 --datasets mfem_fichera --repeats 1 \\
@@ -54,14 +54,14 @@ def frames(mesh, tf):
             "volume_isosurface_clipping_plane": (tf, Surfaces((Isosurface(level, (1.0, 0.85, 0.4), 0.5),), (clipping,)))}
 
 
-def derived_frames(mesh) -> dict:
+def derived_frames(mesh, name: str) -> dict:
     """{name: (transfer function, Surfaces)}: Q's volume, and its isosurface coloured by the speed."""
     from hovr_blender.engine.isosurfaces import Isosurface, Surfaces
     from hovr_blender.engine.transfer_function import TransferFunction
 
     tf = datasets.transfer_function(mesh)
     none = TransferFunction(tf.color_s, tf.color_rgb, tf.density_s, np.zeros_like(tf.density_tau))
-    iso = Isosurface(datasets.q_level(mesh), (1.0, 1.0, 1.0), 1.0, color_by="speed",
+    iso = Isosurface(datasets.q_level(mesh, name), (1.0, 1.0, 1.0), 1.0, color_by="speed",
                      color_ramp=datasets.speed_ramp(mesh))
     return {"derived_volume": (tf, Surfaces()), "derived_isosurface": (none, Surfaces((iso,)))}
 
@@ -123,9 +123,9 @@ def main(argv=None):
                 t0 = time.perf_counter()
                 derived = datasets.load_field(name, datasets.Q_FIELDS[name])
                 entry["derived"] = {"field": datasets.Q_FIELDS[name], "load_seconds": time.perf_counter() - t0,
-                                    "q_level": datasets.q_level(derived), "fit": derived.warnings[-1]}
+                                    "q_level": datasets.q_level(derived, name), "fit": derived.warnings[-1]}
                 rd = Renderer(derived, args.device)
-                for frame, (ftf, surfaces) in derived_frames(derived).items():
+                for frame, (ftf, surfaces) in derived_frames(derived, name).items():
                     entry[frame] = timed(rd, cam, ftf, surfaces, opts, args.repeats)
                     print(f"{name} {frame}: {entry[frame]['render_seconds']:.4f} s", flush=True)
             v = entry["volume"]["render_seconds"]

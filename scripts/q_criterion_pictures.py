@@ -13,8 +13,9 @@ hump3D, a Q-criterion isosurface coloured by the speed
 
     python -m scripts.q_criterion_pictures --size 320x240 --out docs   (CPU; a few minutes a dataset)
 
-The level is the audit's (hovr_blender/audit/datasets.q_level: a fifth of Q's 99th percentile),
-the ramp the audit's speed ramp (speed_ramp), the view its oblique one. Writes
+The level is the audit's (hovr_blender/audit/datasets.q_level: a fraction of Q's 99th
+percentile), the ramp the audit's speed ramp (speed_ramp), the view the oblique one framing
+where Q exceeds the level (q_view). Writes
 q-criterion-DATASET.png (the three pictures with titles) and prints the coverage and colour
 differences.
 """
@@ -162,8 +163,8 @@ def main(argv=None):
     for name in args.datasets.split(","):
         t0 = time.perf_counter()
         mesh = datasets.load_field(name, datasets.Q_FIELDS[name])
-        level, ramp = datasets.q_level(mesh), datasets.speed_ramp(mesh)
-        camera = RayCamera.from_contract(dict(datasets.views(mesh)["oblique"], projection="perspective"), W, H)
+        level, ramp = datasets.q_level(mesh, name), datasets.speed_ramp(mesh)
+        camera = RayCamera.from_contract(datasets.q_view(mesh, level), W, H)
         t1 = time.perf_counter()
         mine, mine_hit, stats = ours(mesh, camera, level, ramp, BACKGROUND)
         t2 = time.perf_counter()

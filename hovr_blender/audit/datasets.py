@@ -42,10 +42,37 @@ def load_field(name, field: str):
     return load_volume(VolumeSource.from_view_data({**_data(name), "field": field}))
 
 
-def q_level(mesh) -> float:
-    """The Q isosurface's level: a fifth of the 99th percentile of Q's fit at a lattice of points
-    (the vortex cores, well inside Q's positive range)."""
-    return 0.2 * float(np.percentile(mesh.field_samples(4), 99))
+# the Q isosurface's level as a fraction of the 99th percentile of Q's fit at a lattice of points:
+# the Taylor-Green vortex's tubes fill the box (a fifth of it shows them whole); hump3D's Q is
+# small and positive over most of the channel, its rotation concentrated over the hump
+Q_LEVEL_FRACTION = {"pyfr_tgv": 0.2, "hump3D": 1.0}
+
+
+def q_level(mesh, name: str) -> float:
+    """The level of dataset `name`'s Q isosurface (Q_LEVEL_FRACTION)."""
+    return Q_LEVEL_FRACTION[name] * float(np.percentile(mesh.field_samples(4), 99))
+
+
+def q_view(mesh, level: float) -> dict:
+    """The oblique camera (views' direction and distance) framing the elements where Q's fit
+    exceeds `level` somewhere on a lattice of points: where the isosurface is."""
+    from ..engine import expansions as ex
+
+    g = np.linspace(-1.0, 1.0, 4)
+    lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    above = np.zeros(mesh.num_elements, bool)
+    keys = np.concatenate([mesh.shape[:, None], mesh.modes], axis=1)
+    for key in np.unique(keys, axis=0):
+        idx = np.nonzero((keys == key).all(axis=1))[0]
+        shape, modes = int(key[0]), tuple(int(v) for v in key[1:])
+        C = mesh.coeffs[mesh.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(shape, modes))[None, :]]
+        above[idx] = (C @ ex.basis_matrix(shape, modes, lattice[ex.inside(shape, lattice, tol=1e-12)]).T).max(1) > level
+    pts = mesh.vertices[above if above.any() else slice(None)].reshape(-1, 3)
+    lo, hi = pts.min(0), pts.max(0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
+    return {"projection": "perspective", "eye": (c + 2.6 * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
+            "fov_y_deg": 30.0}
 
 
 # the colour ramp of the Q isosurfaces' speed, over [0, the speed's 99th percentile]
