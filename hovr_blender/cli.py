@@ -146,7 +146,7 @@ def _run(args) -> str:
         mesh = load_view_data(view)
         load_s = time.perf_counter() - t0
         if args.command == "render":
-            from .engine.renderer import render_view
+            from .engine.multi_device import render_view
 
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,

@@ -25,7 +25,7 @@ from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_sca
                    element_volumes, mapped_coefficients)
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import AUTO_STEP_ERROR, RenderOptions, View
+from .view import AUTO_STEP_ERROR, RenderOptions
 
 _METHOD_IDS = {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
@@ -50,6 +50,8 @@ class RenderResult:
     # (H,) the work each row took (ray_cost of its pixels' counters): what a render split over
     # several devices balances its rows by (engine/multi_device.py)
     row_cost: np.ndarray | None = None
+    # (rows, W, NUM_STATS) int32: every ray's counters, with render(ray_counts=True) (work_counts)
+    ray_counts: np.ndarray | None = None
 
 
 _WARP_READY = False
@@ -170,10 +172,8 @@ def kernel_variant(meshes) -> tuple[bool, int]:
 def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> list:
     """Every kernel Renderer.render launches for a mesh of kernel_variant `variant`."""
     kernels = Precision.named(precision).kernels
-    search, traverse, sample = kernels.walk_kernels(*variant)
-    # coefficients lives in the module of integrate
-    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate, kernels.step_terms,
-            kernels.finalize]
+    table = kernels.kernel_table(*variant)
+    return [table[name] for name in kernels.RENDER_KERNELS]
 
 
 def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
@@ -483,9 +483,9 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            walk = raycast.walk_kernels(*self.kernel_variant)
+            table = raycast.kernel_table(*self.kernel_variant)
             self._sample_stride = sample_stride(mesh, gdeg)
-        self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
+        self._uploads[name] = _Upload(prec, m, gk, gk_s, table)
         return self._uploads[name]
 
     def identity_frame(self) -> field_frame.FieldFrame:
@@ -537,7 +537,7 @@ class Renderer:
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
                rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None,
-               surface_t=None) -> RenderResult:
+               surface_t=None, ray_counts: bool = False) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -553,7 +553,8 @@ class Renderer:
         `surface_t`, an (H, W) array of the whole image (rows from the top), each pixel's ray
         integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
         surface: engine/surfaces.py; +inf where none); the depth output is then that t where the
-        volume's opacity stays under 0.5."""
+        volume's opacity stays under 0.5. With `ray_counts`, the result's ray_counts holds every
+        ray's work counters (kernels/args.py STAT_*; work_counts summarises them)."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -565,7 +566,7 @@ class Renderer:
         first, end = row0 * W, row1 * W
         _, tf_frame, warnings = self.field_frame(tf, options.precision)
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
@@ -580,14 +581,14 @@ class Renderer:
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             load_kernels(self.kernel_variant, self.device, options.precision)  # compiled outside the timed region
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, upload.kernels)
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
             for start in range(first, end, tile):
                 n = min(tile, end - start)
                 rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit)
-                launch("finalize", kernels.finalize, n, [quad, start, buffers.rays, rgba, aux])
+                launch("finalize", n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n - first) / (end - first)) is False:
@@ -599,7 +600,9 @@ class Renderer:
             # without an int64 copy of them (the same integers: what the row costs and stats need)
             img = rgba[first:end].numpy().reshape(row1 - row0, W, 4)
             depth_err = aux[first:end].numpy().reshape(row1 - row0, W, 2)
-            row_counts = stats[first:end].numpy().reshape(row1 - row0, W, -1).sum(axis=1, dtype=np.int64)
+            ray_array = stats[first:end].numpy().reshape(row1 - row0, W, -1)
+            row_counts = ray_array.sum(axis=1, dtype=np.int64)
+            per_ray = ray_array.copy() if ray_counts else None
             counts = row_counts.sum(axis=0)
             row_cost = ray_cost(kernels, row_counts, W)
         if out is not None:
@@ -617,7 +620,7 @@ class Renderer:
                 **({"kernel_seconds": launch.seconds} if profile else {}),
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
-                            stats=info, row_cost=row_cost)
+                            stats=info, row_cost=row_cost, ray_counts=per_ray)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
                     n: int, limit: tuple, record=None) -> int:
@@ -626,20 +629,20 @@ class Renderer:
         Returns the rounds."""
         kernels = upload.precision.kernels
         rays, segs = buffers.rays, buffers.segs
-        launch("init_rays", kernels.init_rays, n, [cam, start, rays, *limit])
+        launch("init_rays", n, [cam, start, rays, *limit])
         active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
         rounds = 0
         while active > 0:
             rays.active_count.zero_()
             segs.list_count.zero_()
-            launch("search", upload.search, active, [upload.mesh_args, cam, start, rays])
-            launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            launch("search", active, [upload.mesh_args, cam, start, rays])
+            launch("traverse", active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
                 if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
-                    launch("step_terms", kernels.step_terms, listed,
+                    launch("step_terms", listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
-                launch("integrate", kernels.integrate, active,
+                launch("integrate", active,
                        [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             else:
                 record(active)
@@ -662,21 +665,22 @@ class Renderer:
             return 0
         stride = self._sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
-        launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
+        launch("sample", listed * stride,
+               [upload.mesh_args, cam, start, segs, segs.list, stride, 0, rays.stats])
         if self._curved:
             slots, count, n_slots = segs.list, segs.list_count, listed
             for p in range(2):
                 again_count[p].zero_()
-                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
+                launch("refine", n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
                 n_slots = int(again_count[p].numpy()[0])
                 if n_slots == 0:
                     break
-                launch("sample", upload.sample, n_slots * odd_stride,
-                       [upload.mesh_args, cam, start, segs, again[p], odd_stride, 1])
+                launch("sample", n_slots * odd_stride,
+                       [upload.mesh_args, cam, start, segs, again[p], odd_stride, 1, rays.stats])
                 slots, count = again[p], again_count[p]
             if n_slots > 0:  # the last refined slots: their tails, no more doubling
-                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
-        launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+                launch("refine", n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
+        launch("coefficients", listed * stride, [segs, segs.list, stride])
         return listed
 
     # ------------------------------------------------------------------ the segment cache
@@ -732,7 +736,7 @@ class Renderer:
         fr, _, warnings = self.field_frame(tf, options.precision)
         key = self.trace_key(camera, options, (row0, row1), surface_key)
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, _DENSE_EVERYWHERE)
             quad = _quad_args(prec, options, np.zeros(3), upload, self.data_diagonal)
@@ -749,10 +753,9 @@ class Renderer:
                 store = _CacheStore(prec, end - first, base_bytes, what)
             except RuntimeError as exc:
                 raise SegmentCacheError(f"cannot allocate {what} on {self.device}: {exc}") from exc
-            load_modules([upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                          kernels.trace_reserve], self.device)
+            load_modules([upload.kernels[name] for name in kernels.TRACE_KERNELS], self.device)
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, upload.kernels)
             t0 = time.perf_counter()
             complete = True
             rounds = 0
@@ -763,13 +766,13 @@ class Renderer:
                 def record(active, ray_offset=start - first):
                     rays, segs = buffers.rays, buffers.segs
                     store.check_offsets(active)
-                    launch("trace_reserve", kernels.trace_reserve, active, [rays, segs, store.args(), reserved])
+                    launch("trace_reserve", active, [rays, segs, store.args(), reserved])
                     store.ensure(*(int(v) for v in store.counts.numpy()))
-                    launch("trace_write", kernels.trace_write, active * SEGMENTS_PER_ROUND,
+                    launch("trace_write", active * SEGMENTS_PER_ROUND,
                            [rays, segs, store.args(), reserved, last_chunk, ray_offset])
 
                 rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, record)
-                launch("trace_ends", kernels.trace_ends, n, [buffers.rays, store.args(), start - first])
+                launch("trace_ends", n, [buffers.rays, store.args(), start - first])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n - first) / (end - first)) is False:
@@ -818,7 +821,7 @@ class Renderer:
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
         limits.check_bytes(cache.nbytes + n * per_ray, f"a {W}x{row1 - row0} image shaded in {options.precision}")
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             try:
@@ -829,16 +832,16 @@ class Renderer:
                 nonfinite = wp.zeros(1, dtype=wp.int32)
             except RuntimeError as exc:
                 raise RenderError(f"cannot allocate a {W}x{row1 - row0} image on {self.device}: {exc}") from exc
-            load_modules([kernels.shade, kernels.sum_counts], self.device)
+            load_modules([upload.kernels[name] for name in kernels.SHADE_KERNELS], self.device)
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, upload.kernels)
             args = cache.args(kernels)
             t0 = time.perf_counter()
             tile = n if progress is None else max(1, int(tile_pixels or 65536))
             cancelled = False
             for start in range(0, n, tile):
                 k = min(tile, n - start)
-                launch("shade", kernels.shade, k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
+                launch("shade", k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
                                                    aux, counters, nonfinite])
                 if progress is not None:
                     wp.synchronize_device(self.device)
@@ -846,7 +849,7 @@ class Renderer:
                         cancelled = True
                         break
             threads = min(n, SUM_THREADS)
-            launch("sum_counts", kernels.sum_counts, threads, [counters, threads, sums])
+            launch("sum_counts", threads, [counters, threads, sums])
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
             if int(nonfinite.numpy()[0]) > 0 and not cancelled:
@@ -873,9 +876,7 @@ class _Upload:
     mesh_args: object  # kernels.MeshArgs
     gk: list  # Gauss-Kronrod nodes, Kronrod and Gauss weights
     gk_s: object  # the spectral integration matrix on the nodes
-    search: object
-    traverse: object
-    sample: object
+    kernels: dict  # every kernel by name, the walk's specialised for the mesh (kernels.kernel_table)
     field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
     field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
 
@@ -892,16 +893,17 @@ class _TileBuffers:
 
 
 class _Launcher:
-    """wp.launch by kernel name; with `profile`, each launch is waited for and timed."""
+    """wp.launch by kernel name (a name kernels.kernel_table lacks is a KeyError on any device);
+    with `profile`, each launch is waited for and timed."""
 
-    def __init__(self, device: str, profile: bool):
+    def __init__(self, device: str, profile: bool, kernels: dict):
         self.device = device
         self.profile = profile
-        self.seconds = {name: 0.0 for name in ("init_rays", "search", "traverse", "sample", "refine",
-                                               "coefficients", "step_terms", "integrate", "finalize", "trace_reserve",
-                                               "trace_write", "trace_ends", "shade", "sum_counts")}
+        self.kernels = kernels
+        self.seconds = {name: 0.0 for name in kernels}
 
-    def __call__(self, name: str, kernel, dim: int, inputs: list):
+    def __call__(self, name: str, dim: int, inputs: list):
+        kernel = self.kernels[name]
         t_launch = time.perf_counter()
         wp.launch(kernel, dim=dim, inputs=inputs)
         if self.profile:
@@ -909,7 +911,7 @@ class _Launcher:
             self.seconds[name] += time.perf_counter() - t_launch
 
 
-def _camera_args(prec: Precision, camera: RayCamera):
+def camera_args(prec: Precision, camera: RayCamera):
     cam = prec.kernels.CameraArgs()
     for name in ("o0", "ou", "ov", "d0", "du", "dv"):
         setattr(cam, name, prec.vec3(*map(float, getattr(camera, name))))
@@ -967,7 +969,7 @@ _DENSE_EVERYWHERE = TransferFunction(np.zeros(1), np.zeros((1, 3)), np.zeros(1),
 
 
 def _camera_key(camera: RayCamera) -> tuple:
-    """What the kernels read of a camera (_camera_args), as plain numbers."""
+    """What the kernels read of a camera (camera_args), as plain numbers."""
     vectors = tuple(tuple(float(x) for x in np.asarray(getattr(camera, k), dtype=np.float64).reshape(3))
                     for k in ("o0", "ou", "ov", "d0", "du", "dv", "clip_axis"))
     return (int(camera.width), int(camera.height), vectors, float(camera.t_min), float(camera.t_max),
@@ -1168,6 +1170,36 @@ def ray_cost(kernels, counts: np.ndarray, rays: int | np.ndarray = 1) -> np.ndar
             + RAY_COST_BASE * np.asarray(rays, dtype=np.float64))
 
 
+WARP_SIZE = 32  # the rays a GPU warp runs together: the work counts' divergence blocks
+
+
+def work_counts(kernels, ray_counts: np.ndarray) -> dict:
+    """The work counts of a render (RenderResult.ray_counts): per counter, its mean per ray and its
+    divergence, the mean over blocks of WARP_SIZE consecutive rays (a warp's rays in the first
+    round: pixels in row order) of the block's largest count over its mean (1: every ray of a
+    block works alike; blocks with no work are left out). Samples are field plus restriction
+    evaluations; `work` is ray_cost's estimate."""
+    c = np.asarray(ray_counts, dtype=np.int64).reshape(-1, kernels.NUM_STATS)
+    series = {"bvh_candidates": c[:, kernels.STAT_BVH_CANDIDATES],
+              "newton_search": c[:, kernels.STAT_NEWTON_SEARCH], "newton_walk": c[:, kernels.STAT_NEWTON_WALK],
+              "newton_sample": c[:, kernels.STAT_NEWTON_SAMPLE],
+              "element_locations": c[:, kernels.STAT_LOCATES], "segments": c[:, kernels.STAT_SEGMENTS],
+              "samples": c[:, kernels.STAT_FIELD_EVALS] + c[:, kernels.STAT_RESTRICTION_EVALS],
+              "walks": c[:, kernels.STAT_WALKS], "rounds": c[:, kernels.STAT_ROUNDS],
+              "work": ray_cost(kernels, c)}
+    rays = len(c)
+    out = {"rays": rays}
+    for name, v in series.items():
+        v = np.asarray(v, dtype=np.float64)
+        blocks = np.pad(v, (0, -rays % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        fill = np.minimum(WARP_SIZE, rays - WARP_SIZE * np.arange(len(blocks)))  # the last block's rays
+        mean = blocks.sum(axis=1) / fill
+        busy = mean > 0
+        out[name] = {"per_ray": float(v.sum() / max(rays, 1)),
+                     "divergence": float((blocks.max(axis=1)[busy] / mean[busy]).mean()) if busy.any() else 1.0}
+    return out
+
+
 def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
     """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
     return {
@@ -1180,16 +1212,8 @@ def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
         "segments_piecewise_smooth": int(counts[kernels.STAT_PIECEWISE]),
         "curved_locates": int(counts[kernels.STAT_LOCATES]),
         "walks": int(counts[kernels.STAT_WALKS]),
+        "bvh_candidates": int(counts[kernels.STAT_BVH_CANDIDATES]),
+        "newton_iterations": int(counts[kernels.STAT_NEWTON_SEARCH] + counts[kernels.STAT_NEWTON_WALK]
+                                 + counts[kernels.STAT_NEWTON_SAMPLE]),
+        "ray_rounds": int(counts[kernels.STAT_ROUNDS]),
     }
-
-
-def render_view(view: View, mesh: VolumeMesh) -> RenderResult:
-    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
-    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
-    devices = expand_devices(view.options.device)
-    if len(devices) > 1:
-        from .multi_device import MultiDeviceRenderer
-
-        with MultiDeviceRenderer(mesh, devices) as r:
-            return r.render(view.camera, view.transfer_function, view.background, view.options)
-    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options)

@@ -134,13 +134,13 @@ class SurfaceScene:
 
             from .kernels import surfaces as kernels
             from .kernels.precision import Precision
-            from .renderer import _camera_args
+            from .renderer import camera_args
 
             mesh = self._device_mesh()
             with wp.ScopedDevice(self.device):
                 t_out = wp.zeros(W * H, dtype=wp.float32)
                 face_out = wp.zeros(W * H, dtype=wp.int32)
-                wp.launch(kernels.cast_surfaces, dim=W * H, inputs=[mesh.id, _camera_args(Precision.named("float32"), camera), t_out,
+                wp.launch(kernels.cast_surfaces, dim=W * H, inputs=[mesh.id, camera_args(Precision.named("float32"), camera), t_out,
                                                                     face_out])
                 t = t_out.numpy().astype(np.float64).reshape(H, W)
                 face = face_out.numpy().astype(np.int64).reshape(H, W)

@@ -33,7 +33,14 @@ STAT_SMOOTH = 4  # segments integrated as smooth
 STAT_PIECEWISE = 5  # segments integrated as piecewise-smooth
 STAT_LOCATES = 6  # curved elements searched for along the ray (entry search, no neighbour to walk to)
 STAT_WALKS = 7  # element entries through a shared face (no search)
-NUM_STATS = 8
+# the work counts (tests/perf): deterministic on the CPU, what a change of the traversal costs
+STAT_BVH_CANDIDATES = 8  # candidates the search's BVH queries returned (Warp exposes no node count)
+# Newton iterations (each a map evaluation with its Jacobian) in the search, the walk and the samples
+STAT_NEWTON_SEARCH = 9
+STAT_NEWTON_WALK = 10
+STAT_NEWTON_SAMPLE = 11
+STAT_ROUNDS = 12  # rounds the ray took part in (traverse launches it was active in)
+NUM_STATS = 13
 
 # segment flags
 SEG_CURVED = 1  # samples of a Chebyshev interpolant (not exact): classify by the element's range

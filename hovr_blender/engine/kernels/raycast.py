@@ -35,9 +35,10 @@ from . import element
 from . import geometry
 from . import quadrature
 from . import restriction
-from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY,
-                   STAT_FIELD_EVALS, STAT_LOCATES, STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SEGMENTS,
-                   STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments,
+from .args import (MAX_SAMPLES, NUM_STATS, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDATES,
+                   STAT_EMPTY, STAT_FIELD_EVALS, STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK,
+                   STAT_PIECEWISE, STAT_RESTRICTION_EVALS,
+                   STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments,
                    TransferArgs)
 from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
 
@@ -217,34 +218,35 @@ def window_offer(keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], cou
 
 @wp.func
 def inside_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_near: float, left: int, keys: wp.ref[WindowKeys],
-                  elements: wp.ref[WindowElements], count: int, nloc: int):
+                  elements: wp.ref[WindowElements], count: int, nloc: int, newton: int):
     """Is the ray just past t_from (at t_near) inside one of the window's candidates (but `left`)?
     Where a walk stopped at a face without a neighbour, e.g. a hexahedron's face against two
     tetrahedra, the element beyond holds the ray there. One Newton solve each; elements do not
     overlap, so that element's stretch comes first. Returns it as an Entry (element -1: none),
-    and nloc counting the solves."""
+    nloc counting the solves and newton their iterations."""
     found = Entry()
     found.element = -1
     for w in range(count):
         e = elements[w]
         if e != left and keys[w] <= t_near:
             nloc += 1
-            r, dv = geometry.curved_inside(mesh, e, o, d, t_near, geometry.start_guess(mesh, e, o + t_near * d))
+            r, dv, its = geometry.curved_inside(mesh, e, o, d, t_near, geometry.start_guess(mesh, e, o + t_near * d))
+            newton += its
             if r[3] > 0.0:
                 found.element = e
                 found.span = wp.vec3(t_near, t_near, -1.0)
                 found.r = r
                 found.dv = dv
-                return found, nloc
-    return found, nloc
+                return found, nloc, newton
+    return found, nloc, newton
 
 
 @wp.func
 def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: float, left: int,
                   keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], count: int,
-                  located: wp.ref[LocatedElements], n_listed: int, best: Entry, nloc: int):
+                  located: wp.ref[LocatedElements], n_listed: int, best: Entry, nloc: int, newton: int):
     """The window's candidates located in order (curved_entry) while they can still come first:
-    returns best updated, n_listed (each is remembered in `located`) and nloc counting. The
+    returns best updated, n_listed (each is remembered in `located`), nloc and newton counting. The
     element just left must be entered again, not found in the band its exit counted as inside
     (a thin re-entry: the annulus' inner wall, Hex_Mushroom's cap)."""
     entry = best
@@ -258,13 +260,14 @@ def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: fl
             again = int(0)
             if e == left:
                 again = 1
-            ent, r, dv = geometry.curved_entry(mesh, e, o, d, t_from + eps, again)
+            ent, r, dv, its = geometry.curved_entry(mesh, e, o, d, t_from + eps, again)
+            newton += its
             if ent[0] > 0.0 and ent[1] < entry.span[0]:
                 entry.element = e
                 entry.span = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
                 entry.r = r
                 entry.dv = dv
-    return entry, n_listed, nloc
+    return entry, n_listed, nloc, newton
 
 
 def _walk_options(CURVED: bool) -> dict:
@@ -277,7 +280,8 @@ def _make_search_entry(CURVED: bool):
     @wp.func
     def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int):
         """The element whose stretch of the ray starts first beyond t_from (and reaches past
-        t_from + eps), as an Entry, and the number of curved candidates located. Each BVH pass
+        t_from + eps), as an Entry, and the work: (curved candidates located, Newton iterations,
+        BVH candidates returned). Each BVH pass
         takes the smallest exact entry among affine candidates and gathers the WINDOW curved
         candidates with the smallest box entries, then locates those in order while they can
         still come first; another pass follows only if a curved candidate left out of the
@@ -288,6 +292,8 @@ def _make_search_entry(CURVED: bool):
         located = LocatedElements()  # the curved candidates already located (curved_entry), n_listed of them
         n_listed = int(0)
         nloc = int(0)  # Newton locations of any kind (the statistics' count)
+        newton = int(0)
+        n_cand = int(0)
         for p in range(SEARCH_PASSES):
             win_key = WindowKeys()
             win_e = WindowElements()
@@ -298,6 +304,7 @@ def _make_search_entry(CURVED: bool):
             query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d)
             cand = int(0)
             while wp.bvh_query_next(query, cand, best.span[0] - q0):
+                n_cand += 1
                 if mesh.affine[cand] == 1:
                     if p == 0:
                         best = affine_candidate(mesh, cand, o, d, t_from, t_end, eps, best)
@@ -309,14 +316,14 @@ def _make_search_entry(CURVED: bool):
             if wp.static(CURVED):
                 t_near = t_from + eps
                 if p == 0 and best.span[0] > t_near:
-                    inside, nloc = inside_window(mesh, o, d, t_near, left, win_key, win_e, nwin, nloc)
+                    inside, nloc, newton = inside_window(mesh, o, d, t_near, left, win_key, win_e, nwin, nloc, newton)
                     if inside.element >= 0:
-                        return inside, nloc
-                best, n_listed, nloc = locate_window(mesh, o, d, t_from, eps, left, win_key, win_e, nwin, located,
-                                                     n_listed, best, nloc)
+                        return inside, wp.vec3i(nloc, newton, n_cand)
+                best, n_listed, nloc, newton = locate_window(mesh, o, d, t_from, eps, left, win_key, win_e, nwin,
+                                                             located, n_listed, best, nloc, newton)
             if thresh >= best.span[0]:
                 break
-        return best, nloc
+        return best, wp.vec3i(nloc, newton, n_cand)
 
     return search_entry
 
@@ -333,7 +340,7 @@ def entry_face(mesh: MeshArgs, entry: Entry, o: wp.vec3, d: wp.vec3) -> int:
 
 
 @wp.func
-def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, found: Entry, nloc: int):
+def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, found: Entry, work_in: wp.vec3i):
     """The search's entry, moved back to where the ray really comes in. An element entered
     through a face that has a neighbour was entered from that neighbour: the ray was inside it
     just before, so the search missed it (a curved element's entry search can step over a
@@ -343,8 +350,10 @@ def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, 
     by element, until a face without a neighbour or t_from. It does not step back into `left`,
     the element the ray has just left, at t_from: where the forward walk left it through a face
     it took for the boundary (next to an edge), the search would find it there again, and the
-    walk would leave it again, without end."""
+    walk would leave it again, without end. work: the search's (locations, Newton iterations, BVH
+    candidates), counted on."""
     entry = found
+    work = work_in
     eps = STRETCH_RTOL * wp.abs(t_from)
     for k in range(BACK_STEPS):
         if entry.element < 0 or entry.span[0] <= t_from + eps:
@@ -367,24 +376,27 @@ def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, 
             if n == left and t_in <= t_from + eps:
                 break  # the element the ray has just left, back to where it left: walked already
         else:
-            nloc += 1
-            r_b, dv_b = geometry.curved_inside(mesh, n, o, back, -t_e, geometry.start_guess(mesh, n, o + t_e * d))
+            work[0] += 1
+            r_b, dv_b, its = geometry.curved_inside(mesh, n, o, back, -t_e, geometry.start_guess(mesh, n, o + t_e * d))
+            work[1] += its
             # on the shared face n's margin is 0 up to Newton's rounding either way
             if r_b[3] <= -SHARED_FACE_TOL:
                 break  # not on n's face after all: keep the search's entry
             r_b[3] = wp.max(r_b[3], 0.5 * geometry.INSIDE_TOL)
             bx = geometry.box_interval(mesh, n, o, back)
-            ex, r_x, dv_x = geometry.curved_exit(mesh, n, o, back, -t_e, r_b, dv_b, wp.min(bx[1], -t_from))
+            ex, r_x, dv_x, its_x = geometry.curved_exit(mesh, n, o, back, -t_e, r_b, dv_b, wp.min(bx[1], -t_from))
+            work[1] += its_x
             t_in = wp.max(-ex[0], t_from)
             if n == left and t_in <= t_from + eps:
                 break  # the element the ray has just left, back to where it left: walked already
             # the forward solution where the ray enters n, for the walk (and this loop's face)
-            r, dv = geometry.curved_inside(mesh, n, o, d, t_in, wp.vec3(r_x[0], r_x[1], r_x[2]))
+            r, dv, its_in = geometry.curved_inside(mesh, n, o, d, t_in, wp.vec3(r_x[0], r_x[1], r_x[2]))
+            work[1] += its_in
         entry.element = n
         entry.span = wp.vec3(t_in, t_in, -1.0)
         entry.r = r
         entry.dv = dv
-    return entry, nloc
+    return entry, work
 
 
 def _make_search_kernel(CURVED: bool):
@@ -398,10 +410,12 @@ def _make_search_kernel(CURVED: bool):
             return
         pixel = i + pixel_offset
         o, d = camera_ray(cam, pixel)
-        entry, nl = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
+        entry, work = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
         if wp.static(CURVED):
-            entry, nl = walk_back(mesh, o, d, rays.t_cur[i], rays.left_element[i], entry, nl)
-        rays.stats[pixel, STAT_LOCATES] += nl
+            entry, work = walk_back(mesh, o, d, rays.t_cur[i], rays.left_element[i], entry, work)
+        rays.stats[pixel, STAT_LOCATES] += work[0]
+        rays.stats[pixel, STAT_NEWTON_SEARCH] += work[1]
+        rays.stats[pixel, STAT_BVH_CANDIDATES] += work[2]
         if entry.element < 0:
             rays.phase[i] = 1
         else:
@@ -445,7 +459,7 @@ def to_face(r: wp.vec4, dv: wp.vec4, dt: float) -> wp.vec4:
 def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float, r_entry: wp.vec4,
                      dv_entry: wp.vec4):
     """(inside, b, exit face) of the ray entering curved element e at a, the solutions and
-    velocities at a and b, and a: Newton at a (or the search's solution r_entry, where valid),
+    velocities at a and b, the segment's ends and Newton's iterations: Newton at a (or the search's solution r_entry, where valid),
     then geometry.curved_exit up to the element's box or t_end.
 
     Entries and exits are brackets on margin + INSIDE_TOL, so they lie INSIDE_TOL (reference
@@ -458,18 +472,20 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     element there again, and again, without end)."""
     r_a = r_entry
     dv_a = dv_entry
+    newton = int(0)
     if r_entry[3] <= 0.0:
-        r_a, dv_a = geometry.curved_inside(mesh, e, o, d, a, geometry.start_guess(mesh, e, o + a * d))
+        r_a, dv_a, newton = geometry.curved_inside(mesh, e, o, d, a, geometry.start_guess(mesh, e, o + a * d))
     # a is on e's entry face: its margin is 0 up to Newton's rounding either way (float32 next
     # to a degenerate edge: beyond INSIDE_TOL, and the search then skipped STRETCH_RTOL |t|)
     if r_a[3] <= -SHARED_FACE_TOL:
-        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a, a
+        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a, a, newton
     shift_a = float(0.0)  # only the search's entries can come from outside the domain
     if r_entry[3] > 0.0 and dv_a[3] > 0.0 and r_a[3] < geometry.INSIDE_TOL and on_boundary_face(mesh, e, r_a) == 1:
         shift_a = (geometry.INSIDE_TOL - r_a[3]) / dv_a[3]
     r_a[3] = wp.max(r_a[3], 0.5 * geometry.INSIDE_TOL)
     bx = geometry.box_interval(mesh, e, o, d)
-    ex, r_b, dv_b = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+    ex, r_b, dv_b, its = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
+    newton += its
     b = wp.max(a, ex[0])
     shift_b = float(0.0)
     if ex[1] >= 0.0 and dv_b[3] < 0.0 and r_b[3] < geometry.INSIDE_TOL:
@@ -480,7 +496,7 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
         r_a = to_face(r_a, dv_a, shift_a)
     if shift_b < 0.0:
         r_b = to_face(r_b, dv_b, shift_b)
-    return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b
+    return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b, newton
 
 
 @wp.func
@@ -522,7 +538,7 @@ def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
 
 @wp.func
 def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int, t: float, e: int, left: int,
-               r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int):
+               r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int, n_newton: int):
     """Where ray i's walk got this round (its n segments, the counters) into the ray state."""
     if finished == 1:
         rays.phase[i] = 1
@@ -535,6 +551,7 @@ def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int
     rays.stats[pixel, STAT_SEGMENTS] += n_seg
     rays.stats[pixel, STAT_EMPTY] += n_empty
     rays.stats[pixel, STAT_WALKS] += n_walk
+    rays.stats[pixel, STAT_NEWTON_WALK] += n_newton
 
 
 def _make_traverse_kernel(CURVED: bool):
@@ -544,6 +561,7 @@ def _make_traverse_kernel(CURVED: bool):
                  rays: RayState, segs: Segments):
         i = rays.active[wp.tid()]
         pixel = i + pixel_offset
+        rays.stats[pixel, STAT_ROUNDS] += 1
         n = int(0)
         if rays.phase[i] != 0 or rays.next_element[i] < 0:
             segs.count[i] = 0
@@ -561,6 +579,7 @@ def _make_traverse_kernel(CURVED: bool):
         n_seg = int(0)
         n_empty = int(0)
         n_walk = int(0)
+        n_newton = int(0)
         zero_steps = int(0)
         finished = int(0)
         left = rays.left_element[i]  # the element the ray has just left
@@ -584,8 +603,9 @@ def _make_traverse_kernel(CURVED: bool):
             if mesh.affine[e] == 1:
                 stretch = affine_walk_step(mesh, e, o, d, a, t_end)
             elif wp.static(CURVED):
-                stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b = curved_walk_step(mesh, e, o, d, a, t_end, r_entry,
-                                                                               dv_entry)
+                stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b, its = curved_walk_step(mesh, e, o, d, a, t_end,
+                                                                                    r_entry, dv_entry)
+                n_newton += its
                 r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
             if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
@@ -623,7 +643,7 @@ def _make_traverse_kernel(CURVED: bool):
                 e = mesh.neighbour[e * 6 + face]
             else:
                 e = -1
-        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, n, n_field, n_seg, n_empty, n_walk)
+        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, n, n_field, n_seg, n_empty, n_walk, n_newton)
 
     return traverse
 
@@ -636,10 +656,11 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
 
     @wp.kernel(enable_backward=False, module="unique", module_options=opts, cuda_max_registers=SAMPLE_MAX_REGISTERS if CURVED else None)
     def sample(mesh: MeshArgs, cam: CameraArgs, pixel_offset: wp.int32, segs: Segments, slots: wp.array(dtype=wp.int32),
-               stride: wp.int32, odd: wp.int32):
+               stride: wp.int32, odd: wp.int32, stats: wp.array2d(dtype=wp.int32)):
         """One thread per sample point: slots[tid // stride]'s point tid % stride (odd = 1: its
         odd points, the ones a doubled degree adds). The threads of one slot run side by side,
-        so a warp evaluates one element or the end of one and the start of the next."""
+        so a warp evaluates one element or the end of one and the start of the next. A curved
+        point's Newton iterations go to its ray's stats (an atomic add per curved point)."""
         tid = wp.tid()
         slot = slots[tid // stride]
         j = tid % stride
@@ -653,7 +674,10 @@ def _make_sample_kernel(CURVED: bool, MODES: int):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        xi, w = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w, newton = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        if wp.static(CURVED):
+            if newton > 0:
+                wp.atomic_add(stats, slot // SEGMENTS_PER_ROUND + pixel_offset, STAT_NEWTON_SAMPLE, newton)
         e = segs.element[slot]
         f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         segs.samples[slot * MAX_SAMPLES + j] = f * w * w
@@ -1069,6 +1093,11 @@ def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_
     stats[i, STAT_PIECEWISE] = tally.piecewise
     stats[i, STAT_LOCATES] = 0
     stats[i, STAT_WALKS] = 0
+    stats[i, STAT_BVH_CANDIDATES] = 0
+    stats[i, STAT_NEWTON_SEARCH] = 0
+    stats[i, STAT_NEWTON_WALK] = 0
+    stats[i, STAT_NEWTON_SAMPLE] = 0
+    stats[i, STAT_ROUNDS] = 0
 
 
 @wp.kernel(enable_backward=False)
@@ -1083,3 +1112,24 @@ def sum_counts(stats: wp.array2d(dtype=wp.int32), threads: wp.int32, out: wp.arr
         r += threads
     for k in range(NUM_STATS):
         wp.atomic_add(out, k, acc[k])
+
+
+# The kernels by name, the one list: the renderer loads, launches and times them by these names
+# (kernel_table), a render, a trace and a shade each launching their own.
+RENDER_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "step_terms", "integrate",
+                  "finalize")
+TRACE_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "trace_reserve", "trace_write",
+                 "trace_ends")
+SHADE_KERNELS = ("shade", "sum_counts")
+
+
+def kernel_table(curved: bool, modes: int = 0) -> dict:
+    """Every kernel of RENDER_KERNELS, TRACE_KERNELS and SHADE_KERNELS by name, the walk's
+    specialised as walk_kernels(curved, modes)."""
+    search, traverse, sample = walk_kernels(curved, modes)
+    table = {"init_rays": init_rays, "search": search, "traverse": traverse, "sample": sample, "refine": refine,
+             "coefficients": coefficients, "step_terms": step_terms, "integrate": integrate, "finalize": finalize,
+             "trace_reserve": trace_reserve, "trace_write": trace_write, "trace_ends": trace_ends, "shade": shade,
+             "sum_counts": sum_counts}
+    assert set(table) == set(RENDER_KERNELS + TRACE_KERNELS + SHADE_KERNELS)
+    return table
