@@ -21,7 +21,9 @@ import time
 
 import numpy as np
 
-STEP_TOL = {"float32": 1e-5, "float64": 1e-8}  # kernels/geometry.py NEWTON_STEP_TOL and its float64 twin
+from hovr_blender.engine.kernels.tolerances import NEWTON_STEP_TOL, NEWTON_STEP_TOL_FLOAT64  # noqa: E402
+
+STEP_TOL = {"float32": NEWTON_STEP_TOL, "float64": NEWTON_STEP_TOL_FLOAT64}  # the kernels' Newton stops
 MAX_ITER = 30
 BVH_NODE_BYTES = 32  # Warp's BVH: a node holds a box (2 x vec3) and two indices; about 2 nodes a triangle
 
@@ -110,8 +112,10 @@ def polish(mesh, walls, tri, bary, o, d, t_hit):
 
 
 def crossings(mesh, walls, camera, device):
-    """Per ray: its face crossings (mesh_query_ray from just past each hit), and every hit's
-    (ray, triangle, barycentric u, v, t)."""
+    """Per ray: its face crossings (mesh_query_ray from just past each hit), every hit's
+    (ray, triangle, barycentric u, v, t), the walk's seconds, and the triangles whose box grown
+    by the bound the ray crosses (a near-miss test's candidates: every true crossing lies within
+    the bound of a triangle)."""
     import warp as wp
 
     from hovr_blender.engine.renderer import camera_args
@@ -136,6 +140,17 @@ def crossings(mesh, walls, camera, device):
             n += 1
         hits[i] = n
 
+    @wp.kernel
+    def near(bvh: wp.uint64, cam: raycast.CameraArgs, count: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        o, d = raycast.camera_ray(cam, i)
+        query = wp.bvh_query_ray(bvh, o, d)
+        tri = int(0)
+        n = int(0)
+        while wp.bvh_query_next(query, tri, 1.0e30):
+            n += 1
+        count[i] = n
+
     with wp.ScopedDevice(device):
         wm = wp.Mesh(points=wp.array(walls.vertices.astype(np.float32), dtype=wp.vec3),
                      indices=wp.array(walls.triangles.astype(np.int32).ravel(), dtype=wp.int32))
@@ -149,7 +164,14 @@ def crossings(mesh, walls, camera, device):
         wp.launch(walk, n, inputs=[wm.id, cam, hits, rec])
         wp.synchronize()
         seconds = time.perf_counter() - t0
-        return hits.numpy(), rec.numpy(), seconds
+        corners = walls.vertices[walls.triangles]
+        pad = walls.tolerance
+        lo = wp.array((corners.min(axis=1) - pad).astype(np.float32), dtype=wp.vec3)
+        hi = wp.array((corners.max(axis=1) + pad).astype(np.float32), dtype=wp.vec3)
+        bvh = wp.Bvh(lo, hi)
+        count = wp.zeros(n, dtype=wp.int32)
+        wp.launch(near, n, inputs=[bvh.id, cam, count])
+        return hits.numpy(), rec.numpy(), seconds, count.numpy()
 
 
 def run(name, args, out):
@@ -171,7 +193,7 @@ def run(name, args, out):
         walls = tessellate(mesh, rel * diag, faces=(elem, face))
         build = time.perf_counter() - t0
         ntri = len(walls.triangles)
-        hits, rec, seconds = crossings(mesh, walls, camera, args.device)
+        hits, rec, seconds, near = crossings(mesh, walls, camera, args.device)
         rng = np.random.default_rng(0)
         rays = np.repeat(np.arange(len(hits)), hits)
         slots = np.concatenate([np.arange(h) for h in hits]) if hits.sum() else np.zeros(0, int)
@@ -197,6 +219,7 @@ def run(name, args, out):
                "capped_faces": walls.capped,
                "mesh_bytes_per_element": (len(walls.vertices) * 12 + ntri * (12 + 2 * BVH_NODE_BYTES)) / mesh.num_elements,
                "crossings_per_ray": float(hits.mean()), "rays_hitting": float((hits > 0).mean()),
+               "near_candidates_per_ray": float(near.mean()),
                "walk_seconds": seconds, "tessellate_seconds": build, "polished": len(pick),
                "polish_iterations": {p: {"mean": float(np.mean(v)) if v else None, "max": int(np.max(v)) if v else None}
                                      for p, v in its.items()},
@@ -204,6 +227,7 @@ def run(name, args, out):
         rows.append(row)
         print(f"{name} bound {rel:g}: {ntri} triangles ({row['triangles_per_face']:.1f}/face, k <= {row['k_max']}), "
               f"{row['mesh_bytes_per_element']:.0f} B/element, {row['crossings_per_ray']:.2f} crossings/ray, "
+              f"{row['near_candidates_per_ray']:.2f} grown-box candidates/ray, "
               f"Newton polish mean/max {row['polish_iterations']['float32']} (f32) "
               f"{row['polish_iterations']['float64']} (f64), left face {outside}/{len(pick)}", flush=True)
     out[name] = {"elements": int(mesh.num_elements), "size": [W, H], "rows": rows}

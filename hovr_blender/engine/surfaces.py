@@ -3,7 +3,7 @@ its volume integral ends, and what lies behind is the surface instead of the bac
 
 For the pixel's ray x(t) = o + t d (contract §4, |d| = 1), let t_s be the first hit of an
 opaque triangle with t in the camera's range (+inf where none). The volume is integrated over
-[0, t_s] only (Renderer.render(surface_t=...): kernels/raycast.py init_rays), which gives
+[0, t_s] only (Renderer.render(surface_t=...): kernels/rays.py init_rays), which gives
 C and T of contract §3 with the upper limit t_s, and the pixel is
 
     no hit:                 RGB = C + T background,   alpha = 1 - T   (contract §3, unchanged)

@@ -19,19 +19,16 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..shapes import MAX_FACES
 from . import element
 from .args import MeshArgs
+# the precision's tolerances (kernels/tolerances.py): INSIDE_TOL, the reference-space margin still
+# counted as inside; NEWTON_STEP_TOL, Newton's last step; ROOT_RTOL, a crossing's relative bracket
+from .tolerances import INSIDE_TOL, NEWTON_STEP_TOL, ROOT_RTOL
 
 wp.set_module_options({"enable_backward": False})
 
-# Tolerances sized for float32; NAME_FLOAT64 is NAME in the float64 twin (kernels/precision.py).
-INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
-INSIDE_TOL_FLOAT64 = 1.0e-11
-NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
-NEWTON_STEP_TOL_FLOAT64 = 1.0e-8
 NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
-ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
-ROOT_RTOL_FLOAT64 = 1.0e-13
 # Newton's iterations at most: quadratic convergence needs a few, but next to an edge where
 # the element's Jacobian vanishes (NGSolve's ball) it converges linearly, about a bit a step
 NEWTON_ITERATIONS = 40
@@ -649,8 +646,8 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, 
                 blind = 2
                 best = wp.vec4(0.0, 0.0, 0.0, 1.0e30)
                 for f in range(element.num_faces(shape)):
-                    # a clip through a shared face is walk_back's to recover (raycast.py)
-                    if mesh.neighbour[e * 6 + f] < 0:
+                    # a clip through a shared face is walk_back's to recover (kernels/entry.py)
+                    if mesh.neighbour[e * MAX_FACES + f] < 0:
                         fc, fits = face_crossing(mesh, e, o, d, f, ta, tb)
                         newton += fits
                         if fc[3] < best[3]:

@@ -21,11 +21,10 @@ import warp as wp
 from . import element
 from . import geometry
 from .args import MAX_SAMPLES, MeshArgs, Segments
+from .tolerances import CURVED_TAIL_RTOL  # a curved interpolant's tail against its samples' size
 
 wp.set_module_options({"enable_backward": False})
 
-CURVED_TAIL_RTOL = 1.0e-6  # a curved interpolant's tail against its samples' size (refine_degree)
-CURVED_TAIL_RTOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
 
 
 @wp.func
