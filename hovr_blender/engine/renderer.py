@@ -140,7 +140,7 @@ GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
 # H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
 # few-ray tails of each tile, where a round costs the latency of its slowest ray
 TILE_MEMORY_FRACTION = 0.25
-TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a launch tile's buffers may take
+TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a CPU launch tile's buffers may take
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
@@ -386,17 +386,17 @@ class Renderer:
     def _tile_limit(self, prec) -> int:
         """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
         its free memory holds (one tile per frame where it fits: every tile ends in rounds of
-        few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
+        few rays, which leave the GPU idle; a 1920x1080 frame is one launch on a card with
+        about 32 GB free); on the CPU, CPU_TILE_RAYS within TILE_LIMIT_SHARE of the memory limit,
+        which guards host memory (a GPU tile's buffers are the device's: check_limits)."""
         if self.max_tile_rays is not None:
             return self.max_tile_rays
-        # the resource policy's memory limit holds the tile too, with room left for the image's
-        # own buffers (a full-HD tile is ~8 GB in float32: over the 4 GiB default)
-        policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
+            policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
             return int(max(1024, min(CPU_TILE_RAYS, policy)))
-        return int(max(1024, min(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
-                                         MIN_TILE_RAYS, MAX_TILE_RAYS), policy)))
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec), MIN_TILE_RAYS,
+                           MAX_TILE_RAYS))
 
     def _ray_bytes(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
@@ -411,7 +411,9 @@ class Renderer:
         """Refuse a render the resource policy does not allow (engine/limits.py), before
         anything is allocated: the image's buffers against the memory limit, and for the
         fixed-step methods the samples a ray may take across the data (its box diagonal / h;
-        classified without h never steps below the diagonal / that limit). Returns the bytes counted."""
+        classified without h never steps below the diagonal / that limit). The launch tile's
+        buffers count where they are host memory (the CPU device); on a GPU the tile follows the
+        device's free memory (_tile_limit). Returns the bytes counted."""
         self._check_steps(options)
         prec = self._upload(options.precision).precision
         num_stats = prec.kernels.NUM_STATS
@@ -419,6 +421,8 @@ class Renderer:
         # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
         per_pixel = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats + 8 * num_stats + 16
         rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
+        if wp.get_device(self.device).is_cuda:
+            rays = 0
         return limits.check_bytes(total * per_pixel + rays * self._ray_bytes(prec),
                                   f"a {width}x{height} image in {options.precision}")
 
@@ -792,7 +796,7 @@ class Renderer:
               tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
         """The render of the cache's view through `tf` (a TransferFunction or one per volume), with
         this background and these options, from the cached segments alone: one kernel, a thread per
-        ray, integrating as the render's integrate kernel does (kernels/raycast.py shade), so the
+        ray, integrating as the render's integrate kernel does (kernels/cache.py shade), so the
         image equals render(camera, tf, background, options) of the same view. SegmentCacheError
         where the cache does not fit: another renderer or field, a precision or a method family
         (riemann/trapezoid against classified/split) other than the trace's, a transfer function
