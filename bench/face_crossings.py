@@ -11,7 +11,7 @@ restarting just past each hit); a sample of the crossings is polished by float64
 to a step below float32's and float64's Newton tolerances (kernels/geometry.py) are counted, with
 the crossings whose polish leaves the face (a grazing ray: the triangle is hit, the face is not).
 
-    python -m bench.face_crossings --datasets curved_mixed_cube,hump3D --size 96x54 --out face.json
+    python -m bench.face_crossings --datasets curved_mixed_cube_small,hump3D --size 96x54 --out face.json
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from hovr_blender.engine.kernels.tolerances import NEWTON_STEP_TOL, NEWTON_STEP_TOL_FLOAT64  # noqa: E402
+from hovr_blender.engine.kernels.tolerances import NEWTON_STEP_TOL, NEWTON_STEP_TOL_FLOAT64
 
 STEP_TOL = {"float32": NEWTON_STEP_TOL, "float64": NEWTON_STEP_TOL_FLOAT64}  # the kernels' Newton stops
 MAX_ITER = 30
@@ -29,28 +29,15 @@ BVH_NODE_BYTES = 32  # Warp's BVH: a node holds a box (2 x vec3) and two indices
 
 
 def load(name):
-    """A dataset by name: the synthetic ones, or the audit's files (tests/helpers.find_data)."""
-    from hovr_blender.io.sources import VolumeSource, load_volume
-    from tests.helpers import find_data
+    """A dataset by name: the audit's (hovr_blender/audit/datasets.py), and curved_mixed_cube_small,
+    the tests' two-cell curved cube (tests/perf)."""
+    from hovr_blender.audit import datasets
 
-    if name == "curved_mixed_cube":
+    if name == "curved_mixed_cube_small":
         from hovr_blender.io.synthetic import curved_cube
 
         return curved_cube(2)
-    if name == "paper_scale":
-        from hovr_blender.io.paper_scale import paper_scale_mesh
-
-        return paper_scale_mesh()
-    files = {"hump3D": ("nektar", "hump3D_GLL.xml", {"solution": "hump3D.rst", "field": "rho"}),
-             "ngsolve_ball": ("vtu", "ngsolve_ball_poisson_hex_p6.vtu", {"field": "u"}),
-             "mfem_fichera": ("vtu", "mfem_fichera_poisson_mixed_p4.vtu", {"field": "u"}),
-             "ngsolve_post": ("vtu", "ngsolve_post_heat_tetprism_p4.vtu", {"field": "temperature"}),
-             "pyfr_tgv": ("vtu", "pyfr_tgv_hexprism_p4_t4.vtu", {"field": "Pressure"})}
-    kind, path, extra = files[name]
-    data = {"path": str(find_data(kind, path)), **extra}
-    if "solution" in data:
-        data["solution"] = str(find_data(kind, data["solution"]))
-    return load_volume(VolumeSource.from_view_data(data))
+    return datasets.load(name)[0]
 
 
 def unique_faces(mesh):
@@ -175,9 +162,9 @@ def crossings(mesh, walls, camera, device):
 
 
 def run(name, args, out):
+    from hovr_blender.audit.scenes import framing
     from hovr_blender.engine.mesh import with_geometry_expansion
     from hovr_blender.engine.walls import tessellate
-    from tests.helpers import framing
 
     mesh = load(name)
     if mesh.geom_coeffs is None:
@@ -235,7 +222,7 @@ def run(name, args, out):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--datasets", default="curved_mixed_cube,hump3D")
+    ap.add_argument("--datasets", default="curved_mixed_cube_small,hump3D")
     ap.add_argument("--size", default="96x54")
     ap.add_argument("--bounds", default="1e-2,1e-3,1e-4", help="distance bounds, relative to the data's diagonal")
     ap.add_argument("--polish", type=int, default=300, help="crossings polished by Newton per bound")

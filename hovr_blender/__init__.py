@@ -20,10 +20,10 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .ui import properties, operators, import_operators, panels, versioning
+    from .ui import properties, operators, import_operators, panels, versioning, legend_overlay
     from .ui import engine as render_engine
 
-    return (properties, render_engine, operators, import_operators, panels, versioning)
+    return (properties, render_engine, operators, import_operators, panels, versioning, legend_overlay)
 
 
 _registered = False
@@ -36,16 +36,15 @@ def register():
     _registered = True
     from .ui import compat
 
-    compat.unregister_before_exit(_unregister_if_registered)
+    compat.unregister_before_exit(unregister)
 
 
 def unregister():
+    """Once per register(): at the exit of bpy as a module both Blender (disabling its enabled
+    add-ons) and compat.unregister_before_exit call this, in either order."""
     global _registered
+    if not _registered:
+        return
+    _registered = False
     for module in reversed(_modules()):
         module.unregister()
-    _registered = False
-
-
-def _unregister_if_registered():
-    if _registered:
-        unregister()

@@ -2,7 +2,7 @@
 Blender's factory startup scene, then F12 through the scene camera (as
 tests/blender/test_first_picture.py checks at 5%).
 
-    .venv/bin/python scripts/first_pictures.py [--percentage 25] [--out docs]
+    python -m scripts.first_pictures [--percentage 25] [--out docs]
 
 writes docs/first-picture-hump3D.png (Nektar++ hump3D_GLL.xml, solution hump3D.rst found by
 name) and docs/first-picture-ngsolve-ball.png (NGSolve's ball, VTU), from ../shared/data.
@@ -11,12 +11,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench.common import DATA, REPO
 
 EXAMPLES = {
     "hump3D": ("hovr_nektar", "nektar/hump3D_GLL.xml"),
@@ -38,7 +35,7 @@ def main(argv=None):
     for name, (op, rel) in EXAMPLES.items():
         if args.only and name != args.only:
             continue
-        path = next((p for p in (REPO / "tests" / "data" / rel, REPO.parent / "shared" / "data" / rel) if p.exists()),
+        path = next((p for p in (REPO / "tests" / "data" / rel, DATA / rel) if p.exists()),
                     None)
         if path is None:
             print(f"first_pictures: {rel} not found, skipped")

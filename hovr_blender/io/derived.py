@@ -30,7 +30,13 @@ FIELD), seed 0, 2026-11-22:
   velocity's zeros), stated bound 0.31; read_vtu's interpolated nodal magnitudes are off the
   true magnitude by up to 0.33 on the same cells.
 
+True range: ``true_range`` (min, max) of the exact |u| at the fit points and the random check
+points; the Blender layer takes value ranges and histograms from samples clipped to it, so the
+fit's dips below zero near u = 0 never make a negative Value Min (docs/methods.md).
+
 Field syntax: "|a,b,c|" (any number of names, spaces allowed) is the magnitude of those fields.
+The formats build their magnitudes with magnitude_mesh (io/nektar/format.py: "|a,b,c|" of a
+field file; io/vtu/format.py: a vector array's).
 """
 from __future__ import annotations
 
@@ -43,7 +49,6 @@ import numpy as np
 from ..engine import expansions as ex
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
-from . import nektar, vtu
 
 SAMPLES_PER_ELEMENT = 64
 MAX_SAMPLE_POINTS = 400_000
@@ -100,10 +105,24 @@ def _magnitude_at(blocks, shape, component_modes, xi):
     return np.sqrt(squares)
 
 
-def _fit_error(blocks, fit, shape, q, component_modes, xi):
+class _Extremes:
+    """The smallest and largest exact |u| and fitted value seen over every point sampled."""
+
+    def __init__(self):
+        self.true_min, self.true_max, self.fit_min = np.inf, -np.inf, np.inf
+
+    def see(self, truth, approx=None):
+        self.true_min = min(self.true_min, float(truth.min()))
+        self.true_max = max(self.true_max, float(truth.max()))
+        if approx is not None:
+            self.fit_min = min(self.fit_min, float(approx.min()))
+
+
+def _fit_error(blocks, fit, shape, q, component_modes, xi, extremes: _Extremes):
     """(per-element max |fit - |u|| at xi, largest |u| seen, number of points)."""
     truth = _magnitude_at(blocks, shape, component_modes, xi)
     approx = fit @ ex.basis_matrix(shape, (q, q, q), xi).T
+    extremes.see(truth, approx)
     return np.abs(approx - truth).max(axis=1), float(truth.max()), truth.size
 
 
@@ -143,6 +162,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     rng = np.random.default_rng(seed)
     elem_err = np.zeros(n)
     peak, points, groups = 0.0, 0, []
+    extremes = _Extremes()
 
     keys = np.concatenate([base.shape[:, None], Q[:, None]] + [c.modes for c in components], axis=1)
     for key in np.unique(keys, axis=0):
@@ -152,9 +172,10 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         blocks = [_element_blocks(c, idx, shape, modes) for c, modes in zip(components, component_modes)]
         at_fit_points = _magnitude_at(blocks, shape, component_modes, ex.fit_points(shape, (q, q, q)))
         fit = ex.fit_modal(shape, (q, q, q), at_fit_points.T).T
+        extremes.see(at_fit_points, fit @ ex.basis_matrix(shape, (q, q, q), ex.fit_points(shape, (q, q, q))).T)
         coeffs[offsets[idx][:, None] + np.arange(fit.shape[1])[None, :]] = fit
         err, top, count = _fit_error(blocks, fit, shape, q, component_modes,
-                                     _random_inside(shape, samples_per_element, rng))
+                                     _random_inside(shape, samples_per_element, rng), extremes)
         elem_err[idx], peak, points = err, max(peak, top), points + count
         groups.append((idx, shape, q, component_modes, blocks, fit))
     # the sample can miss an element's worst point (near a zero of u, where |u| has its kink):
@@ -164,7 +185,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         sel = np.array([k for k, e in enumerate(idx) if e in worst_elements], dtype=np.int64)
         if sel.size:
             err, top, count = _fit_error([b[sel] for b in blocks], fit[sel], shape, q, component_modes,
-                                         _random_inside(shape, DENSE_SAMPLES, rng))
+                                         _random_inside(shape, DENSE_SAMPLES, rng), extremes)
             elem_err[idx[sel]] = np.maximum(elem_err[idx[sel]], err)
             peak, points = max(peak, top), points + count
     worst = float(elem_err.max())
@@ -183,10 +204,17 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     bound = ERROR_SAFETY * worst + 1e-12 * peak  # the floor covers rounding where the fit is exact
     rel = worst / peak if peak > 0 else 0.0
     out.derived_error = {"max_error": worst, "bound": bound, "max_value": peak, "relative": rel, "points": points,
-                         "modes": sorted(set(int(q) for q in Q))}
+                         "modes": sorted(set(int(q) for q in Q)), "fit_min": extremes.fit_min,
+                         "true_min": extremes.true_min}
+    # what Fit Value Range and the histogram read: the exact magnitudes' range, never the fit's dips
+    out.true_range = (extremes.true_min, extremes.true_max)
     note = (f"{name}: magnitude fitted with {'/'.join(str(q) for q in sorted(set(Q.tolist())))} modes per "
             f"direction; max error {worst:.3g} ({100 * rel:.3g} % of max {peak:.4g}) at {points} random points, "
             f"stated bound {bound:.3g}")
+    if extremes.fit_min < extremes.true_min:
+        note += (f"; the fit dips to {extremes.fit_min:.3g} near the vector's zeros, where the true magnitude has "
+                 f"a kink (true minimum {extremes.true_min:.3g}): the value range comes from the true magnitudes, "
+                 "so those dips show as Value Min")
     warnings = []
     for c in components:
         warnings += [w for w in getattr(c, "warnings", []) if w not in warnings]
@@ -197,59 +225,16 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     return out
 
 
-# ---------------------------------------------------------------------------------------------
-# readers: a plain field as before, "|a,b,c|" (Nektar++) or a VTU vector's magnitude derived here
-
-
-def _nektar_component(first: VolumeMesh, field_file: nektar.FieldFile, name: str) -> VolumeMesh:
-    """Field `name` of the field file on the geometry of `first` (read with read_nektar)."""
-    ids = first.element_ids.tolist()
-    coeffs = field_file.coefficients(name, ids)
-    for k, e in enumerate(ids):
-        if coeffs[e][0] != int(first.shape[k]):
-            raise nektar.NektarError(f"{field_file.path}: element {e} has another shape for field {name!r}")
-    modes = np.array([coeffs[e][1] for e in ids], dtype=np.int32)
-    flat = [np.asarray(coeffs[e][2], dtype=np.float64) for e in ids]
-    sizes = np.array([f.size for f in flat], dtype=np.int64)
-    out = dataclasses.replace(first, modes=modes, coeff_offset=np.concatenate([[0], np.cumsum(sizes)[:-1]]),
-                              coeffs=np.concatenate(flat), field_name=name, field_range_hull=None)
-    out.element_ids = first.element_ids
-    return out
-
-
-def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
-    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    names = parse_magnitude(field)
-    if names is None:
-        return nektar.read_nektar(mesh_path, solution_path, field)
-    first = nektar.read_nektar(mesh_path, solution_path, names[0])
-    solution = solution_path if solution_path is not None else nektar.find_solution(mesh_path)
-    field_file = nektar.read_field_file(solution, first.num_elements)
-    components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
-    return magnitude_mesh(components, "|" + ",".join(names) + "|")
-
-
-def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
-    """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
-    is derived here from its exact component polynomials (read_vtu interpolates the nodal
-    magnitudes instead, as VTK does)."""
-    if component in (None, "magnitude"):
-        available = vtu.list_fields(path)
-        name = field if field is not None else next(iter(available), None)
-        ncomp = available.get(name, 1) if name is not None else 1
-        if ncomp > 1:
-            comps = [vtu.read_vtu(path, name, i) for i in range(ncomp)]
-            return magnitude_mesh(comps, f"|{name}|")
-    return vtu.read_vtu(path, field, component)
-
-
 def main(argv=None) -> int:
     """python -m hovr_blender.io.derived MESH.xml SOLUTION "|u,v,w|"  or  FILE.vtu FIELD: the error line."""
+    from .formats import format_of
+
     argv = sys.argv[1:] if argv is None else argv
-    if argv and argv[0].lower().endswith(".vtu"):
-        mesh = read_vtu_field(argv[0], argv[1] if len(argv) > 1 else None)
+    data = format_of(argv[0])
+    if data.takes_solution:
+        mesh = data.read(argv[0], argv[1], argv[2])
     else:
-        mesh = read_nektar_field(argv[0], argv[1], argv[2])
+        mesh = data.read(argv[0], None, argv[1] if len(argv) > 1 else None)
     print(f"{mesh.num_elements} elements; {mesh.warnings[-1]}")
     return 0
 

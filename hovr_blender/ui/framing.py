@@ -160,11 +160,12 @@ def clip_warning(corners, eye, forward, clip_start: float, clip_end: float, came
 FAINT_ALPHA = 0.02
 
 
-def image_warning(alpha, stats: dict) -> str | None:
-    """Words for an empty or nearly transparent render (alpha = 1 - T per pixel)."""
+def image_warning(alpha) -> str | None:
+    """Words for an empty or nearly transparent render (alpha = 1 - T per pixel), from the image
+    alone: a frame shaded from cached segments evaluates no field and is still a picture."""
     alpha = np.asarray(alpha, float)
     peak = float(alpha.max()) if alpha.size else 0.0
-    if int(stats.get("field_evaluations", 1)) == 0 or peak <= 1e-6:
+    if peak <= 1e-6:
         return ("the image is empty: no ray met a visible part of the volume (camera aimed elsewhere or clipped, "
                 "or the ramp's alpha is zero over Value Min..Max); try Frame Volume and Fit to Data Range")
     if peak < FAINT_ALPHA:

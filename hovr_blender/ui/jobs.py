@@ -8,9 +8,12 @@
   code generation, 1 run in 3).
 - `CompiledKernels`: the render kernels compiled in this session, by (device, precision,
   kernel variant, surfaces), so a render says "compiling (first use)" only when it does.
+- `ProgressLines`: when a background render's log gets a progress line (a few a frame).
+- `summarise_warnings`: a reader's per-face (per-element, ...) warnings, one line per kind.
 """
 from __future__ import annotations
 
+import re
 import time
 from typing import Callable
 
@@ -102,3 +105,49 @@ def compile_render_kernels(key: tuple) -> None:
 
 # What this Blender session has compiled (render.py asks before a render's first use)
 KERNELS = CompiledKernels(compile_render_kernels)
+
+
+class ProgressLines:
+    """A few progress lines a frame for a log (Blender in background mode, like Cycles'): a line
+    when the render has moved on by `step` (10 %) since the last, or, on a slow render, when
+    `every_s` seconds have passed and it moved at all; the first and the last always."""
+
+    def __init__(self, step: float = 0.1, every_s: float = 30.0, clock=time.monotonic):
+        self.step, self.every_s, self.clock = step, every_s, clock
+        self.fraction, self.time = None, clock()
+
+    def due(self, fraction: float) -> bool:
+        now = self.clock()
+        if self.fraction is None or fraction >= 1.0 or fraction >= self.fraction + self.step or (
+                fraction > self.fraction and now - self.time >= self.every_s):
+            self.fraction, self.time = fraction, now
+            return True
+        return False
+
+
+_NUMBERED = re.compile(r"\b(face|element|edge|curve|vertex|composite|cell) (\d+)\b")
+
+
+def summarise_warnings(warnings, limit: int = 5, examples: int = 4) -> list[str]:
+    """Warnings that differ only in the number of a face, element, edge... (a reader's per-face
+    notes) as one line each: the first in full, then how many more and a few of their numbers.
+    At most `limit` lines; the order of first appearance is kept."""
+    groups: dict[str, list[tuple[str, str]]] = {}
+    for w in warnings:
+        match = _NUMBERED.search(w)
+        key = _NUMBERED.sub(lambda m: m.group(1) + " #", w, count=1) if match else w
+        groups.setdefault(key, []).append((w, match.group(2) if match else ""))
+    lines = []
+    for members in groups.values():
+        first, _ = members[0]
+        if len(members) == 1:
+            lines.append(first)
+            continue
+        noun = _NUMBERED.search(first).group(1)
+        noun = "vertices" if noun == "vertex" else noun + "s"
+        more = [number for _, number in members[1:]]
+        shown = ", ".join(more[:examples]) + (", ..." if len(more) > examples else "")
+        lines.append(f"{first} (and {len(more)} more {noun} like it: {shown})")
+    if len(lines) > limit:
+        lines = lines[:limit - 1] + [f"{len(lines) - limit + 1} more kinds of warning"]
+    return lines

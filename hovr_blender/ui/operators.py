@@ -8,7 +8,7 @@ import numpy as np
 from ..engine.cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
-from .scene import DEFAULT_PRESET, TF_PRESETS, field_samples, value_histogram
+from .scene import DEFAULT_PRESET, TF_PRESETS, field_samples, value_histogram, value_range
 
 
 def field_range(mesh, samples: int = 9):
@@ -53,14 +53,6 @@ def histogram_for(context, obj=None):
         return None
     h = obj.hovr
     return value_histogram(values, h.value_min, h.value_max, HISTOGRAM_BINS)
-
-
-def value_range(values) -> tuple[float, float]:
-    """(Value Min, Value Max) for sampled field values; a constant field gets a range around it."""
-    lo, hi = float(values.min()), float(values.max())
-    if hi <= lo:
-        lo, hi = lo - 0.5 * max(abs(lo), 1.0), hi + 0.5 * max(abs(hi), 1.0)
-    return lo, hi
 
 
 def set_ramp_stops(ramp, stops):
@@ -142,7 +134,8 @@ class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
 
 
 def fit_value_range(obj, scene, values=None):
-    """Set the volume's Value Min/Max to its field's sampled range; returns (lo, hi, samples)."""
+    """Set the volume's Value Min/Max to its field's sampled range (scene.value_range: a field
+    constant up to rounding gets a range around its value); returns (lo, hi, samples, warning)."""
     source = volume_source(obj, scene)
     if values is None:
         values = SAMPLES.get(source.key)
@@ -151,9 +144,9 @@ def fit_value_range(obj, scene, values=None):
     if values.size == 0:
         raise ValueError(f"{obj.name!r} has no finite field values")
     SAMPLES.put(source.key, values)
-    lo, hi = value_range(values)
+    lo, hi, warning = value_range(values)
     obj.hovr.value_min, obj.hovr.value_max = lo, hi
-    return lo, hi, values.size
+    return lo, hi, values.size, warning
 
 
 class HOVR_OT_fit_value_range(_OnVolume, bpy.types.Operator):
@@ -166,11 +159,14 @@ class HOVR_OT_fit_value_range(_OnVolume, bpy.types.Operator):
     def execute(self, context):
         obj = _volume_object(context)
         try:
-            lo, hi, n = fit_value_range(obj, context.scene)
+            lo, hi, n, warning = fit_value_range(obj, context.scene)
         except (ValueError, OSError, MemoryError) as exc:
             self.report({'ERROR'}, f"HOVR: cannot read {obj.name!r}: {exc}")
             return {'CANCELLED'}
-        self.report({'INFO'}, f"HOVR: {obj.name}: value range [{lo:.4g}, {hi:.4g}] from {n} samples")
+        if warning:
+            self.report({'WARNING'}, f"HOVR: {obj.name}: {warning}")
+        else:
+            self.report({'INFO'}, f"HOVR: {obj.name}: value range [{lo:.4g}, {hi:.4g}] from {n} samples")
         return {'FINISHED'}
 
 

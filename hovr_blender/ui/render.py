@@ -19,8 +19,9 @@ from .camera import border_region, ray_camera_from_blender, ray_camera_from_view
 from ..engine.cache import LRUCache
 from ..io.sources import VolumeSource, cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
+from . import compat
 from .compat import write_pass_pixels
-from .jobs import KERNELS, kernel_key
+from .jobs import KERNELS, ProgressLines, kernel_key
 from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
@@ -339,6 +340,21 @@ def volume_inputs(obj, hovr, scene) -> VolumeInputs:
                         transfer_function=tf, density=float(look.density), density_units=look.density_units)
 
 
+def legend_volume_inputs(obj, scene):
+    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
+    (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
+    from .versioning import volume_look
+
+    look = volume_look(obj.hovr, scene)
+    texture = look.texture
+    if texture is None or not texture.use_color_ramp or texture.color_ramp is None:
+        raise SceneError(f"{obj.name!r} has no transfer function ramp")
+    ramp = texture.color_ramp
+    tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
+                                     [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
+    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
+
+
 def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     """The volumes, their looks and the settings of the scene, as plain records.
 
@@ -416,9 +432,9 @@ def failure_text(exc: BaseException) -> str:
         return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
                "what this machine has so that such a render is refused before it starts)"
     if isinstance(exc, ImportError) and getattr(exc, "name", None):
-        from .dependencies import DEPENDENCIES, report_lines
+        from .dependencies import dependencies, report_lines
 
-        dep = [d for d in DEPENDENCIES if d[0] == exc.name.split(".")[0]]
+        dep = [d for d in dependencies() if d[0] == exc.name.split(".")[0]]
         if dep:
             return " ".join(report_lines(dep)).replace("HOVR: ", "")
     if isinstance(exc, (ValueError, OSError)):
@@ -499,11 +515,29 @@ def declare_passes(engine, scene, renderlayer):
         engine.register_pass(scene, renderlayer, "HOVR Error", 1, "X", 'VALUE')
 
 
+def stage_reporter(api, background: bool, printed_by_blender: bool):
+    """status(text, fraction=None): the stage or progress in the status bar (update_stats); in
+    background mode, where the output is the log, progress only a few times a frame
+    (jobs.ProgressLines), each line printed by HOVR where Blender does not print update_stats
+    itself (5.0; 4.x prints each one)."""
+    lines = ProgressLines()
+
+    def status(text: str, fraction: float | None = None):
+        if background and fraction is not None and not lines.due(fraction):
+            return
+        api.update_stats("", text)
+        if background and not printed_by_blender:
+            print(text, flush=True)
+
+    return status
+
+
 def final_render(engine, api, depsgraph):
     """F12: snapshot, load (cached), render in progress tiles, write the passes. Blender's
     progress/break/stats calls go through `api` (the engine itself; tests wrap it, since RNA
     methods cannot be patched on the class)."""
-    api.update_stats("", "HOVR | reading scene")
+    status = stage_reporter(api, bpy.app.background, compat.update_stats_printed_in_background())
+    status("HOVR | reading scene")
     try:
         job = snapshot(engine, depsgraph)
     except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
@@ -517,7 +551,7 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
-    api.update_stats("", f"HOVR | reading {names}")
+    status(f"HOVR | reading {names}")
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
@@ -534,7 +568,7 @@ def final_render(engine, api, depsgraph):
         return
     try:
         if not KERNELS.is_ready(key):  # their first use in this session: tens of seconds on a CPU
-            api.update_stats("", f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
+            status(f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -545,8 +579,8 @@ def final_render(engine, api, depsgraph):
 
     def progress(fraction):
         api.update_progress(fraction)
-        api.update_stats("", f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
-                              f"{time.perf_counter() - t1:.1f} s")
+        status(f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
+               f"{time.perf_counter() - t1:.1f} s", fraction)
         return not api.test_break()
 
     try:
@@ -556,13 +590,13 @@ def final_render(engine, api, depsgraph):
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
     if result.cancelled or api.test_break():
-        api.update_stats("", "HOVR | cancelled")
+        status("HOVR | cancelled")
         return
     for w in result.stats.get("warnings", []):
         api.report({'WARNING'}, f"HOVR: {w}")
     from .framing import image_warning
 
-    empty = image_warning(result.rgba[..., 3], result.stats)
+    empty = image_warning(result.rgba[..., 3])
     if empty:
         api.report({'WARNING'}, f"HOVR: {empty}")
         warnings.append(f"HOVR: {empty}")
@@ -587,7 +621,7 @@ def final_render(engine, api, depsgraph):
                         load_seconds=t1 - t0)
     if warnings:  # the status line keeps the last word: say the picture is suspect there too
         text += f" | WARNING: {warnings[-1].removeprefix('HOVR: ')}"
-    api.update_stats("", text)
+    status(text)
 
 
 def view_update(engine, context, depsgraph):

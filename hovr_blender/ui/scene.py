@@ -1,5 +1,6 @@
 """Plain-data steps of a Blender render that need no bpy: ramp -> transfer function, core
-image -> Blender's passes, transfer-function presets, field histograms. Tested without Blender."""
+image -> Blender's passes, transfer-function presets, field histograms and value ranges. Tested
+without Blender."""
 from __future__ import annotations
 
 import numpy as np
@@ -96,7 +97,9 @@ def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 2
     if samples_per_axis is None:
         samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
     values = mesh.field_samples(samples_per_axis)
-    return values[np.isfinite(values)]
+    values = values[np.isfinite(values)]
+    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/derived.py)
+    return values if true_range is None else np.clip(values, *true_range)
 
 
 def value_histogram(values, value_min: float, value_max: float, bins: int = 16) -> np.ndarray:
@@ -106,3 +109,39 @@ def value_histogram(values, value_min: float, value_max: float, bins: int = 16) 
         return np.zeros(bins)
     counts, _ = np.histogram(values, bins=bins, range=(value_min, value_max))
     return counts / values.size
+
+
+# A field varies by less than this, relative to its magnitude, only by rounding: it is constant.
+ROUNDING_RELATIVE = 1e-12
+# Values all within this of zero are rounding around zero (a zero field computed in float64).
+ROUNDING_ZERO = 1e-12
+
+
+def _float32_distinct(lo: float, hi: float) -> tuple[float, float]:
+    """(lo, hi) widened to the nearest float32 values apart: Value Min/Max are float32 properties."""
+    lo32, hi32 = np.float32(lo), np.float32(hi)
+    if hi32 > lo32:
+        return lo, hi
+    return float(np.nextafter(lo32, np.float32(-np.inf))), float(np.nextafter(hi32, np.float32(np.inf)))
+
+
+def value_range(values) -> tuple[float, float, str | None]:
+    """(Value Min, Value Max, warning or None) for sampled field values. A field constant up to
+    rounding (its spread below ROUNDING_RELATIVE of its magnitude, or every value within
+    ROUNDING_ZERO of zero) gets a range centred on its value, with a warning in words, rather than
+    a ramp stretched over its round-off; a range float32 cannot tell apart is widened until it can."""
+    values = np.asarray(values, dtype=np.float64)
+    lo, hi = float(values.min()), float(values.max())
+    magnitude = max(abs(lo), abs(hi))
+    if magnitude <= ROUNDING_ZERO:
+        return -1.0, 1.0, (f"the field is zero up to rounding (every value within \u00b1{magnitude:.2g}): Value "
+                           "Min/Max set to -1..1, so it shows as one uniform value; set them by hand if values this "
+                           "small are the data")
+    if hi - lo <= ROUNDING_RELATIVE * magnitude:
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * abs(centre)
+        what = "constant" if hi == lo else f"constant up to rounding (spread {hi - lo:.2g})"
+        return centre - half, centre + half, (f"the field is {what}: {centre:.6g} everywhere; Value Min/Max set "
+                                              f"around it ({centre - half:.4g}..{centre + half:.4g})")
+    lo, hi = _float32_distinct(lo, hi)
+    return lo, hi, None

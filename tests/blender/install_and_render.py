@@ -30,12 +30,16 @@ def main():
                        spec["angle_z"], spec["method"])
     rgba = render_to_exr(scene, spec["exr"])
     np.save(spec["out"], rgba)
+    if spec.get("out_all_cores"):  # again on All CPU Cores: processes of the installed extension
+        scene.hovr.device = "cpu:all"
+        np.save(spec["out_all_cores"], render_to_exr(scene, spec["exr"]))
+        scene.hovr.device = "cpu"
 
     engine = next(c for c in bpy.types.RenderEngine.__subclasses__() if getattr(c, "bl_idname", "") == "HOVR")
     loaded = sorted(m for m in sys.modules if "hovr_blender" in m)
     report = {
         "engine_module": engine.__module__,
-        "renderer_loaded": f"{REPO_MODULE}.core.renderer" in sys.modules,
+        "renderer_loaded": f"{REPO_MODULE}.engine.renderer" in sys.modules,
         "foreign_modules": [m for m in loaded if m == "hovr_blender" or m.startswith("hovr_blender.")],
         "user_extensions": bpy.utils.user_resource("EXTENSIONS"),
     }

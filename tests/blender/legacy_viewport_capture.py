@@ -1,7 +1,7 @@
 """Run by Debian's Blender 3.4 *with a window* (under Xvfb) on the scene legacy_make_scene.py
 saved: switch the 3D view to camera view in Rendered shading with overlays off, wait for the
 HOVR viewport to converge, screenshot the window, then F12 the same view at the region's
-size. Writes report.json beside the images; the pytest side compares the pixels."""
+size, and again on All CPU Cores. Writes report.json beside the images; the pytest side compares the pixels."""
 import json
 import os
 import sys
@@ -55,6 +55,7 @@ def step():
     space = area.spaces.active
     sc = bpy.context.scene
     if state["phase"] == "setup":
+        sc.hovr.show_legend = False  # the viewport against F12 without the legend (drawn in its own phase)
         space.overlay.show_overlays = False
         space.show_gizmo = False
         space.show_region_toolbar = False
@@ -106,9 +107,33 @@ def step():
         bpy.ops.render.render(write_still=True)
         report["f12"] = f12
         log("f12 written")
+        # the same F12 on "All CPU Cores": processes started from the Blender program
+        sc.hovr.device = "cpu:all"
+        sc.render.filepath = report["f12_all_cores"] = os.path.join(OUT, "f12_all_cores.png")
+        bpy.ops.render.render(write_still=True)
+        sc.hovr.device = "cpu"
+        log("f12 on all cores written")
         # The HOVR render panels (ramp, presets, value range, histogram) for the user guide.
         with bpy.context.temp_override(window=win, area=area, region=region):
             bpy.ops.hovr.fit_value_range()
+        # the colour legend overlay (drawn with the viewport's overlays): off, then on
+        space.overlay.show_overlays = True
+        sc.hovr.show_legend = False
+        state["phase"] = "legend_off"
+        return 1.0
+    if state["phase"] in ("legend_off", "legend_on"):
+        name = state["phase"] + ".png"
+        with bpy.context.temp_override(window=win, area=area, region=region):
+            bpy.ops.screen.screenshot(filepath=os.path.join(OUT, name))
+        report[state["phase"]] = os.path.join(OUT, name)
+        if state["phase"] == "legend_off":
+            sc.hovr.show_legend = True
+            state["phase"] = "legend_on"
+            return 1.0
+        from hovr_blender.engine.legend import legend_layout  # noqa: F401  (the layout the overlay drew)
+        from hovr_blender.ui import legend_overlay
+
+        report["legend_bar"] = list(legend_overlay.legend_for_region(sc, region, area.spaces.active).bar)
         area.type = 'PROPERTIES'  # the big 3D view area becomes a Properties editor: legible panels
         state["phase"] = "panels"
         return 1.0

@@ -1,4 +1,7 @@
 """Registration, properties, operators and panels of the add-on inside Blender."""
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -9,6 +12,8 @@ import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 from hovr_blender.ui import compat, operators, panels  # noqa: E402
 from hovr_blender.ui.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
+
+from ..helpers import REPO  # noqa: E402
 
 
 def _operator_registered(name):
@@ -49,6 +54,38 @@ def test_register_unregister_twice_cleanly():
         assert 'HOVR' not in stock.COMPAT_ENGINES and 'BLENDER_RENDER' in stock.COMPAT_ENGINES
         assert operators.menu_add not in _menu_funcs()
         assert not hasattr(bpy.types, "HOVR_RENDER_PT_quadrature")
+
+
+_EXIT_SCRIPT = """
+import bpy, sys
+import addon_utils
+addon_utils.enable("hovr_blender", default_set=True, handle_error=None)  # as the Preferences enable it
+bpy.ops.hovr.add_sphere_volume()
+import hovr_blender.ui.compat as compat
+compat.finish_script(0)
+"""
+# the LTS Blenders' bpy modules live in venvs beside this one (scripts/bootstrap.sh makes them)
+_BLENDER_PYTHONS = {"5.0": sys.executable, **{v: str(Path(sys.prefix).parent / f".venv-bpy-{p}" / "bin" / "python")
+                                             for v, p in (("4.2", "4.2.23"), ("4.5", "4.5.15"))}}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("version", sorted(_BLENDER_PYTHONS))
+def test_a_script_ends_without_a_traceback(version, tmp_path):
+    """Issue 30: the add-on enabled as the Preferences do, a script's exit unregisters it once (bpy
+    5.0 disables enabled add-ons at exit, and compat.unregister_before_exit does too): no traceback,
+    exit status 0, on each Blender the manifest promises whose bpy module is installed here."""
+    import os
+    import subprocess
+
+    python = _BLENDER_PYTHONS[version]
+    if not os.path.exists(python):
+        pytest.skip(f"bpy {version}'s venv is not installed ({python})")
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.run([python, "-c", _EXIT_SCRIPT], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr and "unregister" not in proc.stderr, proc.stderr[-3000:]
 
 
 def _check_registered(stock):
@@ -204,3 +241,23 @@ def test_panels_draw_existing_properties(scene, with_tf):
     assert ("color_ramp" in names) == with_tf
     context.engine = 'CYCLES'
     assert not any(cls.poll(context) for cls in panels.classes)
+
+
+def test_legend_overlay_layout_of_the_active_volume(scene):
+    """Issue 30: the viewport legend is the active volume's look (ui/legend_overlay.py draws
+    engine/legend.py's layout with gpu and blf; the window test sees it drawn)."""
+    from hovr_blender.ui import legend_overlay, render
+
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    obj.hovr.field = "f"
+    tf, lo, hi, title = render.legend_volume_inputs(obj, scene)
+    assert (lo, hi) == (pytest.approx(obj.hovr.value_min), pytest.approx(obj.hovr.value_max)) and title == "f"
+    from hovr_blender.engine.legend import legend_layout
+
+    layout = legend_layout(tf, lo, hi, title, 400, 300)
+    positions, colours = legend_overlay.bar_triangles(layout, 300)
+    x0, y0, x1, y1 = layout.bar
+    assert positions.shape == (6 * (y1 - y0), 2) and colours.shape == (6 * (y1 - y0), 4)
+    assert positions[:, 1].max() == 300 - y0 and positions[:, 1].min() == 300 - y1  # region rows count up
+    assert scene.hovr.show_legend and legend_overlay._handle is None  # no viewport to draw on in background mode

@@ -97,6 +97,27 @@ def test_empty_and_faint_renders_are_warnings(factory_scene, tmp_path, capfd):
     assert any("image is empty" in w for w in warnings), warnings
 
 
+def test_frames_shaded_from_cached_segments_raise_no_empty_warning(factory_scene, tmp_path, capfd):
+    """Issue 30: from a view's third F12 on, and after a ramp edit, the frame is shaded from cached
+    segments (no field evaluations): the picture is there, and so no "empty" warning."""
+    from hovr_blender.ui import render
+
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    obj = bpy.context.active_object
+    bpy.ops.hovr.frame_volume()
+    first, warnings = f12(scene, tmp_path / "1.exr", capfd)
+    assert warnings == [] and coverage(first, scene.world.color) >= 0.10
+    for k in (2, 3):
+        again, warnings = f12(scene, tmp_path / f"{k}.exr", capfd)
+        assert warnings == [], (k, warnings)
+    assert render.FINAL.cache is not None  # the third F12 was shaded from the second's segments
+    np.testing.assert_allclose(again, first, atol=1e-5)
+    obj.hovr.transfer_function.color_ramp.elements[0].color = (1.0, 0.2, 0.1, 1.0)
+    edited, warnings = f12(scene, tmp_path / "edited.exr", capfd)
+    assert warnings == [] and np.abs(edited - first).max() > 1e-3
+
+
 def _tet_as(folder, mesh_name, solution_names):
     folder.mkdir(parents=True, exist_ok=True)
     shutil.copy(data_file("nektar", "Tet_channel_m3.xml"), folder / mesh_name)
@@ -122,3 +143,55 @@ def test_geometry_only_import_is_a_warning(factory_scene, tmp_path, capfd):
     out = capfd.readouterr().out
     assert "Warning: HOVR: lonely: no solution file: geometry only" in out
     assert volume(factory_scene).hovr.solution == ""
+
+
+@pytest.mark.parametrize("name,field,words", [
+    ("Tet_channel_m3.xml", "u", "zero up to rounding"),  # u is 0 up to +-1.7e-16
+    ("wss_3D_periodic.xml", "rho", "constant up to rounding"),  # rho is 0.0247601 everywhere
+])
+def test_a_field_constant_up_to_rounding_imports_with_a_warning_and_renders(factory_scene, tmp_path, capfd, name,
+                                                                            field, words):
+    """Issue 30: round-off is not stretched over the ramp, and a constant field does not fail at F12."""
+    scene = factory_scene
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", name))) == {'FINISHED'}
+    out = capfd.readouterr().out
+    obj = bpy.context.active_object
+    assert obj.hovr.field == field
+    assert any(line.startswith("Warning") and words in line for line in out.splitlines()), out
+    assert obj.hovr.value_max > obj.hovr.value_min
+    if words.startswith("zero"):
+        assert (obj.hovr.value_min, obj.hovr.value_max) == (-1.0, 1.0)
+    else:
+        assert obj.hovr.value_min < 0.0247601 < obj.hovr.value_max
+    scene.render.resolution_percentage = 2
+    img, warnings = f12(scene, tmp_path / "f12.exr", capfd)  # renders: no "Value Max > Value Min" error
+    assert img.shape[0] > 0
+    capfd.readouterr()
+    assert bpy.ops.hovr.fit_value_range() == {'FINISHED'}
+    assert words in capfd.readouterr().out
+
+
+def test_a_background_render_logs_a_few_progress_lines(factory_scene, tmp_path, capfd):
+    """Issue 30: in background mode (bpy is one) F12 says what it does, a few lines a frame:
+    Blender 5.0 printed nothing for 425 s, 4.2 printed ~900 "tracing rays" lines."""
+    scene = factory_scene
+    bpy.ops.hovr.add_sphere_volume()
+    bpy.ops.hovr.frame_volume()
+    scene.render.resolution_percentage = 10  # 192 x 108: many progress tiles
+    capfd.readouterr()
+    render_to_exr(scene, tmp_path / "f12.exr")
+    out = capfd.readouterr().out
+    tracing = [line for line in out.splitlines() if "tracing rays" in line]
+    assert 2 <= len(tracing) <= 12, out
+    assert any("HOVR | reading" in line for line in out.splitlines()), out
+    assert "tracing rays 100%" in tracing[-1]
+
+
+def test_per_face_import_warnings_are_summarised(factory_scene, capfd):
+    """Issue 30: Womersley's 136 per-face notes were repeated and ran into each other in one line."""
+    capfd.readouterr()
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", "Womersley_PipeFlow.xml"))) == {'FINISHED'}
+    out = capfd.readouterr().out
+    faces = [line for line in out.splitlines() if "curved triangle face" in line]
+    assert len(faces) == 1 and faces[0].startswith("Warning") and "more faces like it" in faces[0], out

@@ -43,6 +43,9 @@ def legacy_env(tmp_path_factory):
     env = dict(os.environ, BLENDER_USER_SCRIPTS=str(root / "scripts"), BLENDER_USER_CONFIG=str(root / "config"),
                HOVR_EXTRA_SITE=site)
     env.pop("PYTHONPATH", None)
+    # Debian's Blender takes the first python3.11 on PATH as sys.executable, which All CPU Cores'
+    # processes run: the system's, whose standard library is the one Blender loaded, not a shim's
+    env["PATH"] = os.pathsep.join(["/usr/bin", env.get("PATH", "")])
     return root, env
 
 
@@ -81,4 +84,15 @@ def test_viewport_screenshot_matches_f12(legacy_env):
           f"max {d.max()}")
     assert f12.std() > 5  # the volume is in the picture
     assert d.mean() < 0.5 and np.percentile(d, 99) <= 3 and d.max() < 40
+    # "All CPU Cores" from the Blender program: its processes neither re-run this script nor hang
+    every_core = np.asarray(Image.open(report["f12_all_cores"]).convert("RGB")).astype(float)
+    np.testing.assert_array_equal(every_core, f12)
+    # the colour legend over the Rendered viewport (ui/legend_overlay.py): its bar is drawn where
+    # the layout puts it, and nothing changes left of its labels
+    off = np.asarray(Image.open(report["legend_off"]).convert("RGB")).astype(int)
+    on = np.asarray(Image.open(report["legend_on"]).convert("RGB")).astype(int)
+    x0, y0, x1, y1 = report["legend_bar"]
+    top = H - (ry + _rh)  # the region's top row in the screenshot
+    bar = np.abs(on - off).max(axis=2)[top + y0: top + y1, rx + x0: rx + x1]
+    assert (bar > 0).mean() > 0.3, "the legend's bar is not drawn"
     assert Path(report["panels"]).is_file()  # the render panels drew (screenshot for the guide)

@@ -1,5 +1,7 @@
 """The add-on's non-Blender work (hovr_blender/ui/jobs.py), without Blender: a Job's steps,
 progress callback, result and error, and the compiled-kernel registry compiling a key once."""
+import numpy as np
+
 from hovr_blender.ui import jobs
 
 
@@ -51,3 +53,35 @@ def test_the_compile_loads_what_the_render_launches():
     assert kernels.compile_now(key) and kernels.is_ready(key)
     for kernel in render_kernels(variant, "float32"):
         assert kernel.module.execs, f"{kernel.key} not loaded"  # Warp's loaded module binaries
+
+
+def test_progress_lines_are_a_few_a_frame():
+    """Issue 30: Blender 4.2 printed ~900 progress lines for one frame; a background render's log
+    gets a line each 10 %, or each 30 s of a slow render, the first and the last."""
+    from hovr_blender.ui.jobs import ProgressLines
+
+    now = [0.0]
+    lines = ProgressLines(clock=lambda: now[0])
+    tiles = np.linspace(0.001, 1.0, 900)
+    printed = [f for f in tiles if lines.due(f)]
+    assert 10 <= len(printed) <= 12 and printed[0] == tiles[0] and printed[-1] == 1.0
+    slow = ProgressLines(clock=lambda: now[0])
+    shown = []
+    for k, f in enumerate(np.linspace(0.001, 0.05, 50)):  # 5 % in 500 s: a line each 30 s
+        now[0] = 10.0 * k
+        shown += [f] if slow.due(f) else []
+    assert 15 <= len(shown) <= 18
+
+
+def test_per_face_warnings_are_summarised():
+    """Issue 30: Womersley's 136 per-face notes (scaleHO's 4,676) become one line per kind, whole."""
+    from hovr_blender.ui.jobs import summarise_warnings
+
+    face = ("pipe.xml: curved triangle face {} (NodalTriElec, 15 points): interior point positions of this type are "
+            "not reproduced; the face follows its edge curves only")
+    warnings = [face.format(k) for k in (1, 102, 106, 109, 113, 120)] + ["|u|: magnitude fitted with 7 modes"]
+    lines = summarise_warnings(warnings)
+    assert lines == [face.format(1) + " (and 5 more faces like it: 102, 106, 109, 113, ...)",
+                     "|u|: magnitude fitted with 7 modes"]
+    assert summarise_warnings([f"kind {k}: x" for k in "abcdefg"], limit=3) == ["kind a: x", "kind b: x",
+                                                                                 "5 more kinds of warning"]

@@ -130,3 +130,24 @@ def test_field_samples_and_histogram_on_the_sphere():
     half = value_histogram(values, values.min(), np.median(values), 4)
     assert half.sum() == pytest.approx(0.5, abs=0.05)  # values above the range are not counted
     assert np.all(value_histogram([], 0.0, 1.0, 5) == 0)
+
+
+def test_value_range_of_a_field_constant_up_to_rounding():
+    """Issue 30: round-off is not shown as structure, and a constant field gets a usable range."""
+    from hovr_blender.ui.scene import value_range
+
+    rng = np.random.default_rng(0)
+    # Tet_channel_m3's u: zero up to +-1.7e-16
+    lo, hi, warning = value_range(rng.uniform(-1.7e-16, 1.5e-16, 500))
+    assert (lo, hi) == (-1.0, 1.0) and "zero up to rounding" in warning and "1.7e-16" in warning
+    assert value_range(np.zeros(10))[:2] == (-1.0, 1.0)
+    # wss_3D_periodic's rho: 0.0247601 everywhere, up to 1e-16
+    lo, hi, warning = value_range(0.0247601 + rng.uniform(0, 1.1e-16, 500))
+    assert lo < 0.0247601 < hi and np.isclose(0.5 * (lo + hi), 0.0247601) and np.float32(hi) > np.float32(lo)
+    assert "constant up to rounding" in warning and "0.0247601 everywhere" in warning
+    lo, hi, warning = value_range(np.full(7, -3.0))
+    assert (lo, hi) == (-4.5, -1.5) and warning.startswith("the field is constant: -3 everywhere")
+    # real variation keeps its exact range; one float32 cannot tell apart is widened by an ulp
+    assert value_range(np.array([0.5, 2.0, 1.0])) == (0.5, 2.0, None)
+    lo, hi, warning = value_range(np.array([1.0, 1.0 + 1e-9]))
+    assert warning is None and np.float32(hi) > np.float32(lo) and hi - lo < 1e-6

@@ -244,3 +244,98 @@ def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, ca
     assert err.startswith("hovr: warning: ") and "precision float64" in err
     assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_png_is_flattened_on_the_view_background_unless_asked_otherwise(tmp_path):
+    """Issue 30: the PNG shows what the .npy's RGB shows (no alpha a viewer would composite over
+    white); --png-background transparent keeps the volume alone with straight alpha, R,G,B
+    flattens on another colour."""
+    from PIL import Image
+
+    from hovr_blender.engine.image_io import to_png_bytes_rgba
+
+    p = write_view(tmp_path)
+    out = tmp_path / "o.npy"
+    pngs = {k: tmp_path / f"{k}.png" for k in ("default", "transparent", "white")}
+    for name, extra in (("default", []), ("transparent", ["--png-background", "transparent"]),
+                        ("white", ["--png-background", "1,1,1"])):
+        assert cli.main(["render", str(p), "-o", str(out), "--png", str(pngs[name]), *extra]) == 0
+    img = np.load(out).astype(np.float64)
+    default = Image.open(pngs["default"])
+    assert default.mode == "RGB"
+    np.testing.assert_array_equal(np.asarray(default), to_png_bytes_rgba(img)[..., :3])
+    transparent = np.asarray(Image.open(pngs["transparent"]))
+    assert transparent.shape[2] == 4 and transparent[0, 0, 3] == 0  # a missed ray: see-through
+    assert (transparent[..., 3] == 255).sum() < transparent[..., 3].size
+    white = np.asarray(Image.open(pngs["white"]), dtype=float)
+    assert white[0, 0].tolist() == [255, 255, 255]
+    with pytest.raises(SystemExit) as refused:  # argparse's one-line usage error
+        cli.main(["render", str(p), "-o", str(out), "--png", str(pngs["white"]), "--png-background", "2,0"])
+    assert refused.value.code == 2
+
+
+def test_png_pixels_recompose_the_contract_image():
+    """Flattened on the view's own background, the transparent PNG's straight alpha gives the
+    contract's RGB back; flattened on a colour, it is C + T colour."""
+    from hovr_blender.engine.image_io import png_pixels
+
+    rng = np.random.default_rng(1)
+    background = np.array([0.1, 0.2, 0.3])
+    alpha = rng.uniform(0, 1, (5, 6, 1))
+    alpha[0, 0] = 0.0
+    emitted = alpha * rng.uniform(0, 1, (5, 6, 3))  # C <= 1 - T for colours within 0..1
+    rgba = np.concatenate([emitted + (1 - alpha) * background, alpha], axis=2)
+    view = png_pixels(rgba, background)
+    np.testing.assert_array_equal(view[..., :3], rgba[..., :3])
+    assert (view[..., 3] == 1).all()
+    straight = png_pixels(rgba, background, "transparent")
+    np.testing.assert_allclose(straight[..., :3] * straight[..., 3:] + (1 - straight[..., 3:]) * background,
+                               rgba[..., :3], atol=1e-12)
+    np.testing.assert_allclose(png_pixels(rgba, background, (1.0, 1.0, 1.0))[..., :3], emitted + (1 - alpha), atol=1e-12)
+    with pytest.raises(ValueError, match="PNG background"):
+        png_pixels(rgba, background, "checkerboard")
+
+
+def test_png_legend_shows_the_ramp_and_its_values(tmp_path):
+    """Issue 30: --legend draws the transfer function's bar, its values and the field's name at the
+    PNG's right edge (engine/legend.py, the layout Blender's viewport overlay draws too)."""
+    from PIL import Image
+
+    from hovr_blender.engine.image_io import srgb_encode
+    from hovr_blender.engine.legend import legend_layout, tf_value_range
+
+    p = write_view(tmp_path, dict(VIEW, image={"width": 160, "height": 120}))
+    plain, legend = tmp_path / "plain.png", tmp_path / "legend.png"
+    out = str(tmp_path / "o.npy")
+    assert cli.main(["render", str(p), "-o", out, "--png", str(plain)]) == 0
+    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--legend"]) == 0
+    a = np.asarray(Image.open(plain), dtype=int)
+    b = np.asarray(Image.open(legend), dtype=int)
+    view = View.load(p)
+    layout = legend_layout(view.transfer_function, *tf_value_range(view.transfer_function), "f", 160, 120,
+                           view.background)
+    x0, y0, x1, y1 = layout.bar
+    changed = np.abs(a - b).max(axis=2) > 0
+    assert changed[:, : x0 - 6 * layout.font_px].sum() == 0  # the picture itself is untouched
+    assert changed[y0, x0:x1].all() and changed[:, x0 - 4 * layout.font_px: x0].any()  # the bar, its labels
+    # the bar's top row is the largest value's colour over the background by its opacity
+    want = np.round(srgb_encode(layout.bar_rgb[0]) * 255)
+    np.testing.assert_allclose(b[y0, (x0 + x1) // 2], want, atol=1)
+    with pytest.raises(ValueError, match="legend: Value Max"):
+        legend_layout(view.transfer_function, 1.0, 1.0, "f", 40, 30)
+    assert cli.main(["render", str(p), "-o", out, "--legend"]) == 2  # it needs --png
+
+
+def test_legend_layout_labels_the_range_and_units():
+    from hovr_blender.engine.legend import legend_layout
+    from hovr_blender.engine.transfer_function import TransferFunction
+
+    tf = TransferFunction.from_rgba_ramp([0.0, 1.0], [(0, 0, 1, 0), (1, 0, 0, 1)], 2.0, -0.5, 2.5)
+    layout = legend_layout(tf, -0.5, 2.5, "p", 640, 480, background=(1, 1, 1), units="Pa")
+    texts = [t.text for t in layout.texts]
+    assert texts == ["2.5", "1.75", "1", "0.25", "-0.5", "p [Pa]"]
+    assert layout.text_rgb == (0.0, 0.0, 0.0)  # black on a light background
+    np.testing.assert_allclose(layout.bar_rgb[-1], [1, 1, 1], atol=0.01)  # the transparent end fades out
+    np.testing.assert_allclose(layout.bar_rgb[0], [1, 0, 0], atol=0.01)
+    x0, y0, x1, y1 = layout.bar
+    assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)

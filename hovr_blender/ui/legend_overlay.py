@@ -1,0 +1,90 @@
+"""The colour legend over the 3D viewport in Rendered shading with HOVR (Scene > HOVR > Legend):
+engine/legend.py's layout, which the CLI's `--legend` draws too, drawn here with gpu and blf in a
+POST_PIXEL draw handler. The legend is of the active volume (else the scene's first), its look as
+the panels show it. Colours are sRGB-encoded for the screen, as the Standard view transform shows
+the render."""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..engine.image_io import srgb_encode
+from ..engine.legend import Legend, legend_layout
+from . import compat
+
+_handle = None
+
+
+def legend_for_region(scene, region, space) -> Legend | None:
+    """The layout to draw in this 3D view region, or None (another engine or shading, the legend
+    off, no volume, a look that cannot be drawn). The legend is the active volume's, else the
+    scene's first."""
+    from .render import legend_volume_inputs
+
+    if scene is None or scene.render.engine != 'HOVR' or not getattr(scene.hovr, "show_legend", False):
+        return None
+    if space is None or space.type != 'VIEW_3D' or space.shading.type != 'RENDERED':
+        return None
+    active = bpy.context.view_layer.objects.active if bpy.context.view_layer is not None else None
+    obj = active if active is not None and active.hovr.is_volume else None
+    obj = obj or next((o for o in scene.objects if o.hovr.is_volume), None)
+    if obj is None:
+        return None
+    try:
+        tf, value_min, value_max, title = legend_volume_inputs(obj, scene)
+        world = scene.world.color if scene.world is not None else (0.0, 0.0, 0.0)
+        return legend_layout(tf, value_min, value_max, title, region.width, region.height, world)
+    except ValueError:
+        return None  # the render reports what is wrong with the look
+
+
+def bar_triangles(legend: Legend, region_height: int):
+    """(positions (6n, 2), colours (6n, 4)) of the bar's rows as triangles, Blender's region
+    coordinates (origin at the bottom left), display-encoded colours."""
+    x0, y0, x1, y1 = legend.bar
+    rows = np.arange(y1 - y0)
+    top, bottom = region_height - (y0 + rows), region_height - (y0 + rows + 1)
+    corners = np.stack([np.stack([np.full_like(rows, x0), bottom], 1), np.stack([np.full_like(rows, x1), bottom], 1),
+                        np.stack([np.full_like(rows, x1), top], 1), np.stack([np.full_like(rows, x0), bottom], 1),
+                        np.stack([np.full_like(rows, x1), top], 1), np.stack([np.full_like(rows, x0), top], 1)], 1)
+    colours = np.concatenate([srgb_encode(legend.bar_rgb), np.ones((len(rows), 1))], axis=1)
+    return corners.reshape(-1, 2).astype(np.float32), np.repeat(colours, 6, axis=0).astype(np.float32)
+
+
+def draw():
+    context = bpy.context
+    legend = legend_for_region(context.scene, context.region, context.space_data)
+    if legend is None:
+        return
+    import blf
+    import gpu
+    from gpu_extras.batch import batch_for_shader
+
+    height = context.region.height
+    positions, colours = bar_triangles(legend, height)
+    shader = compat.flat_color_shader()
+    batch_for_shader(shader, 'TRIS', {"pos": positions.tolist(), "color": colours.tolist()}).draw(shader)
+    font = 0
+    compat.blf_size(font, legend.font_px)
+    r, g, b = (float(c) for c in srgb_encode(np.asarray(legend.text_rgb)))
+    blf.color(font, r, g, b, 1.0)
+    gpu.state.blend_set('ALPHA')
+    for t in legend.texts:
+        w, h = blf.dimensions(font, t.text)
+        x = t.x - w if t.anchor == "right" else t.x
+        blf.position(font, x, height - t.y - 0.5 * legend.font_px * 0.7, 0)
+        blf.draw(font, t.text)
+    gpu.state.blend_set('NONE')
+
+
+def register():
+    global _handle
+    if _handle is None and not bpy.app.background:
+        _handle = bpy.types.SpaceView3D.draw_handler_add(draw, (), 'WINDOW', 'POST_PIXEL')
+
+
+def unregister():
+    global _handle
+    if _handle is not None:
+        bpy.types.SpaceView3D.draw_handler_remove(_handle, 'WINDOW')
+        _handle = None
