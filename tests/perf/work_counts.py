@@ -80,6 +80,10 @@ SCENES = {s.name: s for s in (
           (("vtu", "ngsolve_ball_poisson_hex_p6.vtu"),)),
     Scene("mfem_fichera", _data("vtu", "mfem_fichera_poisson_mixed_p4.vtu", field="u"),
           (("vtu", "mfem_fichera_poisson_mixed_p4.vtu"),)),
+    # 24 of its cells (tetrahedra, hexahedra, wedges at the re-entrant corner), vendored: a real
+    # curved VTU on a fresh clone
+    Scene("mfem_fichera_cells", _data("vtu", "mfem_fichera_cells_p4.vtu", field="u"),
+          (("vtu", "mfem_fichera_cells_p4.vtu"),)),
     Scene("pyfr_tgv", _data("vtu", "pyfr_tgv_hexprism_p4_t4.vtu", field="Pressure"),
           (("vtu", "pyfr_tgv_hexprism_p4_t4.vtu"),)),
 )}
