@@ -101,7 +101,8 @@ def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_
            "samples_per_ray": s["samples_per_ray"], "segments_per_ray": s["segments"] / (W * H),
            "curved_locates_per_ray": s["curved_locates"] / (W * H), "walks": s["walks"],
            "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict(),
-           "work_counts": work_counts(renderer._upload(opts.precision).precision.kernels, prof.ray_counts)}
+           "work_counts": work_counts(renderer._upload(opts.precision).precision.kernels, prof.ray_counts),
+           "lane_occupancy": prof.stats["lane_occupancy"], "regroup": renderer.regroup}
     if reference is not None:
         row["max_error_vs_float64"] = float(np.abs(best.rgba.astype(np.float64) - reference).max())
     return row
@@ -153,7 +154,7 @@ def run_datasets(args, out):
             continue
         tf = datasets.transfer_function(mesh)
         t0 = time.perf_counter()
-        r = Renderer(mesh, args.device)
+        r = Renderer(mesh, args.device, regroup=not args.no_regroup)
         load_kernels(r.kernel_variant, r.device, "float32")
         setup = time.perf_counter() - t0
         entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
@@ -213,7 +214,7 @@ def run_million(args, out):
     build = time.perf_counter() - t0
     print(f"million: {mesh.num_elements} elements ({copies} copies), built in {build:.1f} s", flush=True)
     t0 = time.perf_counter()
-    r = Renderer(mesh, args.device)
+    r = Renderer(mesh, args.device, regroup=not args.no_regroup)
     load_kernels(r.kernel_variant, r.device, "float32")
     setup = time.perf_counter() - t0
     V = mesh.vertices.reshape(-1, 3)
@@ -253,7 +254,7 @@ def cold_child(args):
 
     mesh, _ = datasets.load(args.cold_child)
     tf = datasets.transfer_function(mesh)
-    r = Renderer(mesh, args.device)
+    r = Renderer(mesh, args.device, regroup=not args.no_regroup)
     W, H = map(int, args.size.split("x"))
     t0 = time.perf_counter()
     res = r.render(_camera(mesh, W, H), tf, np.zeros(3), RenderOptions(method="split", device=args.device))
@@ -308,6 +309,8 @@ def main(argv=None):
     ap.add_argument("--tf-edits", type=int, default=4, help="transfer-function edits shaded from cached segments "
                     "per dataset and method (0: none)")
     ap.add_argument("--all", action="store_true", help="the datasets, then --million, in one run and one JSON")
+    ap.add_argument("--no-regroup", action="store_true", help="the rays in the order each round leaves them "
+                    "(Renderer(regroup=False)), to time the regrouping against it")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     if args.cold_child:

@@ -137,6 +137,7 @@ TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a CPU launch ti
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
+WARP_SIZE = 32  # the rays a GPU warp runs together: the work counts' divergence blocks, lane occupancy
 # a ray's work in the units of one field evaluation, from its counters (kernels/args.py STAT_*):
 # each element segment and each curved location costs about a Newton solve's evaluations, and a
 # ray a few for its search and finalize. A load-balancing estimate, not a timing model.
@@ -246,9 +247,12 @@ def sample_stride(mesh: VolumeMesh, geo_degree) -> int:
 class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
-    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None):
+    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None,
+                 regroup: bool = True):
         # bounds the per-render buffers (about 4 kB a ray in float32); None: from the device's memory
         self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
+        # the rays regrouped between rounds (_regroup); False: in the order the last round left them
+        self.regroup = bool(regroup)
         self.device = resolve_device(device)
         self.mesh = mesh
         self._id = next(_RENDERER_IDS)
@@ -368,7 +372,10 @@ class Renderer:
         # a curved slot refined (degree doubled) goes on one of these for its odd points
         again = [zeros(slots, wp.int32) for _ in range(2)]
         again_count = [zeros(1, wp.int32) for _ in range(2)]
-        return _TileBuffers(rays, segs, again, again_count, sum(a.capacity for a in allocated))
+        # the next round's list sorted by regroup_keys (radix sort: room for twice the rays)
+        sort_keys = zeros(2 * tile, wp.int64)
+        sort_values = zeros(2 * tile, wp.int32)
+        return _TileBuffers(rays, segs, again, again_count, sort_keys, sort_values, sum(a.capacity for a in allocated))
 
     def _launch_tile(self, prec, rays: int, progress, tile_pixels) -> int:
         """Rays per launch tile of a render of `rays` rays: the progress/cancel unit (tile_pixels,
@@ -584,9 +591,10 @@ class Renderer:
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
+            lanes = _LaneCounts() if ray_counts else None
             for start in range(first, end, tile):
                 n = min(tile, end - start)
-                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit)
+                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes)
                 launch("finalize", n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
@@ -617,16 +625,17 @@ class Renderer:
                 "parameters": options.as_dict(), **_counter_stats(kernels, counts, end - first), "rounds": rounds,
                 **({"rows": [row0, row1]} if rows is not None else {}),
                 **({"kernel_seconds": launch.seconds} if profile else {}),
+                **({"lane_occupancy": lanes.occupancy()} if lanes is not None else {}),
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
                             stats=info, row_cost=row_cost, ray_counts=per_ray)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
-                    n: int, limit: tuple, record=None) -> int:
+                    n: int, limit: tuple, record=None, lanes: _LaneCounts | None = None) -> int:
         """Rays start .. start + n of the image, in rounds until none is left: search, traverse,
-        sample, integrate (or record(active rays): a trace keeps the segments instead).
-        Returns the rounds."""
-        kernels = upload.precision.kernels
+        sample, integrate (or record(active rays): a trace keeps the segments instead), the next
+        round's rays regrouped (_regroup). With `lanes`, the lanes of each search and traverse
+        launch that have work are counted. Returns the rounds."""
         rays, segs = buffers.rays, buffers.segs
         launch("init_rays", n, [cam, start, rays, *limit])
         active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
@@ -634,7 +643,13 @@ class Renderer:
         while active > 0:
             rays.active_count.zero_()
             segs.list_count.zero_()
+            if lanes is not None:
+                lanes.count("search", rays, active)
             launch("search", active, [upload.mesh_args, cam, start, rays])
+            if self.regroup and active > WARP_SIZE:  # the rays that walk on by element, those done last
+                self._regroup(launch, buffers, active)
+            if lanes is not None:
+                lanes.count("traverse", rays, active)
             launch("traverse", active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
@@ -648,16 +663,29 @@ class Renderer:
             rounds += 1
             active = int(rays.active_count.numpy()[0])
             rays.active, rays.active_next = rays.active_next, rays.active
+            if self.regroup and active > WARP_SIZE:  # the rays that search first
+                self._regroup(launch, buffers, active)
             if rounds > MAX_ROUNDS_PER_TILE:
                 raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
                                   f"still going): a bug, please report it with the data")
         return rounds
 
+    def _regroup(self, launch: _Launcher, buffers: _TileBuffers, active: int):
+        """The list of rays (rays.active) sorted by kernels.regroup_keys: the rays that search first,
+        then by the element each walks into, then those whose walk is over, each group in pixel
+        order, so the lanes of a warp search together or walk the same element (the atomic
+        compaction that builds each round's list leaves the rays in any order on a GPU). Run before
+        each round's search and before its traverse. Each ray's work is its own: no image or count
+        changes."""
+        rays = buffers.rays
+        launch("regroup_keys", active, [rays, buffers.sort_keys, buffers.sort_values])
+        wp.utils.radix_sort_pairs(buffers.sort_keys, buffers.sort_values, active)
+        wp.copy(rays.active, buffers.sort_values, count=active)
+
     def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers) -> int:
         """The samples of the segments traverse listed, then their Chebyshev coefficients; curved
         interpolants whose tail is too large get their degree doubled (twice at most). Returns how
         many segments were listed."""
-        kernels = upload.precision.kernels
         rays, segs, again, again_count = buffers.rays, buffers.segs, buffers.again, buffers.again_count
         listed = int(segs.list_count.numpy()[0])
         if listed == 0:
@@ -890,7 +918,31 @@ class _TileBuffers:
     segs: object  # kernels.Segments
     again: list  # per refine pass: the slots whose degree it doubled (their odd points to sample)
     again_count: list
+    sort_keys: object  # the next round's list and its keys while they are sorted (Renderer._regroup)
+    sort_values: object
     nbytes: int
+
+
+class _LaneCounts:
+    """For render(ray_counts=True): per kernel, the lanes of its launches' 32-lane groups (the
+    round's list in order, as a GPU's warps take it) that have work, over the lanes of the groups
+    that have any (occupancy 1: a warp's lanes all work; 1/32: one works while 31 wait). Read on
+    the host before each launch (a measurement: it waits for the device)."""
+
+    def __init__(self):
+        self.busy = {"search": 0, "traverse": 0}
+        self.lanes = {"search": 0, "traverse": 0}
+
+    def count(self, kernel: str, rays, active: int):
+        ids = rays.active.numpy()[:active]
+        nxt, phase = rays.next_element.numpy()[ids], rays.phase.numpy()[ids]
+        work = (phase == 0) & ((nxt < 0) if kernel == "search" else (nxt >= 0))
+        groups = np.pad(work, (0, -active % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        self.busy[kernel] += int(groups.sum())
+        self.lanes[kernel] += WARP_SIZE * int(groups.any(axis=1).sum())
+
+    def occupancy(self) -> dict:
+        return {k: self.busy[k] / self.lanes[k] if self.lanes[k] else 1.0 for k in self.busy}
 
 
 class _Launcher:
@@ -1169,9 +1221,6 @@ def ray_cost(kernels, counts: np.ndarray, rays: int | np.ndarray = 1) -> np.ndar
     return (counts[..., kernels.STAT_FIELD_EVALS] + counts[..., kernels.STAT_RESTRICTION_EVALS]
             + RAY_COST_SEGMENT * counts[..., kernels.STAT_SEGMENTS] + RAY_COST_LOCATE * counts[..., kernels.STAT_LOCATES]
             + RAY_COST_BASE * np.asarray(rays, dtype=np.float64))
-
-
-WARP_SIZE = 32  # the rays a GPU warp runs together: the work counts' divergence blocks
 
 
 def work_counts(kernels, ray_counts: np.ndarray) -> dict:

@@ -12,7 +12,8 @@ A render of a tile runs init_rays once (kernels/rays.py), then rounds of
    colour, transmittance, depth and error, and puts itself on the next round's list if it is not
    done (step_terms before it: classified's own step);
 until no ray is left, then finalize writes the pixels. Rounds run over the list of rays still
-going (no thread is spent on a finished ray). Separate kernels keep each small: the search (BVH,
+going (no thread is spent on a finished ray), regrouped between rounds (regroup_keys: the rays
+that search side by side, then the rays of one element). Separate kernels keep each small: the search (BVH,
 locating curved candidates), the walk (Newton, element evaluation) and the quadrature never hold
 their registers at the same time, and each compiles quickly.
 
@@ -33,15 +34,15 @@ from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDAT
 from .cache import shade, sum_counts, trace_ends, trace_reserve, trace_write
 from .entry import make_search_kernel
 from .integrate import finalize, integrate, step_terms
-from .rays import camera_ray, init_rays
+from .rays import camera_ray, init_rays, regroup_keys
 from .walk import coefficients, make_sample_kernel, make_traverse_kernel, pyramid_piece_end, refine
 
 # The kernels by name, the one list: the renderer loads, launches and times them by these names
 # (kernel_table), a render, a trace and a shade each launching their own.
 RENDER_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "step_terms", "integrate",
-                  "finalize")
+                  "regroup_keys", "finalize")
 TRACE_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "trace_reserve", "trace_write",
-                 "trace_ends")
+                 "regroup_keys", "trace_ends")
 SHADE_KERNELS = ("shade", "sum_counts")
 
 _WALK = {}
@@ -69,6 +70,6 @@ def kernel_table(curved: bool, modes: int = 0) -> dict:
     table = {"init_rays": init_rays, "search": search, "traverse": traverse, "sample": sample, "refine": refine,
              "coefficients": coefficients, "step_terms": step_terms, "integrate": integrate, "finalize": finalize,
              "trace_reserve": trace_reserve, "trace_write": trace_write, "trace_ends": trace_ends, "shade": shade,
-             "sum_counts": sum_counts}
+             "sum_counts": sum_counts, "regroup_keys": regroup_keys}
     assert set(table) == set(RENDER_KERNELS + TRACE_KERNELS + SHADE_KERNELS)
     return table

@@ -1,6 +1,6 @@
 """What every ray kernel shares (kernels/raycast.py: the rounds): the pixel's ray, the start of a
-tile's rays (init_rays), an affine element's exact clip, and the register caps and unrolling the
-walk's kernels compile with."""
+tile's rays (init_rays), the keys that regroup the rays between rounds (regroup_keys), an affine
+element's exact clip, and the register caps and unrolling the walk's kernels compile with."""
 from __future__ import annotations
 
 import warp as wp
@@ -80,3 +80,18 @@ def walk_options(CURVED: bool) -> dict:
     # The curved kernels inline Newton solves at several call sites: unrolling their fixed
     # loops costs NVRTC time, not speed (bench/results/h100/compile_unroll.json).
     return {"max_unroll": 4} if CURVED else {}
+
+
+@wp.kernel(enable_backward=False)
+def regroup_keys(rays: RayState, keys: wp.array(dtype=wp.int64), values: wp.array(dtype=wp.int32)):
+    """Sort keys for the list of rays (rays.active), one thread per ray on it: the rays that search
+    first (next element -1), then the rays of each element they walk into, then the rays whose
+    walk is over (phase not 0), each group in pixel order; sorted by them a warp's lanes take one
+    path (Renderer._regroup)."""
+    k = wp.tid()
+    i = rays.active[k]
+    group = rays.next_element[i] + 1
+    if rays.phase[i] != 0:
+        group = 2147483646
+    keys[k] = wp.int64(group) * wp.int64(2147483647) + wp.int64(i)  # i < 2^31 - 1
+    values[k] = i
