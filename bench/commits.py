@@ -182,7 +182,7 @@ def main(argv=None):
         write_views(args.size, args.out)
         return 0
     names = [n for n in args.only.split(",") if n]
-    views = sorted(os.path.join(args.views, f) for f in os.listdir(args.views) if f.endswith(".json")
+    views = sorted(os.path.abspath(os.path.join(args.views, f)) for f in os.listdir(args.views) if f.endswith(".json")
                    and (not names or f[:-5] in names))
     trees = [tuple(s.split("=", 1)) for s in args.tree]
     from bench.common import command_line
