@@ -591,7 +591,7 @@ class Renderer:
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
-            lanes = _LaneCounts() if ray_counts else None
+            lanes = _LaneCounts(kernels) if ray_counts else None
             for start in range(first, end, tile):
                 n = min(tile, end - start)
                 rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes)
@@ -644,13 +644,15 @@ class Renderer:
             rays.active_count.zero_()
             segs.list_count.zero_()
             if lanes is not None:
-                lanes.count("search", rays, active)
+                lanes.count("search", rays, active, start)
             launch("search", active, [upload.mesh_args, cam, start, rays])
             if self.regroup and active > WARP_SIZE:  # the rays that walk on by element, those done last
                 self._regroup(launch, buffers, active)
             if lanes is not None:
-                lanes.count("traverse", rays, active)
+                lanes.count("traverse", rays, active, start)
             launch("traverse", active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            if lanes is not None:
+                lanes.walked(rays)
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
                 if listed and quad.method == METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
@@ -926,23 +928,44 @@ class _TileBuffers:
 class _LaneCounts:
     """For render(ray_counts=True): per kernel, the lanes of its launches' 32-lane groups (the
     round's list in order, as a GPU's warps take it) that have work, over the lanes of the groups
-    that have any (occupancy 1: a warp's lanes all work; 1/32: one works while 31 wait). Read on
-    the host before each launch (a measurement: it waits for the device)."""
+    that have any (occupancy 1: a warp's lanes all work; 1/32: one works while 31 wait); and the
+    traverse launches' divergence: over the groups with work, the mean of each group's largest
+    lane's walk work (Newton iterations and steps) over its lanes' mean. Read on the host around
+    the launches (a measurement: it waits for the device)."""
 
-    def __init__(self):
+    def __init__(self, kernels):
+        self.kernels = kernels
         self.busy = {"search": 0, "traverse": 0}
         self.lanes = {"search": 0, "traverse": 0}
+        self.walk_ratio, self.walk_groups = 0.0, 0
+        self._walking = None
 
-    def count(self, kernel: str, rays, active: int):
+    def count(self, kernel: str, rays, active: int, pixel_offset: int):
         ids = rays.active.numpy()[:active]
         nxt, phase = rays.next_element.numpy()[ids], rays.phase.numpy()[ids]
         work = (phase == 0) & ((nxt < 0) if kernel == "search" else (nxt >= 0))
         groups = np.pad(work, (0, -active % WARP_SIZE)).reshape(-1, WARP_SIZE)
         self.busy[kernel] += int(groups.sum())
         self.lanes[kernel] += WARP_SIZE * int(groups.any(axis=1).sum())
+        if kernel == "traverse":
+            self._walking = (ids + pixel_offset, self._walk_work(rays, ids + pixel_offset))
+
+    def _walk_work(self, rays, pixels):
+        c = rays.stats.numpy()[pixels]
+        return c[:, self.kernels.STAT_NEWTON_WALK].astype(np.int64) + c[:, self.kernels.STAT_WALKS]
+
+    def walked(self, rays):
+        """After a traverse launch: its lanes' work (counted since count("traverse", ...))."""
+        pixels, before = self._walking
+        work = np.pad(self._walk_work(rays, pixels) - before, (0, -len(pixels) % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        busy = work.max(axis=1) > 0
+        self.walk_ratio += float((work[busy].max(axis=1) / work[busy].mean(axis=1)).sum())
+        self.walk_groups += int(busy.sum())
 
     def occupancy(self) -> dict:
-        return {k: self.busy[k] / self.lanes[k] if self.lanes[k] else 1.0 for k in self.busy}
+        out = {k: self.busy[k] / self.lanes[k] if self.lanes[k] else 1.0 for k in self.busy}
+        out["traverse_divergence"] = self.walk_ratio / self.walk_groups if self.walk_groups else 1.0
+        return out
 
 
 class _Launcher:

@@ -56,9 +56,10 @@ def test_divergence_figure():
 
 def test_regrouping_changes_no_pixel_or_count_and_fills_the_warps():
     """Regrouping the list of rays before each search and traverse (the rays that search, then
-    by element, then those done) leaves every pixel and every ray's work as it was, and raises the
-    share of each 32-lane group's lanes that work in those launches (hump3D; on the CPU the list
-    is in pixel order before it, where a GPU's atomic compaction leaves it in any order)."""
+    by element, then those done) leaves every pixel and every ray's work as it was, raises the
+    share of each 32-lane group's lanes that work in those launches, and evens the walk's work
+    across a group's lanes (hump3D; on the CPU the list is in pixel order before it, where a
+    GPU's atomic compaction leaves it in any order)."""
     scene = wc.SCENES["hump3D"]
     if wc.missing_files(scene):
         pytest.skip(f"data file {', '.join(wc.missing_files(scene))} not found")
@@ -73,3 +74,4 @@ def test_regrouping_changes_no_pixel_or_count_and_fills_the_warps():
     assert np.array_equal(res[False].ray_counts, res[True].ray_counts)
     before, after = res[False].stats["lane_occupancy"], res[True].stats["lane_occupancy"]
     assert after["search"] > before["search"] and after["traverse"] > before["traverse"]
+    assert 1.0 <= after["traverse_divergence"] < before["traverse_divergence"]
