@@ -305,6 +305,15 @@ def _rows(c):
     return c.reshape(c.shape[0], int(np.prod(c.shape[1:])))
 
 
+def determinant_series(shape, modes, G) -> np.ndarray:
+    """(n, N0, N1, N2): the tensor Chebyshev series in u of q(u) = det J(xi(u)) of elements with
+    geometry G (n, K, 3), N_d = determinant_degrees + 1 (exact up to rounding)."""
+    shape, modes = int(shape), tuple(int(m) for m in modes)
+    G = np.asarray(G, dtype=np.float64).reshape(-1, ex.num_coeffs(shape, modes), 3)
+    Gc, centre = _centred(shape, modes, G)
+    return _roots(shape, modes, Gc, centre, tuple(d + 1 for d in determinant_degrees(shape, modes))).coeffs
+
+
 def _series_bound(c):
     """(B,) c_000 - sum of |c| over the other coefficients: a lower bound of the series."""
     flat = _rows(c)
