@@ -19,7 +19,10 @@ sum |c_k| over the other coefficients; the bound is exact for the linear part. W
 inconclusive the box is halved along the axis carrying most of the non-linear coefficients and
 each half re-expanded exactly (a fixed N x N matrix per half: T_k stays within [-1, 1] on a half,
 so the map is well conditioned, unlike Bernstein conversion at these degrees), breadth first,
-up to MAX_BOXES boxes per element. Every box also has its Jacobian determinant evaluated at its
+up to MAX_BOXES boxes per element. A box on which q is monotone along an axis (its pure linear
+coefficient outweighs the other terms' derivative, |T_k'| <= k^2) is replaced by the face where
+q is least, so a minimum on an edge or a corner -- where near-degenerate elements have it -- is
+bounded in the lower dimension. Every box also has its Jacobian determinant evaluated at its
 corners, edge and face midpoints and centre, so a sign change is found where it is.
 
 Float64 rounding is bounded to first order and subtracted from every bound: the sampled Jacobian
@@ -55,7 +58,7 @@ MAX_BOXES = 512  # sub-boxes examined per element before it is refused as not ce
 VALID, INVERTED, DEGENERATE, UNCERTIFIED, OVERFLOW = range(5)
 
 _EPS = np.finfo(np.float64).eps
-_CHUNK = 1 << 22  # Jacobian entries per sampling chunk (bounds memory)
+_CHUNK = 1 << 20  # Jacobian entries per sampling chunk (bounds memory)
 _STRAIGHT = (2, 2, 2)  # modes of the vertex map
 _LOCAL = np.array([-1.0, 0.0, 1.0])  # each box's determinant is evaluated on this grid
 
@@ -86,7 +89,6 @@ class _Axis:
     points: np.ndarray  # (n,) first-kind points, inside (-1, 1)
     transform: np.ndarray  # (n, n) coefficients = transform @ values at the points
     halves: tuple  # (n, n) x 2: re-expansion on [-1, 0] and on [0, 1]
-    derivative: np.ndarray  # (n, n) coefficients of the derivative = derivative @ coefficients
     split_growth: float  # max column sum of |half|: a re-expansion's rounding per unit 1-norm
     lebesgue: float  # the points' Lebesgue constant (bound)
     local: np.ndarray  # (3, n) T_k at _LOCAL
@@ -98,13 +100,10 @@ def _axis(n: int) -> _Axis:
     V = chebyshev.chebvander(t, n - 1)  # V[j, k] = T_k(t_j)
     transform = V.T * (np.where(np.arange(n) == 0, 1.0, 2.0) / n)[:, None]  # discrete orthogonality
     halves = tuple(transform @ chebyshev.chebvander(0.5 * (t + s), n - 1) for s in (-1.0, 1.0))
-    derivative = np.zeros((n, n))
-    for k in range(1, n):
-        derivative[:n - 1, k] = chebyshev.chebder(np.eye(n)[k])
     growth = max(np.abs(h).sum(axis=0).max() for h in halves)
-    for a in (t, transform, *halves, derivative):
+    for a in (t, transform, *halves):
         a.setflags(write=False)
-    return _Axis(t, transform, halves, derivative, float(growth), 2.0 / np.pi * np.log(n + 1.0) + 1.0,
+    return _Axis(t, transform, halves, float(growth), 2.0 / np.pi * np.log(n + 1.0) + 1.0,
                  chebyshev.chebvander(_LOCAL, n - 1))
 
 
@@ -399,19 +398,20 @@ def _full_pass(shape, modes, G, centre, tolerance, max_boxes, out, index):
     examined = np.ones(n, np.int64)
     coeffs, allowance, element = r.coeffs, r.allowance.copy(), np.arange(n)  # the open boxes
     lo, hi = np.full((n, 3), -1.0), np.full((n, 3), 1.0)
-    nonlinear = [_nonlinear_mask(sizes, d) for d in range(3)]
     while coeffs.shape[0]:
         _lowest_of_boxes(shape, coeffs, lo, hi, element, axes, lowest, where)
         bad = (status < 0) & (lowest <= tolerance * scale)
         status[bad] = np.where(lowest[bad] < -tolerance * scale[bad], INVERTED, DEGENERATE)
         live = np.flatnonzero(status[element] < 0)
         coeffs, allowance, element, lo, hi = coeffs[live], allowance[live], element[live], lo[live], hi[live]
-        bound = _series_bound(coeffs) - allowance
+        sums = _sums(coeffs)
+        bound = _bound(coeffs, sums) - allowance
         loose = np.flatnonzero(bound < -tolerance * scale[element])
         if loose.size:
-            c, al, l2, h2 = _restrict_monotone(coeffs[loose], allowance[loose], lo[loose], hi[loose], axes)
-            coeffs[loose], allowance[loose], lo[loose], hi[loose] = c, al, l2, h2
-            bound[loose] = _series_bound(c) - al
+            c, al, l2, h2, su = _restrict_monotone(coeffs[loose], allowance[loose], lo[loose], hi[loose], sums[loose],
+                                                   axes)
+            coeffs[loose], allowance[loose], lo[loose], hi[loose], sums[loose] = c, al, l2, h2, su
+            bound[loose] = _bound(c, su) - al
         closed = bound >= -tolerance * scale[element]
         np.minimum.at(lower_leaves, element[closed], bound[closed])
         open_ = ~closed
@@ -426,7 +426,7 @@ def _full_pass(shape, modes, G, centre, tolerance, max_boxes, out, index):
         examined += 2 * counts
         keep = np.flatnonzero(open_)
         coeffs, allowance, element, lo, hi = _split(coeffs[keep], allowance[keep], element[keep], lo[keep],
-                                                    hi[keep], axes, nonlinear)
+                                                    hi[keep], sums[keep], axes)
     lower = np.where((status < 0) | (status == UNCERTIFIED), lower_leaves, lower_root)
     status[status < 0] = VALID  # no open box left
     lower[status == OVERFLOW] = np.nan
@@ -434,63 +434,81 @@ def _full_pass(shape, modes, G, centre, tolerance, max_boxes, out, index):
     out.where[index], out.scale[index], out.boxes[index] = where, scale, examined
 
 
-def _nonlinear_mask(sizes, d):
-    """Coefficients that vary with u_d, less the pure linear one: what halving along d shrinks."""
+@lru_cache(maxsize=None)
+def _weights(sizes) -> np.ndarray:
+    """(S, 7): sum |c| times these columns gives: the 1-norm; per axis d the coefficients that
+    vary with u_d less the pure linear one (what halving along d shrinks); per axis d a bound
+    of the derivative along u_d of every term but the pure linear one (|T_k'| <= k^2)."""
     k = np.meshgrid(*(np.arange(n) for n in sizes), indexing="ij")
-    mask = k[d] >= 1
-    if sizes[d] > 1:
-        linear = [0, 0, 0]
-        linear[d] = 1
-        mask[tuple(linear)] = False
-    return mask.astype(np.float64)
+    nonlinear, slope = [], []
+    for d in range(3):
+        pure = np.zeros(sizes, bool)
+        if sizes[d] > 1:
+            linear = [0, 0, 0]
+            linear[d] = 1
+            pure[tuple(linear)] = True
+        nonlinear.append((k[d] >= 1) & ~pure)
+        slope.append(np.where(pure, 0.0, k[d].astype(np.float64) ** 2))
+    W = np.stack([np.ones(sizes)] + nonlinear + slope, axis=-1).reshape(-1, 7).astype(np.float64)
+    W.setflags(write=False)
+    return W
 
 
-def _restrict_monotone(c, allowance, lo, hi, axes):
-    """Boxes on which det J is monotone along an axis (its derivative's series bound, less the
-    rounding's by Markov's inequality, keeps one sign) replaced by the face where it is least."""
-    c, allowance, lo, hi = c.copy(), allowance.copy(), lo.copy(), hi.copy()
+def _sums(c):
+    """(B, 7): the boxes' weighted coefficient sums (_weights)."""
+    return _rows(np.abs(c)) @ _weights(c.shape[1:])
+
+
+def _bound(c, sums):
+    """(B,) c_000 - sum of |c| over the other coefficients."""
+    c0 = c[:, 0, 0, 0]
+    return c0 + np.abs(c0) - sums[:, 0]
+
+
+def _restrict_monotone(c, allowance, lo, hi, sums, axes):
+    """Boxes on which det J is monotone along an axis replaced by the face where it is least:
+    the pure linear coefficient outweighs the bound of the other terms' derivative, less the
+    rounding's (Markov's inequality)."""
+    c, allowance, lo, hi, sums = c.copy(), allowance.copy(), lo.copy(), hi.copy(), sums.copy()
     for d, ax in enumerate(axes):
         n = ax.points.size
         if n == 1:
             continue
-        wide = np.flatnonzero(lo[:, d] < hi[:, d])
-        if not wide.size:
-            continue
-        slope = _along(c[wide], ax.derivative, d)
-        slack = (n - 1) ** 2 * allowance[wide]
-        rising = _series_bound(slope) >= slack
-        falling = ~rising & (_series_bound(-slope) >= slack)
-        for sel, row in ((wide[rising], 0), (wide[falling], 2)):
+        index = [slice(None), 0, 0, 0]
+        index[d + 1] = 1
+        linear = c[tuple(index)]
+        slack = (n - 1) ** 2 * allowance + sums[:, 4 + d]
+        wide = lo[:, d] < hi[:, d]
+        for sel, row in ((np.flatnonzero(wide & (linear >= slack)), 0), (np.flatnonzero(wide & (-linear >= slack)), 2)):
             if not sel.size:
                 continue
             face = np.zeros_like(c[sel])
             index = [slice(None)] * 4
             index[d + 1] = slice(0, 1)
             face[tuple(index)] = _along(c[sel], ax.local[row:row + 1], d)
-            allowance[sel] += _gamma(n) * _rows(np.abs(c[sel])).sum(axis=1)
+            allowance[sel] += _gamma(n) * sums[sel, 0]
             c[sel] = face
+            sums[sel] = _sums(face)
             end = lo[sel, d] if row == 0 else hi[sel, d]
             lo[sel, d] = hi[sel, d] = end
-    return c, allowance, lo, hi
+    return c, allowance, lo, hi, sums
 
 
-def _split(c, allowance, element, lo, hi, axes, nonlinear):
+def _split(c, allowance, element, lo, hi, sums, axes):
     """Each box halved along its loosest axis: the halves' series, allowances, elements and
     corners."""
     if not c.shape[0]:
         return c, allowance, element, lo, hi
-    a = np.abs(c)
-    score = np.stack([_rows(a * m).sum(axis=1) for m in nonlinear], axis=1)
+    score = sums[:, 1:4].copy()
     score[lo >= hi] = -1.0  # a face: nothing to halve
     axis = score.argmax(axis=1)
-    norm1 = _rows(a).sum(axis=1)
     parts = []
     for d in range(3):
         sel = np.flatnonzero(axis == d)
         if not sel.size:
             continue
         mid = 0.5 * (lo[sel, d] + hi[sel, d])
-        rounding = _gamma(axes[d].points.size) * axes[d].split_growth * norm1[sel]
+        rounding = _gamma(axes[d].points.size) * axes[d].split_growth * sums[sel, 0]
         for half, M in enumerate(axes[d].halves):
             l2, h2 = lo[sel].copy(), hi[sel].copy()
             (h2 if half == 0 else l2)[:, d] = mid
