@@ -172,7 +172,7 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
             continue
         G2 = np.einsum("kv,evc->ekc", _vertex_inverse(shape), V)  # straight geometry (ne, K2, 3)
         G = _mapped_geometry(shape, geometry_modes, G2, cmap) if curved else G2
-        _check_jacobians(shape, geometry_modes, G)
+        _check_jacobians(shape, geometry_modes, G, len(geoms) + np.arange(len(G)))
         field_points = ex.fit_points(shape, field_modes)
         X = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, geometry_modes, field_points), G)
         vals = np.asarray(source(X[..., 0], X[..., 1], X[..., 2]), dtype=np.float64)  # (ne, P)
@@ -277,10 +277,10 @@ def jacobian_determinants(shape, geometry_modes, G, pts) -> np.ndarray:
     return np.moveaxis(np.linalg.det(J), 0, 1)
 
 
-def _check_jacobians(shape, geometry_modes, G):
-    """MeshError for the first element not certified valid (engine/validity.py)."""
+def _check_jacobians(shape, geometry_modes, G, ids):
+    """MeshError for the first element not certified valid (engine/validity.py), named by ids."""
     try:
-        validity.check_elements(shape, geometry_modes, G)
+        validity.check_elements(shape, geometry_modes, G, ids)
     except MeshError as exc:
         raise MeshError(f"{exc}: lower the curvature") from None
 
@@ -309,7 +309,7 @@ def curved_copy(mesh: VolumeMesh, displacement, geom_modes: int = 3) -> VolumeMe
             raise MeshError("curved_copy needs 2 geometry modes (straight elements)")
         G2 = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(k2)[None, :]]
         G = _mapped_geometry(shape, modes, G2, phi)
-        _check_jacobians(shape, modes, G)
+        _check_jacobians(shape, modes, G, idx)
         for j, e in enumerate(idx):
             geoms[e] = G[j]
     return VolumeMesh.from_elements(mesh.shape, mesh.modes, [mesh.element_coeffs(e) for e in range(n)],
