@@ -17,6 +17,7 @@ from hovr_blender.engine import shapes, validity
 from hovr_blender.engine.mesh import MeshError
 from hovr_blender.io.synthetic import curved_cube
 from hovr_blender.io.vtu import VtuError, read_vtu
+from hovr_blender.io.sources import VolumeSource, load_volume
 from tests.helpers import data_file, folded_hex_map, lagrange_hex_vtu
 
 SHAPES = [shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR]
@@ -191,6 +192,31 @@ def test_overflowing_geometry_is_named():
     G = geometry(shapes.HEX, (3, 3, 3), lambda xi: 1e300 * xi)
     with pytest.raises(MeshError, match=r"^element 0: hexahedron geometry too large for double precision"):
         validity.check_elements(shapes.HEX, (3, 3, 3), G)
+
+
+# every real file: (kind, mesh, solution, field); the large ones marked slow
+REAL_FILES = [
+    ("nektar", "CubeAllElements.xml", "", ""), ("nektar", "Helmholtz3D_Pyr_Deformed.xml", "", ""),
+    ("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml", "Hex_01_01_01_03Modes_x2_Offset3.fld", ""),
+    ("nektar", "Hex_CurvedFace.xml", "Hex_CurvedFace.fld", ""), ("nektar", "Hex_Mushroom.xml", "Hex_Mushroom.fld", ""),
+    ("nektar", "Pyr_channel_m6.xml", "", ""), ("nektar", "RotPerBcs3D_Annulus.xml", "", ""),
+    ("nektar", "Tet_channel_m3.xml", "Tet_channel_m3.fld", "u"), ("nektar", "Womersley_PipeFlow.xml", "", ""),
+    ("nektar", "wss_3D_periodic.xml", "wss_3D_periodic.fld", "rho"), ("vtu", "mfem_fichera_cells_p4.vtu", "", ""),
+    ("vtu", "mfem_fichera_poisson_mixed_p4.vtu", "", ""), ("vtu", "pyfr_tgv_hexprism_p4_t4.vtu", "", ""),
+    ("vtu", "ngsolve_post_heat_tetprism_p4.vtu", "", ""),
+    pytest.param("nektar", "hump3D_GLL.xml", "hump3D.rst", "rho", marks=pytest.mark.slow),
+    pytest.param("nektar", "scaleHO.xml", "", "", marks=pytest.mark.slow),
+    pytest.param("vtu", "ngsolve_ball_poisson_hex_p6.vtu", "", "", marks=pytest.mark.slow),
+]
+
+
+@pytest.mark.parametrize("kind, name, solution, field", REAL_FILES)
+def test_every_real_file_loads(kind, name, solution, field):
+    """Every vendored and shared mesh is certified valid as it loads: the check refuses none of
+    the real files (NGSolve's near-degenerate ball included)."""
+    path = data_file(kind, name)
+    mesh = load_volume(VolumeSource.resolve(str(path), str(data_file(kind, solution)) if solution else "", field))
+    assert mesh.num_elements > 0
 
 
 # ------------------------------------------------------------------------- property
