@@ -21,6 +21,7 @@ the manifest plus the *contents* of hovr_blender/ at its root (no tests, no cach
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import re
 import subprocess
@@ -39,9 +40,10 @@ SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
 # enable time, tests/engine/test_blender_framing.py that they agree): Warp renders, h5py reads
-# HDF5 solution files. pip resolves their dependencies; numpy is left out: Blender ships its own,
+# HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
+# io/safe_xml.py). pip resolves their dependencies; numpy is left out: Blender ships its own,
 # and a second copy in the extension's site-packages would shadow it.
-RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "h5py==3.16.0")
+RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "h5py==3.16.0", "defusedxml==0.7.1")
 NOT_BUNDLED = {"numpy"}
 PYTHON_VERSION = "3.11"  # Blender 4.2 to 5.0; h5py's wheels are per Python version
 # Blender platform -> the pip platform tag of the wheels. numpy is not bundled: Blender ships its own.
@@ -105,9 +107,10 @@ def _wheel_project(path: Path) -> str:
 
 def download_wheels(platform: str, cache: Path = WHEEL_CACHE) -> list[Path]:
     """Wheels of RUNTIME_REQUIREMENTS and their dependencies for a Blender platform, numpy
-    excepted, from the package index through pip (cached in build/wheels/<platform>/)."""
+    excepted, from the package index through pip (cached in build/wheels/<platform>/<digest of
+    the requirements>/, so a wheel a former requirement brought is never bundled)."""
     tag = WHEEL_PLATFORMS[platform]
-    dest = cache / platform
+    dest = cache / platform / hashlib.sha256("\n".join(RUNTIME_REQUIREMENTS).encode()).hexdigest()[:12]
     dest.mkdir(parents=True, exist_ok=True)
     subprocess.run([sys.executable, "-m", "pip", "download", *RUNTIME_REQUIREMENTS, "--only-binary=:all:",
                     "--platform", tag, "--python-version", PYTHON_VERSION, "--implementation", "cp",

@@ -21,12 +21,13 @@ from .kernels import quadrature_tables
 from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
 from .kernels.element import static_modes
 from .kernels.precision import Precision
+from .limits import cpu_cores
 from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients)
 from .methods import METHOD_IDS
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import AUTO_STEP_ERROR, RenderOptions, View
+from .view import AUTO_STEP_ERROR, RenderOptions, View, resolving_step
 
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
 
@@ -98,14 +99,6 @@ def cuda_devices() -> list[str]:
     """The names of the CUDA devices here ("cuda:0", ...); empty without a GPU."""
     _init_warp()
     return [str(d) for d in wp.get_devices() if d.is_cuda]
-
-
-def cpu_cores() -> int:
-    """The CPU cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def expand_devices(devices) -> list[str]:
@@ -564,6 +557,8 @@ class Renderer:
             raise RenderError(f"rows {row0}..{row1} are not inside a {W}x{H} image")
         first, end = row0 * W, row1 * W
         _, tf_frame, warnings = self.field_frame(tf, options.precision)
+        options, step_warnings = resolving_step(options, tf, self.data_ranges)
+        warnings = warnings + step_warnings
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
@@ -805,6 +800,7 @@ class Renderer:
         if cache.frame_key != self.frame_key(tf):
             raise SegmentCacheError("this transfer function maps the field into another frame than the cached "
                                     "segments' (engine/field_frame.py); trace again")
+        options, step_warnings = resolving_step(options, tf, self.data_ranges)
         self._check_steps(options)
         upload = self._upload(options.precision)
         prec = upload.precision
@@ -814,6 +810,7 @@ class Renderer:
         row0, row1 = cache.rows
         n = cache.rays
         _, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
+        warnings = warnings + step_warnings
         num_stats = kernels.NUM_STATS
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
         limits.check_bytes(cache.nbytes + n * per_ray, f"a {W}x{row1 - row0} image shaded in {options.precision}")

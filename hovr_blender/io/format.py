@@ -25,6 +25,10 @@ class Choice:
     warnings: list
 
 
+# the package an XML format needs: io/safe_xml.py parses through defusedxml (DTDs refused)
+XML_PACKAGE = ("defusedxml", "defusedxml", "reading XML data files (Nektar++, VTU) with DTDs refused")
+
+
 @dataclass(frozen=True)
 class Format:
     """One data format. `read(path, solution, field, component)` returns the VolumeMesh (solution,
@@ -61,9 +65,11 @@ class Format:
     def menu_text(self) -> str:
         return f"HOVR {self.label} ({', '.join(self.extensions)})"
 
-    def choose(self, path: str, solution: str = "", field: str = "", component: str = "") -> Choice:
+    def choose(self, path: str, solution: str = "", field: str = "", component: str = "",
+               list_fields: Callable[[str], Iterable[str]] | None = None) -> Choice:
         """An import's settings with the defaults filled in: the solution given or the likeliest
-        beside the data, the field given or the file's first; raises `error` for bad settings."""
+        beside the data, the field given or the file's first; raises `error` for bad settings.
+        `list_fields` lists a file's fields in its stead (io.isolation's, in the reader process)."""
         notes, warnings = [], []
         if self.takes_solution and not solution and self.pick_solution is not None:
             picked, why, others = self.pick_solution(path)
@@ -78,7 +84,7 @@ class Format:
         field = field.strip()
         fields_file = solution if self.takes_solution else path
         if fields_file and not field:
-            names = list(self.list_fields(fields_file))
+            names = list((list_fields or self.list_fields)(fields_file))
             if not names:
                 raise self.error(f"{fields_file}: holds no fields to render")
             field = names[0]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from ..engine.cache import LRUCache
 from ..engine.mesh import VolumeMesh
-from . import builtin, formats
+from . import builtin, formats, isolation
 
 
 class SourceError(ValueError):
@@ -113,15 +113,19 @@ class VolumeSource:
                            component="" if comp is None else comp)
 
 
-def load_volume(source: VolumeSource) -> VolumeMesh:
-    """The mesh (object space) of a resolved source, read by its format (io/formats.py). Nektar++
-    field "|u,v,w|" and a VTU vector (the default for vector arrays) are magnitudes derived from
-    the exact components (io/derived.py); `component` picks one component of a vector instead."""
-    kind, _, name = source.path.partition(":")
-    if kind == "builtin":
-        if name not in builtin.BUILTIN:
-            raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
-        return builtin.BUILTIN[name]()
+def load_volume(source: VolumeSource, **progress) -> VolumeMesh:
+    """The mesh (object space) of a resolved source, read by its format (io/formats.py) in a
+    reader process (io/isolation.py; `progress`: its on_stage and cancelled). Nektar++ field
+    "|u,v,w|" and a VTU vector (the default for vector arrays) are magnitudes derived from the
+    exact components (io/derived.py); `component` picks one component of a vector instead."""
+    if source.path.startswith("builtin:"):
+        return read_volume(source)
+    file_format(source)
+    return isolation.read_volume(source, **progress)
+
+
+def file_format(source: VolumeSource):
+    """The registered format that reads the source's file, its files checked to exist."""
     data_format = formats.format_of(source.path)
     if data_format is None:
         ext = os.path.splitext(source.path)[1].lower()
@@ -130,6 +134,17 @@ def load_volume(source: VolumeSource) -> VolumeMesh:
     for p in (source.path, source.solution):
         if p and not os.path.exists(p):
             raise SourceError(f"data file not found: {p}")
+    return data_format
+
+
+def read_volume(source: VolumeSource) -> VolumeMesh:
+    """load_volume in this process (the reader process's task)."""
+    kind, _, name = source.path.partition(":")
+    if kind == "builtin":
+        if name not in builtin.BUILTIN:
+            raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
+        return builtin.BUILTIN[name]()
+    data_format = file_format(source)
     component = parse_component(source.component) if data_format.components else None
     return data_format.read(source.path, source.solution or None, source.field or None, component)
 

@@ -28,7 +28,7 @@ from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
-from ..io import formats
+from ..io import formats, isolation
 from ..io.sources import VolumeSource, cached_volume, parse_component
 from . import compat, operators
 from .jobs import Job, summarise_warnings
@@ -119,7 +119,8 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     data_format = formats.named(request.kind)
     if data_format.components:
         parse_component(request.component)  # a bad entry is reported before the file is read
-    choice = data_format.choose(request.path, request.solution, request.field, request.component)
+    choice = data_format.choose(request.path, request.solution, request.field, request.component,
+                                list_fields=lambda path: isolation.list_fields(data_format.name, path))
     step("reading the data")
     source = VolumeSource.resolve(request.path, choice.solution, choice.field, request.frame,
                                   component=choice.component)
@@ -219,6 +220,10 @@ class _ImportVolume(ImportHelper):
                              self.field, getattr(self, "component", ""), self.fit_range, self.walls,
                              self.walls_tolerance, context.scene.frame_current, getattr(self, "walls_from", ""))
 
+    def invoke(self, context, event):
+        isolation.prestart()  # the reader process starts while the user picks a file
+        return super().invoke(context, event)
+
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         request = self.request(context, path)
@@ -249,7 +254,7 @@ def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
             raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a {which}, "
                              f"not {os.path.basename(path) or path}'s; leave the selection empty for all boundary "
                              "faces")
-        faces = data_format.boundaries(path).select(selection)
+        faces = isolation.wall_faces(data_format.name, path, selection)
     return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
 
 
@@ -317,7 +322,7 @@ WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domai
 
 def draw_wall_choices(layout, path, data_format):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
-    choices = _cached(("walls", path), path, lambda: data_format.boundaries(path).choices())
+    choices = _cached(("walls", path), path, lambda: isolation.wall_choices(data_format.name, path))
     box = layout.box()
     if choices is None:
         box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
@@ -405,7 +410,7 @@ def draw_solution_choice(layout, path, data_format):
         return
     box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
     box.label(text=why[:60])
-    fields = _cached(("fields", str(picked)), str(picked), lambda: list(data_format.list_fields(picked)))
+    fields = _cached(("fields", str(picked)), str(picked), lambda: list(isolation.list_fields(data_format.name, picked)))
     if fields:
         box.label(text="Fields: " + ", ".join(fields[:8]))
     for p in [p for p in others if p != picked][:5]:

@@ -158,4 +158,4 @@ def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
 
     checked = {package for _, package, *_ in dependencies.dependencies()}
     bundled = {requirement.split("==")[0] for requirement in build_extension.RUNTIME_REQUIREMENTS}
-    assert checked == bundled == {"warp-lang", "h5py"}
+    assert checked == bundled == {"warp-lang", "h5py", "defusedxml"}

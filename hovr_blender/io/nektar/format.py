@@ -9,7 +9,7 @@ import numpy as np
 
 from ...engine.mesh import VolumeMesh
 from ..derived import magnitude_mesh, parse_magnitude
-from ..format import Format
+from ..format import XML_PACKAGE, Format
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
 from .reader import find_solution, list_fields, mesh_boundaries, pick_solution, read_nektar
@@ -49,7 +49,7 @@ FORMAT = Format(
     read=lambda path, solution=None, field=None, component=None: read_nektar_field(path, solution, field),
     list_fields=list_fields, error=NektarError,
     description="Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume",
-    packages=(("h5py", "h5py", "Nektar++ HDF5 solution files (.fld/.chk in HDF5)"),),
+    packages=(XML_PACKAGE, ("h5py", "h5py", "Nektar++ HDF5 solution files (.fld/.chk in HDF5)")),
     field_help='Field to render; "|u,v,w|" is the magnitude of u, v, w. Empty: the file\'s first field',
     find_solution=find_solution, pick_solution=pick_solution,
     solution_help=("Field file (.fld/.chk/.rst or a .fld/ folder), relative to the mesh's folder; empty: the "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ...engine.mesh import VolumeMesh
 from ..derived import magnitude_mesh
-from ..format import Format
+from ..format import XML_PACKAGE, Format
 from .errors import VtuError
 from .reader import list_fields, read_vtu
 
@@ -32,4 +32,5 @@ FORMAT = Format(
     description="Import a VTK unstructured grid (.vtu, Lagrange or Bezier cells) as a HOVR volume",
     field_help="Point-data array to render; empty: the file's first one",
     components=True,
+    packages=(XML_PACKAGE,),
 )
