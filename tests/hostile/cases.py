@@ -427,6 +427,13 @@ def _hdf5(builder):
     return build
 
 
+def _folded_hex(folder):
+    """Issue 29: a quadratic hexahedron whose det J is -0.40 between its 4 x 4 x 4 fit points."""
+    from tests.helpers import folded_hex_map, lagrange_hex_vtu
+
+    return vtu_case(folder, lagrange_hex_vtu(folded_hex_map))
+
+
 def _huge_image(folder):
     v = base_view({"builtin": "sphere"}, 32768, 32768)
     return render_args(folder, v)
@@ -476,6 +483,8 @@ CASES = [
     # numbers a mesh cannot hold
     Case("vertex at 1e200", "mesh values", lambda f: nektar_case(f, mesh=nektar_mesh(vertex_scale=1e200), fld=nektar_field()),
          expect=("m.xml", "too large")),
+    Case("quadratic hex folded between its fit points", "mesh values", _folded_hex,
+         expect=("m.vtu", "cell 0: inverted or tangled hexahedron", "-0.4")),
     # VTU compressed blocks
     Case("VTU 800 blocks of 1 MiB zeros", "VTU compressed blocks", many_blocks_of_zeros, expect=("m.vtu",)),
     Case("VTU 3 GiB zlib bomb in one block", "VTU compressed blocks", one_block_bomb, expect=("m.vtu",)),
