@@ -565,7 +565,7 @@ def hdf5_one_byte(position, change):
 # the bytes 5937/6017 of its 12 KB file: the type of a variable-length string attribute,
 # its class bits flipped (a string becomes a sequence: libhdf5 crashes converting it, SIGSEGV);
 # bytes 8273/8328: a global heap object's size 0 (H5HG__cache_heap_deserialize never advances);
-# and a string length of 4 GiB (libhdf5 allocates and fills it: seconds and GB, then an error)
+# and a string length of 4 GiB (libhdf5 allocates and fills it: refused at once, a header's allocations are capped)
 VLEN_TYPE_BITS = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[0] + 1, lambda b: b ^ 0xFF)
 VLEN_LENGTH = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[1] + 3, lambda b: b ^ 0xFF)
 HEAP_OBJECT_SIZE = hdf5_one_byte(lambda d: _global_heap_object(d, b"p"), lambda b: 0)
