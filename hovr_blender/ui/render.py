@@ -568,7 +568,10 @@ def final_render(engine, api, depsgraph):
         return
     try:
         if not KERNELS.is_ready(key):  # their first use in this session: tens of seconds on a CPU
-            status(f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
+            stage, note = KERNELS.stage(key)
+            if note:
+                api.report({'WARNING'}, f"HOVR: {note}")
+            status(f"HOVR | {n_elements} elements | {stage}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -643,7 +646,7 @@ def view_draw(engine, context, depsgraph):
         key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
                          depsgraph.scene.hovr.surfaces != "NONE")
         if not KERNELS.is_ready(key):
-            engine.update_stats("", f"HOVR | {KERNELS.COMPILING}\u2026")
+            engine.update_stats("", f"HOVR | {KERNELS.stage(key)[0]}\u2026")
             KERNELS.compile_now(key)
         frame = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
