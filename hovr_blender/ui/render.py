@@ -588,14 +588,18 @@ def final_render(engine, api, depsgraph):
 
     try:
         result = render_final(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
-        pixels = combined_pass(result.rgba, job.film_transparent)
+        from .legend_render import with_legend
+
+        shown, legend_warning = with_legend(depsgraph.scene_eval, depsgraph.view_layer_eval, result.rgba,
+                                            job.inputs.background)
+        pixels = combined_pass(shown, job.film_transparent)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
     if result.cancelled or api.test_break():
         status("HOVR | cancelled")
         return
-    for w in result.stats.get("warnings", []):
+    for w in result.stats.get("warnings", []) + ([legend_warning] if legend_warning else []):
         api.report({'WARNING'}, f"HOVR: {w}")
     from .framing import image_warning
 
