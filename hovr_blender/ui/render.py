@@ -456,7 +456,7 @@ def render_stats(stats: dict, n_elements: int, seconds: float, device: str, load
         parts.append(f"{int(stats['field_evaluations']):,} field evaluations")
     parts.append(f"{seconds:.2f} s on {device}")
     if load_seconds >= 0.5:
-        parts.append(f"{load_seconds:.1f} s reading data and compiling")
+        parts.append(f"{load_seconds:.1f} s loading the data and the kernels")
     return "HOVR | " + " | ".join(parts)
 
 
@@ -551,7 +551,7 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
-    status(f"HOVR | reading {names}")
+    status(f"HOVR | loading {names} into the renderer")  # read now unless the import or a render kept it
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
