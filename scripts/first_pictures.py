@@ -152,8 +152,7 @@ def contact_sheet(rows, looks, width: int, height: int, columns: int = 0):
         draw = ImageDraw.Draw(sheet)
         for k, (label, cell) in enumerate(cells):
             x, y = (k % columns) * (width + gap), (k // columns) * pitch_y
-            draw.text((x + width // 2, y + font_px), f"{label}: {FIRST_LOOKS[looks[0]][0]}", fill=(0, 0, 0), font=font,
-                      anchor="mm")
+            draw.text((x + width // 2, y + font_px), label, fill=(0, 0, 0), font=font, anchor="mm")
             sheet.paste(Image.fromarray(np.round(srgb_encode(cell) * 255).astype(np.uint8), "RGB"), (x, y + 2 * font_px))
         return sheet
     left = int(max(font.getlength(label) for label, _ in rows)) + font_px
