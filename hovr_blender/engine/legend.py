@@ -40,9 +40,10 @@ def tick_label(value: float) -> str:
 
 
 def legend_layout(tf, value_min: float, value_max: float, title: str, width: int, height: int,
-                  background=(0.0, 0.0, 0.0), units: str | None = None) -> Legend:
+                  background=(0.0, 0.0, 0.0), units: str | None = None, top: int = 0) -> Legend:
     """The legend of transfer function `tf` (engine/transfer_function.py) over value_min..value_max
-    for a width x height image."""
+    for a width x height image, `top` pixels below its top edge (what covers the image there: a
+    viewport's tool header)."""
     if not value_max > value_min:
         raise ValueError(f"legend: Value Max must exceed Value Min, got {value_min:.6g}..{value_max:.6g}")
     width, height = int(width), int(height)
@@ -51,8 +52,9 @@ def legend_layout(tf, value_min: float, value_max: float, title: str, width: int
     bar_w = max(6, font)
     x1 = width - margin
     x0 = x1 - bar_w
-    y0 = margin + 2 * font  # room for the title
-    y1 = max(y0 + 2, int(round(0.55 * height)))
+    top = int(np.clip(top, 0, height // 3))
+    y0 = top + margin + 2 * font  # room for the title
+    y1 = max(y0 + 2, top + int(round(0.55 * (height - top))))
     rows = y1 - y0
     s = value_max - (np.arange(rows) + 0.5) / rows * (value_max - value_min)
     tau = tf.density(s)
@@ -65,7 +67,7 @@ def legend_layout(tf, value_min: float, value_max: float, title: str, width: int
     texts = [LegendText(x0 - font // 2, y0 + k / (TICKS - 1) * (rows - 1), tick_label(v), "right")
              for k, v in enumerate(np.linspace(value_max, value_min, TICKS))]
     name = f"{title} [{units}]" if units else title
-    texts.append(LegendText(x1, margin + font // 2, name, "right"))
+    texts.append(LegendText(x1, top + margin + font // 2, name, "right"))
     return Legend((x0, y0, x1, y1), bar_rgb, tuple(texts), text_rgb, font)
 
 
