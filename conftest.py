@@ -1,5 +1,5 @@
-"""pytest set-up for tests/ and for bench/test_resample_baseline.py (the one check that lives in
-bench/): the `device` fixture and the markers' behaviour. Fixtures only tests/ use are in
+"""pytest set-up for tests/ and for the two checks of bench code that live in bench/
+(test_resample_baseline.py, test_peers_calibration.py): the `device` fixture and the markers' behaviour. Fixtures only tests/ use are in
 tests/conftest.py; shared plain functions in tests/helpers.py.
 
 Markers (registered in pyproject.toml): `slow` (seconds each; `-m "not slow"` for a quick pass;

@@ -3,13 +3,13 @@ image and cost, for the paper's fixed step h (absolute, and relative to the data
 against the step each piecewise-smooth segment chooses without h (kernels/quadrature.auto_steps),
 with split beside them.
 
-    python bench/classified_step.py --size 192x108 --out bench/results/cpu/classified_step.json
-    python bench/classified_step.py --size 1920x1080 --rows 0:216 --datasets pyfr_tgv_pressure --only auto --repeats 1
-    python bench/classified_step.py --size 320x180 --datasets paper_scale --only auto --step-errors 1e-3,5e-4,2.5e-4 --repeats 1
+    python -m bench.classified_step --size 192x108 --out bench/results/cpu/classified_step.json
+    python -m bench.classified_step --size 1920x1080 --rows 0:216 --datasets pyfr_tgv_pressure --only auto --repeats 1
+    python -m bench.classified_step --size 320x180 --datasets paper_scale --only auto --step-errors 1e-3,5e-4,2.5e-4 --repeats 1
 
 Scenes: bench/offset.py's (PyFR's Taylor-Green pressure; pascals on the curved mixed cube),
 bench/convergence.py's sphere with its spikes, and the paper-scale channel in the audit's oblique
-view with its transfer function (scripts/audit.py; rays through seven or eight curved elements).
+view with its transfer function (hovr_blender/audit/datasets.py; rays through seven or eight curved elements).
 --step-errors runs the "auto" setting at each of these per-segment error bounds instead of the
 default (engine/view.AUTO_STEP_ERROR). The exact image is split in float64 at tolerance
 1e-9 without early termination (engine/reference.pixel_exact_reference's settings); every render
@@ -23,22 +23,15 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-sys.path.insert(0, str(REPO / "scripts"))
-
-import audit  # noqa: E402  (the paper-scale channel's view and transfer function)
-import convergence  # noqa: E402  (the paper's sphere scene)
-import offset  # noqa: E402  (issue 20's scenes)
+from bench import common, convergence  # convergence: the paper's sphere scene
+from bench import offset  # issue 20's scenes
+from hovr_blender.audit import datasets  # the paper-scale channel's view and transfer function
+from hovr_blender.audit.scenes import BACKGROUND
 
 FIXED_H = [0.01, 0.005, 0.0025]
 DIAGONAL_DIVISIONS = [1000, 2000, 4000]
@@ -52,13 +45,13 @@ def scenes(W, H, names):
     out = {}
     for name, mesh in offset.datasets().items():
         tf, camera, _ = offset.scene(mesh, W, H)
-        out[name] = (mesh, tf, camera, offset.BACKGROUND)
+        out[name] = (mesh, tf, camera, BACKGROUND)
     out["sphere_spikes"] = (sphere(), TransferFunction.from_contract(convergence.TRANSFER_FUNCTIONS["spikes"]),
                             RayCamera.from_contract(convergence.CAMERA, W, H), convergence.BACKGROUND)
     if "paper_scale" in names:  # built only when asked for (seconds)
-        mesh, _ = audit.load("paper_scale")
-        out["paper_scale"] = (mesh, audit.transfer_function(mesh),
-                              RayCamera.from_contract(audit.views(mesh)["oblique"], W, H), np.zeros(3))
+        mesh, _ = datasets.load("paper_scale")
+        out["paper_scale"] = (mesh, datasets.transfer_function(mesh),
+                              RayCamera.from_contract(datasets.views(mesh)["oblique"], W, H), np.zeros(3))
     return {k: v for k, v in out.items() if not names or k in names}
 
 
@@ -82,7 +75,7 @@ def main(argv=None):
     wp.config.quiet = True
     W, H = map(int, args.size.split("x"))
     rows = tuple(int(v) for v in args.rows.split(":")) if args.rows else (0, H)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    commit = common.git("rev-parse", "--short", "HEAD")
     report = {"device": args.device, "device_name": wp.get_device(args.device).name, "size": [W, H], "rows": list(rows),
               "date": datetime.date.today().isoformat(), "commit": commit, "auto_step_error": AUTO_STEP_ERROR,
               "cases": {}}

@@ -4,8 +4,8 @@ Renders the paper's sphere (one hexahedron, f = x^2 + y^2 + z^2) with each metho
 sweep of h (and of the Gauss-Kronrod tolerance for `split`), measures the largest RGB
 difference against the float64 reference, and writes JSON (plots: bench/plot_convergence.py).
 
-    python bench/convergence.py --device cpu --size 96x72 --out bench/results/cpu
-    python bench/convergence.py --device cuda:0 --size 1900x950 --out $OUT/cuda   (GPU machine)
+    python -m bench.convergence --device cpu --size 96x72 --out bench/results/cpu
+    python -m bench.convergence --device cuda:0 --size 1900x950 --out $OUT/cuda   (GPU machine)
 
 Two transfer functions:
 - "spikes": several narrow tent pairs (breakpoints inside most segments: the piecewise-smooth
@@ -19,19 +19,16 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.reference import reference_render  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
-from hovr_blender.io.builtin import sphere  # noqa: E402
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.reference import reference_render
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.transfer_function import TransferFunction
+from hovr_blender.engine.view import RenderOptions
+from hovr_blender.io.builtin import sphere
 
 CAMERA = {"projection": "perspective", "eye": [7.0, 5.5, 8.0], "target": [0.0, 0.0, 1.0], "up": [0.0, 0.0, 1.0],
           "fov_y_deg": 40.0}

@@ -2,7 +2,7 @@
 launch on one thread) against `cpu:all` (engine/multi_device.py: one process a core, the frame's
 rows split over them), on hump3D at the size of a first F12 (480x270).
 
-    python bench/cpu_cores.py --out bench/results/cpu/cpu_cores.json
+    python -m bench.cpu_cores --out bench/results/cpu/cpu_cores.json
 
 Best of --repeats after a first frame each (kernel load, and the rows' costs the split uses);
 the images must be identical (checked). On a shared machine the numbers are for regressions.
@@ -12,20 +12,14 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from tests.helpers import BACKGROUND, COLORS, framing, tents  # noqa: E402  (the tests' scenes)
-
-DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
+from bench.common import DATA
+from hovr_blender.audit.scenes import BACKGROUND, COLORS, framing, tents  # the tests' scenes
 
 
 def cpu_name() -> str:

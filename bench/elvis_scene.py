@@ -5,36 +5,33 @@ Hex_01_01_01_03Modes_x2_Offset3.{xml,fld}, p = x^2+y^2+z^2, 1024x1024, eye at th
 looking down -z, three tent spikes. Writes ours (npy/png), the float64 reference, the
 error against it, and a side-by-side figure with ElVis's baselines.
 
-    python bench/elvis_scene.py --device cpu --out bench/results/elvis
+    python -m bench.elvis_scene --device cpu --out bench/results/elvis
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import sys
 import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
+from bench import common
+from hovr_blender.engine.image_io import to_png_bytes_rgba, write_png
+from hovr_blender.engine.reference import reference_render
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.view import View
+from hovr_blender.io import load_view_data
 
-from hovr_blender.engine.image_io import to_png_bytes_rgba, write_png  # noqa: E402
-from hovr_blender.engine.reference import reference_render  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.view import View  # noqa: E402
-from hovr_blender.io import load_view_data  # noqa: E402
-
-VIEW = os.path.join(HERE, "..", "examples", "elvis_sphere.json")
-DATA = os.path.join(HERE, "..", "..", "shared", "data", "nektar")
+VIEW = str(common.REPO / "examples" / "elvis_sphere.json")
+DATA = str(common.DATA / "nektar")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "elvis"))
+    ap.add_argument("--out", default=str(common.RESULTS / "elvis"))
     ap.add_argument("--no-reference", action="store_true")
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)

@@ -3,11 +3,11 @@ float64 numpy oracle (engine/expansions.py), every shape x order 1..14.
 
 The comparison (random fields of each family at random reference points, near the collapsed
 vertex/edges and at the vertices; kernel error and end-to-end error against the float64 oracle)
-is tests/helpers.eval_compare, which tests/engine/test_stress.py runs on fewer points; this script
+is hovr_blender/audit/evaluation.eval_compare, which tests/engine/test_stress.py runs on fewer points; this script
 runs it on every (family, shape, order) and writes the table.
 
-    python bench/eval_table.py --device cpu --out bench/results/eval_table.json
-    python bench/eval_table.py --device cuda:0 --out $OUT/eval_table_cuda.json
+    python -m bench.eval_table --device cpu --out bench/results/eval_table.json
+    python -m bench.eval_table --device cuda:0 --out $OUT/eval_table_cuda.json
 """
 from __future__ import annotations
 
@@ -16,16 +16,14 @@ import datetime
 import json
 import os
 import platform
-import subprocess
 import sys
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+import warp as wp
 
-import warp as wp  # noqa: E402
-
-from hovr_blender.engine import shapes  # noqa: E402
-from tests.helpers import EVAL_FAMILIES, eval_compare  # noqa: E402
+from bench import common
+from hovr_blender.audit.evaluation import EVAL_FAMILIES, eval_compare
+from hovr_blender.engine import shapes
 
 def markdown(rows, key="max_rel", fmt="{:.1e}"):
     cols = [(f, s) for f, shapes in EVAL_FAMILIES.items() for s in shapes]
@@ -48,7 +46,7 @@ def main(argv=None):
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--families", default=",".join(EVAL_FAMILIES))
     ap.add_argument("--max-order", type=int, default=14)
-    ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "eval_table.json"))
+    ap.add_argument("--out", default=str(common.RESULTS / "eval_table.json"))
     args = ap.parse_args(argv)
     wp.config.quiet = True
     wp.init()
@@ -63,11 +61,7 @@ def main(argv=None):
                 print(f"{fam:13s} {r['shape']:12s} order {order:2d}: max abs {r['max_abs']:.2e} rel {r['max_rel']:.2e} "
                       f"(kernel {r['max_rel_kernel']:.2e}; near collapse {r['max_rel_near_collapse']:.2e}, "
                       f"nonfinite {r['nonfinite']} + {r['nonfinite_near_collapse']} near collapse)", flush=True)
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=os.path.dirname(os.path.abspath(__file__))).stdout.strip()
-    except OSError:
-        commit = ""
+    commit = common.git("rev-parse", "--short", "HEAD") or ""
     cpu = platform.processor() or platform.machine()
     result = {
         "what": "float32 device expansions (kernels/element.eval_element) vs float64 numpy oracle",
@@ -76,7 +70,7 @@ def main(argv=None):
         "device_name": wp.get_device(device).name,
         "warp": wp.config.version,
         "commit": commit,
-        "command": "python bench/eval_table.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": "python -m bench.eval_table " + " ".join(argv if argv is not None else sys.argv[1:]),
         "seconds": round(time.perf_counter() - t0, 1),
         "rows": rows,
     }

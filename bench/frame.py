@@ -3,8 +3,8 @@ sizes and method settings, with the kernel's counters per ray and the error agai
 converged render of the same frame. The quick probe for performance work; bench/suite.py
 is the full benchmark.
 
-    python bench/frame.py --device cuda:0 --sizes 1920x1080,512x512 --out $OUT/frame.json
-    python bench/frame.py --device cpu --paper 48,96 --sizes 64x48          (a small CPU check)
+    python -m bench.frame --device cuda:0 --sizes 1920x1080,512x512 --out $OUT/frame.json
+    python -m bench.frame --device cpu --paper 48,96 --sizes 64x48          (a small CPU check)
 
 Each case: the build time, the first render (kernel compile or cache load), then per setting
 the best of --repeats renders: seconds, element segments, curved locations, field and
@@ -17,20 +17,14 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import sys
 import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, HERE)
-
-import suite  # noqa: E402  (datasets, framing and transfer functions are the suite's own)
-
-from hovr_blender.engine.reference import pixel_exact_reference  # noqa: E402  (every benchmark's reference)
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from bench import common
+from hovr_blender.audit import scenes  # framing and transfer functions: the suite's own
+from hovr_blender.engine.reference import pixel_exact_reference  # every benchmark's reference
+from hovr_blender.engine.view import RenderOptions
 
 SETTINGS = {
     "split-1e-5": dict(method="split", tolerance=1e-5),
@@ -63,45 +57,45 @@ def main(argv=None):
     n_hex, n_prism = (int(v) for v in args.paper.split(","))
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,
            "date": datetime.datetime.now().isoformat(timespec="seconds"),
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], os.path.join(HERE, ".."))] + sys.argv[1:]),
-           "git_commit": suite._git("rev-parse", "HEAD"), "cases": []}
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "cases": []}
     from hovr_blender.io.paper_scale import paper_scale_mesh
 
     for variant in args.variants.split(","):
         t0 = time.perf_counter()
         mesh = paper_scale_mesh(n_hex, n_prism, curved=(variant == "curved"))
         build = time.perf_counter() - t0
-        tf = suite.tents(0.25, 1.55, suite.COLORS, 3.0)
-        r, first = suite.compiled_renderer(mesh, args.device)
-        lo, hi = suite.mesh_bounds(mesh)
+        tf = scenes.tents(0.25, 1.55, scenes.COLORS, 3.0)
+        r, first = common.compiled_renderer(mesh, args.device)
+        lo, hi = scenes.mesh_bounds(mesh)
         diag = float(np.linalg.norm(hi - lo))
         print(f"{variant}: {mesh.num_elements} elements ({int(mesh.affine.sum())} affine), build {build:.1f} s, "
               f"upload {r.upload_seconds:.2f} s, first render {first:.1f} s", flush=True)
         for size in args.sizes.split(","):
             W, H = (int(v) for v in size.split("x"))
-            cam = suite.framing(mesh, W, H, direction=(0.3, -1.0, 1.2))
+            cam = scenes.framing(mesh, W, H, direction=(0.3, -1.0, 1.2))
             case = {"variant": variant, "elements": mesh.num_elements, "affine": int(mesh.affine.sum()),
                     "size": [W, H], "build_seconds": build, "first_render_seconds": first, "runs": []}
             ref = None
             if not args.no_reference:
-                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
+                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, scenes.BACKGROUND, args.device, renderer=r)
                 case["reference_seconds"] = ref_stats["render_seconds"]
             for name in args.settings.split(","):
                 kw = dict(SETTINGS[name])
                 if "h_div" in kw:
                     kw["h"] = diag / kw.pop("h_div")
-                res = suite.timed(r, cam, tf, RenderOptions(device=args.device, **kw), args.repeats)
-                row = suite.row_of(res, setting=name, **kw)
+                res = common.timed(r, cam, tf, RenderOptions(device=args.device, **kw), args.repeats)
+                row = common.row_of(res, setting=name, **kw)
                 px = W * H
                 row.update(segments_per_ray=row["segments"] / px, locates_per_ray=row["curved_locates"] / px,
                            field_evals_per_ray=row["field_evaluations"] / px,
                            restriction_evals_per_ray=row["restriction_evaluations"] / px)
                 row["rounds"] = res.stats.get("rounds")
                 if args.profile:
-                    prof = r.render(cam, tf, suite.BACKGROUND, RenderOptions(device=args.device, **kw), profile=True)
+                    prof = r.render(cam, tf, scenes.BACKGROUND, RenderOptions(device=args.device, **kw), profile=True)
                     row["kernel_seconds"] = prof.stats["kernel_seconds"]
                 if ref is not None:
-                    row["max_error"] = suite.rgb_error(res.rgba, ref)
+                    row["max_error"] = common.rgb_error(res.rgba, ref)
                     err = np.abs(res.rgba[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
                     worst = np.unravel_index(int(err.argmax()), err.shape)
                     row["worst_pixel"] = {"row": int(worst[0]), "col": int(worst[1]),
@@ -116,7 +110,7 @@ def main(argv=None):
             out["cases"].append(case)
             if args.out:
                 with open(args.out, "w") as fh:
-                    json.dump(out, fh, indent=1, default=suite._jsonable)
+                    json.dump(out, fh, indent=1, default=common.jsonable)
         del r
 
 

@@ -3,13 +3,13 @@ paper-scale channel and hump3D at 512x512, split and classified at default setti
 with each frame's kernel profile, memory per ray and per element, and its error against a
 float64 render converged far below 1e-3 (the independent reference's audit is scripts/audit.py).
 
-    python bench/interactive.py --device cuda:0 --out $OUT/interactive.json
-    python bench/interactive.py --device cuda:0 --cold --out $OUT/cold.json      first image, empty caches
-    python bench/interactive.py --device cpu --cold --cold-dataset sphere --size 480x270 --out $OUT/cold_cpu.json
-    python bench/interactive.py --device cuda:0 --million --out $OUT/million.json  1 M curved elements
-    python bench/interactive.py --device cpu --size 192x108 --datasets hump3D    (a small CPU check)
+    python -m bench.interactive --device cuda:0 --out $OUT/interactive.json
+    python -m bench.interactive --device cuda:0 --cold --out $OUT/cold.json      first image, empty caches
+    python -m bench.interactive --device cpu --cold --cold-dataset sphere --size 480x270 --out $OUT/cold_cpu.json
+    python -m bench.interactive --device cuda:0 --million --out $OUT/million.json  1 M curved elements
+    python -m bench.interactive --device cpu --size 192x108 --datasets hump3D    (a small CPU check)
 
-Datasets, views and transfer functions are the audit's (scripts/audit.py: the oblique view, three
+Datasets, views and transfer functions are the audit's (hovr_blender/audit/datasets.py: the oblique view, three
 tents over the field's 2..98 % range). Times are the best of --repeats renders after a warm-up
 render, each waited for (Renderer.render synchronises); the profile is one more render with every
 kernel launch waited for and timed (its total is a little above the plain time).
@@ -42,14 +42,8 @@ import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.join(HERE, "..")
-sys.path.insert(0, ROOT)
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.join(ROOT, "scripts"))
-
-import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functions)
-import suite  # noqa: E402  (git helpers)
+from bench import common
+from hovr_blender.audit import datasets  # the audit's datasets, views, transfer functions
 
 DATASETS = ["paper_scale", "hump3D", "scaleHO", "ngsolve_ball", "ngsolve_post", "mfem_fichera", "pyfr_tgv"]
 SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
@@ -61,7 +55,7 @@ TARGET_512_FPS = 60.0
 def _camera(mesh, W, H):
     from hovr_blender.engine.camera import RayCamera
 
-    return RayCamera.from_contract(audit.views(mesh)["oblique"], W, H)
+    return RayCamera.from_contract(datasets.views(mesh)["oblique"], W, H)
 
 
 def device_bytes_per_element(renderer, precision="float32") -> float:
@@ -124,12 +118,12 @@ def run_datasets(args, out):
     for name in args.datasets.split(","):
         try:
             t0 = time.perf_counter()
-            mesh, _ = audit.load(name)
+            mesh, _ = datasets.load(name)
             load = time.perf_counter() - t0
         except FileNotFoundError as exc:
             print(f"{name}: skipped, missing {exc}", flush=True)
             continue
-        tf = audit.transfer_function(mesh)
+        tf = datasets.transfer_function(mesh)
         t0 = time.perf_counter()
         r = Renderer(mesh, args.device)
         load_kernels(r.kernel_variant, r.device, "float32")
@@ -226,7 +220,7 @@ def cold_child(args):
     from hovr_blender.engine.renderer import load_kernels
 
     mesh = _cold_mesh(args.cold_child)
-    tf = audit.transfer_function(mesh)
+    tf = datasets.transfer_function(mesh)
     r = Renderer(mesh, args.device)
     W, H = map(int, args.size.split("x"))
     t0 = time.perf_counter()
@@ -243,13 +237,12 @@ def _cold_mesh(name):
         from hovr_blender.io.builtin import sphere
 
         return sphere()
-    return audit.load(name)[0]
+    return datasets.load(name)[0]
 
 
 def run_cold(args, out):
-    import build_extension  # scripts/build_extension.py: the extension's kernel build step
-
     from hovr_blender.engine.renderer import kernel_variant
+    from scripts import build_extension  # the extension's kernel build step
 
     rows = []
     settings = [("parallel modules", "0", None), ("one module at a time", "1", None), ("shipped kernels", "0", "store")]
@@ -268,8 +261,9 @@ def run_cold(args, out):
                            HOVR_COLD_T0=repr(time.time()))
                 env.pop("HOVR_KERNEL_BINARIES", None)
                 env.update(extra)
-                p = subprocess.run([sys.executable, __file__, "--cold-child", args.cold_dataset, "--device", args.device,
-                                    "--size", args.size], env=env, capture_output=True, text=True, timeout=900)
+                p = subprocess.run([sys.executable, "-m", __spec__.name, "--cold-child", args.cold_dataset, "--device",
+                                    args.device, "--size", args.size], cwd=common.REPO, env=env, capture_output=True,
+                                   text=True, timeout=900)
             lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
             if p.returncode != 0 or not lines:
                 raise RuntimeError(f"cold child failed: {p.stderr[-2000:]}")
@@ -288,7 +282,7 @@ def _write(path, out):
     if path:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         with open(path, "w") as f:
-            json.dump(out, f, indent=1, default=suite._jsonable)
+            json.dump(out, f, indent=1, default=common.jsonable)
             f.write("\n")
 
 
@@ -318,8 +312,8 @@ def main(argv=None):
     resolve_device(args.device)
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,
            "date": datetime.datetime.now().isoformat(timespec="seconds"),
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
-           "git_commit": suite._git("rev-parse", "HEAD"), "datasets": {}}
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "datasets": {}}
     if args.cold:
         run_cold(args, out)
     elif args.million:

@@ -5,20 +5,16 @@ first frame. Prints per frame: the one-device render's own seconds and its wall 
 frame's seconds, each device's render seconds (and its worker's wall time round Renderer.render,
 where reported) and the overhead = split seconds - the slowest device's render seconds.
 
-    python bench/multidevice_overhead.py --devices cpu,cpu --size 1920x1080
+    python -m bench.multidevice_overhead --devices cpu,cpu --size 1920x1080
 """
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, HERE)
+from hovr_blender.audit import scenes
 
 
 def main(argv=None):
@@ -31,7 +27,6 @@ def main(argv=None):
     ap.add_argument("--distance", type=float, default=20.0, help="the camera's distance in bounding radii (far: most rays miss)")
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
-    import suite
     from hovr_blender.engine.multi_device import MultiDeviceRenderer
     from hovr_blender.engine.renderer import expand_devices
     from hovr_blender.engine.view import RenderOptions
@@ -41,25 +36,25 @@ def main(argv=None):
     devices = expand_devices(args.devices)
     mesh = synthetic.mixed_cube(args.cells, args.modes, synthetic.cube_field)
     lo, hi = np.percentile(mesh.field_samples(3), [2, 98])
-    tf = suite.tents(lo, hi, suite.COLORS, 6.0)
-    blo, bhi = suite.mesh_bounds(mesh)
+    tf = scenes.tents(lo, hi, scenes.COLORS, 6.0)
+    blo, bhi = scenes.mesh_bounds(mesh)
     opts = RenderOptions(method="classified", h=float(np.linalg.norm(bhi - blo)) / args.h_div)
-    cam = suite.framing(mesh, W, H, distance=args.distance)
+    cam = scenes.framing(mesh, W, H, distance=args.distance)
     # the one-device frame from a process started like the split's (tests/engine/test_multi_device.py)
     with MultiDeviceRenderer(mesh, devices[:1]) as one:
-        one.render(cam, tf, suite.BACKGROUND, opts)
+        one.render(cam, tf, scenes.BACKGROUND, opts)
         single, single_wall = None, None
         for _ in range(args.repeats):
             t0 = time.perf_counter()
-            res = one.render(cam, tf, suite.BACKGROUND, opts)
+            res = one.render(cam, tf, scenes.BACKGROUND, opts)
             wall = time.perf_counter() - t0
             if single is None or wall < single_wall:
                 single, single_wall = res, wall
     with MultiDeviceRenderer(mesh, devices) as md:
-        md.render(cam, tf, suite.BACKGROUND, opts)
+        md.render(cam, tf, scenes.BACKGROUND, opts)
         best = None
         for _ in range(args.repeats):
-            res = md.render(cam, tf, suite.BACKGROUND, opts)
+            res = md.render(cam, tf, scenes.BACKGROUND, opts)
             if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
                 best = res
     one_dev = single.stats["devices"][0]["render_seconds"]

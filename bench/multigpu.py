@@ -1,8 +1,8 @@
 """Issue 18 on a host with several GPUs, in one run: one frame over one GPU against all of them,
 and a series of frames over a local Dask cluster of one worker against one worker per GPU.
 
-    python bench/multigpu.py --out $OUT/multigpu.json            (needs dask[distributed]: scripts/gpu_wheels.sh)
-    python bench/multigpu.py --frames 10 --size 640x360          (a quick look)
+    python -m bench.multigpu --out $OUT/multigpu.json            (needs dask[distributed]: scripts/gpu_wheels.sh)
+    python -m bench.multigpu --frames 10 --size 640x360          (a quick look)
 
 frame: paper-scale (curved, bench/suite.py's dataset) and hump3D at --size, rendered on cuda:0
 alone (core Renderer) and over --devices (core MultiDeviceRenderer: rows balanced by the last
@@ -20,17 +20,13 @@ import argparse
 import datetime
 import json
 import os
-import sys
 import tempfile
 import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, HERE)
-
-DATA = os.path.join(HERE, "..", "..", "shared", "data", "nektar")
+from bench import common, frame
+from hovr_blender.audit import scenes
 
 
 def tf_contract(tf) -> dict:
@@ -40,29 +36,27 @@ def tf_contract(tf) -> dict:
 
 def hump3d(data):
     from hovr_blender.io.nektar import read_nektar
-    import suite
 
     t0 = time.perf_counter()
     mesh = read_nektar(os.path.join(data, "hump3D_GLL.xml"), os.path.join(data, "hump3D.rst"), field="rho")
     load = time.perf_counter() - t0
     lo, hi = np.percentile(mesh.field_samples(3), [1, 99])
-    blo, bhi = suite.mesh_bounds(mesh)
-    tf = suite.tents(lo, hi, [(0.9, 0.3, 0.1), (0.2, 0.7, 0.3), (0.1, 0.3, 0.9)], 400.0 / float(np.ptp(bhi)))
+    blo, bhi = scenes.mesh_bounds(mesh)
+    tf = scenes.tents(lo, hi, [(0.9, 0.3, 0.1), (0.2, 0.7, 0.3), (0.1, 0.3, 0.9)], 400.0 / float(np.ptp(bhi)))
     return mesh, tf, load
 
 
 def bench_frame(name, mesh, tf, W, H, devices, opts, repeats, direction):
-    import suite
     from hovr_blender.engine.multi_device import MultiDeviceRenderer
     from hovr_blender.engine.renderer import Renderer
 
-    cam = suite.framing(mesh, W, H, direction=direction)
+    cam = scenes.framing(mesh, W, H, direction=direction)
     one = Renderer(mesh, devices[0])
-    one.render(cam, tf, suite.BACKGROUND, opts)  # compile / load the kernels
+    one.render(cam, tf, scenes.BACKGROUND, opts)  # compile / load the kernels
     single, one_wall = None, None
     for _ in range(repeats):  # best of repeats, with the wall time round render() (host copies included)
         t1 = time.perf_counter()
-        res = one.render(cam, tf, suite.BACKGROUND, opts)
+        res = one.render(cam, tf, scenes.BACKGROUND, opts)
         wall = time.perf_counter() - t1
         if single is None or res.stats["render_seconds"] < single.stats["render_seconds"]:
             single, one_wall = res, wall
@@ -71,10 +65,10 @@ def bench_frame(name, mesh, tf, W, H, devices, opts, repeats, direction):
     md = MultiDeviceRenderer(mesh, devices)
     start = time.perf_counter() - t0
     try:
-        first = md.render(cam, tf, suite.BACKGROUND, opts)  # equal rows; measures the row costs
+        first = md.render(cam, tf, scenes.BACKGROUND, opts)  # equal rows; measures the row costs
         best = None
         for _ in range(repeats):
-            res = md.render(cam, tf, suite.BACKGROUND, opts)
+            res = md.render(cam, tf, scenes.BACKGROUND, opts)
             if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
                 best = res
     finally:
@@ -116,12 +110,11 @@ def bench_series(workers, frames, W, H, data, tf, opts, tmp):
             "camera": None, "image": {"width": W, "height": H}, "transfer_function": tf_contract(tf),
             "background": [0.02, 0.02, 0.03], "render": {"method": opts.method, "tolerance": opts.tolerance,
                                                          "h": opts.h}}
-    import suite
     from hovr_blender.io.nektar import read_nektar
 
     geo = read_nektar(os.path.join(data, "hump3D_GLL.xml"), os.path.join(data, "hump3D.rst"), field="rho")
-    cam = suite.framing(geo, W, H)
-    lo, hi = suite.mesh_bounds(geo)
+    cam = scenes.framing(geo, W, H)
+    lo, hi = scenes.mesh_bounds(geo)
     c = 0.5 * (lo + hi)
     view["camera"] = {"eye": cam.o0.tolist(), "target": c.tolist(), "up": [0, 0, 1], "fov_y_deg": 30.0}
     with open(os.path.join(folder, "view.json"), "w") as fh:
@@ -166,13 +159,11 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=100, help="series length (0: no series)")
     ap.add_argument("--series-size", default="1920x1080")
     ap.add_argument("--only", default="frame,series")
-    ap.add_argument("--data", default=DATA)
+    ap.add_argument("--data", default=str(common.DATA / "nektar"))
     ap.add_argument("--out", default=os.path.join(os.environ.get("OUT", "."), "multigpu.json"))
     args = ap.parse_args(argv)
     import warp as wp
 
-    import frame
-    import suite
     from hovr_blender.engine.renderer import expand_devices
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.paper_scale import paper_scale_mesh
@@ -182,13 +173,13 @@ def main(argv=None):
     devices = expand_devices(args.devices)
     out = {"date": datetime.datetime.now().isoformat(timespec="seconds"), "devices": devices,
            "device_names": [wp.get_device(d).name for d in devices],
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], os.path.join(HERE, ".."))] + sys.argv[1:]),
-           "git_commit": suite._git("rev-parse", "HEAD"), "frame": [], "series": []}
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "frame": [], "series": []}
 
     def dump():
         os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
         with open(args.out, "w") as fh:
-            json.dump(out, fh, indent=1, default=suite._jsonable)
+            json.dump(out, fh, indent=1, default=common.jsonable)
 
     W, H = (int(v) for v in args.size.split("x"))
     hump, hump_tf, hump_load = hump3d(args.data)
@@ -196,13 +187,13 @@ def main(argv=None):
     if "frame" in args.only:
         n_hex, n_prism = (int(v) for v in args.paper.split(","))
         paper = paper_scale_mesh(n_hex, n_prism, curved=True)
-        paper_tf = suite.tents(0.25, 1.55, suite.COLORS, 3.0)
+        paper_tf = scenes.tents(0.25, 1.55, scenes.COLORS, 3.0)
         for setting in args.methods.split(","):
             for name, mesh, tf, direction in (("paper-scale curved", paper, paper_tf, (0.3, -1.0, 1.2)),
                                               ("hump3D", hump, hump_tf, (1.0, -0.8, 0.7))):
                 kw = dict(frame.SETTINGS[setting])
                 if "h_div" in kw:
-                    lo, hi = suite.mesh_bounds(mesh)
+                    lo, hi = scenes.mesh_bounds(mesh)
                     kw["h"] = float(np.linalg.norm(hi - lo)) / kw.pop("h_div")
                 opts = RenderOptions(device=devices[0], **kw)
                 out["frame"].append({"setting": setting, **bench_frame(name, mesh, tf, W, H, devices, opts,

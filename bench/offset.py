@@ -7,7 +7,7 @@ before the frame existed), for data whose values sit far from zero:
 - a synthetic pressure in pascals, 101,325 +- 5 Pa, on the mixed cube (straight, all four shapes; offset / span
   about 10^4).
 
-    python bench/offset.py --device cuda:0 --size 1920x1080 --out $OUT/offset.json
+    python -m bench.offset --device cuda:0 --size 1920x1080 --out $OUT/offset.json
 
 Each case gives, per method (split, classified), the max |float32 - float64| over the image's
 RGBA with and without the frame, both renders' seconds (best of --repeats), the warnings the
@@ -19,20 +19,14 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from hovr_blender.engine import field_frame  # noqa: E402
-from tests.helpers import BACKGROUND, COLORS, framing, pascals, tents  # noqa: E402  (the tests' scenes)
-
-DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
+from bench.common import DATA
+from hovr_blender.audit.scenes import BACKGROUND, COLORS, framing, pascals, tents  # the tests' scenes
+from hovr_blender.engine import field_frame
 
 
 def datasets():

@@ -1,6 +1,6 @@
 """PyFR's pressure (issue 20) against the independent reference at its worst pixels.
 
-    python bench/offset_audit.py --size 480x270 --out bench/results/cpu/offset_audit.json
+    python -m bench.offset_audit --size 480x270 --out bench/results/cpu/offset_audit.json
 
 bench/offset.py's scene of PyFR's Taylor-Green pressure (three tents over its 2..98 % band,
 optical depth 8 across the half diagonal) is rendered with split and classified, each in float32
@@ -17,21 +17,17 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench import common, offset  # offset: the scene
+from hovr_blender.audit.scenes import BACKGROUND
+from hovr_blender.audit.scenes import framing_contract  # the scene's camera as the contract writes it
 
-import offset  # noqa: E402  (the scene)
-from tests.helpers import framing_contract  # noqa: E402  (the scene's camera as the contract writes it)
-
-PYFR = offset.DATA / "vtu" / "pyfr_tgv_hexprism_p4_t4.vtu"
+PYFR = common.DATA / "vtu" / "pyfr_tgv_hexprism_p4_t4.vtu"
 RENDERS = [(method, precision) for method in ("split", "classified") for precision in ("float32", "float64")]
 WRONG = 1e-3
 
@@ -80,7 +76,7 @@ def main(argv=None):
         opts = RenderOptions(method=method, precision=precision, tolerance=1e-5 if precision == "float32" else 1e-9,
                              min_transmittance=0.0)
         t0 = time.perf_counter()
-        images[method, precision] = renderer.render(camera, tf, offset.BACKGROUND, opts).rgba.astype(np.float64)
+        images[method, precision] = renderer.render(camera, tf, BACKGROUND, opts).rgba.astype(np.float64)
         seconds[f"{method} {precision}"] = time.perf_counter() - t0
     exact = images["split", "float64"]
     step_gap = np.maximum(*(np.abs(images["classified", p] - exact).max(axis=-1) for p in ("float32", "float64")))
@@ -100,7 +96,7 @@ def main(argv=None):
     t_ref = time.perf_counter()
     for (j, i), why in picked.items():
         o, d = R.contract_ray(contract, W, H, i, j)
-        r = ref.pixel(o, d, offset.BACKGROUND)
+        r = ref.pixel(o, d, BACKGROUND)
         row = {"i": i, "j": j, "why": why, "reference": r.rgba.tolist(), "reference_error": r.error,
                "classified_vs_split": float(step_gap[j, i]), "float32_vs_float64": float(precision_gap[j, i])}
         for method, precision in RENDERS:
@@ -108,7 +104,7 @@ def main(argv=None):
         rows.append(row)
         print(f"({i:3d}, {j:3d}) {why:20s} " + " ".join(f"{m[:5]} {p[5:]}: {row[f'error_{m}_{p}']:.1e}"
                                                         for m, p in RENDERS) + f"  ref err {r.error:.0e}", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True).stdout.strip()
+    commit = common.git("rev-parse", "--short", "HEAD")
     summary = {f"max_error_{m}_{p}": max(r[f"error_{m}_{p}"] for r in rows) for m, p in RENDERS}
     summary.update({f"wrong_{m}_{p}": sum(r[f"error_{m}_{p}"] > WRONG for r in rows) for m, p in RENDERS})
     report = {"date": datetime.date.today().isoformat(), "commit": commit, "device": "cpu", "size": [W, H],

@@ -1,11 +1,11 @@
 """The peers side by side (issue 19): what VTK (ParaView's engine) gives on the same data, view
 and transfer function as ours, with time, memory and error, measured in one run.
 
-    python bench/peers.py --device cpu --size 192x108 --out bench/results/cpu/peers --figures docs
-    python bench/peers.py --device cuda:0 --size 1920x1080 --out $OUT/peers --figures $OUT/peers
-    python bench/peers.py --plot bench/results/cpu/peers/peers.json --figures docs   (figures again)
+    python -m bench.peers --device cpu --size 192x108 --out bench/results/cpu/peers --figures docs
+    python -m bench.peers --device cuda:0 --size 1920x1080 --out $OUT/peers --figures $OUT/peers
+    python -m bench.peers --plot bench/results/cpu/peers/peers.json --figures docs   (figures again)
 
-Datasets, views and transfer functions are those of the audit (scripts/audit.py: every dataset
+Datasets, views and transfer functions are those of the audit (hovr_blender/audit/datasets.py: every dataset
 of ../shared/data that it lists, the paper-scale channel and the curved mixed cube; the
 "oblique" view by default; three tents of density over the field's 2nd..98th percentiles).
 Methods (--methods, comma list):
@@ -23,7 +23,7 @@ Methods (--methods, comma list):
   rendered by vtkSmartVolumeMapper (vtkGPUVolumeRayCastMapper wherever OpenGL allows it; the
   JSON records the mode it used).
 Transfer-function mapping and camera: bench/vtk_peer.py (checked on a constant-density cube
-by tests/bench/test_peers_calibration.py).
+by bench/test_peers_calibration.py).
 
 Measured per method, after one warm-up frame: time per frame (median of --repeats; VTK: the
 Render() call, ours: the render's own render_seconds), preparation time (tessellation,
@@ -59,21 +59,14 @@ import datetime
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-for p in (REPO, HERE, REPO / "scripts"):
-    if str(p) not in sys.path:
-        sys.path.insert(0, str(p))
-
-import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functions)
-import suite  # noqa: E402  (git helpers, JSON conversion)
-import vtk_peer as vp  # noqa: E402
+from bench import common
+from bench import vtk_peer as vp
+from hovr_blender.audit import datasets  # the audit's datasets, views, transfer functions
 
 EMPTY = 1.0 / 255  # alpha below this: an empty pixel (for the mean error)
 DEFAULT_DATASETS = ["Hex_CurvedFace", "Hex_Mushroom", "ngsolve_ball", "mfem_fichera", "hump3D", "paper_scale",
@@ -149,7 +142,7 @@ def run_ours(mesh, camera, tf, device, methods, repeats, log):
         with Memory(device) as mem:
             t0 = time.perf_counter()
             if renderer is None:
-                renderer, _ = suite.compiled_renderer(mesh, device)  # a 4x3 frame compiles or loads the kernels
+                renderer, _ = common.compiled_renderer(mesh, device)  # a 4x3 frame compiles or loads the kernels
             prep = time.perf_counter() - t0
             opts = RenderOptions(device=device, **kw)
             secs = []
@@ -172,7 +165,7 @@ def run_ours(mesh, camera, tf, device, methods, repeats, log):
 
 
 def _mesh_bytes(mesh):
-    from resample_baseline import mesh_memory_bytes
+    from bench.resample_baseline import mesh_memory_bytes
 
     return int(mesh_memory_bytes(mesh))
 
@@ -374,10 +367,10 @@ def run_dataset(name, args, deadline, log):
 
     W, H = (int(v) for v in args.size.split("x"))
     t0 = time.perf_counter()
-    mesh, data = audit.load(name)
+    mesh, data = datasets.load(name)
     load_s = time.perf_counter() - t0
-    tf = audit.transfer_function(mesh)
-    cam = dict(audit.views(mesh)[args.view], projection="perspective")
+    tf = datasets.transfer_function(mesh)
+    cam = dict(datasets.views(mesh)[args.view], projection="perspective")
     camera = RayCamera.from_contract(cam, W, H)
     log(f"{name}: {mesh.num_elements} elements, loaded in {load_s:.1f} s")
     entry = {"dataset": name, "data": data, "elements": int(mesh.num_elements), "view": args.view, "camera": cam,
@@ -570,7 +563,7 @@ def main(argv=None):
                     help="time cap of each of those two independent checks per dataset")
     ap.add_argument("--fix-disputed", type=int, default=30,
                     help="pixels where VTK's closest method is > 0.05 off the float64 image that it decides")
-    ap.add_argument("--out", default=str(REPO / "bench" / "results" / "cpu" / "peers"))
+    ap.add_argument("--out", default=str(common.RESULTS / "cpu" / "peers"))
     ap.add_argument("--figures", default=None, help="folder for peers_<dataset>.png (default: --out)")
     ap.add_argument("--save-images", action="store_true", help="also keep every image (npz) under OUT/images")
     ap.add_argument("--plot", metavar="PEERS_JSON", help="only draw the figures of an earlier run (into --figures)")
@@ -610,8 +603,8 @@ def main(argv=None):
     dev = wp.get_device(args.device)
     out = {"device": args.device, "device_name": dev.name if dev.is_cuda else _cpu_name(),
            "date": datetime.datetime.now().isoformat(timespec="seconds"),
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], REPO)] + sys.argv[1:]),
-           "git_commit": suite._git("rev-parse", "HEAD"), "git_dirty": suite._dirty(args.out),
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "git_dirty": common.git_dirty(args.out),
            "host": platform.node(), "python": platform.python_version(), "warp": wp.__version__,
            "vtk": vtk.vtkVersion.GetVTKVersion(), "vtk_opengl": gl, "size": args.size,
            "settings": {k: v for k, v in vars(args).items()},
@@ -637,17 +630,17 @@ def main(argv=None):
         except Exception as exc:  # noqa: BLE001  (a renderer's failure is a result: recorded, the run goes on)
             out.setdefault("failed", {})[name] = f"{type(exc).__name__}: {exc}"
             log(f"{name}: failed: {type(exc).__name__}: {exc}")
-            (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=suite._jsonable) + "\n")
+            (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=common.jsonable) + "\n")
             continue
         images, ref = entry.pop("_images"), entry.pop("_ref")
         npz = save_figure_images(entry, images, ref, args.out)
         try:
             entry["figure"] = str(figure(entry, npz, figs, out["device_name"]))
         except ImportError as exc:  # no matplotlib (a bare GPU machine): draw later with --plot
-            log(f"  no figure ({exc}); draw it later: python bench/peers.py --plot {args.out}/peers.json")
+            log(f"  no figure ({exc}); draw it later: python -m bench.peers --plot {args.out}/peers.json")
         out["datasets"][name] = entry
         out["wall_seconds"] = time.perf_counter() - t_start
-        (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=suite._jsonable) + "\n")
+        (Path(args.out) / "peers.json").write_text(json.dumps(out, indent=1, default=common.jsonable) + "\n")
     md = table(out)
     (Path(args.out) / "peers.md").write_text(
         f"{out['device_name']} ({args.device}), {out['date']}, commit {out['git_commit']}, {args.size}, "

@@ -1,6 +1,6 @@
 """Plots and a markdown table from bench/convergence.py JSON (runs where matplotlib is).
 
-    python bench/plot_convergence.py bench/results/cpu/convergence.json [more.json ...]
+    python -m bench.plot_convergence bench/results/cpu/convergence.json [more.json ...]
 writes beside each JSON: fig5_error_vs_h.png, fig6_error_vs_samples.png,
 time_vs_error.png and convergence.md.
 """
@@ -29,7 +29,7 @@ def plot(path):
     folder = os.path.dirname(path)
     title = f"{d['device_name']} ({d['device']}), {d['size'][0]}x{d['size'][1]}, {d['date']}"
     lines = [f"# Sphere convergence: {title}", "",
-             f"Command: `python bench/convergence.py --device {d['device']} --size {d['size'][0]}x{d['size'][1]}`", ""]
+             f"Command: `python -m bench.convergence --device {d['device']} --size {d['size'][0]}x{d['size'][1]}`", ""]
     fig5, ax5 = plt.subplots(1, len(d["cases"]), figsize=(6 * len(d["cases"]), 4.5), squeeze=False)
     fig6, ax6 = plt.subplots(1, len(d["cases"]), figsize=(6 * len(d["cases"]), 4.5), squeeze=False)
     figt, axt = plt.subplots(1, len(d["cases"]), figsize=(6 * len(d["cases"]), 4.5), squeeze=False)

@@ -3,27 +3,21 @@ pixels over 1e-3 and 1e-2 and the worst pixels (row, column, error, float32 and 
 per setting. The probe that found the search's located-list bug (commit 2a0230f); the suite's
 methods section only reports the largest error.
 
-    python bench/precision_gap.py --device cuda:0 --dataset curved_mixed --sizes 1920x1080
-    python bench/precision_gap.py --device cpu --config small --sizes 64x48         (CPU check)
+    python -m bench.precision_gap --device cuda:0 --dataset curved_mixed --sizes 1920x1080
+    python -m bench.precision_gap --device cpu --config small --sizes 64x48         (CPU check)
 """
 from __future__ import annotations
 
 import argparse
 import datetime
 import json
-import os
-import sys
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
-sys.path.insert(0, HERE)
-
-import suite  # noqa: E402
-
-from hovr_blender.engine.reference import pixel_exact_reference  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
+from bench import common, suite
+from hovr_blender.audit import scenes
+from hovr_blender.engine.reference import pixel_exact_reference
+from hovr_blender.engine.view import RenderOptions
 
 
 def main(argv=None):
@@ -41,17 +35,17 @@ def main(argv=None):
     wp.config.quiet = True
     wp.init()
     mesh, tf, camera, desc = suite.dataset(args.dataset, suite.CONFIG[args.config])
-    r, _ = suite.compiled_renderer(mesh, args.device)
+    r, _ = common.compiled_renderer(mesh, args.device)
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,
-           "date": datetime.datetime.now().isoformat(timespec="seconds"), "git_commit": suite._git("rev-parse", "HEAD"),
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], os.path.join(HERE, ".."))] + sys.argv[1:]),
+           "date": datetime.datetime.now().isoformat(timespec="seconds"), "git_commit": common.git("rev-parse", "HEAD"),
+           "command": common.command_line(),
            "dataset": desc, "cases": []}
     for size in args.sizes.split(","):
         W, H = (int(v) for v in size.split("x"))
         cam = camera(W, H)
-        ref, _ = pixel_exact_reference(mesh, cam, tf, suite.BACKGROUND, args.device, renderer=r)
+        ref, _ = pixel_exact_reference(mesh, cam, tf, scenes.BACKGROUND, args.device, renderer=r)
         for tol in (float(v) for v in args.tolerances.split(",")):
-            res = r.render(cam, tf, suite.BACKGROUND, RenderOptions(method="split", tolerance=tol, device=args.device))
+            res = r.render(cam, tf, scenes.BACKGROUND, RenderOptions(method="split", tolerance=tol, device=args.device))
             got = res.rgba.astype(np.float64)
             err = np.abs(got[..., :3] - ref[..., :3]).max(axis=-1)
             order = np.argsort(err.ravel())[::-1][: args.worst]

@@ -3,7 +3,7 @@ old world default h = 0.01: classified's largest pixel error against split (tole
 its time, on a small first picture (the importer's defaults: the Smooth Ramp over the sampled
 range, density 4 across the volume, Blender's default view direction framed).
 
-    python bench/relative_step.py --out bench/results/cpu/relative_step.json
+    python -m bench.relative_step --out bench/results/cpu/relative_step.json
 
 The user guide's numbers for the default N = 1000 come from here (hump3D, PyFR's Taylor-Green
 pressure). On a shared machine the times are for comparison within one run only.
@@ -12,25 +12,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench.common import DATA
+from hovr_blender.ui import framing  # bpy-free
+from hovr_blender.ui.scene import TF_PRESETS, field_samples
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.transfer_function import TransferFunction
+from hovr_blender.engine.view import RenderOptions
+from hovr_blender.io.sources import VolumeSource, load_volume
 
-from hovr_blender.ui import framing  # noqa: E402  (bpy-free)
-from hovr_blender.ui.scene import TF_PRESETS, field_samples  # noqa: E402
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
-from hovr_blender.io.sources import VolumeSource, load_volume  # noqa: E402
-
-DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
 DATASETS = {  # name: (mesh, solution, field)
     "hump3D": ("nektar/hump3D_GLL.xml", "nektar/hump3D.rst", "rho"),
     "pyfr_tgv_pressure": ("vtu/pyfr_tgv_hexprism_p4_t4.vtu", "", "Pressure"),

@@ -21,7 +21,7 @@ with trilinear interpolation (as VTK's GPU ray caster does), against the pixel-e
    (engine/reference.pixel_exact_reference: the Renderer in float64 with RenderOptions.pixel_exact(),
    split at tolerance 1e-9, min_transmittance 0).
 
-    python bench/resample_baseline.py --device cpu --size 48x36        (sphere, quick look)
+    python -m bench.resample_baseline --device cpu --size 48x36        (sphere, quick look)
 """
 from __future__ import annotations
 
@@ -29,7 +29,6 @@ import argparse
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import dataclass
 
@@ -38,14 +37,10 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-if os.path.join(HERE, "..") not in sys.path:
-    sys.path.insert(0, os.path.join(HERE, ".."))
-
-from hovr_blender.engine import expansions as ex  # noqa: E402
-from hovr_blender.engine import shapes  # noqa: E402
-from hovr_blender.engine.mesh import VolumeMesh, element_boxes  # noqa: E402
-from hovr_blender.engine.kernels.quadrature import ramp_segment  # noqa: E402  (the renderer's own transfer-function lookup)
+from hovr_blender.engine import expansions as ex
+from hovr_blender.engine import shapes
+from hovr_blender.engine.mesh import VolumeMesh, element_boxes
+from hovr_blender.engine.kernels.quadrature import ramp_segment  # the renderer's own transfer-function lookup
 
 BYTES_PER_POINT = 4  # float32 value; NaN marks empty points
 

@@ -1,7 +1,7 @@
 """Real meshes at full HD: scaleHO (21,828 tets + 2,020 curved prisms, no field in the file:
 an analytic field is fitted at order 4) and hump3D (1,760 curved hexahedra, density rho).
 
-    python bench/scale.py --device cuda:0 --out bench/results/h200 [--size 1920x1080]
+    python -m bench.scale --device cuda:0 --out bench/results/h200 [--size 1920x1080]
 
 Writes scale.json (load time, element segments/s and field samples/s per method) and
 hump3D.png / scaleHO.png.
@@ -16,19 +16,17 @@ import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, ".."))
+from bench import common
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.image_io import write_png
+from hovr_blender.engine.mesh import element_boxes
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.transfer_function import TransferFunction
+from hovr_blender.engine.view import RenderOptions
+from hovr_blender.io.nektar import read_nektar
+from hovr_blender.io.synthetic import with_field
 
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.image_io import write_png  # noqa: E402
-from hovr_blender.engine.mesh import element_boxes  # noqa: E402
-from hovr_blender.engine.renderer import Renderer  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.engine.view import RenderOptions  # noqa: E402
-from hovr_blender.io.nektar import read_nektar  # noqa: E402
-from hovr_blender.io.synthetic import with_field  # noqa: E402
-
-DATA = os.path.join(HERE, "..", "..", "shared", "data", "nektar")
+DATA = str(common.DATA / "nektar")
 
 
 def framing(mesh, w, h, direction=(1.0, -0.8, 0.7)):
@@ -92,7 +90,7 @@ def main(argv=None):
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "cpu"))
+    ap.add_argument("--out", default=str(common.RESULTS / "cpu"))
     ap.add_argument("--only", default="hump3D,scaleHO")
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)

@@ -1,8 +1,8 @@
 """The bench suite (issue 6): small on the CPU (regressions), full on a CUDA GPU (the figures).
 
-    python bench/suite.py --device cpu --size small --out bench/results/cpu
-    python bench/suite.py --device cuda:0 --size full --out OUT/cuda
-    python bench/suite.py --plot OUT/cuda/suite.json          (plots again from a JSON)
+    python -m bench.suite --device cpu --size small --out bench/results/cpu
+    python -m bench.suite --device cuda:0 --size full --out OUT/cuda
+    python -m bench.suite --plot OUT/cuda/suite.json          (plots again from a JSON)
 
 Needs numpy, warp-lang and matplotlib only (no bpy, no file readers, no network). Writes
 DIR/suite.json after every section (a run cut short keeps what it measured) and the plots
@@ -36,22 +36,16 @@ import datetime
 import json
 import os
 import platform
-import subprocess
-import sys
 import time
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.join(HERE, "..")
-sys.path.insert(0, ROOT)
-sys.path.insert(0, HERE)
+from hovr_blender.audit.scenes import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents
+from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.transfer_function import TransferFunction
+from hovr_blender.io.synthetic import brick
 
-from hovr_blender.engine.camera import RayCamera  # noqa: E402
-from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
-from hovr_blender.io.synthetic import brick  # noqa: E402
-# the scenes the tests share (one definition: tests/helpers.py)
-from tests.helpers import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents  # noqa: E402
+from bench.common import RESULTS, command_line, compiled_renderer, git, git_dirty, jsonable, rgb_error, row_of, timed
 
 METHODS = ("riemann", "trapezoid", "classified", "split")
 
@@ -127,48 +121,6 @@ def dataset(name, cfg):
     raise ValueError(name)
 
 
-# ----------------------------------------------------------------------------------- helpers
-
-
-def rgb_error(img, ref):
-    return float(np.abs(np.asarray(img)[..., :3].astype(np.float64) - np.asarray(ref)[..., :3]).max())
-
-
-def timed(renderer, cam, tf, opts, repeats):
-    """Best of `repeats` renders; a render over 2 s is not repeated (its noise is small)."""
-    best = None
-    for _ in range(repeats):
-        res = renderer.render(cam, tf, BACKGROUND, opts)
-        if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
-            best = res
-        if res.stats["render_seconds"] > 2.0:
-            break
-    return best
-
-
-def row_of(res, **extra):
-    s = res.stats
-    return {**extra, "seconds": s["render_seconds"], "samples_per_ray": s["samples_per_ray"],
-            "field_evaluations": s["field_evaluations"], "restriction_evaluations": s["restriction_evaluations"],
-            "segments": s["segments"], "segments_empty": s["segments_empty"],
-            "segments_smooth": s["segments_smooth"], "segments_piecewise_smooth": s["segments_piecewise_smooth"],
-            "empty_fraction": s["segments_empty"] / max(s["segments"], 1), "curved_locates": s["curved_locates"]}
-
-
-def compiled_renderer(mesh, device):
-    """(Renderer, seconds of its first render): the first render compiles the kernel (or loads
-    it from Warp's cache), so timed renders after it measure the kernel alone."""
-    from hovr_blender.engine.renderer import Renderer
-    from hovr_blender.engine.view import RenderOptions
-
-    r = Renderer(mesh, device)
-    t0 = time.perf_counter()
-    r.render(RayCamera.from_contract({"eye": [9, 9, 9], "target": [0, 0, 0], "up": [0, 0, 1], "fov_y_deg": 30}, 4, 3),
-             TransferFunction.from_contract({"color": [[0, 1, 1, 1]], "density": [[0, 0.0]]}), BACKGROUND,
-             RenderOptions(method="split", device=device))
-    return r, time.perf_counter() - t0
-
-
 class Suite:
     def __init__(self, args):
         import warp as wp
@@ -191,8 +143,8 @@ class Suite:
         self.out = {
             "device": str(dev), "device_name": getattr(dev, "name", str(dev)), "size": args.size,
             "date": datetime.datetime.now().isoformat(timespec="seconds"),
-            "command": "python " + " ".join([os.path.relpath(sys.argv[0], ROOT)] + sys.argv[1:]),
-            "git_commit": _git("rev-parse", "HEAD"), "git_dirty": _dirty(args.out),
+            "command": command_line(),
+            "git_commit": git("rev-parse", "HEAD"), "git_dirty": git_dirty(args.out),
             "host": platform.node(), "python": platform.python_version(), "warp": wp.__version__,
             "numpy": np.__version__, "config": {k: v for k, v in self.cfg.items()},
             "note": ("CPU numbers are for regressions only (one CPU thread per render on a shared 2-core machine); "
@@ -217,7 +169,7 @@ class Suite:
         self.out["wall_seconds"] = time.perf_counter() - self.t_start
         path = os.path.join(self.args.out, "suite.json")
         with open(path, "w") as fh:
-            json.dump(self.out, fh, indent=1, default=_jsonable)
+            json.dump(self.out, fh, indent=1, default=jsonable)
         return path
 
     def renderer(self, mesh):
@@ -295,7 +247,7 @@ class Suite:
     # ------------------------------------------------------------------------------ section 2
 
     def resample(self):
-        import resample_baseline as rb
+        from bench import resample_baseline as rb
         from hovr_blender.engine.reference import pixel_exact_reference, reference_render
 
         sec = self.out["sections"].setdefault("resample", {})
@@ -418,34 +370,6 @@ def _host_memory():
         return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         return None
-
-
-def _git(*args):
-    """git's answer here; on a device machine whose copy of .git can be stale, the command
-    passes the commit in HOVR_COMMIT (HOVR_COMMIT=$(git rev-parse --short HEAD) where it was sent from)."""
-    if args == ("rev-parse", "HEAD") and os.environ.get("HOVR_COMMIT"):
-        return os.environ["HOVR_COMMIT"]
-    try:
-        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=10).stdout.strip() or None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def _dirty(out_dir):
-    """Tracked files changed since the commit, the output folder (rewritten by this run) aside."""
-    rel = os.path.relpath(os.path.abspath(out_dir), os.path.abspath(ROOT))
-    spec = ["--", ".", f":(exclude){rel}"] if not rel.startswith("..") else []
-    return bool(_git("status", "--porcelain", "--untracked-files=no", *spec))
-
-
-def _jsonable(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 # ------------------------------------------------------------------------------------- plots
@@ -585,7 +509,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description="hovr bench suite (issue 6)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--size", choices=sorted(CONFIG), default="small")
-    ap.add_argument("--out", default=os.path.join(HERE, "results", "cpu"))
+    ap.add_argument("--out", default=str(RESULTS / "cpu"))
     ap.add_argument("--only", default="methods,resample,scaling", help="comma list of sections")
     ap.add_argument("--budget", type=float, default=None, help="seconds one render may be estimated to take")
     ap.add_argument("--max-minutes", type=float, default=None,

@@ -1,15 +1,15 @@
 """The resample-and-trilinear baseline (bench/resample_baseline.py): grid size and memory,
 grid values, an exact case for the march, and convergence to the reference as h_g shrinks.
 
-The one test that lives in bench/: it checks the baseline the suite times against, which is
-bench code (tests/ never import bench). pytest collects it with tests/ (pyproject testpaths);
+A check of bench code, so it lives in bench/ (tests/ never import bench): the baseline the
+suite times against. pytest collects it with tests/ (pyproject testpaths);
 the device fixture is the repository's conftest.py."""
 import math
 
 import numpy as np
 import pytest
 
-import resample_baseline as rb  # bench/ is this module's folder: pytest puts it on the path
+from bench import resample_baseline as rb
 from hovr_blender.engine.camera import RayCamera
 from hovr_blender.engine.reference import reference_render
 from hovr_blender.engine.transfer_function import TransferFunction

@@ -3,11 +3,11 @@ setting, a full render, the trace that keeps every ray's segments and series
 (Renderer.trace), and the shade of N different transfer-function edits from that cache
 (Renderer.shade), each against a fresh render of the same edit.
 
-    python bench/tf_edit.py --device cuda:0 --size 1920x1080 --out $OUT/tf_edit.json
-    python bench/tf_edit.py --device cpu --size 96x54 --paper 48,96 --edits 4 --repeats 2 \\
+    python -m bench.tf_edit --device cuda:0 --size 1920x1080 --out $OUT/tf_edit.json
+    python -m bench.tf_edit --device cpu --size 96x54 --paper 48,96 --edits 4 --repeats 2 \\
         --datasets paper_scale,paper_scale_straight,hump3D --out /tmp/tf_edit.json   (a small CPU check)
 
-Datasets, cameras and transfer functions are the audit's (scripts/audit.py: the oblique view,
+Datasets, cameras and transfer functions are the audit's (hovr_blender/audit/datasets.py: the oblique view,
 three density tents over the field's 2..98 % range); paper_scale_straight is the paper-scale
 channel with straight sides. A dataset whose file is missing is skipped and recorded so. The
 edits keep the transfer function's breakpoint band (its lowest and highest breakpoint), so the
@@ -39,21 +39,13 @@ import datetime
 import json
 import os
 import platform
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
-for p in (REPO, HERE, REPO / "scripts"):
-    if str(p) not in sys.path:
-        sys.path.insert(0, str(p))
-
-import audit  # noqa: E402  (scripts/audit.py: datasets, views, transfer functions)
-import suite  # noqa: E402  (git helpers, JSON conversion)
-from frame import SETTINGS  # noqa: E402  (the method settings' names)
+from bench import common
+from bench.frame import SETTINGS  # the method settings' names
+from hovr_blender.audit import datasets, scenes  # the audit's datasets, views, transfer functions
 
 DEFAULT_DATASETS = "paper_scale,paper_scale_straight,hump3D,ngsolve_ball,mfem_fichera,ngsolve_post,pyfr_tgv"
 
@@ -66,8 +58,8 @@ def load(name: str, paper: tuple[int, int]):
 
         mesh = paper_scale_mesh(*paper, curved=name == "paper_scale")
     else:
-        mesh, _ = audit.load(name)
-    return mesh, audit.transfer_function(mesh), dict(audit.views(mesh)["oblique"], projection="perspective")
+        mesh, _ = datasets.load(name)
+    return mesh, datasets.transfer_function(mesh), dict(datasets.views(mesh)["oblique"], projection="perspective")
 
 
 def edits(tf, n: int, seed: int = 21) -> list:
@@ -109,7 +101,7 @@ def difference(a, b) -> float:
 
 
 def run_setting(r, cam, tfs, opts, args) -> dict:
-    bg = suite.BACKGROUND
+    bg = scenes.BACKGROUND
     render_s, render_wall, fresh0 = best(lambda: r.render(cam, tfs[0], bg, opts), args.repeats, "render_seconds")
     trace_s, trace_wall, cache = best(lambda: r.trace(cam, tfs[0], opts), args.repeats, "trace_seconds")
     shade, shade_wall, diffs, shaded = [], [], [], None
@@ -145,9 +137,9 @@ def main(argv=None):
     ap.add_argument("--png", action="store_true", help="each dataset's last shaded edit as a PNG beside --out")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
-    unknown = [n for n in args.datasets.split(",") if n not in audit.DATASETS and n != "paper_scale_straight"]
+    unknown = [n for n in args.datasets.split(",") if n not in datasets.DATASETS and n != "paper_scale_straight"]
     if unknown:
-        known = ", ".join([*audit.DATASETS, "paper_scale_straight"])
+        known = ", ".join([*datasets.DATASETS, "paper_scale_straight"])
         ap.error(f"unknown dataset(s) {', '.join(unknown)}; known: {known}")
     unknown = [s for s in args.settings.split(",") if s not in SETTINGS]
     if unknown:
@@ -168,8 +160,8 @@ def main(argv=None):
     paper = tuple(int(v) for v in args.paper.split(","))
     out = {"device": args.device, "device_name": wp.get_device(args.device).name, "host": platform.node(),
            "date": datetime.datetime.now().isoformat(timespec="seconds"),
-           "command": "python " + " ".join([os.path.relpath(sys.argv[0], REPO)] + sys.argv[1:]),
-           "git_commit": suite._git("rev-parse", "HEAD"), "size": [W, H], "precision": args.precision,
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "size": [W, H], "precision": args.precision,
            "edits": args.edits, "repeats": args.repeats, "max_memory": args.max_memory, "datasets": {}}
     with limits.using(limits.ResourceLimits(max_memory=limits.parse_size(args.max_memory))):
         for name in args.datasets.split(","):
@@ -210,7 +202,7 @@ def main(argv=None):
             out["datasets"][name] = entry
             if args.out:
                 with open(args.out, "w") as fh:
-                    json.dump(out, fh, indent=1, default=suite._jsonable)
+                    json.dump(out, fh, indent=1, default=common.jsonable)
             del r
     return out
 

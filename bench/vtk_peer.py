@@ -1,6 +1,6 @@
 """VTK as a ParaView user drives it: the same view, the same transfer function, VTK's own mappers.
 
-Used by bench/peers.py (issue 19) and tests/bench/test_peers_calibration.py. Needs the `vtk`
+Used by bench/peers.py (issue 19) and bench/test_peers_calibration.py. Needs the `vtk`
 package (a test dependency) and an offscreen OpenGL context (EGL or OSMesa; VTK picks one
 at run time when there is no X display). Nothing in the product imports this file.
 
@@ -26,7 +26,7 @@ What a VTK image means here, mapped onto the render contract:
     1 - (1 - alpha)^(dt / u), so alpha(s) = 1 - exp(-tau(s) u); that is not linear between
     breakpoints, so the opacity function gets DENSIFY points per density segment, and u is
     again 1 / max tau (`image_functions`).
-  tests/bench/test_peers_calibration.py checks both on a cube of constant density, where
+  bench/test_peers_calibration.py checks both on a cube of constant density, where
   the exact image is C = kappa (1 - exp(-tau L)) with L the ray's chord.
 - Output: the render window's 8-bit RGBA framebuffer (what ParaView shows and saves), so every
   VTK pixel carries a rounding of up to 0.5/255 = 2.0e-3 (QUANT); the background is black, so

@@ -8,15 +8,19 @@
                 [--camera-path cams.json] [--scheduler ADDRESS | --workers N] [--device auto|cpu|cuda:0]
                                                            (frames over a Dask cluster)
 
-Every failure ends with `hovr: error: ...` and exit code 2 (--debug adds the traceback).
+Every failure ends with one `hovr: error: ...` line and exit code 2 (--debug adds the traceback);
+Ctrl-C and SIGTERM end with one line too (exit codes 130 and 143).
 Outputs are written to temporary files in their folders and renamed into place only when
 all of them succeeded: a failed run leaves no partial result.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
+import signal
 import sys
+import threading
 import tempfile
 import time
 import traceback
@@ -30,8 +34,30 @@ class OutputError(ValueError):
     """An output path the command will not write to."""
 
 
+class Terminated(BaseException):
+    """SIGTERM: ended like Ctrl-C (children closed, temporaries removed), with one line."""
+
+
+def _cluster_options(q):
+    """The Dask cluster options of render-series and render-blend (docs/distributed.md)."""
+    q.add_argument("--scheduler", help="address of a running Dask scheduler (tls://host:8786) or a scheduler "
+                   "file (.json); default: a local cluster only this run can reach (TLS, keys made for the run)")
+    q.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
+                   "else one per CPU core; at most one a core, or HOVR_MAX_PROCESSES)")
+    q.add_argument("--dashboard", nargs="?", const="127.0.0.1:8787", metavar="ADDRESS",
+                   help="local cluster: open Dask's dashboard (plain HTTP, readable by anyone on this machine) "
+                   "at ADDRESS (default 127.0.0.1:8787); without it no HTTP port is opened")
+    q.add_argument("--tls-ca-file", help="--scheduler: the cluster's CA certificate (with --tls-cert and --tls-key; "
+                   "default: Dask's configuration, distributed.comm.tls)")
+    q.add_argument("--tls-cert", help="--scheduler: your client certificate")
+    q.add_argument("--tls-key", help="--scheduler: your client certificate's private key")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="hovr", description=__doc__.split("\n\n")[0])
+    from .io import formats
+
+    p = argparse.ArgumentParser(prog="hovr", description=__doc__.split("\n\n")[0],
+                                epilog=f"The view's data.path: builtin:NAME or a file of {formats.described()}.")
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -75,10 +101,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--camera-path", help="JSON: {\"first_frame\": N, \"cameras\": [camera, ...]} (contract cameras)")
     s.add_argument("--orbit", type=float, help="turn the view's camera about its up axis by this many degrees "
                    "over the frames")
-    s.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:8786) or a scheduler "
-                   "file (.json); default: a local cluster")
-    s.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
-                   "else one per CPU core)")
+    _cluster_options(s)
     s.add_argument("--device", default="auto", help="each worker's device: auto (a local worker k: cuda:k; "
                    "else cuda:0, or cpu without CUDA), cpu or cuda:N")
     s.add_argument("--method", choices=METHODS, help="quadrature (default: the view's)")
@@ -88,12 +111,14 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     b = sub.add_parser("render-blend", help="render a saved .blend's frames with headless Blenders over a Dask "
                        "cluster, into the files `blender -b FILE -a` writes")
-    b.add_argument("blend", help="the .blend (its output path and frame range as saved)")
+    b.add_argument("blend", help="the .blend (its output path and frame range as saved; its scripts never run)")
     b.add_argument("--frames", required=True, help="frame numbers: 1-250, 1-250:2, 3,5,8-10")
+    b.add_argument("-o", "--output", help="folder to write the frames into (their names as the .blend gives them); "
+                   "default: the .blend's output path, which must lie under the .blend's own folder")
+    b.add_argument("--frame-timeout", type=float, default=3600.0, help="seconds a frame's Blender may run before "
+                   "it is stopped (default 3600)")
     b.add_argument("--blender", help="Blender binary with the add-on enabled (default: this Python, with bpy)")
-    b.add_argument("--scheduler", help="address of a running Dask scheduler, or a scheduler file (.json)")
-    b.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per CUDA device, "
-                   "else one per CPU core)")
+    _cluster_options(b)
     b.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     return p
 
@@ -147,7 +172,21 @@ def _write_all(outputs):
         raise
 
 
+def _reads_a_file(view_path) -> bool:
+    """Whether a view names a data file (not builtin:): a cheap first look, errors left to the run."""
+    from .engine.view import View
+
+    try:
+        return "path" in View.load(view_path).data
+    except Exception:  # noqa: BLE001  (the run itself reports what is wrong)
+        return False
+
+
 def _run(args) -> str:
+    from .io import isolation
+
+    if _reads_a_file(args.view):
+        isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
     from .engine.view import View
@@ -159,10 +198,10 @@ def _run(args) -> str:
         raise OutputError("--legend draws on the PNG: give --png too")
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
     lim = limits.current()
-    if args.max_memory:
-        lim = limits.ResourceLimits(limits.parse_size(args.max_memory), lim.max_samples_per_ray)
+    if args.max_memory:  # the other limits (inflation, read time) stay as the environment sets them
+        lim = dataclasses.replace(lim, max_memory=limits.parse_size(args.max_memory))
     if getattr(args, "max_samples_per_ray", None) is not None:
-        lim = limits.ResourceLimits(lim.max_memory, args.max_samples_per_ray)
+        lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         view = View.load(args.view)
         t0 = time.perf_counter()
@@ -207,28 +246,46 @@ def _run(args) -> str:
 
 
 class _dask_client:  # noqa: N801  (a context manager read as a function)
-    """The Dask client of --scheduler (an address or a scheduler file), else of a local cluster."""
+    """The Dask client of --scheduler (an address or a scheduler file, with the user's security),
+    else of a local cluster only this run can reach (distributed/series.py)."""
 
     def __init__(self, args, device="auto"):
-        from distributed import Client
-
         from .distributed import series
 
         self.cluster = None
         if args.scheduler:
-            self.client = (Client(scheduler_file=args.scheduler) if args.scheduler.endswith(".json")
-                           else Client(args.scheduler))
+            if args.dashboard:
+                raise ValueError("--dashboard opens a local cluster's dashboard; a --scheduler's is its own")
+            self.client = series.remote_client(args.scheduler, args.tls_ca_file, args.tls_cert, args.tls_key)
         else:
-            self.cluster = series.local_cluster(args.workers, device)
-            self.client = Client(self.cluster)
+            if args.tls_ca_file or args.tls_cert or args.tls_key:
+                raise ValueError("--tls-ca-file, --tls-cert and --tls-key are for --scheduler (a local cluster "
+                                 "makes its own keys)")
+            self.cluster = series.local_cluster(args.workers, device, dashboard=args.dashboard, quiet=not args.debug)
+            try:
+                self.client = series.cluster_client(self.cluster)
+            except BaseException:
+                self.cluster.close()
+                raise
 
     def __enter__(self):
         return self.client
 
     def __exit__(self, *exc):
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        try:
+            self.client.close()
+        finally:
+            if self.cluster is not None:
+                self.cluster.close()
+
+
+_BAR_OPEN = []  # a progress bar is drawn and its line not ended yet (a message starts below it)
+
+
+def _end_progress_line():
+    if _BAR_OPEN:
+        print(file=sys.stderr)
+        _BAR_OPEN.clear()
 
 
 def _progress_bar(t0):
@@ -238,6 +295,7 @@ def _progress_bar(t0):
         bar = "#" * (30 * done // total) + "." * (30 - 30 * done // total)
         print(f"\rhovr: [{bar}] {done}/{total} frames, {rate:.2f} frames/s (frame {rec['frame']}: {rec['status']})",
               end="" if done < total else "\n", file=sys.stderr, flush=True)
+        _BAR_OPEN[:] = [True] if done < total else []
 
     return progress
 
@@ -246,14 +304,19 @@ def _run_blend(args) -> str:
     """render-blend: a .blend's frames over a Dask cluster (distributed/blender_frames.py)."""
     from .distributed import blender_frames, series
 
+    from .engine import limits
+
     blend = os.path.abspath(args.blend)
-    if not os.path.isfile(blend):
-        raise OutputError(f"{args.blend}: no such .blend file")
+    limits.check_regular(blend, ".blend file")
     frames = series.parse_frames(args.frames)
+    if not args.frame_timeout > 0:
+        raise ValueError(f"--frame-timeout {args.frame_timeout:g} must be a positive number of seconds")
+    blender_frames.output_root(blend, args.output)  # -o checked before a cluster starts
     t0 = time.perf_counter()
     with _dask_client(args, "cpu" if args.workers else "auto") as client:
         records = blender_frames.render_animation(blend, frames, client, blender=args.blender,
-                                                  progress=_progress_bar(t0))
+                                                  progress=_progress_bar(t0), timeout=args.frame_timeout,
+                                                  output=args.output)
     written = sum(1 for r in records if r["status"] == "written")
     return (f"hovr: {written} frames written, {len(records) - written} were already there, in "
             f"{time.perf_counter() - t0:.1f} s")
@@ -274,12 +337,12 @@ def _run_series(args) -> str:
         raise ValueError("give --camera-path or --orbit, not both")
     cameras = {}
     if args.camera_path:
-        cameras = series.read_camera_path(args.camera_path, frames)
+        cameras = series.read_camera_path(args.camera_path, frames, view.camera.width, view.camera.height)
     elif args.orbit is not None:
-        import json
+        from .engine import limits, strict_json
 
-        with open(view_path) as fh:
-            cameras = series.orbit_cameras(json.load(fh)["camera"], frames, args.orbit)
+        camera = strict_json.loads(limits.read_regular(view_path, "view file"), view_path)["camera"]
+        cameras = series.orbit_cameras(camera, frames, args.orbit)
     options = {k: v for k, v in (("method", args.method), ("h", args.h), ("tolerance", args.tolerance),
                                  ("precision", args.precision)) if v is not None}
     view.options.with_(**options)  # checked here, before any worker starts
@@ -289,6 +352,7 @@ def _run_series(args) -> str:
     todo = series.pending_frames(job)
     if not todo:
         return f"hovr: all {len(frames)} frames are written already ({job.npy(frames[0])} ...)"
+    series.check_outputs(job, todo)  # a planted link refused before any worker starts
     t0 = time.perf_counter()
     with _dask_client(args, args.device) as client:
         records = series.render_series(job, client, progress=_progress_bar(t0))
@@ -299,30 +363,47 @@ def _run_series(args) -> str:
             f"{len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> {os.path.dirname(job.npy(frames[0]))}")
 
 
+def _terminate(signum, frame):
+    raise Terminated()
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    on_sigterm = threading.current_thread() is threading.main_thread()  # signal handlers live there only
+    previous = signal.signal(signal.SIGTERM, _terminate) if on_sigterm else None
     try:
         message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
+        _end_progress_line()
         print("hovr: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        _end_progress_line()
+        print("hovr: terminated (SIGTERM)", file=sys.stderr)
+        return 143
     except MemoryError:
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print("hovr: error: out of memory (lower the image size, or set --max-memory below what this "
               "machine has so that the run is refused before it starts)", file=sys.stderr)
         return EXIT_ERROR
     except (ValueError, RuntimeError, OSError) as exc:  # the readers' and renderer's clear errors
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print(f"hovr: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
     except Exception as exc:  # a bug: still one line, the traceback only when asked for
+        _end_progress_line()
         if args.debug:
             traceback.print_exc()
         print(f"hovr: error: unexpected {type(exc).__name__}: {exc} (a bug: please report it; "
               "--debug shows the traceback)", file=sys.stderr)
         return EXIT_ERROR
+    finally:
+        if on_sigterm:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
     print(message)
     return 0
 

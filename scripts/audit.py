@@ -1,11 +1,11 @@
 """Audit of the renderer against the independent reference (issue 15), in two stages.
 
-    python scripts/audit.py render --device cuda:0 --size 1920x1080 --out audit.json [--datasets a,b]
+    python -m scripts.audit render --device cuda:0 --size 1920x1080 --out audit.json [--datasets a,b]
         renders every dataset from three views (oblique, along the mesh lines, grazing) in
         float32 and float64 and keeps, per view, every pixel where the two differ by more than
         1e-4 (up to --max-gap) and a random sample of --sample others where the volume shows
         (seeded), with both values. Only that list leaves the GPU machine.
-    python scripts/audit.py check audit.json --out bench/results/audit [--jobs 2]
+    python -m scripts.audit check audit.json --out bench/results/audit [--jobs 2]
         runs the independent reference (hovr_blender/audit, VTK, float64, ~1 s a pixel) on every
         listed pixel and writes one report per dataset: each pixel's float32 and float64 error,
         which side is wrong (> 1e-3), the reference's own error estimate and the cells the ray
@@ -19,92 +19,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench.common import RESULTS
+from hovr_blender.audit.datasets import DATASETS, load, transfer_function, views
 
-SHARED = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))  # HOVR_DATA: elsewhere (GPU machine)
 GAP = 1e-4  # float32 against float64: pixels listed for checking
 WRONG = 1e-3  # against the reference: a wrong pixel (the project's target)
-
-DATASETS = {
-    "hump3D": {"path": "nektar/hump3D_GLL.xml", "solution": "nektar/hump3D.rst", "field": "rho"},
-    "Hex_CurvedFace": {"path": "nektar/Hex_CurvedFace.xml", "solution": "nektar/Hex_CurvedFace.fld", "field": "u"},
-    "Hex_Mushroom": {"path": "nektar/Hex_Mushroom.xml", "solution": "nektar/Hex_Mushroom.fld", "field": "u"},
-    "RotPerBcs3D_Annulus": {"path": "nektar/RotPerBcs3D_Annulus.xml"},
-    "Pyr_channel_m6": {"path": "nektar/Pyr_channel_m6.xml"},
-    "scaleHO": {"path": "nektar/scaleHO.xml"},
-    "ngsolve_ball": {"path": "vtu/ngsolve_ball_poisson_hex_p6.vtu", "field": "u"},
-    "mfem_fichera": {"path": "vtu/mfem_fichera_poisson_mixed_p4.vtu", "field": "u"},
-    "ngsolve_post": {"path": "vtu/ngsolve_post_heat_tetprism_p4.vtu", "field": "temperature"},
-    "pyfr_tgv": {"path": "vtu/pyfr_tgv_hexprism_p4_t4.vtu", "field": "Pressure"},
-    "paper_scale": {"synthetic": "paper_scale"},
-    "curved_mixed_cube": {"synthetic": "curved_mixed_cube"},
-}
-
-
-def load(name):
-    """(VolumeMesh, data spec or None) of a dataset."""
-    spec = DATASETS[name]
-    if "synthetic" in spec:
-        if spec["synthetic"] == "paper_scale":
-            from hovr_blender.io.paper_scale import paper_scale_mesh
-
-            return paper_scale_mesh(), None
-        from hovr_blender.io.synthetic import curved_cube
-
-        return curved_cube(4), None  # the benchmark suite's curved mixed cube (full size)
-    from hovr_blender.io.sources import VolumeSource, load_volume
-
-    data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in spec.items()}
-    for k in ("path", "solution"):
-        if k in data and not os.path.exists(data[k]):
-            raise FileNotFoundError(data[k])
-    return load_volume(VolumeSource.from_view_data(data)), data
-
-
-def framing(mesh):
-    lo, hi = mesh.vertices.reshape(-1, 3).min(0), mesh.vertices.reshape(-1, 3).max(0)
-    return 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo)), lo, hi
-
-
-def views(mesh):
-    """Three cameras (render contract): oblique (the benchmark suite's direction and distance);
-    along the x axis (the mesh lines of axis-aligned meshes); grazing the top of the bounding box."""
-    c, r, lo, hi = framing(mesh)
-    d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
-    top = np.array([c[0], c[1], hi[2]])
-    return {
-        "oblique": {"eye": (c + 2.6 * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1], "fov_y_deg": 30.0},
-        "along_x": {"eye": (c + np.array([2.6 * r, 1e-3 * r, 0.0])).tolist(), "target": c.tolist(), "up": [0, 0, 1],
-                    "fov_y_deg": 45.0},
-        "grazing": {"eye": (top + np.array([0.0, -2.6 * r, 0.02 * r])).tolist(), "target": top.tolist(),
-                    "up": [0, 0, 1], "fov_y_deg": 30.0},
-    }
-
-
-def transfer_function(mesh):
-    """Three tents over the field's range with an optical depth of a few across the data; a
-    constant density where the field is constant (then the image measures the geometry)."""
-    from hovr_blender.engine.transfer_function import TransferFunction
-
-    c, r, lo, hi = framing(mesh)
-    vals = mesh.field_samples(4)
-    a, b = (float(v) for v in np.percentile(vals, [2, 98]))
-    if b - a <= 1e-12 * max(1.0, abs(a)):
-        return TransferFunction.from_contract({"color": [[a - 1, 0.2, 0.5, 1.0], [a + 1, 0.2, 0.5, 1.0]],
-                                               "density": [[a - 1, 1.0 / r], [a + 1, 1.0 / r]]})
-    q = [a + (b - a) * t for t in (0.2, 0.3, 0.4, 0.6, 0.7, 0.8)]
-    return TransferFunction.from_contract({
-        "color": [[a, 0.1, 0.2, 1.0], [0.5 * (a + b), 0.2, 1.0, 0.3], [b, 1.0, 0.3, 0.1]],
-        "density": [[a, 0.0], [q[0], 0.0], [q[1], 3.0 / r], [q[2], 0.0], [q[3], 0.0], [q[4], 6.0 / r], [q[5], 0.0], [b, 0.0]]})
 
 
 def render_stage(args):
@@ -269,7 +194,7 @@ def main(argv=None):
     r.add_argument("--out", required=True)
     c = sub.add_parser("check")
     c.add_argument("audit")
-    c.add_argument("--out", default=str(REPO / "bench" / "results" / "audit"))
+    c.add_argument("--out", default=str(RESULTS / "audit"))
     c.add_argument("--datasets", default="")
     c.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args(argv)

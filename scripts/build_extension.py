@@ -1,16 +1,16 @@
 #!/usr/bin/env python3
 """Build and validate the Blender extension.
 
-  python scripts/build_extension.py [--output-dir dist]
+  python -m scripts.build_extension [--output-dir dist]
       dist/hovr_blender-<version>.zip: no bundled wheels (warp-lang must already be
       importable in Blender's Python); fast, used by the tests.
-  python scripts/build_extension.py --wheels [--platforms linux-x64,windows-x64,macos-arm64]
+  python -m scripts.build_extension --wheels [--platforms linux-x64,windows-x64,macos-arm64]
       one zip per platform, dist/hovr_blender-<version>-<platform>.zip, each carrying that
       platform's wheels of every runtime dependency (RUNTIME_REQUIREMENTS and what they need,
       numpy excepted: Blender ships it; downloaded with pip into build/wheels/<platform>/, not
       committed) and a manifest with `platforms` and `wheels` filled in (as Blender's
       --split-platforms does). Installed, such a zip needs nothing else.
-  python scripts/build_extension.py validate PATH
+  python -m scripts.build_extension validate PATH
       checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
@@ -33,6 +33,7 @@ the manifest plus the *contents* of hovr_blender/ at its root (no tests, no cach
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import json
 import os
@@ -52,11 +53,12 @@ SKIP_DIRS = {"__pycache__", "tests"}
 SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
-# Everything the add-on imports beyond Blender (ui/dependencies.py checks the same list at
-# enable time): Warp renders, meshio reads VTU (and needs rich at import), h5py reads HDF5
-# solution files. pip resolves their dependencies; numpy is left out: Blender ships its own, and
-# a second copy in the extension's site-packages would shadow it.
-RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "meshio==5.3.5", "h5py==3.16.0")
+# Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
+# enable time, tests/engine/test_blender_framing.py that they agree): Warp renders, h5py reads
+# HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
+# io/safe_xml.py). pip resolves their dependencies; numpy is left out: Blender ships its own,
+# and a second copy in the extension's site-packages would shadow it.
+RUNTIME_REQUIREMENTS = (f"warp-lang=={WARP_VERSION}", "h5py==3.16.0", "defusedxml==0.7.1")
 NOT_BUNDLED = {"numpy"}
 PYTHON_VERSION = "3.11"  # Blender 4.2 to 5.0; h5py's wheels are per Python version
 # Blender platform -> the pip platform tag of the wheels. numpy is not bundled: Blender ships its own.
@@ -155,8 +157,8 @@ def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=
     job = {"store": str(store), "cpu": cpu, "ptx": ptx, "variants": [list(v) for v in variants],
            "precisions": list(precisions), "cubin_archs": list(cubin_archs) if ptx else []}
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-    proc = subprocess.run([sys.executable, __file__, "compile-kernels", json.dumps(job)], env=env,
-                          capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "scripts.build_extension", "compile-kernels", json.dumps(job)],
+                          cwd=REPO, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"compiling the kernels failed:\n{proc.stderr[-3000:]}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -186,9 +188,10 @@ def _wheel_project(path: Path) -> str:
 
 def download_wheels(platform: str, cache: Path = WHEEL_CACHE) -> list[Path]:
     """Wheels of RUNTIME_REQUIREMENTS and their dependencies for a Blender platform, numpy
-    excepted, from the package index through pip (cached in build/wheels/<platform>/)."""
+    excepted, from the package index through pip (cached in build/wheels/<platform>/<digest of
+    the requirements>/, so a wheel a former requirement brought is never bundled)."""
     tag = WHEEL_PLATFORMS[platform]
-    dest = cache / platform
+    dest = cache / platform / hashlib.sha256("\n".join(RUNTIME_REQUIREMENTS).encode()).hexdigest()[:12]
     dest.mkdir(parents=True, exist_ok=True)
     subprocess.run([sys.executable, "-m", "pip", "download", *RUNTIME_REQUIREMENTS, "--only-binary=:all:",
                     "--platform", tag, "--python-version", PYTHON_VERSION, "--implementation", "cp",

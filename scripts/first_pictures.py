@@ -1,6 +1,6 @@
 """The user guide's first pictures.
 
-    .venv/bin/python scripts/first_pictures.py [--percentage 25] [--out docs]
+    python -m scripts.first_pictures [--percentage 25] [--out docs]
 
 The worked examples, headless: File > Import with the importer's defaults into Blender's factory
 startup scene, then F12 through the scene camera (as tests/blender/test_first_picture.py checks
@@ -27,10 +27,8 @@ import argparse
 import os
 import sys
 import time
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench.common import DATA, REPO
 
 EXAMPLES = {
     "hump3D": ("hovr_nektar", "nektar/hump3D_GLL.xml"),
@@ -38,8 +36,7 @@ EXAMPLES = {
 }
 
 
-SHARED = REPO.parent / "shared" / "data"
-# (label, path under ../shared/data, field or None for the importer's default)
+# (label, path under the shared data (bench.common.DATA), field or None for the importer's default)
 SHEET_DATASETS = {
     "hump3D": ("hump3D (Nektar++)", "nektar/hump3D_GLL.xml", None),
     "ngsolve-ball": ("NGSolve ball", "vtu/ngsolve_ball_poisson_hex_p6.vtu", None),
@@ -98,7 +95,7 @@ def look_cells(key: str, device: str, width: int, height: int, looks, out_json: 
         value_range
 
     label, rel, field = SHEET_DATASETS[key]
-    path = SHARED / rel
+    path = DATA / rel
     solution, default = default_field(path)
     field = field or default
     mesh = load_volume(VolumeSource.resolve(str(path), solution, field, 1))
@@ -192,8 +189,8 @@ def looks_main(argv):
                "command": "python -m scripts.first_pictures looks " + " ".join(argv), "cells": {}}
     rows = []
     for key in [x.strip() for x in args.datasets.split(",") if x.strip()]:
-        if not (SHARED / SHEET_DATASETS[key][1]).exists():
-            print(f"looks: {SHARED / SHEET_DATASETS[key][1]} not found, {key} skipped")
+        if not (DATA / SHEET_DATASETS[key][1]).exists():
+            print(f"looks: {DATA / SHEET_DATASETS[key][1]} not found, {key} skipped")
             continue
         rows.append(look_cells(key, args.device, width, height, looks, numbers["cells"]))
     contact_sheet(rows, looks, width, height, args.columns).save(args.out)
@@ -220,7 +217,7 @@ def main(argv=None):
     for name, (op, rel) in EXAMPLES.items():
         if args.only and name != args.only:
             continue
-        path = next((p for p in (REPO / "tests" / "data" / rel, REPO.parent / "shared" / "data" / rel) if p.exists()),
+        path = next((p for p in (REPO / "tests" / "data" / rel, DATA / rel) if p.exists()),
                     None)
         if path is None:
             print(f"first_pictures: {rel} not found, skipped")

@@ -1,10 +1,10 @@
 """Compile the render kernels for a CUDA architecture without a GPU (Warp's NVRTC), time the
 compile, and report each kernel's registers, stack frame and spills.
 
-    python scripts/kernel_report.py                              # sm_90, float32, report only
-    python scripts/kernel_report.py --cache .gpu/kcache          # also fill a Warp kernel cache
-    python scripts/kernel_report.py --precision float64 --arch 90
-    python scripts/kernel_report.py --modes 0,2,3,4,5,6,7,8,9,10,11   # every sample specialisation
+    python -m scripts.kernel_report                              # sm_90, float32, report only
+    python -m scripts.kernel_report --cache .gpu/kcache          # also fill a Warp kernel cache
+    python -m scripts.kernel_report --precision float64 --arch 90
+    python -m scripts.kernel_report --modes 0,2,3,4,5,6,7,8,9,10,11   # every sample specialisation
 
 --cache writes the compiled modules (PTX and CUBIN) where Warp looks for them when
 WARP_CACHE_PATH points there, so a GPU machine given that folder loads the kernels instead of
@@ -18,12 +18,9 @@ import argparse
 import os
 import shutil
 import subprocess
-import sys
 import tempfile
 import time
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
-sys.path.insert(0, ROOT)
 
 
 def main(argv=None):

@@ -13,7 +13,7 @@
 # (about 60 s a 1920x1080 frame of ngsolve_ball's lattice, from the CPU run); MAPPERS=raycast,projected
 # adds it (the small group fits). Results: $OUT/peers-<group>/
 # (peers.json, peers.md, figure_images/*.npz; figures too where matplotlib exists, else draw
-# them back home: python bench/peers.py --plot $OUT/peers-<group>/peers.json --figures docs).
+# them back home: python -m bench.peers --plot $OUT/peers-<group>/peers.json --figures docs).
 # If VTK finds no EGL there (install.sh lists the OpenGL libraries), peers.py says so and runs
 # our methods only: every VTK volume mapper, the CPU ray caster included, draws through OpenGL.
 # The JSON's "vtk_opengl" names the OpenGL renderer VTK got: it must name the NVIDIA GPU; if it
@@ -34,6 +34,6 @@ python3 -c "import warp, vtk; print('warp', warp.__version__, 'vtk', vtk.vtkVers
   { echo "warp or vtk missing: source .gpu/warp-N/install.sh and .gpu/vtk-N/install.sh first"; exit 2; }
 nvidia-smi -L 2>/dev/null || true
 HOVR_COMMIT=${HOVR_COMMIT:-$(git rev-parse --short HEAD 2>/dev/null)} \
-  python3 bench/peers.py --device cuda:0 --size 1920x1080 --datasets "$sets" --out "$out" --figures "$out" \
+  python3 -m bench.peers --device cuda:0 --size 1920x1080 --datasets "$sets" --out "$out" --figures "$out" \
   --max-minutes 8 --budget 60 --sample 0 --check-seconds 20 --repeats 2 --mappers "${MAPPERS:-projected}" \
   "$@" 2>&1 | tee "$out/peers.log"

@@ -1,6 +1,6 @@
 """Render the bundled demo through Blender's own render pipeline (F12 path, headless).
 
-    .venv/bin/python scripts/render_demo.py [--output demo.png] [--size 640x480] [--device cpu]
+    python -m scripts.render_demo [--output demo.png] [--size 640x480] [--device cpu]
 
 Registers the add-on in a factory-fresh scene, adds the paper's sphere volume with the
 HOVR "Add > HOVR Sphere Volume" operator, gives it the "Three Tents" transfer-function preset
@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 
 
 def main(argv=None):

@@ -3,4 +3,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
-exec .venv/bin/python scripts/render_demo.py "$@"
+exec .venv/bin/python -m scripts.render_demo "$@"

@@ -5,7 +5,7 @@ pixel of several full-HD views, plus small cameras aimed at the mesh's vertices,
 and face centres, in float32 and float64; the report gives each precision's max relative
 error of T and where it is.
 
-    python scripts/watertight.py --device cuda:0 --size 1920x1080 --views 5 --out wt.json
+    python -m scripts.watertight --device cuda:0 --size 1920x1080 --views 5 --out wt.json
 
 Conditioning: a ray that grazes a curved boundary has a chord that changes fast with the
 ray's position (at tangency, without bound), so where the float32 error exceeds the budget
@@ -17,19 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from tests.helpers import constant_density, constant_field  # noqa: E402  (the tests' own scene)
-
-DATA = Path(os.environ.get("HOVR_DATA", REPO.parent / "shared" / "data"))
+from bench.common import DATA, REPO
+from hovr_blender.audit.scenes import constant_density, constant_field  # the tests' own scene
 TAU = 1.1  # per world unit; both meshes are about 1 to 2 units across
 BUDGET = {"float64": 1e-6, "float32": 1e-4}
 DISPLACE = 4.0 * 2.0 ** -24  # relative to the eye's distance from the mesh's centre

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .vtk_volume import FIELD, _vtk
+from .vtk_volume import FIELD, import_vtk
 
 # Gauss-Kronrod 7/15 on [-1, 1] (Kronrod's nodes and weights; G7 weights on the odd nodes)
 _XK = np.array([0.991455371120813, 0.949107912342759, 0.864864423359769, 0.741531185599394,
@@ -63,7 +63,7 @@ class IndependentReference:
     transfer function (arrays of breakpoints)."""
 
     def __init__(self, grid, color_s, color_rgb, density_s, density_tau, tol: float = 1e-10):
-        vtk = _vtk()
+        vtk = import_vtk()
         from vtk.util.numpy_support import vtk_to_numpy
 
         self.grid = grid

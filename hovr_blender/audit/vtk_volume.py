@@ -23,7 +23,7 @@ class AuditError(ValueError):
     """Data the independent reference cannot represent."""
 
 
-def _vtk():
+def import_vtk():
     import vtk  # a test and audit dependency only: the product never imports it
 
     return vtk
@@ -31,7 +31,7 @@ def _vtk():
 
 def read_vtu(path: str, field: str, component: int | None = None):
     """(vtkUnstructuredGrid with the scalar point array FIELD, its name) of a .vtu, read by VTK."""
-    vtk = _vtk()
+    vtk = import_vtk()
     r = vtk.vtkXMLUnstructuredGridReader()
     r.SetFileName(str(path))
     r.Update()
@@ -53,7 +53,7 @@ def read_vtu(path: str, field: str, component: int | None = None):
 def _lattice(shape: int, degree: int) -> tuple[int, np.ndarray]:
     """(VTK cell type, (N, 3) VTK parametric coordinates of its N nodes in VTK's order), asked
     of VTK itself."""
-    vtk = _vtk()
+    vtk = import_vtk()
     p = degree
     if shape == shapes.HEX:
         hexa = vtk.vtkLagrangeHexahedron
@@ -108,7 +108,7 @@ def _geometry(mesh: VolumeMesh, e: int, xi: np.ndarray) -> np.ndarray:
 
 def from_mesh(mesh: VolumeMesh):
     """vtkUnstructuredGrid of VTK Lagrange cells holding exactly the mesh's geometry and field."""
-    vtk = _vtk()
+    vtk = import_vtk()
     from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
 
     if np.any(mesh.shape == shapes.PYR):

@@ -11,26 +11,42 @@ Writing exactly once: each output is written to a temporary file beside it and h
 its name (os.link fails if the name exists, so no frame is ever overwritten, even by a task
 Dask ran twice after losing its worker), the .npy last: a frame is done when its .npy exists.
 A line per frame written goes to the series log (`.hovr-series.log` in the .npy's folder,
-appended with O_APPEND), so a run can be audited for frames written twice.
+appended with O_APPEND), so a run can be audited for frames written twice. No output is written
+through a link: the log is opened with O_NOFOLLOW, and a frame whose .npy, .png or .json is a link
+(or anything but a regular file) is refused, naming it.
+
+A local cluster is its owner's only (local_cluster): the scheduler, nannies and workers speak TLS
+with certificates made for this run (distributed.security.Security.temporary), so connecting
+needs the run's key; Dask's HTTP servers are closed unless a dashboard is asked for; its workers
+end with the process that started them. A frame that fails is not retried (a refusal is
+deterministic): the run ends with that frame's one-line error. A lost worker's frames are
+rerun by the scheduler (distributed.scheduler.allowed-failures times).
 """
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
+import re
 import socket
+import stat
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..engine import limits, strict_json
 from ..engine.camera import RayCamera
 from ..engine.image_io import png_pixels, write_json, write_npy, write_png
 from ..engine.view import View
 from ..io.sources import VolumeSource, cached_volume, frame_path
 
 LOG_NAME = ".hovr-series.log"
+MAX_FRAMES = 1_000_000  # frames one run may name (a list of them is built; 10^8 took 5.8 GB)
+MAX_CAMERA_PATH_BYTES = 16 << 20  # a camera is ~200 bytes: ~80,000 cameras
+_FRAME_PART = re.compile(r"(\d{1,12})(?:-(\d{1,12}))?(?::(\d{1,12}))?")
 
 
 @dataclass
@@ -55,20 +71,31 @@ class SeriesJob:
         return asdict(self)
 
 
-def parse_frames(text: str) -> list[int]:
-    """"1-100", "1-100:2" (a step), "3,5,8-10" -> frame numbers in order, each once."""
-    frames = []
+def parse_frames(text: str, option: str = "--frames") -> list[int]:
+    """"1-100", "1-100:2" (a step), "3,5,8-10" -> frame numbers (whole numbers >= 0) in order, each
+    once; at most MAX_FRAMES, counted before any list is built."""
+    usage = "frames are whole numbers >= 0: 1-100, 1-100:2, 3,5,8-10"
+    ranges, count = [], 0
     for part in str(text).split(","):
         part = part.strip()
         if not part:
             continue
-        rng, _, step = part.partition(":")
-        a, sep, b = rng.partition("-")
-        lo, hi = int(a), int(b) if sep else int(a)
-        frames.extend(range(lo, hi + 1, int(step) if step else 1))
-    if not frames:
-        raise ValueError(f"no frames in {text!r}")
-    return list(dict.fromkeys(frames))
+        m = _FRAME_PART.fullmatch(part)
+        if m is None:
+            raise ValueError(f"{option} {text!r}: {part!r} is not a frame range ({usage})"[:300])
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) is not None else lo
+        step = int(m.group(3)) if m.group(3) is not None else 1
+        if hi < lo or step < 1:
+            raise ValueError(f"{option} {text!r}: {part!r} is empty (the first frame comes first; a step is >= 1)"[:300])
+        count += (hi - lo) // step + 1
+        if count > MAX_FRAMES:
+            raise ValueError(f"{option} {text!r} names more than {MAX_FRAMES} frames (the most one run renders; "
+                             f"split the series)"[:300])
+        ranges.append(range(lo, hi + 1, step))
+    if not ranges:
+        raise ValueError(f"{option} {text!r}: no frames ({usage})"[:300])
+    return list(dict.fromkeys(f for r in ranges for f in r))
 
 
 def orbit_cameras(camera: dict, frames, degrees: float = 360.0) -> dict:
@@ -88,16 +115,32 @@ def orbit_cameras(camera: dict, frames, degrees: float = 360.0) -> dict:
     return out
 
 
-def read_camera_path(path: str, frames) -> dict:
+def read_camera_path(path: str, frames, width: int = 1, height: int = 1) -> dict:
     """A camera path file: {"first_frame": N, "cameras": [camera, ...]} (contract §1 camera
-    objects, frame N first) or a plain list (first frame 1)."""
-    with open(path) as fh:
-        data = json.load(fh)
-    first, cams = (1, data) if isinstance(data, list) else (int(data.get("first_frame", 1)), data["cameras"])
+    objects, frame N first) or a plain list (first frame 1). Read under the file policy (a
+    regular file of at most MAX_CAMERA_PATH_BYTES, no key twice), and each frame's camera checked
+    here (RayCamera.from_contract at width x height), before any worker starts."""
+    raw = limits.read_regular(path, "camera path", max_bytes=MAX_CAMERA_PATH_BYTES)
+    what = f"camera path {path}"
+    data = strict_json.loads(raw, what)
+    if isinstance(data, list):
+        first, cams = 1, data
+    else:
+        data = strict_json.as_object(data, f"{what}: the file")
+        if "cameras" not in data:
+            raise ValueError(f"{what} needs \"cameras\": [camera, ...] (or is a list of cameras)")
+        first = strict_json.as_integer(data.get("first_frame", 1), f"{what}: first_frame", ValueError, 0)
+        cams = data["cameras"]
+        if not isinstance(cams, list):
+            raise ValueError(f"{what}: cameras must be a list of camera objects, not {type(cams).__name__}")
     out = {}
     for f in frames:
         if not 0 <= f - first < len(cams):
-            raise ValueError(f"camera path {path} has no camera for frame {f} (frames {first}..{first + len(cams) - 1})")
+            raise ValueError(f"{what} has no camera for frame {f} (frames {first}..{first + len(cams) - 1})")
+        try:
+            RayCamera.from_contract(cams[f - first], width, height)
+        except (ValueError, TypeError, KeyError) as exc:
+            raise ValueError(f"{what}, frame {f}: {exc}"[:300]) from None
         out[int(f)] = cams[f - first]
     return out
 
@@ -154,8 +197,23 @@ def link_file(tmp: str, path: str) -> bool:
     return True
 
 
+def check_output(path: str) -> bool:
+    """Whether an output `path` exists already (a regular file); a link or anything else there is
+    refused, naming it (a planted link would otherwise count as the frame written)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return False
+    if stat.S_ISLNK(st.st_mode):
+        raise limits.UnsafeFileError(f"output {path} is a symbolic link; refused (outputs never follow links)")
+    if not stat.S_ISREG(st.st_mode):
+        raise limits.UnsafeFileError(f"output {path} exists and is not a regular file; refused")
+    return True
+
+
 def _link_into_place(path: str, writer) -> bool:
-    """Write via a temporary file beside `path` and link it there (link_file)."""
+    """Write via a temporary file beside `path` and link it there (link_file); False if a regular
+    file is there already (check_output refuses anything else)."""
     folder = os.path.dirname(path)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + os.path.basename(path) + ".", suffix=".tmp")
     try:
@@ -163,18 +221,19 @@ def _link_into_place(path: str, writer) -> bool:
             writer(fh)
             fh.flush()
             os.fsync(fh.fileno())
-        return link_file(tmp, path)
+        if link_file(tmp, path):
+            return True
+        check_output(path)  # planted meanwhile: refused if it is not a regular file
+        return False
     finally:
         os.unlink(tmp)
 
 
-def _log(folder: str, record: dict):
-    line = (json.dumps(record) + "\n").encode()
-    fd = os.open(os.path.join(folder, LOG_NAME), os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-    try:
-        os.write(fd, line)
-    finally:
-        os.close(fd)
+def append_log(folder: str, record: dict):
+    """Append one line to the series log: one write of an O_APPEND descriptor (workers share the
+    file), never through a link."""
+    with limits.open_output(os.path.join(folder, LOG_NAME), "series log", append=True) as fh:
+        fh.write((json.dumps(record) + "\n").encode())
 
 
 def frame_view(job: SeriesJob, frame: int):
@@ -203,7 +262,11 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     job = job if isinstance(job, SeriesJob) else SeriesJob(**job)
     out = job.npy(frame)
     record = {"frame": int(frame), "host": socket.gethostname(), "pid": os.getpid()}
-    if os.path.exists(out):
+    base = out[: -len(".npy")]
+    for extra, wanted in ((".json", job.stats), (".png", job.png)):
+        if wanted:
+            check_output(base + extra)
+    if check_output(out):
         return {**record, "status": "exists"}
     if before_render is not None:
         before_render()
@@ -219,7 +282,6 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     result = renderer.render(camera, view.transfer_function, view.background, options)
     stats = {**result.stats, "frame": int(frame), "load_seconds": load_s, "upload_seconds": upload_s,
              "upload": upload, "source": source.path + (" " + source.solution if source.solution else "")}
-    base = out[: -len(".npy")]
     if job.stats:
         _link_into_place(base + ".json", lambda fh: write_json(fh, stats))
     if job.png:
@@ -228,21 +290,37 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     record.update(status="written" if written else "exists", device=renderer.device, load_seconds=load_s,
                   upload_seconds=upload_s, upload=upload, render_seconds=result.stats["render_seconds"])
     if written:
-        _log(os.path.dirname(out), {**record, "time": time.time()})
+        append_log(os.path.dirname(out), {**record, "time": time.time()})
     return record
 
 
 # ------------------------------------------------------------------------------- on the client
 
 def pending_frames(job: SeriesJob) -> list[int]:
-    """The job's frames whose .npy is not written yet."""
-    return [f for f in job.frames if not os.path.exists(job.npy(f))]
+    """The job's frames whose .npy is not written yet (a link there is refused: check_output)."""
+    return [f for f in job.frames if not check_output(job.npy(f))]
 
 
-def render_series(job: SeriesJob, client, progress=None, before_render=None, retries: int = 3) -> list[dict]:
-    """Submit the frames not yet written to the Dask `client` (one task a frame; Dask retries a
-    frame whose worker was lost) and wait for them; progress(done, total, record) after each.
-    Returns the records of the frames submitted, in frame order."""
+def check_outputs(job: SeriesJob, frames) -> None:
+    """The files `frames` would write (.npy, .png, .json as asked) and their folders' series logs
+    checked on the client before any worker starts (check_output; each frame checks again)."""
+    folders = set()
+    for f in frames:
+        out = job.npy(f)
+        base = out[: -len(".npy")]
+        for path, wanted in ((out, True), (base + ".json", job.stats), (base + ".png", job.png)):
+            if wanted:
+                check_output(path)
+        folders.add(os.path.dirname(out))
+    for folder in folders:
+        check_output(os.path.join(folder, LOG_NAME))
+
+
+def render_series(job: SeriesJob, client, progress=None, before_render=None, retries: int = 0) -> list[dict]:
+    """Submit the frames not yet written to the Dask `client` (one task a frame; the scheduler
+    reruns a frame whose worker was lost; a frame that fails is not retried unless `retries`)
+    and wait for them; progress(done, total, record) after each. Returns the records of the
+    frames submitted, in frame order."""
     folder = os.path.dirname(job.npy(job.frames[0]))
     if not os.path.isdir(folder):
         raise ValueError(f"output folder {folder} does not exist")
@@ -252,34 +330,128 @@ def render_series(job: SeriesJob, client, progress=None, before_render=None, ret
                                                       retries=retries), progress)
 
 
+class FrameError(RuntimeError):
+    """A frame that failed: the run ends with its one line."""
+
+
 def submit_frames(client, frames, prefix: str, submit, progress=None) -> list[dict]:
     """One task a frame, submit(frame, key) each (keys unique to this run), then the records
-    as they finish (progress(done, total, record) after each), returned in frame order."""
+    as they finish (progress(done, total, record) after each), returned in frame order. The
+    first frame that fails cancels the others and raises its error, with the frame named."""
     from distributed import as_completed
 
     token = f"{os.getpid()}-{time.time_ns()}"
     futures = [submit(f, f"{prefix}-{f}-{token}") for f in frames]
+    frame_of = {fut.key: f for f, fut in zip(frames, futures)}
     records = {}
-    for fut in as_completed(futures):
-        rec = fut.result()
-        records[rec["frame"]] = rec
-        if progress is not None:
-            progress(len(records), len(futures), rec)
+    try:
+        for fut in as_completed(futures):
+            if fut.status == "error":
+                exc = fut.exception()
+                raise _frame_error(frame_of[fut.key], exc) from None
+            rec = fut.result()
+            records[rec["frame"]] = rec
+            if progress is not None:
+                progress(len(records), len(futures), rec)
+    except BaseException:
+        client.cancel(futures)
+        raise
     return [records[f] for f in frames]
 
 
-def local_cluster(workers: int | None = None, device: str = "auto"):
-    """A dask.distributed LocalCluster for a series: one worker process per CUDA device (worker k
-    renders on cuda:k), or without one (or for device "cpu") one per CPU core; each worker runs
-    one task at a time."""
+def _frame_error(frame: int, exc: BaseException) -> BaseException:
+    """The exception a failed frame's task raised, as the run's one-line error: the reader's and
+    renderer's own errors keep their type (and message); a worker that kept dying, or anything
+    else, becomes a FrameError naming the frame."""
+    name = type(exc).__name__
+    first_line = (str(exc).strip().splitlines() or [""])[0][:400]
+    if name == "KilledWorker":
+        return FrameError(f"frame {frame}: every worker that rendered it died (out of memory, or killed); "
+                          f"the frame was not written")
+    named = first_line if first_line.startswith(f"frame {frame}") else f"frame {frame}: {first_line}"
+    if isinstance(exc, (ValueError, RuntimeError, OSError)):
+        try:
+            return type(exc)(named)
+        except TypeError:  # an exception type that needs other arguments
+            pass
+    return FrameError(f"frame {frame}: {name}: {first_line}")
+
+
+def local_cluster(workers: int | None = None, device: str = "auto", dashboard: str | None = None,
+                  quiet: bool = True):
+    """A dask.distributed LocalCluster for a series that only its owner can reach (module doc):
+    one worker process per CUDA device (worker k renders on cuda:k), or without one (or for
+    device "cpu") one per CPU core, within the process limit (limits.check_processes); each
+    worker runs one task at a time. `dashboard`: an address for Dask's (unauthenticated) HTTP
+    dashboard; None: no HTTP server at all. `quiet`: Dask's own log lines (a failed task's
+    traceback, worker shutdowns) are not printed; the run reports the error itself. Connect with
+    cluster_client(cluster)."""
+    import dask
     from distributed import LocalCluster
+    from distributed.security import Security
 
     if workers is None:
         workers = 1
-        from ..engine.renderer import cpu_cores, cuda_devices
+        from ..engine.renderer import cuda_devices
 
         if device in ("auto", "cuda:all"):
             workers = len(cuda_devices())
         if workers == 0 or device == "cpu":
-            workers = cpu_cores()  # the cores this process may use, as cpu:all counts them
-    return LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True, dashboard_address=None)
+            workers = limits.cpu_cores()  # the cores this process may use, as cpu:all counts them
+    workers = int(workers)
+    if workers < 1:
+        raise ValueError(f"--workers {workers}: a cluster needs at least one worker")
+    limits.check_processes(workers, f"a local Dask cluster of {workers} workers")
+    try:
+        security = Security.temporary()  # a CA and certificates for this run only, in memory
+    except ImportError as exc:
+        raise RuntimeError(f"a local cluster needs the cryptography package for its TLS keys ({exc})") from None
+    no_http = {} if dashboard else {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+    with dask.config.set(no_http):
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, protocol="tls",
+                               host="127.0.0.1", security=security, dashboard_address=dashboard,
+                               worker_dashboard_address=None,
+                               silence_logs=logging.CRITICAL if quiet else logging.WARN)
+    cluster.hovr_dashboard = dashboard
+    return cluster
+
+
+def cluster_client(cluster):
+    """A Client of a local_cluster, with its run's certificates; the workers confined
+    (LocalWorkerConfinement) and, without a dashboard, the scheduler's HTTP listener closed."""
+    from distributed import Client
+
+    from .local_workers import LocalWorkerConfinement, close_http
+
+    client = Client(cluster, security=cluster.security)
+    try:
+        no_http = not getattr(cluster, "hovr_dashboard", None)
+        if no_http:
+            client.run_on_scheduler(close_http)
+        client.register_plugin(LocalWorkerConfinement(no_http))
+    except BaseException:
+        client.close()
+        raise
+    return client
+
+
+def remote_client(scheduler: str, tls_ca_file=None, tls_cert=None, tls_key=None):
+    """A Client of a running scheduler (an address, or a scheduler file .json) with the user's
+    security: the TLS files given, else Dask's own configuration (distributed.comm.tls.* in
+    ~/.config/dask/, or DASK_DISTRIBUTED__COMM__TLS__* variables; docs/distributed.md)."""
+    from distributed import Client
+    from distributed.security import Security
+
+    given = [tls_ca_file, tls_cert, tls_key]
+    if any(given) and not all(given):
+        raise ValueError("--tls-ca-file, --tls-cert and --tls-key go together (the cluster's CA, and your "
+                         "certificate and key)")
+    for path in filter(None, given):
+        limits.check_regular(path, "TLS file")
+    security = (Security(tls_ca_file=tls_ca_file, tls_client_cert=tls_cert, tls_client_key=tls_key,
+                         require_encryption=True) if all(given) else Security())
+    kwargs = {"security": security, "timeout": "30s"}
+    if scheduler.endswith(".json"):
+        limits.check_regular(scheduler, "scheduler file")
+        return Client(scheduler_file=scheduler, **kwargs)
+    return Client(scheduler, **kwargs)

@@ -1,9 +1,16 @@
-"""Writing render outputs (render contract §5)."""
+"""Writing render outputs (render contract §5). A path is opened by limits.open_output: never
+through a link, never a FIFO or device."""
 from __future__ import annotations
 
 import json
 
 import numpy as np
+
+from .limits import open_output
+
+
+def _is_path(target) -> bool:
+    return isinstance(target, (str, bytes)) or hasattr(target, "__fspath__")
 
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
@@ -52,6 +59,9 @@ def write_png(target, rgba: np.ndarray, alpha: bool = True) -> None:
     """target: a path or a binary file object."""
     from PIL import Image
 
+    if _is_path(target):
+        with open_output(target, "PNG") as fh:
+            return write_png(fh, rgba, alpha)
     px = to_png_bytes_rgba(np.asarray(rgba, dtype=np.float64))
     Image.fromarray(px if alpha else px[..., :3], "RGBA" if alpha else "RGB").save(target, format="PNG")
 
@@ -59,8 +69,8 @@ def write_png(target, rgba: np.ndarray, alpha: bool = True) -> None:
 def write_npy(target, rgba: np.ndarray) -> None:
     """target: a binary file object, or a path, which is written as given (np.save would add
     .npy to a path without it)."""
-    if isinstance(target, (str, bytes)) or hasattr(target, "__fspath__"):
-        with open(target, "wb") as fh:
+    if _is_path(target):
+        with open_output(target, ".npy") as fh:
             return write_npy(fh, rgba)
     np.save(target, np.ascontiguousarray(rgba, dtype=np.float32), allow_pickle=False)
 
@@ -68,8 +78,8 @@ def write_npy(target, rgba: np.ndarray) -> None:
 def write_json(target, obj: dict) -> None:
     """target: a path or a binary file object."""
     text = json.dumps(obj, indent=2, sort_keys=True) + "\n"
-    if isinstance(target, (str, bytes)) or hasattr(target, "__fspath__"):
-        with open(target, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    if _is_path(target):
+        with open_output(target, "JSON") as fh:
+            fh.write(text.encode("utf-8"))
     else:
         target.write(text.encode("utf-8"))

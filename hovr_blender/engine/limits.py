@@ -8,17 +8,22 @@ user's unsaved scene, so every reader and the renderer go through this one modul
 - compressed data is inflated with its output bounded in advance (`inflate`): a block may
   never grow beyond what its header or the mesh says it holds;
 - every large allocation is checked first (`check_bytes`) against one overridable memory
-  limit, and a ray's march against a limit on samples per ray; the error names the limit
-  and how to raise it.
+  limit, a ray's march against a limit on samples per ray, and every set of processes a run
+  starts (render devices, Dask workers) against a limit on processes (`check_processes`);
+  the error names the limit and how to raise it;
+- outputs are opened without following a link (`open_output`), so a link planted where an
+  output goes can neither redirect it nor create the link's target.
 
-Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY)
-and can be overridden for a block of code with `using(ResourceLimits(...))` (the CLI's
---max-memory and --max-samples-per-ray do this).
+Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY;
+HOVR_MAX_INFLATE_RATIO; HOVR_MAX_READ_SECONDS, one read's wall time in the reader process;
+HOVR_MAX_PROCESSES) and can be overridden for a block of code with `using(ResourceLimits(...))`
+(the CLI's --max-memory and --max-samples-per-ray do this).
 """
 from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
 import lzma
 import os
 import re
@@ -33,6 +38,24 @@ DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h
 # sizes agree with each other is still refused when they are far beyond what its bytes can hold.
 DEFAULT_MAX_INFLATE_RATIO = 100
 INFLATE_FLOOR = 64 << 20
+# One read of a file (io/isolation.py's reader process stops it after this): hump3D takes ~1 s,
+# scaleHO ~10 s on a laptop core; minutes mean a hang (libhdf5 loops on some damaged files).
+DEFAULT_MAX_READ_SECONDS = 600.0
+
+
+def cpu_cores() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def default_max_processes() -> int:
+    """Processes one run may start (render devices, Dask workers): one a core this process may
+    use, and at least 2 (a two-device split on a one-core machine); a process holds its own copy
+    of the mesh, so more than the cores only multiplies memory."""
+    return max(2, cpu_cores())
 
 
 class ResourceLimitError(ValueError):
@@ -68,9 +91,14 @@ class ResourceLimits:
     max_memory: int = DEFAULT_MAX_MEMORY
     max_samples_per_ray: int = DEFAULT_MAX_SAMPLES_PER_RAY
     max_inflate_ratio: int = DEFAULT_MAX_INFLATE_RATIO
+    max_read_seconds: float = DEFAULT_MAX_READ_SECONDS
+    max_processes: int = 0  # 0: default_max_processes() of the machine it runs on
 
     def __post_init__(self):
-        if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0 or int(self.max_inflate_ratio) <= 0:
+        if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0 or int(self.max_inflate_ratio) <= 0 \
+                or int(self.max_processes) < 0:
+            raise ValueError("resource limits must be positive")
+        if not float(self.max_read_seconds) > 0:
             raise ValueError("resource limits must be positive")
 
     @classmethod
@@ -82,6 +110,16 @@ class ResourceLimits:
             out = replace(out, max_samples_per_ray=int(float(os.environ["HOVR_MAX_SAMPLES_PER_RAY"])))
         if os.environ.get("HOVR_MAX_INFLATE_RATIO"):
             out = replace(out, max_inflate_ratio=int(float(os.environ["HOVR_MAX_INFLATE_RATIO"])))
+        if os.environ.get("HOVR_MAX_READ_SECONDS"):
+            out = replace(out, max_read_seconds=float(os.environ["HOVR_MAX_READ_SECONDS"]))
+        if os.environ.get("HOVR_MAX_PROCESSES"):
+            try:
+                n = int(os.environ["HOVR_MAX_PROCESSES"])
+            except ValueError:
+                raise ValueError(f"HOVR_MAX_PROCESSES={os.environ['HOVR_MAX_PROCESSES']!r} is not a whole number") from None
+            if n <= 0:
+                raise ValueError(f"HOVR_MAX_PROCESSES={n} must be at least 1")
+            out = replace(out, max_processes=n)
         return out
 
 
@@ -113,6 +151,17 @@ def check_bytes(nbytes, what: str) -> int:
     return int(nbytes)
 
 
+def check_processes(n: int, what: str) -> int:
+    """Refuse starting `n` processes for `what` beyond the process limit, before any starts."""
+    limit = current().max_processes or default_max_processes()
+    if not 0 <= n <= limit:
+        source = "HOVR_MAX_PROCESSES" if current().max_processes else "one a CPU core here"
+        raise ResourceLimitError(
+            f"{what} would start {n} processes, more than the limit of {limit} processes a run may start "
+            f"({source}; each holds its own copy of the data: raise it with HOVR_MAX_PROCESSES)")
+    return int(n)
+
+
 # ------------------------------------------------------------------------------ files
 
 def _describe(mode: int) -> str:
@@ -140,9 +189,16 @@ def check_regular(path, what: str = "data file") -> os.stat_result:
     return st
 
 
+# Called with (path, what) before each file is opened: the reader process reports its progress
+# (and the file a crash happened in) through this (io/reader_process.py).
+OPEN_OBSERVERS: list = []
+
+
 def open_regular(path, what: str = "data file"):
     """A binary file object for a regular file. Opened without blocking and checked on the open
     descriptor, so a FIFO swapped in after a check cannot hold the process."""
+    for observe in OPEN_OBSERVERS:
+        observe(path, what)
     check_regular(path, what)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0))
@@ -160,15 +216,46 @@ def open_regular(path, what: str = "data file"):
         raise
 
 
-def read_regular(path, what: str = "data file") -> bytes:
-    """The whole content of a regular file, its size checked against the memory limit first."""
+def read_regular(path, what: str = "data file", max_bytes: int | None = None) -> bytes:
+    """The whole content of a regular file, its size (fstat of the open file, before a byte is
+    read) checked against `max_bytes` (the format's own cap) and the memory limit first."""
     with open_regular(path, what) as fh:
         size = os.fstat(fh.fileno()).st_size
+        if max_bytes is not None and size > max_bytes:
+            raise ResourceLimitError(f"{what} {path} is {format_size(size)}; at most {format_size(max_bytes)} "
+                                     f"is accepted")
         check_bytes(size, f"reading {what} {path}")
         data = fh.read(size + 1)
     if len(data) > size:
         raise UnsafeFileError(f"{what} {path} grew while it was read; refused")
     return data
+
+
+def open_output(path, what: str = "output", append: bool = False):
+    """A binary file object writing (or appending to) `path`, never through a link: O_NOFOLLOW
+    refuses a symbolic link at `path` (a planted one would redirect the write, and a dangling one
+    would create its target), and a FIFO, device or folder there is refused without blocking."""
+    flags = os.O_WRONLY | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) \
+        | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0) | (os.O_APPEND if append else 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if os.path.islink(path):
+            raise UnsafeFileError(f"{what} {path} is a symbolic link; refused (outputs never follow links)") from None
+        if exc.errno == errno.ENXIO:  # a FIFO without a reader
+            raise UnsafeFileError(f"{what} {path} is a FIFO (named pipe), not a regular file; refused") from None
+        raise UnsafeFileError(f"{what} {path}: cannot be written ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise UnsafeFileError(f"{what} {path} is {_describe(st.st_mode)}, not a regular file; refused")
+        os.set_blocking(fd, True)
+        if not append:
+            os.ftruncate(fd, 0)
+        return os.fdopen(fd, "ab" if append else "wb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 # ------------------------------------------------------------------------------ inflating
@@ -193,10 +280,12 @@ class InflationBudget:
                 f"(real data compress far less; raise HOVR_MAX_INFLATE_RATIO if this file is genuine)")
 
 
-def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
+def inflate(data, max_bytes: int, what: str, codec: str = "zlib", exact: bool = False) -> tuple[bytes, bytes]:
     """(output, unused input) of one compressed stream, never producing more than max_bytes
-    (checked against the memory limit first). exact: the output must be exactly max_bytes.
-    Raises ValueError naming `what` for a broken, truncated or oversized stream."""
+    (checked against the memory limit first). data: bytes, or an iterable of byte chunks, taken
+    only as long as the output stays within the bound (a stream refused early is never decoded
+    whole). exact: the output must be exactly max_bytes. Raises ValueError naming `what` for a
+    broken, truncated or oversized stream."""
     check_bytes(max_bytes, f"inflating {what}")
     if codec == "zlib":
         d = zlib.decompressobj()
@@ -206,15 +295,26 @@ def inflate(data: bytes, max_bytes: int, what: str, codec: str = "zlib", exact: 
         err = lzma.LZMAError
     else:
         raise ValueError(f"{what}: unknown compression {codec!r}")
-    try:
-        out = d.decompress(data, max_bytes + 1)
-    except (err, EOFError) as exc:
-        raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
-    if len(out) > max_bytes:
-        raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+    chunks = (data,) if isinstance(data, (bytes, bytearray, memoryview)) else data
+    out, unused = [], []
+    produced = 0
+    for chunk in chunks:
+        if d.eof:
+            unused.append(bytes(chunk))
+            continue
+        try:
+            piece = d.decompress(chunk, max_bytes + 1 - produced)
+        except (err, EOFError) as exc:
+            raise ValueError(f"{what}: not a valid {codec} stream ({exc})") from None
+        out.append(piece)
+        produced += len(piece)
+        if produced > max_bytes or getattr(d, "unconsumed_tail", b""):
+            raise ResourceLimitError(f"{what}: inflates to more than the {max_bytes} bytes it declares or needs")
+        if d.eof:
+            unused.append(d.unused_data)
     if not d.eof:
         raise ValueError(f"{what}: {codec} stream is truncated")
-    if exact and len(out) != max_bytes:
-        raise ValueError(f"{what}: inflates to {len(out)} bytes, its header says {max_bytes}")
-    return out, d.unused_data
-
+    result = out[0] if len(out) == 1 else b"".join(out)
+    if exact and len(result) != max_bytes:
+        raise ValueError(f"{what}: inflates to {len(result)} bytes, its header says {max_bytes}")
+    return result, b"".join(unused)

@@ -8,9 +8,13 @@ would race on it), which holds a Renderer: the mesh is uploaded once to each dev
 kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
 not survive a fork), each running device_bootstrap.py first: it never re-runs the parent's script
 (a bpy script, with or without a main guard), and imports the package under the parent's name
-(`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any reply is waited for; each writes
-its rows into one shared-memory image (SharedImage, made once per image size) and answers with its
-stats and row costs only, and the parent copies each band out as it is answered. The renderer
+(`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any
+reply is waited for; each writes its rows into one shared-memory image (SharedImage, made once per
+image size, its name unlinked as soon as every process has it open, so a killed run leaves no
+segment behind) and answers with its stats and row costs only, and the parent copies each band out
+as it is answered. The processes end with the parent (engine/processes.py: each watches its
+parent, and Ctrl-C reaches only the parent), and how many a run may start is capped
+(limits.check_processes). The renderer
 module is imported at the top: the CLI and the add-on import
 this module only when they render, as they do the renderer.
 """
@@ -29,6 +33,8 @@ import types
 
 import numpy as np
 
+from . import limits
+from .processes import sigint_blocked, watch_parent
 from .renderer import Renderer, RenderError, RenderResult, expand_devices
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
@@ -84,9 +90,9 @@ def merge_results(parts, width: int, height: int, seconds: float, image=None) ->
 class SharedImage:
     """A whole image's rgba (H, W, 4) and aux (H, W, 2: depth, error) in one shared memory block:
     the devices' processes write their rows into it (Renderer.render's `out`), so only small
-    messages go through the pipes. The parent creates it (create=True) and unlinks it on close();
-    a process that attaches (by spec) only closes it. Should the parent die without close(),
-    multiprocessing's resource tracker unlinks the block when the parent and its processes are gone."""
+    messages go through the pipes. The parent creates it (create=True) and unlinks its name as soon as
+    every process has attached (unlink(); the mappings stay), so nothing is left in /dev/shm even if
+    the whole process group is killed; a process that attaches (by spec) only closes it."""
 
     def __init__(self, width: int, height: int, dtype, name: str | None = None):
         from multiprocessing import shared_memory
@@ -107,17 +113,23 @@ class SharedImage:
         """What a process attaches with: SharedImage(*spec)."""
         return (self.width, self.height, self.dtype.str, self._shm.name)
 
+    def unlink(self):
+        """Remove the block's name (the owner, once every process has it open): the memory lives
+        until the last mapping closes."""
+        if self._owner and self._shm is not None and not getattr(self, "_unlinked", False):
+            self._unlinked = True
+            try:
+                self._shm.unlink()
+            except FileNotFoundError:
+                pass
+
     def close(self):
         if self._shm is None:
             return
         self.rgba = self.aux = None  # the views go first: a mapping with views cannot close
+        self.unlink()
         shm, self._shm = self._shm, None
         shm.close()
-        if self._owner:
-            try:
-                shm.unlink()
-            except FileNotFoundError:
-                pass
 
 
 def _attach(shared, spec):
@@ -140,8 +152,11 @@ def _render_into(renderer, shared, msg) -> RenderResult:
     return res
 
 
-def _serve(conn, mesh, device, max_tile_rays):
-    """A device's process: a Renderer of `mesh` on `device`, rendering what it is sent."""
+def _serve(conn, mesh, device, max_tile_rays, parent_pid=None):
+    """A device's process: a Renderer of `mesh` on `device`, rendering what it is sent; it ends
+    with its parent (engine/processes.watch_parent)."""
+    if parent_pid is not None:
+        watch_parent(parent_pid)
     try:
         renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
         conn.send(("ok", renderer.upload_seconds))
@@ -164,6 +179,9 @@ def _serve(conn, mesh, device, max_tile_rays):
                 elif msg[0] == "data_ranges":
                     renderer.data_ranges = msg[1]
                     conn.send(("ok", None))
+                elif msg[0] == "attach":
+                    shared = _attach(shared, msg[1])
+                    conn.send(("ok", None))
                 elif msg[0] == "render_shared":
                     shared = _attach(shared, msg[-1])
                     conn.send(("ok", _render_into(renderer, shared, msg)))
@@ -183,12 +201,12 @@ def serve_spawned(conn, payload: bytes):
     """A device's process once device_bootstrap.py has imported the package: its mesh, device
     and tile limit unpickled (the package's classes resolve now), then _serve."""
     try:
-        mesh, device, max_tile_rays = pickle.loads(payload)
+        mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)  # the parent's own objects
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     del payload
-    _serve(conn, mesh, device, max_tile_rays)
+    _serve(conn, mesh, device, max_tile_rays, parent_pid)
 
 
 _STARTING = threading.Lock()
@@ -217,12 +235,13 @@ class DeviceProcess:
         self.device = device
         self._conn, child = ctx.Pipe()
         engine_folder = os.path.dirname(os.path.abspath(__file__))
+        payload = (mesh, device, max_tile_rays, os.getpid())
         start = {"conn": child, "package": __name__.rsplit(".", 2)[0], "folder": os.path.dirname(engine_folder),
-                 "payload": pickle.dumps((mesh, device, max_tile_rays), protocol=pickle.HIGHEST_PROTOCOL)}
+                 "payload": pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)}
         bootstrap = os.path.join(engine_folder, "device_bootstrap.py")
         self._proc = ctx.Process(target=runpy.run_path, args=(bootstrap, {"START": start}, "__hovr_device_process__"),
                                  daemon=True, name=f"hovr-{device}")
-        with _main_script_hidden():
+        with _main_script_hidden(), sigint_blocked():
             self._proc.start()
         child.close()
 
@@ -251,19 +270,24 @@ class DeviceProcess:
             raise RenderError(f"{self.device}: {value}")
         return value
 
-    def close(self):
+    def close(self, timeout: float = 10.0):
+        """Ask the process to end, and kill it after `timeout` seconds (0: its render is not
+        wanted, e.g. after Ctrl-C)."""
         try:
             self._conn.send(("close",))
             self._conn.close()
         except OSError:
             pass
-        self._proc.join(timeout=10)
+        self._proc.join(timeout=timeout)
         if self._proc.is_alive():
             self._proc.kill()
+            self._proc.join(timeout=10)
 
 
 def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
     """A DeviceProcess for each (mesh, device), started together; waits until each has uploaded."""
+    devices = list(devices)
+    limits.check_processes(len(devices), f"rendering on {len(devices)} devices ({','.join(devices)})"[:200])
     procs = []
     try:
         for mesh, dev in zip(meshes, devices):
@@ -272,7 +296,7 @@ def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
             p.upload_seconds = p.reply()
     except BaseException:
         for p in procs:
-            p.close()
+            p.close(timeout=0)
         raise
     return procs
 
@@ -361,11 +385,25 @@ class MultiDeviceRenderer:
                 self._shared.close()
                 self._shared = None
             self._shared = SharedImage(width, height, dtype)
+            # every process opens it now; then its name goes (nothing can be left in /dev/shm)
+            errors = []
+            try:
+                for p in self._procs:
+                    p.send("attach", self._shared.spec)
+                for p in self._procs:  # every reply read: the pipes stay in step
+                    try:
+                        p.reply()
+                    except RenderError as exc:
+                        errors.append(exc)
+            finally:
+                self._shared.unlink()
+            if errors:
+                raise errors[0]
         return self._shared
 
-    def close(self):
+    def close(self, timeout: float = 10.0):
         for p in getattr(self, "_procs", []):
-            p.close()
+            p.close(timeout)
         self._procs = []
         shared, self._shared = getattr(self, "_shared", None), None
         if shared is not None:
@@ -374,8 +412,8 @@ class MultiDeviceRenderer:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        self.close(timeout=0 if exc_type is not None else 10.0)  # an interrupted frame is not waited for
 
     def __del__(self):
         self.close()

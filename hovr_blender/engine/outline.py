@@ -36,7 +36,7 @@ def outline_edges(mesh: VolumeMesh):
     _, first, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
     single = faces[first[counts == 1]]
     quads, tris = single[single[:, 3] >= 0], single[single[:, 3] < 0, :3]
-    inner_q, inner_t = _split_faces_inside(quads, tris, len(corners))
+    inner_q, inner_t = faces_covered_from_both_sides(quads, tris, len(corners))
     edges = np.concatenate([
         np.stack([quads[~inner_q], np.roll(quads[~inner_q], -1, axis=1)], axis=-1).reshape(-1, 2),
         np.stack([tris[~inner_t], np.roll(tris[~inner_t], -1, axis=1)], axis=-1).reshape(-1, 2),
@@ -49,7 +49,7 @@ def outline_edges(mesh: VolumeMesh):
     return corners[used], remap[edges]
 
 
-def _split_faces_inside(quads, tris, nverts):
+def faces_covered_from_both_sides(quads, tris, nverts):
     """Which unmatched quads and triangles cover the same quadrilateral from two sides: a quad
     and a pair of triangles sharing a diagonal, or two pairs on different diagonals."""
     inner_q, inner_t = np.zeros(len(quads), bool), np.zeros(len(tris), bool)

@@ -21,14 +21,15 @@ from .kernels import quadrature_tables
 from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
 from .kernels.element import static_modes
 from .kernels.precision import Precision
+from .limits import cpu_cores
 from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients)
+from .methods import METHOD_IDS
 from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import AUTO_STEP_ERROR, RenderOptions, View
+from .view import AUTO_STEP_ERROR, RenderOptions, View, resolving_step
 
-_METHOD_IDS = {"riemann": 0, "trapezoid": 1, "classified": 2, "split": 3}
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
 
 
@@ -101,14 +102,6 @@ def cuda_devices() -> list[str]:
     """The names of the CUDA devices here ("cuda:0", ...); empty without a GPU."""
     _init_warp()
     return [str(d) for d in wp.get_devices() if d.is_cuda]
-
-
-def cpu_cores() -> int:
-    """The CPU cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def expand_devices(devices) -> list[str]:
@@ -577,6 +570,8 @@ class Renderer:
             raise RenderError(f"rows {row0}..{row1} are not inside a {W}x{H} image")
         first, end = row0 * W, row1 * W
         _, tf_frame, warnings = self.field_frame(tf, options.precision)
+        options, step_warnings = resolving_step(options, tf, self.data_ranges)
+        warnings = warnings + step_warnings
         with wp.ScopedDevice(self.device):
             cam = _camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
@@ -649,7 +644,7 @@ class Renderer:
             launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
-                if listed and quad.method == _METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
+                if listed and quad.method == METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
                     launch("step_terms", kernels.step_terms, listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
                 launch("integrate", kernels.integrate, active,
@@ -818,6 +813,7 @@ class Renderer:
         if cache.frame_key != self.frame_key(tf):
             raise SegmentCacheError("this transfer function maps the field into another frame than the cached "
                                     "segments' (engine/field_frame.py); trace again")
+        options, step_warnings = resolving_step(options, tf, self.data_ranges)
         self._check_steps(options)
         upload = self._upload(options.precision)
         prec = upload.precision
@@ -827,6 +823,7 @@ class Renderer:
         row0, row1 = cache.rows
         n = cache.rays
         _, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
+        warnings = warnings + step_warnings
         num_stats = kernels.NUM_STATS
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
         limits.check_bytes(cache.nbytes + n * per_ray, f"a {W}x{row1 - row0} image shaded in {options.precision}")
@@ -959,7 +956,7 @@ def _transfer_args(prec: Precision, tf: TransferFunction):
 
 def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upload, diagonal: float):
     quad = prec.kernels.QuadArgs()
-    quad.method = _METHOD_IDS[options.method]
+    quad.method = METHOD_IDS[options.method]
     quad.inner = _INNER_IDS[options.inner]
     quad.h = 0.0 if options.h is None else float(options.h)  # 0: classified's own step per segment
     max_samples = int(limits.current().max_samples_per_ray)

@@ -67,3 +67,27 @@ def as_vector3(v, what: str, exc=ValueError) -> np.ndarray:
     if a.shape != (3,):
         raise exc(f"{what} must be [x, y, z], got {len(v)} numbers")
     return a
+
+
+def _unique_keys(exc):
+    def hook(pairs):
+        out = {}
+        for key, value in pairs:
+            if key in out:
+                raise exc(f"key {key!r} appears twice in one object (which one is meant is not clear)")
+            out[key] = value
+        return out
+    return hook
+
+
+def loads(raw: bytes, what: str, exc=ValueError):
+    """A JSON document (UTF-8 bytes) in which no object has a key twice (json.loads keeps the
+    last: a second "data" would silently switch the dataset). Errors name `what`."""
+    import json
+
+    try:
+        return json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys(exc))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        raise exc(f"{what}: not valid JSON ({err})") from None
+    except exc as err:
+        raise exc(f"{what}: {err}") from None

@@ -8,15 +8,28 @@ import numpy as np
 from .strict_json import as_numbers, as_object
 
 
+# Every number of a transfer function (breakpoint values, colours, densities) lies within
+# +-MAX_VALUE: the field's frame takes differences and logarithms of breakpoint spans
+# (engine/field_frame.py), and the kernels multiply densities by lengths in float32 (max 3.4e38).
+MAX_VALUE = 1.0e30
+
+
 class TransferFunctionError(ValueError):
-    """A transfer function that breaks the contract (unsorted, NaN, negative density)."""
+    """A transfer function that breaks the contract (unsorted, NaN, negative density, beyond
+    +-MAX_VALUE)."""
+
+
+def _check_bounded(name: str, a: np.ndarray) -> None:
+    if not np.all(np.isfinite(a)):
+        raise TransferFunctionError(f"{name} must be finite")
+    if a.size and np.abs(a).max() > MAX_VALUE:
+        raise TransferFunctionError(f"{name} must lie within +-{MAX_VALUE:g}, got {np.abs(a).max():.6g}")
 
 
 def _check_breakpoints(name: str, s: np.ndarray) -> None:
     if s.ndim != 1 or s.size == 0:
         raise TransferFunctionError(f"{name}: needs at least one breakpoint")
-    if not np.all(np.isfinite(s)):
-        raise TransferFunctionError(f"{name}: breakpoint values must be finite")
+    _check_bounded(f"{name}: breakpoint values", s)
     if np.any(np.diff(s) <= 0):
         raise TransferFunctionError(f"{name}: breakpoint values must be strictly increasing, got "
                                     f"[{', '.join(f'{v:.6g}' for v in s)}]")
@@ -40,8 +53,8 @@ class TransferFunction:
             raise TransferFunctionError("colour: each breakpoint needs (s, r, g, b)")
         if self.density_tau.shape != self.density_s.shape:
             raise TransferFunctionError("density: each breakpoint needs (s, tau)")
-        if not (np.all(np.isfinite(self.color_rgb)) and np.all(np.isfinite(self.density_tau))):
-            raise TransferFunctionError("transfer function values must be finite")
+        _check_bounded("colour values", self.color_rgb)
+        _check_bounded("density values", self.density_tau)
         if np.any(self.density_tau < 0):
             raise TransferFunctionError("density must be >= 0")
 
@@ -89,6 +102,11 @@ class TransferFunction:
 
     def density(self, s) -> np.ndarray:
         return np.interp(np.asarray(s, dtype=np.float64), self.density_s, self.density_tau)
+
+    def max_density(self, lo: float, hi: float) -> float:
+        """The largest tau(s) for s in [lo, hi] (piecewise linear: at the ends or a breakpoint)."""
+        inside = self.density_tau[(self.density_s > lo) & (self.density_s < hi)]
+        return float(max(self.density([lo, hi]).max(), inside.max() if inside.size else 0.0))
 
     @property
     def breakpoints(self) -> np.ndarray:

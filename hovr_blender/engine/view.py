@@ -1,7 +1,6 @@
 """The view file of render contract §1, and the project's own render options."""
 from __future__ import annotations
 
-import json
 import numbers
 import os
 from dataclasses import dataclass, field, replace
@@ -9,17 +8,24 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .camera import RayCamera
+from . import limits
 from .limits import read_regular
-from .strict_json import as_integer, as_object, as_string, as_vector3
+from .methods import METHODS
+from .strict_json import as_integer, as_object, as_string, as_vector3, loads
 from .transfer_function import TransferFunction
 
-METHODS = ("riemann", "trapezoid", "classified", "split")
 FIXED_STEP_METHODS = ("riemann", "trapezoid")  # the baselines: a step h is what they are
 # classified without h: each piecewise-smooth segment's trapezoid step is the largest whose error
 # bound on the segment is at most this (kernels/quadrature.auto_steps). A quarter of the contract's
 # aim for a whole image (§6): a ray's errors add up over the segments it marches (the paper-scale
 # channel at 1e-3 a segment: 1.6e-3 at its worst pixel; docs/methods.md, "classified's step")
 AUTO_STEP_ERROR = 2.5e-4
+# A fixed step h resolves the data when one step absorbs at most 1 - 1/e of the light: the largest
+# density over the field's values times h is at most this (render contract §3, "Fixed steps").
+# The sums then keep C <= kappa_max (1 - T) within the factor x / (1 - e^-x) at x = tau_max h
+# (Riemann: 1.58 at most) or (x / 2) coth(x / 2) (trapezoid: 1.08); a longer step is shortened to
+# it (h = 1e6 gave RGB 5.04 at alpha 0.99 with kappa <= 1).
+MAX_STEP_OPTICAL_DEPTH = 1.0
 
 
 MAX_IMAGE_SIDE = 32768
@@ -41,6 +47,13 @@ def data_spec(data) -> dict:
     if comp is not None and comp != "magnitude":
         as_integer(comp, "data.component (an index or \"magnitude\")", ViewError, 0)
     return dict(data)
+
+
+def device_processes(device: str) -> int:
+    """The processes a device list starts, as far as its names say without asking Warp: one a
+    name, a core for "cpu:all" ("cuda:all" counts one here; its devices are counted when they start)."""
+    names = [d.strip() for d in device.split(",") if d.strip()]
+    return sum(limits.cpu_cores() if d == "cpu:all" else 1 for d in names)
 
 
 @dataclass(frozen=True)
@@ -83,6 +96,9 @@ class RenderOptions:
             raise ViewError(f"inner must be 'spectral' or 'trapezoid', got {self.inner!r}")
         if self.precision not in ("float32", "float64"):
             raise ViewError(f"precision must be 'float32' or 'float64', got {self.precision!r}")
+        processes = device_processes(self.device)
+        if processes > 1:  # refused here, before the data is read (start_processes checks the final count)
+            limits.check_processes(processes, f"device {self.device[:80]!r}")
 
     @classmethod
     def pixel_exact(cls, device: str = "cpu") -> "RenderOptions":
@@ -136,12 +152,25 @@ class View:
 
     @classmethod
     def load(cls, path: str) -> "View":
-        raw = read_regular(path, "view file")
-        if len(raw) > MAX_VIEW_BYTES:
-            raise ViewError(f"view file {path} is {len(raw)} bytes; a view is a small JSON object "
-                            f"(at most {MAX_VIEW_BYTES} bytes)")
-        try:
-            d = json.loads(raw.decode("utf-8"))
-        except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
-            raise ViewError(f"{path}: not valid JSON ({exc})") from exc
-        return cls.from_dict(d, base_dir=os.path.dirname(os.path.abspath(path)))
+        # a view is a small JSON object: its size is checked on the open file before it is read
+        raw = read_regular(path, "view file", max_bytes=MAX_VIEW_BYTES)
+        return cls.from_dict(loads(raw, str(path), ViewError), base_dir=os.path.dirname(os.path.abspath(path)))
+
+
+def resolving_step(options: RenderOptions, tfs, value_ranges) -> tuple[RenderOptions, list[str]]:
+    """(options, warnings): a fixed step h (riemann, trapezoid, classified with h) that cannot resolve
+    the data, tau_max h > MAX_STEP_OPTICAL_DEPTH, shortened to MAX_STEP_OPTICAL_DEPTH / tau_max,
+    with a warning that says so; tau_max is the largest density of each volume's transfer function
+    (`tfs`: one, or one per volume) over that volume's field values (`value_ranges`: (lo, hi) per
+    volume). Other options come back as they are."""
+    if options.h is None or options.method == "split":
+        return options, []
+    tfs = [tfs] if isinstance(tfs, TransferFunction) else list(tfs)
+    tau = max(tf.max_density(lo, hi) for tf, (lo, hi) in zip(tfs, value_ranges))
+    if not tau * options.h > MAX_STEP_OPTICAL_DEPTH:
+        return options, []
+    h = MAX_STEP_OPTICAL_DEPTH / tau
+    return options.with_(h=h), [
+        f"step h = {options.h:g} cannot resolve the data (the density reaches {tau:.4g} per world unit, "
+        f"{tau * options.h:.3g} e-foldings of the light a step): {options.method} stepped h = {h:.4g} "
+        f"(render contract §3, fixed steps)"]

@@ -43,7 +43,7 @@ import numpy as np
 from . import expansions as ex
 from .adjacency import face_neighbours
 from .mesh import with_geometry_expansion
-from .outline import _split_faces_inside
+from .outline import faces_covered_from_both_sides
 from .shapes import FACE_PLANES, FACES, MAX_FACES, NAMES, VERTICES, plane_vertices
 
 SAFETY = 0.75  # checked deviation <= SAFETY * tolerance (module docstring)
@@ -149,7 +149,7 @@ def boundary_faces(mesh):
             sel = np.nonzero((mesh.shape[elem] == sh) & (face == f))[0]
             ids[sel, : len(idx)] = vid[elem[sel]][:, idx]
     quad = ids[:, 3] >= 0
-    inner_q, inner_t = _split_faces_inside(ids[quad], ids[~quad, :3], int(vid.max()) + 1)
+    inner_q, inner_t = faces_covered_from_both_sides(ids[quad], ids[~quad, :3], int(vid.max()) + 1)
     inner = np.zeros(elem.size, bool)
     inner[np.nonzero(quad)[0][inner_q]] = True
     inner[np.nonzero(~quad)[0][inner_t]] = True

@@ -35,6 +35,8 @@ points; the Blender layer takes value ranges and histograms from samples clipped
 fit's dips below zero near u = 0 never make a negative Value Min (docs/methods.md).
 
 Field syntax: "|a,b,c|" (any number of names, spaces allowed) is the magnitude of those fields.
+The formats build their magnitudes with magnitude_mesh (io/nektar/format.py: "|a,b,c|" of a
+field file; io/vtu/format.py: a vector array's).
 """
 from __future__ import annotations
 
@@ -47,7 +49,6 @@ import numpy as np
 from ..engine import expansions as ex
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
-from . import nektar, vtu
 
 SAMPLES_PER_ELEMENT = 64
 MAX_SAMPLE_POINTS = 400_000
@@ -224,59 +225,16 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
     return out
 
 
-# ---------------------------------------------------------------------------------------------
-# readers: a plain field as before, "|a,b,c|" (Nektar++) or a VTU vector's magnitude derived here
-
-
-def _nektar_component(first: VolumeMesh, field_file: nektar.FieldFile, name: str) -> VolumeMesh:
-    """Field `name` of the field file on the geometry of `first` (read with read_nektar)."""
-    ids = first.element_ids.tolist()
-    coeffs = field_file.coefficients(name, ids)
-    for k, e in enumerate(ids):
-        if coeffs[e][0] != int(first.shape[k]):
-            raise nektar.NektarError(f"{field_file.path}: element {e} has another shape for field {name!r}")
-    modes = np.array([coeffs[e][1] for e in ids], dtype=np.int32)
-    flat = [np.asarray(coeffs[e][2], dtype=np.float64) for e in ids]
-    sizes = np.array([f.size for f in flat], dtype=np.int64)
-    out = dataclasses.replace(first, modes=modes, coeff_offset=np.concatenate([[0], np.cumsum(sizes)[:-1]]),
-                              coeffs=np.concatenate(flat), field_name=name, field_range_hull=None)
-    out.element_ids = first.element_ids
-    return out
-
-
-def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
-    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    names = parse_magnitude(field)
-    if names is None:
-        return nektar.read_nektar(mesh_path, solution_path, field)
-    first = nektar.read_nektar(mesh_path, solution_path, names[0])
-    solution = solution_path if solution_path is not None else nektar.find_solution(mesh_path)
-    field_file = nektar.read_field_file(solution, first.num_elements)
-    components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
-    return magnitude_mesh(components, "|" + ",".join(names) + "|")
-
-
-def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
-    """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
-    is derived here from its exact component polynomials (read_vtu interpolates the nodal
-    magnitudes instead, as VTK does)."""
-    if component in (None, "magnitude"):
-        available = vtu.list_fields(path)
-        name = field if field is not None else next(iter(available), None)
-        ncomp = available.get(name, 1) if name is not None else 1
-        if ncomp > 1:
-            comps = [vtu.read_vtu(path, name, i) for i in range(ncomp)]
-            return magnitude_mesh(comps, f"|{name}|")
-    return vtu.read_vtu(path, field, component)
-
-
 def main(argv=None) -> int:
     """python -m hovr_blender.io.derived MESH.xml SOLUTION "|u,v,w|"  or  FILE.vtu FIELD: the error line."""
+    from .formats import format_of
+
     argv = sys.argv[1:] if argv is None else argv
-    if argv and argv[0].lower().endswith(".vtu"):
-        mesh = read_vtu_field(argv[0], argv[1] if len(argv) > 1 else None)
+    data = format_of(argv[0])
+    if data.takes_solution:
+        mesh = data.read(argv[0], argv[1], argv[2])
     else:
-        mesh = read_nektar_field(argv[0], argv[1], argv[2])
+        mesh = data.read(argv[0], None, argv[1] if len(argv) > 1 else None)
     print(f"{mesh.num_elements} elements; {mesh.warnings[-1]}")
     return 0
 

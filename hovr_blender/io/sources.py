@@ -1,10 +1,11 @@
 """What to read, and reading it: the one entry point from a data description to a VolumeMesh,
 used by the `hovr` command, the render engine and the import operators alike.
 
-A source is "builtin:NAME", a Nektar++ mesh .xml (with its solution: .fld/.chk/.rst, XML or
-HDF5, or a multi-part .fld/ folder) or a VTK .vtu. A run of '#' in a path is the frame number
-(Blender's convention, `flow_####.fld`). A Nektar++ mesh given without a solution gets the one
-beside it, if there is one (nektar.find_solution), in the CLI and in Blender alike.
+A source is "builtin:NAME" or a file of a registered format (io/formats.py: a Nektar++ mesh
+.xml with its solution, .fld/.chk/.rst, XML or HDF5, or a multi-part .fld/ folder; a VTK .vtu). A
+run of '#' in a path is the frame number (Blender's convention, `flow_####.fld`). Data given
+without a solution, of a format that keeps its fields in solution files, gets the one beside
+it, if there is one (the format's find_solution), in the CLI and in Blender alike.
 """
 from __future__ import annotations
 
@@ -14,9 +15,7 @@ from dataclasses import dataclass
 
 from ..engine.cache import LRUCache
 from ..engine.mesh import VolumeMesh
-from . import builtin, derived, nektar
-
-DATA_EXTENSIONS = (".xml", ".vtu")
+from . import builtin, formats, isolation
 
 
 class SourceError(ValueError):
@@ -89,7 +88,7 @@ class VolumeSource:
         if path.startswith("builtin:"):
             return cls(path)
         if not path:
-            raise SourceError("no data: give a file (Nektar++ .xml or VTK .vtu) or builtin:NAME")
+            raise SourceError(f"no data: give a file ({formats.described()}) or builtin:NAME")
 
         def absolute(p):
             p = (abspath or (lambda q: q))(frame_path(p, frame))
@@ -97,8 +96,9 @@ class VolumeSource:
 
         full = absolute(path)
         sol = absolute(solution) if solution else ""
-        if not sol and full.lower().endswith(".xml"):
-            sol = str(nektar.find_solution(full) or "")
+        data_format = formats.format_of(full, sniff=False)
+        if not sol and data_format is not None and data_format.takes_solution:
+            sol = str(data_format.find_solution(full) or "")
         return cls(full, sol, field, _stamps(full, sol), component)
 
     @classmethod
@@ -113,25 +113,40 @@ class VolumeSource:
                            component="" if comp is None else comp)
 
 
-def load_volume(source: VolumeSource) -> VolumeMesh:
-    """The mesh (object space) of a resolved source. Nektar++ field "|u,v,w|" and a VTU vector
-    (the default for vector arrays) are magnitudes derived from the exact components
-    (io/derived.py); `component` picks one component of a VTU vector instead."""
+def load_volume(source: VolumeSource, **progress) -> VolumeMesh:
+    """The mesh (object space) of a resolved source, read by its format (io/formats.py) in a
+    reader process (io/isolation.py; `progress`: its on_stage and cancelled). Nektar++ field
+    "|u,v,w|" and a VTU vector (the default for vector arrays) are magnitudes derived from the
+    exact components (io/derived.py); `component` picks one component of a vector instead."""
+    if source.path.startswith("builtin:"):
+        return read_volume(source)
+    file_format(source)
+    return isolation.read_volume(source, **progress)
+
+
+def file_format(source: VolumeSource):
+    """The registered format that reads the source's file, its files checked to exist."""
+    data_format = formats.format_of(source.path)
+    if data_format is None:
+        ext = os.path.splitext(source.path)[1].lower()
+        raise SourceError(f"{source.path}: unsupported data format {ext!r} (use builtin:NAME or a file of "
+                          f"{formats.described()})")
+    for p in (source.path, source.solution):
+        if p and not os.path.exists(p):
+            raise SourceError(f"data file not found: {p}")
+    return data_format
+
+
+def read_volume(source: VolumeSource) -> VolumeMesh:
+    """load_volume in this process (the reader process's task)."""
     kind, _, name = source.path.partition(":")
     if kind == "builtin":
         if name not in builtin.BUILTIN:
             raise SourceError(f"unknown built-in dataset {name!r}; one of {', '.join(builtin.BUILTIN)}")
         return builtin.BUILTIN[name]()
-    ext = os.path.splitext(source.path)[1].lower()
-    if ext not in DATA_EXTENSIONS:
-        raise SourceError(f"{source.path}: unsupported data format {ext!r} (use builtin:NAME, a Nektar++ .xml "
-                          "or a VTK .vtu file)")
-    for p in (source.path, source.solution):
-        if p and not os.path.exists(p):
-            raise SourceError(f"data file not found: {p}")
-    if ext == ".xml":
-        return derived.read_nektar_field(source.path, source.solution or None, field=source.field or None)
-    return derived.read_vtu_field(source.path, source.field or None, parse_component(source.component))
+    data_format = file_format(source)
+    component = parse_component(source.component) if data_format.components else None
+    return data_format.read(source.path, source.solution or None, source.field or None, component)
 
 
 def load_view_data(view) -> VolumeMesh:

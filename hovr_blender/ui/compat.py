@@ -9,6 +9,10 @@ version number. Everything else in the Blender layer calls these instead of bran
   still format is chosen.
 - Background mode's log: 4.x prints every update_stats, 5.0 none (HOVR prints its own lines there).
 - RenderPass.rect.foreach_set takes a flat buffer in 4.x/5.x and (pixels, channels) in 3.4.
+- A material's nodes: 5.0 always renders with them (Material.use_nodes is deprecated there).
+- Mesh.shade_smooth() exists from 4.1 on; before, each polygon's use_smooth is set.
+- A path property declares '//' support in 4.5+ (PATH_SUPPORTS_BLEND_RELATIVE); older versions
+  have no such option.
 - bpy as a Python module (`pip install bpy`) hangs at interpreter exit in 4.5 while a Python
   class is still registered, so the add-on unregisters itself first; in 4.2 (and 4.3) it crashes
   at exit once any Python property callback was ever registered, unregistered or not (Blender
@@ -124,3 +128,27 @@ def write_pass_pixels(render_pass, flat) -> None:
         render_pass.rect.foreach_set(flat)
     except TypeError:  # Blender 3.4: shaped (pixels, channels)
         render_pass.rect.foreach_set(flat.reshape(-1, render_pass.channels))
+
+
+def material_nodes(material):
+    """The material's node tree where Blender renders with it, else None."""
+    tree = getattr(material, "node_tree", None)
+    if tree is not None and (bpy.app.version >= (5, 0, 0) or material.use_nodes):
+        return tree
+    return None
+
+
+def shade_smooth(mesh) -> None:
+    """Every polygon of the mesh smooth shaded."""
+    if hasattr(mesh, "shade_smooth"):  # Blender 4.1+
+        mesh.shade_smooth()
+    else:
+        mesh.polygons.foreach_set("use_smooth", [True] * len(mesh.polygons))
+
+
+def path_property_options() -> set:
+    """String options of a data path property: '//' paths declared as supported where Blender
+    (4.5+) asks for it."""
+    if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties:
+        return {'ANIMATABLE', 'PATH_SUPPORTS_BLEND_RELATIVE'}
+    return {'ANIMATABLE'}

@@ -1,5 +1,6 @@
 """What the add-on needs from Blender's Python beyond Blender itself, checked when it is enabled
-(no bpy here: tested without Blender; nothing is imported, only looked up).
+(no bpy here: tested without Blender; nothing is imported, only looked up): Warp, and the
+packages the registered data formats declare (io/formats.py).
 
 The platform zips (scripts/build_extension.py --wheels) bundle every one of these as wheels;
 the plain zip and a legacy add-on install rely on Blender's Python already having them.
@@ -9,18 +10,20 @@ from __future__ import annotations
 import importlib.util
 import sys
 
-# (module, pip package, what needs it, required for rendering at all)
-DEPENDENCIES = (
-    ("warp", "warp-lang", "rendering (the ray kernels)", True),
-    ("meshio", "meshio", "File > Import > HOVR VTU (.vtu)", False),
-    ("h5py", "h5py", "Nektar++ HDF5 solution files (.fld/.chk in HDF5)", False),
-)
+from ..io import formats
+
+RENDERING = ("warp", "warp-lang", "rendering (the ray kernels)")
+
+
+def dependencies() -> list[tuple[str, str, str, bool]]:
+    """(module, pip package, what needs it, required for rendering at all)."""
+    return [(*RENDERING, True)] + [(*p, False) for p in formats.packages()]
 
 
 def missing(find_spec=importlib.util.find_spec) -> list[tuple[str, str, str, bool]]:
     """The dependencies Blender's Python cannot import."""
     out = []
-    for module, package, purpose, required in DEPENDENCIES:
+    for module, package, purpose, required in dependencies():
         try:
             found = find_spec(module) is not None
         except (ImportError, ValueError):

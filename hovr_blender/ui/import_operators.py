@@ -1,4 +1,7 @@
-"""File > Import > HOVR Nektar++ (.xml) / HOVR VTU (.vtu): a finite-element volume as an object.
+"""File > Import > HOVR Nektar++ (.xml) / HOVR VTU (.vtu) / ...: a finite-element volume as an
+object. One operator and one menu entry per registered format (io/formats.py), made from the
+registry when the add-on registers: import_scene.hovr_<format name> (hovr_nektar, hovr_vtu), its
+settings those the format has (Solution, Field, Component, Walls From).
 
 The file is read first; only a successful read creates anything (the outline mesh, the
 object and its own look: a transfer function, the field's range, a density relative to its
@@ -25,9 +28,9 @@ from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
-from ..io import nektar, vtu
+from ..io import formats, isolation
 from ..io.sources import VolumeSource, cached_volume, parse_component
-from . import operators
+from . import compat, operators
 from .jobs import Job, summarise_warnings
 from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
@@ -75,16 +78,16 @@ class ImportRequest:
     """An import's settings as plain values, taken from the operator on the main thread (the
     reading thread must not touch Blender's data, operator properties included)."""
 
-    kind: str  # "nektar" or "vtu"
+    kind: str  # the format's name (io/formats.py): "nektar", "vtu", ...
     path: str  # absolute
-    solution: str = ""  # Nektar++: absolute, or "" to pick the likeliest beside the mesh
+    solution: str = ""  # formats with solution files (Nektar++): absolute, or "" to pick the likeliest
     field: str = ""
-    component: str = ""  # VTU
+    component: str = ""  # formats with vector fields (VTU)
     fit_range: bool = True
     walls: bool = False
     walls_tolerance: float = core_walls.DEFAULT_RELATIVE_TOLERANCE
     frame: int = 1
-    walls_from: str = ""  # Nektar++: composites or boundary regions for the walls ("" = every boundary face)
+    walls_from: str = ""  # formats with named boundaries (Nektar++): the walls' faces ("" = every boundary face)
 
     @property
     def steps(self) -> int:
@@ -107,62 +110,20 @@ class ImportRead:
     walls: object = None  # engine.walls.Walls (Walls as Mesh)
 
 
-def resolve_nektar(request: ImportRequest):
-    """(solution, field, component, notes, warnings) of a Nektar++ import: the solution named or
-    the likeliest beside the mesh, the field named or the file's first; raises for bad settings."""
-    path = request.path
-    notes, warnings = [], []
-    solution = request.solution
-    if not solution:
-        picked, why, others = nektar.pick_solution(path)
-        if picked is not None:
-            solution = str(picked)
-            rest = [p.name for p in others if p != picked]
-            notes.append(f"solution {picked.name} ({why})"
-                         + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
-                            if rest else ""))
-        elif others:
-            warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
-    field = request.field.strip()
-    if solution and not field:
-        names = nektar.list_fields(solution)
-        if not names:
-            raise nektar.NektarError(f"{solution}: holds no fields")
-        field = names[0]
-        if len(names) > 1:
-            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
-    if not solution and field:
-        raise nektar.NektarError(f"{path}: field {field!r} requested but no solution file is given or "
-                                 "found beside the mesh")
-    return solution, field, "", notes, warnings
-
-
-def resolve_vtu(request: ImportRequest):
-    """(solution, field, component, notes, warnings) of a VTU import: the array named or the first."""
-    parse_component(request.component)  # a bad entry is reported before the file is read
-    field, notes = request.field.strip(), []
-    if not field:
-        names = list(vtu.list_fields(request.path))
-        if not names:
-            raise vtu.VtuError(f"{request.path}: no point-data array to render")
-        field = names[0]
-        if len(names) > 1:
-            notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
-    return "", field, request.component.strip(), notes, []
-
-
-RESOLVE = {"nektar": resolve_nektar, "vtu": resolve_vtu}
-
-
 def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     """Everything an import reads and computes, with no bpy: the solution and field, the data
     (kept in io.sources' cache for the first render), its extent and corner points (the panel's
     step, Frame Camera), the sampled field (Fit Value Range) and the walls. step(stage) is called
     before each stage (a jobs.Job's step: the progress bar)."""
     step("finding the solution and field")
-    solution, field, component, notes, warnings = RESOLVE[request.kind](request)
+    data_format = formats.named(request.kind)
+    if data_format.components:
+        parse_component(request.component)  # a bad entry is reported before the file is read
+    choice = data_format.choose(request.path, request.solution, request.field, request.component,
+                                list_fields=lambda path: isolation.list_fields(data_format.name, path))
     step("reading the data")
-    source = VolumeSource.resolve(request.path, solution, field, request.frame, component=component)
+    source = VolumeSource.resolve(request.path, choice.solution, choice.field, request.frame,
+                                  component=choice.component)
     mesh = cached_volume(source)
     step("measuring the volume")
     volume_extent(source)
@@ -174,7 +135,8 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
     if request.walls:
         step("tessellating the walls")
         walls = make_walls(mesh, request.path, request.walls_from, request.walls_tolerance)
-    return ImportRead(request, source, mesh, solution, field, component, notes, warnings, values, walls)
+    return ImportRead(request, source, mesh, choice.solution, choice.field, choice.component, list(choice.notes),
+                      list(choice.warnings), values, walls)
 
 
 def import_job(request: ImportRequest, on_step=None) -> Job:
@@ -253,9 +215,17 @@ class _ImportVolume(ImportHelper):
                                    description="Largest distance of the walls' triangles from the true curved "
                                                "faces, as a fraction of the volume's bounding-box diagonal")
 
+    format_name = ""  # the format (io/formats.py) of the operator import_operator made
+
     def request(self, context, path: str) -> ImportRequest:
-        """The settings as plain values."""
-        raise NotImplementedError
+        """The settings as plain values (a setting the format lacks is empty)."""
+        return ImportRequest(self.format_name, path, _absolute(getattr(self, "solution", ""), os.path.dirname(path)),
+                             self.field, getattr(self, "component", ""), self.fit_range, self.walls,
+                             self.walls_tolerance, context.scene.frame_current, getattr(self, "walls_from", ""))
+
+    def invoke(self, context, event):
+        isolation.prestart()  # the reader process starts while the user picks a file
+        return super().invoke(context, event)
 
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
@@ -270,16 +240,24 @@ class _ImportVolume(ImportHelper):
         return finish_import(self, context, request, job, self.frame)
 
 
+def _with_boundaries(path: str):
+    """The format of `path` if it names boundary faces (Nektar++'s composites and regions), else None."""
+    data_format = formats.format_of(path, sniff=False)
+    return data_format if data_format is not None and data_format.boundaries is not None else None
+
+
 def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
     """core_walls.Walls of the volume `mesh` read from `path`: its boundary faces, or with a
     selection (C[...], B[...] or names) those of a Nektar++ file's composites or boundary regions."""
     faces = None
     if selection.strip():
-        if not path.lower().endswith(".xml"):
-            raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a Nektar++ "
-                             f"mesh's (.xml), not {os.path.basename(path) or path}'s; leave the selection empty "
-                             "for all boundary faces")
-        faces = nektar.mesh_boundaries(path).select(selection)
+        data_format = _with_boundaries(path)
+        if data_format is None:
+            which = " or ".join(f"{f.label} mesh's ({', '.join(f.extensions)})" for f in formats.FORMATS if f.boundaries)
+            raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a {which}, "
+                             f"not {os.path.basename(path) or path}'s; leave the selection empty for all boundary "
+                             "faces")
+        faces = isolation.wall_faces(data_format.name, path, selection)
     return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
 
 
@@ -305,10 +283,7 @@ def create_walls_object(context, volume, walls, name=None):
         me = bpy.data.meshes.new(name)
         me.from_pydata(walls.vertices.tolist(), [], walls.triangles.tolist())
         me.update()
-        if hasattr(me, "shade_smooth"):  # Blender 4.1+
-            me.shade_smooth()
-        else:
-            me.polygons.foreach_set("use_smooth", [True] * len(me.polygons))
+        compat.shade_smooth(me)
         obj = bpy.data.objects.new(name, me)
         obj.parent = volume
         for collection in volume.users_collection or [context.scene.collection]:
@@ -348,9 +323,9 @@ WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domai
                           "separated by commas")
 
 
-def draw_wall_choices(layout, path):
+def draw_wall_choices(layout, path, data_format):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
-    choices = _cached(("walls", path), path, lambda: nektar.mesh_boundaries(path).choices())
+    choices = _cached(("walls", path), path, lambda: isolation.wall_choices(data_format.name, path))
     box = layout.box()
     if choices is None:
         box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
@@ -392,10 +367,10 @@ class HOVR_OT_add_walls(bpy.types.Operator):
         layout.use_property_split = True
         layout.prop(self, "walls_from")
         layout.prop(self, "walls_tolerance")
-        path = context.object.hovr.source
-        if path.lower().endswith(".xml"):
+        data_format = _with_boundaries(context.object.hovr.source)
+        if data_format is not None:
             try:
-                draw_wall_choices(layout, operators.volume_source(context.object, context.scene).path)
+                draw_wall_choices(layout, operators.volume_source(context.object, context.scene).path, data_format)
             except ValueError:
                 pass
 
@@ -418,100 +393,87 @@ class HOVR_OT_add_walls(bpy.types.Operator):
         return {'FINISHED'}
 
 
-class HOVR_OT_import_nektar(_ImportVolume, bpy.types.Operator):
-    """Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume"""
-
-    bl_idname = "import_scene.hovr_nektar"
-    bl_label = "Import Nektar++ Volume"
-
-    filename_ext = ".xml"
-    filter_glob: StringProperty(default="*.xml", options={'HIDDEN'})
-    solution: StringProperty(name="Solution", default="",
-                             description="Field file (.fld/.chk/.rst or a .fld/ folder), relative to the mesh's "
-                                         "folder; empty: the likeliest field file in the mesh's folder (its name "
-                                         "like the mesh's, the latest of a numbered series), as listed below")
-    field: StringProperty(name="Field", default="",
-                          description='Field to render; "|u,v,w|" is the magnitude of u, v, w. '
-                                      "Empty: the file's first field")
-    walls_from: StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
-
-    def request(self, context, path):
-        return ImportRequest("nektar", path, _absolute(self.solution, os.path.dirname(path)), self.field, "",
-                             self.fit_range, self.walls, self.walls_tolerance, context.scene.frame_current,
-                             self.walls_from)
-
-    def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.prop(self, "solution")
-        layout.prop(self, "field")
-        layout.prop(self, "fit_range")
-        layout.prop(self, "frame")
-        layout.prop(self, "walls")
-        col = layout.column()
-        col.enabled = self.walls
-        col.prop(self, "walls_tolerance")
-        col.prop(self, "walls_from")
-        path = bpy.path.abspath(self.filepath)
-        if self.walls and path.lower().endswith(".xml"):
-            draw_wall_choices(col, path)
-        if self.solution.strip() or not path.lower().endswith(".xml"):
-            return
-        folder = os.path.dirname(path) or "."
-        found = _cached(("scan", path), folder, lambda: nektar.pick_solution(path))
-        box = layout.box()
-        if not found:
-            return
-        picked, why, others = found
-        if picked is None:
-            box.label(text="No solution picked:", icon='ERROR')
-            box.label(text="geometry only (zero field)")
-            for p in others[:6]:
-                box.label(text=p.name, icon='FILE')
-            return
-        box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
-        box.label(text=why[:60])
-        fields = _cached(("fields", str(picked)), str(picked), lambda: nektar.list_fields(picked))
-        if fields:
-            box.label(text="Fields: " + ", ".join(fields[:8]))
-        for p in [p for p in others if p != picked][:5]:
-            box.label(text=f"also: {p.name}", icon='FILE')
+COMPONENT_DESCRIPTION = ("For vector arrays: empty or \"magnitude\" renders the magnitude, an index (0, 1, 2, ...) "
+                         "that component")
 
 
-class HOVR_OT_import_vtu(_ImportVolume, bpy.types.Operator):
-    """Import a VTK unstructured grid (.vtu, Lagrange or Bezier cells) as a HOVR volume"""
+def draw_solution_choice(layout, path, data_format):
+    """Which solution file an import with an empty Solution will take, why, and its fields."""
+    folder = os.path.dirname(path) or "."
+    found = _cached(("scan", path), folder, lambda: data_format.pick_solution(path))
+    box = layout.box()
+    if not found:
+        return
+    picked, why, others = found
+    if picked is None:
+        box.label(text="No solution picked:", icon='ERROR')
+        box.label(text="geometry only (zero field)")
+        for p in others[:6]:
+            box.label(text=p.name, icon='FILE')
+        return
+    box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
+    box.label(text=why[:60])
+    fields = _cached(("fields", str(picked)), str(picked), lambda: list(isolation.list_fields(data_format.name, picked)))
+    if fields:
+        box.label(text="Fields: " + ", ".join(fields[:8]))
+    for p in [p for p in others if p != picked][:5]:
+        box.label(text=f"also: {p.name}", icon='FILE')
 
-    bl_idname = "import_scene.hovr_vtu"
-    bl_label = "Import VTU Volume"
 
-    filename_ext = ".vtu"
-    filter_glob: StringProperty(default="*.vtu", options={'HIDDEN'})
-    field: StringProperty(name="Field", default="",
-                          description="Point-data array to render; empty: the file's first one")
-    component: StringProperty(name="Component", default="",
-                              description="For vector arrays: empty or \"magnitude\" renders the magnitude, "
-                                          "an index (0, 1, 2, ...) that component")
+def draw_import_options(op, data_format):
+    """The import options of a format's operator: its own settings, then the common ones."""
+    layout = op.layout
+    layout.use_property_split = True
+    if data_format.takes_solution:
+        layout.prop(op, "solution")
+    layout.prop(op, "field")
+    if data_format.components:
+        layout.prop(op, "component")
+    layout.prop(op, "fit_range")
+    layout.prop(op, "frame")
+    layout.prop(op, "walls")
+    col = layout.column()
+    col.enabled = op.walls
+    col.prop(op, "walls_tolerance")
+    path = bpy.path.abspath(op.filepath)
+    if data_format.boundaries is not None:
+        col.prop(op, "walls_from")
+        if op.walls and data_format.reads(path):
+            draw_wall_choices(col, path, data_format)
+    if data_format.pick_solution is not None and not op.solution.strip() and data_format.reads(path):
+        draw_solution_choice(layout, path, data_format)
 
-    def request(self, context, path):
-        return ImportRequest("vtu", path, "", self.field, self.component, self.fit_range, self.walls,
-                             self.walls_tolerance, context.scene.frame_current)
 
-    def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        layout.prop(self, "field")
-        layout.prop(self, "component")
-        layout.prop(self, "fit_range")
-        layout.prop(self, "frame")
-        layout.prop(self, "walls")
-        row = layout.row()
-        row.enabled = self.walls
-        row.prop(self, "walls_tolerance")
+def import_operator(data_format):
+    """File > Import's operator for a registered format: import_scene.hovr_<name>, with the
+    settings the format has."""
+    settings = {"filter_glob": StringProperty(default=";".join("*" + e for e in data_format.extensions),
+                                              options={'HIDDEN'})}
+    if data_format.takes_solution:
+        settings["solution"] = StringProperty(name="Solution", default="", description=data_format.solution_help)
+    settings["field"] = StringProperty(name="Field", default="", description=data_format.field_help)
+    if data_format.components:
+        settings["component"] = StringProperty(name="Component", default="", description=COMPONENT_DESCRIPTION)
+    if data_format.boundaries is not None:
+        settings["walls_from"] = StringProperty(name="Walls From", default="", description=WALLS_FROM_DESCRIPTION)
+    return type(f"HOVR_OT_import_{data_format.name}", (_ImportVolume, bpy.types.Operator), {
+        "__doc__": data_format.description or f"Import a {data_format.label} file as a HOVR volume",
+        "__annotations__": settings,
+        "bl_idname": f"import_scene.hovr_{data_format.name}",
+        "bl_label": f"Import {data_format.label} Volume",
+        "filename_ext": data_format.extensions[0],
+        "format_name": data_format.name,
+        "menu_text": data_format.menu_text(),
+        "draw": lambda self, _context: draw_import_options(self, data_format),
+    })
+
+
+OPERATORS: dict = {}  # format name -> its import operator, made from the registry by register()
 
 
 def menu_import(self, _context):
-    self.layout.operator(HOVR_OT_import_nektar.bl_idname, text="HOVR Nektar++ (.xml)")
-    self.layout.operator(HOVR_OT_import_vtu.bl_idname, text="HOVR VTU (.vtu)")
+    for cls in OPERATORS.values():
+        self.layout.operator(cls.bl_idname, text=cls.menu_text)
 
 
 # ------------------------------------------------------------------------- relative paths on save
@@ -567,11 +529,10 @@ def restore_paths_after_copy(*args):
         _BEFORE_SAVE.clear()
 
 
-classes = (HOVR_OT_import_nektar, HOVR_OT_import_vtu, HOVR_OT_add_walls)
-
-
 def register():
-    for cls in classes:
+    OPERATORS.clear()
+    OPERATORS.update((f.name, import_operator(f)) for f in formats.FORMATS)
+    for cls in (*OPERATORS.values(), HOVR_OT_add_walls):
         bpy.utils.register_class(cls)
     bpy.types.TOPBAR_MT_file_import.append(menu_import)
     if remap_paths_before_save not in bpy.app.handlers.save_pre:
@@ -586,5 +547,6 @@ def unregister():
         if fn in handlers:
             handlers.remove(fn)
     bpy.types.TOPBAR_MT_file_import.remove(menu_import)
-    for cls in reversed(classes):
+    for cls in (HOVR_OT_add_walls, *reversed(OPERATORS.values())):
         bpy.utils.unregister_class(cls)
+    OPERATORS.clear()

@@ -7,13 +7,14 @@ it and the field's name above. The text is drawn with Blender's own fonts into a
 either, the render says so and leaves the image as it is."""
 from __future__ import annotations
 
+import importlib.util
 import os
 import tempfile
 
 import bpy
 import numpy as np
 
-from ..engine.legend import Legend, draw_legend
+from ..engine.legend import Legend, draw_legend, pillow_text_mask
 from . import compat
 
 NO_TEXT = ("Legend in Render needs a Blender whose blf draws into images (4.5 or later) or Pillow in Blender's "
@@ -54,13 +55,7 @@ def text_mask_drawer():
 
     if hasattr(blf, "bind_imbuf"):
         return blf_text_mask
-    try:
-        from ..engine.legend import pillow_text_mask
-        import PIL  # noqa: F401
-
-        return pillow_text_mask
-    except ImportError:
-        return None
+    return pillow_text_mask if importlib.util.find_spec("PIL") is not None else None
 
 
 def with_legend(scene, view_layer, rgba, background):

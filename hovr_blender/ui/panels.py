@@ -1,6 +1,8 @@
 """Properties-editor panels for the HOVR engine, and the stock panels it reuses."""
 import bpy
 
+from ..io import formats
+
 
 def draw_histogram(layout, context, obj):
     """The field's distribution over Value Min..Max (bottom row = Value Min), one bar per
@@ -130,13 +132,13 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
         hovr = context.object.hovr
         layout.prop(hovr, "source")
         if not hovr.source.startswith("builtin:"):
-            is_vtu = hovr.source.lower().endswith(".vtu")
-            if not is_vtu:
+            data_format = formats.format_of(hovr.source, sniff=False)  # by extension: drawing reads no file
+            if data_format is None or data_format.takes_solution:
                 layout.prop(hovr, "solution")
                 if not hovr.solution.strip() and hovr.source.strip():
                     layout.label(text="No solution: geometry only", icon='ERROR')
             layout.prop(hovr, "field")
-            if is_vtu:
+            if data_format is not None and data_format.components:
                 layout.prop(hovr, "component")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')

@@ -3,15 +3,20 @@ and ViewLayer.hovr (extra passes)."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-# Explicit indices so items can be renamed or reordered without breaking saved .blend files.
+from ..engine.methods import METHOD_IDS
+from . import compat
+
+# Explicit indices (the methods' ids) so items can be renamed or reordered without breaking saved .blend files.
 METHOD_ITEMS = (
-    ("riemann", "Riemann", "Left Riemann sum with a fixed Step: the classic ray marcher, for comparison", 0),
-    ("trapezoid", "Trapezoid", "Trapezoidal rule with a fixed Step: for comparison with other renderers", 1),
+    ("riemann", "Riemann", "Left Riemann sum with a fixed Step: the classic ray marcher, for comparison",
+     METHOD_IDS["riemann"]),
+    ("trapezoid", "Trapezoid", "Trapezoidal rule with a fixed Step: for comparison with other renderers",
+     METHOD_IDS["trapezoid"]),
     ("classified", "Classified", "The paper's Algorithm 1: skips ray segments the transfer function leaves empty, "
                                  "integrates smooth ones adaptively to Tolerance and marches the rest with Step. "
-                                 "The default", 2),
+                                 "The default", METHOD_IDS["classified"]),
     ("split", "Split", "Cuts each ray where the field crosses a ramp stop, so every piece is smooth, and integrates "
-                       "each adaptively to Tolerance (Step unused). Best for sharp, spiky ramps", 3),
+                       "each adaptively to Tolerance (Step unused). Best for sharp, spiky ramps", METHOD_IDS["split"]),
 )
 PRECISION_ITEMS = (
     ("float32", "Float32", "Single-precision kernels: fastest; about 1e-5 relative error", 0),
@@ -36,15 +41,7 @@ SURFACE_ITEMS = (
 )
 
 
-def _path_options() -> set:
-    """String options of a data path: Blender 4.5+ wants '//' paths declared as supported
-    (older versions have no such option; their Property has no is_path_supports_blend_relative)."""
-    if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties:
-        return {'ANIMATABLE', 'PATH_SUPPORTS_BLEND_RELATIVE'}
-    return {'ANIMATABLE'}
-
-
-PATH_OPTIONS = _path_options()
+PATH_OPTIONS = compat.path_property_options()
 
 
 DENSITY_UNIT_ITEMS = (
@@ -202,12 +199,12 @@ class HovrPreferences(bpy.types.AddonPreferences):
                                            "(from the next Blender session on; silent otherwise)")
 
     def draw(self, context):
-        from .dependencies import DEPENDENCIES, missing, report_lines
+        from .dependencies import dependencies, missing, report_lines
 
         layout = self.layout
         absent = missing()
         col = layout.column(align=True)
-        for module, package, purpose, _required in DEPENDENCIES:
+        for module, package, purpose, _required in dependencies():
             ok = all(m != module for m, *_ in absent)
             col.label(text=f"{package}: {'installed' if ok else 'MISSING'} ({purpose})",
                       icon='CHECKMARK' if ok else 'ERROR')

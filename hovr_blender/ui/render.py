@@ -432,9 +432,9 @@ def failure_text(exc: BaseException) -> str:
         return "out of memory (lower the image size or the data's size, or set HOVR_MAX_MEMORY below " \
                "what this machine has so that such a render is refused before it starts)"
     if isinstance(exc, ImportError) and getattr(exc, "name", None):
-        from .dependencies import DEPENDENCIES, report_lines
+        from .dependencies import dependencies, report_lines
 
-        dep = [d for d in DEPENDENCIES if d[0] == exc.name.split(".")[0]]
+        dep = [d for d in dependencies() if d[0] == exc.name.split(".")[0]]
         if dep:
             return " ".join(report_lines(dep)).replace("HOVR: ", "")
     if isinstance(exc, (ValueError, OSError)):

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import hashlib
 
-import bpy
 import numpy as np
 
 from ..engine.surfaces import SurfaceMesh
+from . import compat
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META', 'CURVES'}
 
@@ -32,9 +32,8 @@ def material_color(material, fallback) -> tuple:
     """Linear RGB base colour of a material (see the module's docstring)."""
     if material is None:
         return tuple(fallback)[:3]
-    tree = getattr(material, "node_tree", None)
-    # Blender 5 always uses a material's nodes (Material.use_nodes is deprecated there)
-    if tree is not None and (bpy.app.version >= (5, 0, 0) or material.use_nodes):
+    tree = compat.material_nodes(material)
+    if tree is not None:
         for node in tree.nodes:
             if node.type == 'BSDF_PRINCIPLED':
                 inp = node.inputs.get("Base Color")

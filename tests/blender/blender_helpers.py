@@ -120,6 +120,36 @@ def set_look(obj, stops, value_range, density_scale, units="WORLD"):
     h.density = density_scale
 
 
+def f12_and_engine(scene, obj, mesh, contract, width, height, density, folder, background=(0.0625, 0.0625, 0.125)):
+    """F12 of one imported volume `obj` (classified, h = 0.01 world units, `density` per world
+    unit) seen by the contract camera, and the engine's image of `mesh` (the volume's data in
+    object space) placed by the object's transform, with the transfer function of its ramp:
+    (F12 image, engine image with alpha 1 as F12 writes it)."""
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import RenderOptions
+    from hovr_blender.ui import scene as blender_scene
+    from hovr_blender.ui.camera import ray_camera_from_blender
+
+    add_camera(scene)
+    set_contract_camera(scene, contract, width, height)
+    scene.world = bpy.data.worlds.new("World")
+    scene.world.color = background
+    s, h = scene.hovr, obj.hovr
+    h.density_units, h.density = 'WORLD', density
+    s.method, s.step_units, s.h = "classified", 'WORLD', 0.01
+    img = render_to_exr(scene, Path(folder) / "f12.exr")
+    ramp = h.transfer_function.color_ramp
+    tf = blender_scene.transfer_function_from_ramp(
+        ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
+        [tuple(e.color) for e in ramp.elements], h.density, h.value_min, h.value_max)
+    cam = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
+    engine = Renderer(mesh.transformed(np.array(obj.matrix_world)), "cpu").render(
+        cam, tf, np.array(background), RenderOptions(method="classified", h=0.01, tolerance=1e-5)).rgba
+    engine[..., 3] = 1.0
+    assert np.abs(engine[..., :3] - np.array(background)).max() > 0.05  # the volume is in view
+    return img, engine
+
+
 def volume(scene, k=0):
     """The k-th HOVR volume of the scene, by name (the render order)."""
     return sorted((o for o in scene.objects if o.hovr.is_volume), key=lambda o: o.name)[k]

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 from blender_helpers import compat, render_to_exr  # noqa: E402
 
 MODULE = "bl_ext.user_default.hovr_blender"
-DEPS = ("warp", "meshio", "h5py")
+DEPS = ("warp", "h5py")
 
 
 def main():

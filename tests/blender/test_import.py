@@ -21,7 +21,8 @@ from hovr_blender.io import nektar  # noqa: E402
 from hovr_blender.ui import import_operators, panels  # noqa: E402
 
 from ..helpers import data_file  # noqa: E402
-from .blender_helpers import TET, add_camera, copy_tet, datablock_counts, render_to_exr, set_contract_camera  # noqa: E402
+from .blender_helpers import (TET, add_camera, copy_tet, datablock_counts, f12_and_engine, render_to_exr,  # noqa: E402
+                             set_contract_camera)
 
 W, H = 24, 16
 CONTRACT = {"eye": [2.6, -1.9, 2.2], "target": [0.5, 0.5, 0.5], "up": [0.0, 0.0, 1.0], "fov_y_deg": 40.0}
@@ -106,7 +107,7 @@ def test_import_picks_the_first_field_and_reports_the_others(scene, tmp_path):
 
 
 def test_import_vtu_scalar_and_vector_components(scene, tmp_path):
-    mfem = data_file("vtu", "mfem_fichera_poisson_mixed_p4.vtu")
+    mfem = data_file("vtu", "mfem_fichera_cells_p4.vtu")  # MFEM's cells at the corner, where u peaks
     assert bpy.ops.import_scene.hovr_vtu(filepath=str(mfem)) == {'FINISHED'}
     obj = bpy.context.active_object
     assert obj.hovr.source == str(mfem) and obj.hovr.field == "u" and len(obj.data.edges) > 0
@@ -244,35 +245,15 @@ def _render(scene):
 
 def test_imported_volume_renders_like_the_core(scene, tmp_path):
     """F12 of the moved, rotated import equals the core renderer's image of the derived mesh."""
-    from hovr_blender.ui.camera import ray_camera_from_blender
-    from hovr_blender.engine.renderer import Renderer
-    from hovr_blender.engine.view import RenderOptions
-    from hovr_blender.io.derived import read_nektar_field
+    from hovr_blender.io.nektar.format import read_nektar_field
 
     xml = copy_tet(tmp_path)
     bpy.ops.import_scene.hovr_nektar(filepath=str(xml), field="|u,v,w|")
     obj = bpy.context.active_object
     obj.location, obj.rotation_euler = (0.25, -0.5, 0.0), (0.0, 0.0, 0.5)
     bpy.context.view_layer.update()  # matrix_world follows
-    add_camera(scene)
-    set_contract_camera(scene, CONTRACT, W, H)
-    scene.world = bpy.data.worlds.new("World")
-    scene.world.color = (0.0625, 0.0625, 0.125)
-    s, h = scene.hovr, obj.hovr
-    h.density_units, h.density = 'WORLD', 8.0
-    s.method, s.step_units, s.h = "classified", 'WORLD', 0.01
-    img = render_to_exr(scene, tmp_path / "f12.exr")
-
-    ramp = h.transfer_function.color_ramp
-    tf = blender_scene.transfer_function_from_ramp(
-        ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
-        [tuple(e.color) for e in ramp.elements], h.density, h.value_min, h.value_max)
-    mesh = read_nektar_field(xml, xml.with_suffix(".fld"), "|u,v,w|").transformed(np.array(obj.matrix_world))
-    cam = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
-    core = Renderer(mesh, "cpu").render(cam, tf, np.array([0.0625, 0.0625, 0.125]),
-                                        RenderOptions(method="classified", h=0.01, tolerance=1e-5)).rgba
-    core[..., 3] = 1.0
-    assert np.abs(core[..., :3] - np.array([0.0625, 0.0625, 0.125])).max() > 0.05  # the volume is in view
+    mesh = read_nektar_field(xml, xml.with_suffix(".fld"), "|u,v,w|")
+    img, core = f12_and_engine(scene, obj, mesh, CONTRACT, W, H, 8.0, tmp_path)
     np.testing.assert_allclose(img, core, atol=1e-5)
 
 

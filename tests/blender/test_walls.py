@@ -131,7 +131,7 @@ def test_import_options_list_the_files_regions(scene):
     composites Walls From can name."""
     from types import SimpleNamespace
 
-    from hovr_blender.ui.import_operators import HOVR_OT_import_nektar
+    from hovr_blender.ui.import_operators import OPERATORS
 
     labels = []
 
@@ -145,12 +145,12 @@ def test_import_options_list_the_files_regions(scene):
 
     op = SimpleNamespace(layout=Layout(), filepath=str(data_file("nektar", "hump3D_GLL.xml")), solution="hump3D.rst",
                          field="", fit_range=True, frame=True, walls=True, walls_tolerance=1e-3, walls_from="")
-    HOVR_OT_import_nektar.draw(op, bpy.context)
+    OPERATORS["nektar"].draw(op, bpy.context)
     assert labels[:3] == ["Walls From (empty: all boundary faces):", "B[0]: C[1] WallViscous", "B[1]: C[2] Dirichlet"]
     assert "C[1]: 160 faces (in B[0])" in labels
     labels.clear()
     op.walls = False
-    HOVR_OT_import_nektar.draw(op, bpy.context)
+    OPERATORS["nektar"].draw(op, bpy.context)
     assert labels == []
 
 

@@ -142,8 +142,20 @@ def test_missing_dependencies_are_named_with_what_to_do():
 
     assert dependencies.missing(lambda name: object()) == []
     assert dependencies.report_lines([]) == []
-    absent = dependencies.missing(lambda name: None if name in ("meshio", "h5py") else object())
-    assert [m for m, *_ in absent] == ["meshio", "h5py"]
+    absent = dependencies.missing(lambda name: None if name in ("warp", "h5py") else object())
+    assert [m for m, *_ in absent] == ["warp", "h5py"]
     lines = dependencies.report_lines(absent, python="/blender/python")
-    assert "meshio is missing" in lines[0] and "VTU" in lines[0]
-    assert '"/blender/python" -m pip install meshio h5py' in lines[-1] and "extension zip" in lines[-1]
+    assert "warp-lang is missing" in lines[0] and "will not work" in lines[0]
+    assert "h5py is missing" in lines[1] and "HDF5" in lines[1] and "is unavailable" in lines[1]
+    assert '"/blender/python" -m pip install warp-lang h5py' in lines[-1] and "extension zip" in lines[-1]
+
+
+def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
+    """What the add-on checks at enable time (Warp and the formats' packages, io/formats.py) is
+    what the platform zips bundle (scripts/build_extension.py), and nothing the product does not import."""
+    from hovr_blender.ui import dependencies
+    from scripts import build_extension
+
+    checked = {package for _, package, *_ in dependencies.dependencies()}
+    bundled = {requirement.split("==")[0] for requirement in build_extension.RUNTIME_REQUIREMENTS}
+    assert checked == bundled == {"warp-lang", "h5py", "defusedxml"}

@@ -117,16 +117,12 @@ def test_default_step_holds_on_rays_through_many_curved_elements():
     """A ray's step errors add up over its piecewise-smooth segments: on the paper-scale channel
     (rays through seven or eight curved elements) classified at its default stays within 1e-3 of
     the exact image (at 1e-3 a segment it reached 1.1e-3 in this view)."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-    import audit  # the audit's view and transfer function (scripts/audit.py)
+    from hovr_blender.audit import datasets  # the audit's view and transfer function
     from hovr_blender.io.paper_scale import paper_scale_mesh
 
     mesh = paper_scale_mesh()
-    tf = audit.transfer_function(mesh)
-    cam = RayCamera.from_contract(audit.views(mesh)["oblique"], 160, 90)
+    tf = datasets.transfer_function(mesh)
+    cam = RayCamera.from_contract(datasets.views(mesh)["oblique"], 160, 90)
     r = Renderer(mesh, "cpu")
     exact = r.render(cam, tf, np.zeros(3), RenderOptions(method="split", precision="float64", tolerance=1e-9,
                                                          min_transmittance=0.0)).rgba.astype(np.float64)

@@ -11,7 +11,9 @@ from hovr_blender.engine import expansions as ex
 from hovr_blender.engine import shapes
 from hovr_blender.engine.mesh import element_field_ranges
 from hovr_blender.io import derived, nektar, synthetic
-from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude, read_nektar_field, read_vtu_field
+from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude
+from hovr_blender.io.nektar.format import read_nektar_field
+from hovr_blender.io.vtu.format import read_vtu_field
 from tests.helpers import data_file as shared_file
 
 # Components of degree 2 (exact with 3 modes): u = 0 on a curve through the cube, so |u| has a

@@ -1,5 +1,8 @@
-"""The layers hold: hovr_blender.engine imports no reader and no Blender module, the add-on package
-imports without bpy, and no module of the package edits sys.path.
+"""The layers hold: LAYERS below is who may import whom, for every folder of the package, and
+docs/architecture.md's table is made from it (test_the_architecture_doc_states_the_layers); the
+sources' imports are checked against it row by row; hovr_blender.engine imports no reader and no
+Blender module even at run time, the add-on package imports without bpy, and no module of the
+package edits sys.path.
 
 Two independent checks of the engine: every engine module is imported in a fresh Python whose
 import system refuses bpy, gpu, blf, hovr_blender.io and hovr_blender.ui (a module that
@@ -125,6 +128,118 @@ def _under(name, prefixes):
     return any(name == p or name.startswith(p + ".") for p in prefixes)
 
 
+# ------------------------------------------------------------------------------ the layer table
+# (layer, its modules, what of the package it may import, what else it may import beyond the
+# standard library, which layers of the package may import it). A "may import" entry is a layer
+# or, written as a module, that module alone. docs/architecture.md's table says the same.
+BLENDER = ("bpy", "bpy_extras", "blf", "gpu", "gpu_extras", "imbuf", "mathutils")
+LAYERS = (
+    ("engine", "hovr_blender.engine", ("engine/kernels",), ("numpy", "warp", "PIL"),
+     ("engine/kernels", "io", "ui", "distributed", "cli", "audit")),
+    ("engine/kernels", "hovr_blender.engine.kernels", ("hovr_blender.engine.shapes", "hovr_blender.engine.methods"),
+     ("numpy", "warp"), ("engine", "audit")),
+    ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py", "defusedxml"), ("ui", "distributed", "cli", "audit")),
+    ("ui", "hovr_blender.ui", ("engine", "io", "package"), ("numpy",) + BLENDER, ("package",)),
+    ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed", "dask"), ("cli",)),
+    ("cli", "hovr_blender.cli", ("engine", "io", "distributed"), ("distributed",), ()),
+    ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk"), ()),
+    ("package", "hovr_blender", ("ui",), (), ("ui",)),
+)
+
+
+def _layer_of(module: str):
+    """The row of LAYERS a module of the package belongs to (the most specific), else None."""
+    rows = [row for row in LAYERS if module == row[1] or module.startswith(row[1] + ".")]
+    if module.startswith("hovr_blender.engine._kernels_float64"):  # the kernels' float64 twins
+        return next(row for row in LAYERS if row[0] == "engine/kernels")
+    return max(rows, key=lambda row: len(row[1])) if rows else None
+
+
+def _package_imports():
+    """(importing module's row, path, line, imported module) of every import in the package."""
+    for path, name, package, tree in _modules(PACKAGE):
+        row = _layer_of(name if path.name != "__init__.py" or name != "hovr_blender" else "hovr_blender")
+        for line, mod in _imported_names(tree, package):
+            yield row, path, line, mod
+
+
+def test_every_folder_of_the_package_has_its_row():
+    folders = {f"hovr_blender.{p.name}" for p in PACKAGE.iterdir() if (p / "__init__.py").exists()}
+    folders |= {"hovr_blender.engine.kernels", "hovr_blender.cli", "hovr_blender"}
+    assert folders == {row[1] for row in LAYERS}
+
+
+def test_each_layer_imports_only_what_its_row_allows():
+    stdlib = set(sys.stdlib_module_names) | {"__future__"}
+    bad = []
+    for row, path, line, mod in _package_imports():
+        if mod.startswith("hovr_blender"):
+            target = _layer_of(mod)
+            allowed = target is row or target[0] in row[2] or any(mod == m or mod.startswith(m + ".") for m in row[2])
+            # "from . import x" of a package also names the package itself: that is no import of it
+            if not allowed and not (mod == target[1] and target[1] in ("hovr_blender", row[1])):
+                bad.append(f"{path.relative_to(REPO)}:{line}: {mod} ({row[0]} may import {', '.join(row[2])})")
+        elif mod.split(".")[0] not in stdlib and mod.split(".")[0] not in row[3]:
+            bad.append(f"{path.relative_to(REPO)}:{line}: {mod} ({row[0]} may import {', '.join(row[3]) or 'none'})")
+    assert bad == [], "imports the layer table (LAYERS) does not allow:\n" + "\n".join(bad)
+
+
+def test_each_layer_is_imported_only_by_the_rows_that_may():
+    bad = []
+    for row, path, line, mod in _package_imports():
+        target = _layer_of(mod) if mod.startswith("hovr_blender") else None
+        if target is None or target is row or (mod == target[1] and target[0] == "package"):
+            continue
+        if row[0] not in target[4]:
+            bad.append(f"{path.relative_to(REPO)}:{line}: {row[0]} imports {mod} ({target[0]} is imported by "
+                       f"{', '.join(target[4]) or 'nothing in the package'} only)")
+    assert bad == [], "\n".join(bad)
+
+
+def test_warp_is_imported_at_module_level_only_by_the_renderer_and_the_kernels():
+    """Elsewhere in the engine Warp is imported inside the functions that launch, so that the view,
+    the readers and the Blender layer's bpy-free parts load without it (the shipped kernels' loader
+    is the renderer's: it is imported at module level by the renderer alone)."""
+    top = sorted(str(path.relative_to(REPO)) for path, name, _, tree in _modules(ENGINE)
+                 for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
+                 and any(n.split(".")[0] == "warp" for n in ([a.name for a in node.names] if isinstance(node, ast.Import)
+                                                             else [node.module or ""]))
+                 and not name.startswith("hovr_blender.engine.kernels")
+                 and name not in ("hovr_blender.engine.renderer", "hovr_blender.engine.shipped_kernels"))
+    assert top == []
+    importers = sorted(name for path, name, _, tree in _modules(PACKAGE) for node in tree.body
+                       if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("shipped_kernels"))
+    assert importers == ["hovr_blender.engine.renderer"]
+
+
+def test_only_compat_asks_which_blender_this_is():
+    """ui/compat.py answers every difference between the Blender versions; no other module of the
+    package reads bpy.app.version."""
+    found = [f"{path.relative_to(REPO)}:{node.lineno}" for path, _, _, tree in _modules(PACKAGE)
+             if path.name != "compat.py" for node in ast.walk(tree)
+             if isinstance(node, ast.Attribute) and node.attr == "version" and isinstance(node.value, ast.Attribute)
+             and node.value.attr == "app" and isinstance(node.value.value, ast.Name) and node.value.value.id == "bpy"]
+    assert found == []
+
+
+def layer_table() -> str:
+    """docs/architecture.md's table, from LAYERS."""
+    def names(items, what):
+        return ", ".join(f"`{i}`" for i in items) or what
+
+    rows = ["| layer | may import of the package | may import beyond the standard library | imported by |",
+            "|---|---|---|---|"]
+    for layer, module, package, others, importers in LAYERS:
+        rows.append(f"| `{layer}` (`{module}`) | {names(package, 'nothing')} | {names(others, 'nothing')} | "
+                    f"{names(importers, 'nothing in the package')} |")
+    return "\n".join(rows)
+
+
+def test_the_architecture_doc_states_the_layers():
+    doc = (REPO / "docs" / "architecture.md").read_text()
+    assert layer_table() in doc, "docs/architecture.md's layer table differs from LAYERS; it should read:\n" + layer_table()
+
+
 def test_core_sources_import_nothing_above_the_core():
     bad = [f"{path.relative_to(REPO)}:{line}: {mod}"
            for path, name, package, tree in _modules(ENGINE)
@@ -158,6 +273,43 @@ def test_no_module_of_the_package_edits_sys_path():
     found = {str(path.relative_to(REPO)): lines for path, _, _, tree in _modules(PACKAGE)
              if (lines := sorted(set(_edits_sys_path(tree))))}
     assert found == {}, f"sys.path edited at {found}: import through the package instead"
+
+
+def test_bench_and_scripts_run_as_modules_without_sys_path_or_the_tests():
+    """bench/ and scripts/ run as modules from the repository's root (python -m bench.suite): none
+    edits sys.path, and none imports the tests (what both use is in the package or bench/common.py)."""
+    found = {}
+    for root in (REPO / "bench", REPO / "scripts"):
+        for path, _, package, tree in _modules(root):
+            if path.name.startswith("test_"):
+                continue  # bench's own checks are tests, collected by pytest
+            lines = sorted(set(_edits_sys_path(tree))) + [
+                f"{line}: {mod}" for line, mod in _imported_names(tree, package) if _under(mod, ("tests",))]
+            if lines:
+                found[str(path.relative_to(REPO))] = lines
+    assert found == {}, f"bench/scripts edit sys.path or import the tests at {found}"
+
+
+def _private_imports(tree, package):
+    """(line, module.name) of every `from module import _name` (a private name of another module)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__"):
+                    yield node.lineno, f"{'.' * node.level}{node.module or ''}.{alias.name}"
+
+
+# the one left, in the traversal's code (issue 27's kernel-side part removes it with the renderer's split)
+PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/surfaces.py", ".renderer._camera_args")}
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = [f"{path.relative_to(REPO)}:{line}: {name}"
+             for root in (PACKAGE, REPO / "bench", REPO / "scripts")
+             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)
+             if (str(path.relative_to(REPO)), name) not in PRIVATE_IMPORTS_LEFT]
+    assert found == [], "private names used across modules (make them public with a name that says what they " \
+                        "are, or move them):\n" + "\n".join(found)
 
 
 @pytest.mark.parametrize("source,expect", [

@@ -113,19 +113,22 @@ def _segments():
 
 
 @pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="POSIX shared memory in /dev/shm")
-def test_split_frame_shared_memory_is_freed_on_close_on_a_new_size_and_after_a_crash():
+def test_split_frame_shared_memory_is_unlinked_once_every_process_has_it():
+    """The shared image's name goes as soon as both device processes have it open: the block
+    serves every later frame of its size and nothing stays in /dev/shm, whatever happens next."""
     mesh, tf, camera = curved_mixed_scene(2)
-    before = _segments()
     md = MultiDeviceRenderer(mesh, "cpu,cpu")
     try:
         first = md.render(camera(16, 12), tf, BACKGROUND, RenderOptions())
-        name = md._shared.name.lstrip("/")
-        assert name in _segments()
+        shared = md._shared
+        assert shared.name.lstrip("/") not in _segments()
+        again = md.render(camera(16, 12), tf, BACKGROUND, RenderOptions())
+        assert md._shared is shared and np.array_equal(first.rgba, again.rgba)
         second = md.render(camera(W, H), tf, BACKGROUND, RenderOptions())  # another size: another block
-        assert name not in _segments() and md._shared.name.lstrip("/") in _segments()
+        assert md._shared is not shared and md._shared.name.lstrip("/") not in _segments()
         assert first.rgba.shape == (12, 16, 4) and second.rgba.shape == (H, W, 4)
         # the results are the caller's own arrays, not views of the shared image
-        third = md.render(camera(W, H), tf, BACKGROUND, RenderOptions(method="classified", h=0.5))
+        third = md.render(camera(W, H), tf, BACKGROUND, RenderOptions(method="classified", h=0.05))
         assert not np.shares_memory(second.rgba, third.rgba) and not np.array_equal(second.rgba, third.rgba)
         # a device's process dies: the frame fails, the renderer still closes its memory
         md._procs[1]._proc.kill()
@@ -134,15 +137,14 @@ def test_split_frame_shared_memory_is_freed_on_close_on_a_new_size_and_after_a_c
             md.render(camera(W, H), tf, BACKGROUND, RenderOptions())
     finally:
         md.close()
-    assert _segments() <= before
 
 
 @pytest.mark.skipif(not os.path.isdir("/dev/shm"), reason="POSIX shared memory in /dev/shm")
-def test_split_frame_shared_memory_is_freed_when_the_parent_dies():
-    """A parent killed without close(): the resource tracker unlinks its block once the parent
-    and its device processes are gone."""
+def test_split_frame_processes_and_memory_go_with_a_killed_parent():
+    """SIGKILL of the parent: its device processes end (each watches its parent) and no block is
+    left in /dev/shm; SIGKILL of the whole process group leaves none either (issue 29)."""
     script = (
-        "import os, sys\n"
+        "import os, sys, time\n"
         "sys.path.insert(0, %r)\n"
         "from tests.helpers import BACKGROUND, curved_mixed_scene\n"
         "from hovr_blender.engine.multi_device import MultiDeviceRenderer\n"
@@ -151,15 +153,39 @@ def test_split_frame_shared_memory_is_freed_when_the_parent_dies():
         "    mesh, tf, camera = curved_mixed_scene(2)\n"
         "    md = MultiDeviceRenderer(mesh, 'cpu,cpu')\n"
         "    md.render(camera(16, 12), tf, BACKGROUND, RenderOptions())\n"
-        "    print(md._shared.name, flush=True)\n"
-        "    os._exit(1)\n") % os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
-    name = proc.stdout.strip().lstrip("/")
-    assert proc.returncode == 1 and name, proc.stderr
-    deadline = time.monotonic() + 60
-    while name in _segments() and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert name not in _segments()
+        "    print(md._shared.name, *[p._proc.pid for p in md._procs], flush=True)\n"
+        "    time.sleep(600)\n") % os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    import signal
+
+    for group in (False, True):
+        proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, start_new_session=True)
+        try:
+            name, *pids = proc.stdout.readline().split()
+            assert name and len(pids) == 2, proc.stderr.read() if proc.poll() is not None else ""
+            assert name.lstrip("/") not in _segments()
+            if group:
+                os.killpg(proc.pid, signal.SIGKILL)
+            else:
+                os.kill(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+            deadline = time.monotonic() + 10
+            while any(_alive(int(p)) for p in pids) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert not any(_alive(int(p)) for p in pids)
+            assert name.lstrip("/") not in _segments()
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _alive(pid: int) -> bool:
+    """Whether `pid` runs (not a zombie)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
 
 
 _SCRIPT_WITHOUT_MAIN_GUARD = r"""

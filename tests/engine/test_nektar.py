@@ -858,7 +858,7 @@ def test_compressed_hdf5_data_is_read_chunk_by_chunk(tmp_path):
 
 
 def test_magnitude_reader_refuses_hostile_solution(tmp_path):
-    from hovr_blender.io.derived import read_nektar_field
+    from hovr_blender.io.nektar.format import read_nektar_field
 
     mesh, solution, _ = HOSTILE["HDF5 external storage: a private file"][0](tmp_path)
     with pytest.raises(NektarError, match="keeps its data in external file"):

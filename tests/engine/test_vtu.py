@@ -28,8 +28,9 @@ from hovr_blender.io.vtu import VtuError, list_fields, read_vtu
 from ..helpers import data_dir, data_file as shared_file
 
 VTU_DATA = data_dir("vtu")  # VTU_DATA / name: the file, or the test skipped naming it
-REAL = ["mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6", "pyfr_tgv_hexprism_p4_t4",
-        "ngsolve_post_heat_tetprism_p4"]
+# mfem_fichera_cells_p4: 24 of MFEM's cells written by VTK, vendored in tests/data (a fresh clone reads it)
+REAL = ["mfem_fichera_cells_p4", "mfem_fichera_poisson_mixed_p4", "ngsolve_ball_poisson_hex_p6",
+        "pyfr_tgv_hexprism_p4_t4", "ngsolve_post_heat_tetprism_p4"]
 SHAPE_OF_TYPE = {71: shapes.TET, 72: shapes.HEX, 73: shapes.PRISM}
 LAGRANGE = {shapes.HEX: 72, shapes.TET: 71, shapes.PRISM: 73}
 BEZIER = {shapes.HEX: 79, shapes.TET: 78, shapes.PRISM: 80}
@@ -395,7 +396,7 @@ def real(name):
 
 
 # one field per file, each file read once (reading is dominated by VolumeMesh.from_elements)
-REAL_FIELD = {"mfem_fichera_poisson_mixed_p4": ("u", None), "ngsolve_ball_poisson_hex_p6": ("u", None),
+REAL_FIELD = {"mfem_fichera_cells_p4": ("u", None), "mfem_fichera_poisson_mixed_p4": ("u", None), "ngsolve_ball_poisson_hex_p6": ("u", None),
               "pyfr_tgv_hexprism_p4_t4": ("Velocity", "magnitude"),
               "ngsolve_post_heat_tetprism_p4": ("temperature", None)}
 

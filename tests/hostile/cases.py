@@ -11,6 +11,7 @@ import functools
 import json
 import lzma
 import os
+import re
 import struct
 import zlib
 from pathlib import Path
@@ -207,6 +208,55 @@ def hdf5_field(path: Path, data=None, data_kwargs=None, mutate=None):
             g.create_dataset("DATA", data=coeffs if data is None else data)
         if mutate is not None:
             mutate(h5, folder=path.parent)
+
+
+# BasisType enum indices (io/nektar/hdf5.BASIS_ENUM) of the bases XML field files name
+_BASIS_INDEX = {"Modified_A": 4, "Modified_B": 5, "Modified_C": 6, "ModifiedPyr_C": 8, "GLL_Lagrange": 10}
+
+
+def nektar_hdf5_from_xml(xml_field: Path, out: Path) -> Path:
+    """An XML field file (.fld) rewritten as Nektar++ writes HDF5 field files (FieldIOHdf5,
+    docs/spec/formats.md §2.7): /NEKTAR with FORMAT_VERSION, a Metadata group (its Provenance
+    subgroup) of variable-length string attributes, one definition group per block named by a
+    hash, with FIELDS (a variable-length string array), BASIS (BasisType indices), SHAPE and
+    NUMMODESPERDIR; DECOMPOSITION, ELEMENTIDS and DATA. The strings are variable-length, as
+    Nektar++'s H5::DataType::String(0) makes them, so they live in HDF5's global heap."""
+    import h5py
+
+    from hovr_blender.io.nektar.blocks import FIELD_SHAPES
+    from hovr_blender.io.nektar.fields import read_field_file
+
+    shape_names = {shape: name for name, shape in FIELD_SHAPES.items()}
+
+    blocks = read_field_file(xml_field, num_elements=1 << 30).blocks
+    text = lambda s: np.array(s, dtype=h5py.string_dtype())  # noqa: E731
+    with h5py.File(out, "w") as h5:
+        root = h5.create_group("NEKTAR")
+        root.attrs["FORMAT_VERSION"] = np.uint32(1)
+        meta = root.create_group("Metadata")
+        for key, value in (("ChkFileNum", "0"), ("SessionName0", xml_field.with_suffix(".xml").name), ("Time", "0")):
+            meta.attrs[key] = text(value)
+        prov = meta.create_group("Provenance")
+        for key, value in (("GitBranch", "refs/heads/master"), ("GitSHA1", "72b466000a11"),
+                           ("Hostname", "hovr-tests"), ("NektarVersion", "5.9.0"),
+                           ("Timestamp", "25-Aug-2025 12:00:00")):
+            prov.attrs[key] = text(value)
+        decomposition, ids, data = [], [], []
+        for k, block in enumerate(blocks):
+            definition = 1_000_003 * (k + 1)
+            group = root.create_group(str(definition))
+            group.attrs["FIELDS"] = text(block.fields)
+            group.attrs["BASIS"] = np.array([_BASIS_INDEX[b] for b in block.basis], dtype=np.int32)
+            group.attrs["SHAPE"] = text(shape_names[block.shape])
+            modes = ",".join(str(int(m)) for m in block.modes[0])
+            group.attrs["NUMMODESPERDIR"] = text(f"UNIORDER:{modes}")
+            decomposition.extend([len(block.ids), block.data.size, 0, 0, 0, 0, definition])
+            ids.extend(block.ids.tolist())
+            data.append(block.data)
+        root.create_dataset("DECOMPOSITION", data=np.array(decomposition, np.uint64))
+        root.create_dataset("ELEMENTIDS", data=np.array(ids, np.uint64))
+        root.create_dataset("DATA", data=np.concatenate(data).astype("<f8"))
+    return out
 
 
 def _external_data(target):
@@ -456,3 +506,145 @@ CASES = [
          expect=("does not exist",)),
     Case("-o .npy in an existing folder renders", "output paths", _output("{d}/out.npy"), expect_rc=0),
 ]
+
+
+# -------------------------------------------------------------------------------- issue 29: readers
+
+def _hdf5_of_hex(folder: Path) -> bytes:
+    """The hexahedron's field (nektar_field) as Nektar++ writes HDF5 (nektar_hdf5_from_xml):
+    12.7 KB, like the issue's file."""
+    (folder / "src.fld").write_text(nektar_field())
+    nektar_hdf5_from_xml(folder / "src.fld", folder / "src.h5")
+    data = (folder / "src.h5").read_bytes()
+    (folder / "src.fld").unlink()
+    (folder / "src.h5").unlink()
+    return data
+
+
+def _vlen_string_attribute(data: bytes, name: bytes) -> tuple[int, int]:
+    """(offset of the datatype, offset of the value's heap reference) of the variable-length
+    string attribute `name` of an HDF5 file: the attribute message's name, then its datatype
+    (class 9, size 16), then the value's (length, global heap collection address)."""
+    at = data.index(name + b"\0")
+    datatype = at + re.search(rb"\x19[\x00-\xff]{3}\x10\x00\x00\x00", data[at:]).start()
+    value = data[datatype:].index(struct.pack("<I", len("UNIORDER:3,3,3")))
+    return datatype, datatype + value
+
+
+def _global_heap_object(data: bytes, content: bytes) -> int:
+    """Offset of the size field of the global heap object (GCOL collection) that holds `content`."""
+    at = data.index(b"GCOL") + 16  # signature, version, reserved, collection size
+    while True:
+        index, size = struct.unpack_from("<H6xQ", data, at)
+        if index == 0:
+            raise ValueError("no such global heap object")
+        if data[at + 16 : at + 16 + size] == content:
+            return at + 8
+        at += 16 + -(-size // 8) * 8
+
+
+def hdf5_one_byte(position, change):
+    """A field file: the HDF5 hexahedron with one byte changed, at position(data), by change(byte)."""
+    def build(path: Path):
+        data = bytearray(_hdf5_of_hex(path.parent))
+        i = position(bytes(data))
+        data[i] = change(data[i])
+        path.write_bytes(bytes(data))
+    return build
+
+
+# the issue's bytes 5937/6017 of its 12 KB file: the type of a variable-length string attribute,
+# its class bits flipped (a string becomes a sequence: libhdf5 crashes converting it, SIGSEGV);
+# bytes 8273/8328: a global heap object's size 0 (H5HG__cache_heap_deserialize never advances);
+# and a string length of 4 GiB (libhdf5 allocates and fills it: seconds and GB, then an error)
+VLEN_TYPE_BITS = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[0] + 1, lambda b: b ^ 0xFF)
+VLEN_LENGTH = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[1] + 3, lambda b: b ^ 0xFF)
+HEAP_OBJECT_SIZE = hdf5_one_byte(lambda d: _global_heap_object(d, b"p"), lambda b: 0)
+
+
+def _utf16_with_decoy(root: str, decoy: str) -> bytes:
+    """An entity bomb in UTF-16: DOCTYPE and ENTITY are not ASCII bytes there, and a comment whose
+    UTF-16 code units spell `decoy` in ASCII bytes satisfies a check of the raw bytes."""
+    decoy_chars = (decoy + " " * (len(decoy) % 2)).encode().decode("utf-16-le")
+    lol = "".join(f'<!ENTITY l{i + 1} "{f"&l{i};" * 10}">' for i in range(9))
+    text = (f'<?xml version="1.0" encoding="UTF-16"?>\n<!DOCTYPE {root} [<!ENTITY l0 "{"x" * 64}">{lol}]>\n'
+            f"<!--{decoy_chars}-->\n<{root}>&l9;</{root}>\n")
+    return text.encode("utf-16")
+
+
+def _utf16_vtu(folder: Path):
+    decoy = '<VTKFile type="UnstructuredGrid" version="2.1" byte_order="LittleEndian" header_type="UInt32">'
+    return vtu_case(folder, _utf16_with_decoy("VTKFile", decoy))
+
+
+def _utf16_mesh(folder: Path):
+    args = nektar_case(folder, fld=nektar_field())
+    (folder / "m.xml").write_bytes(_utf16_with_decoy("NEKTAR", "<NEKTAR><GEOMETRY>"))
+    return args
+
+
+def _nested_mesh(folder: Path, depth=3_000_000):
+    (folder / "m.xml").write_bytes(b"<NEKTAR>" + b"<a>" * depth + b"</a>" * depth + b"</NEKTAR>")
+    return render_args(folder, base_view({"path": "m.xml"}))
+
+
+def _compressed_vertices(count: int) -> str:
+    """A B64Z VERTEX section (records: int64 ID, 3 float64) of `count` vertices, made in pieces."""
+    c = zlib.compressobj(1)
+    out, step = [], 1 << 20
+    for start in range(0, count, step):
+        n = min(step, count - start)
+        rec = np.zeros(n, dtype=[("id", "<i8"), ("x", "<f8", (3,))])
+        rec["id"] = np.arange(start, start + n)
+        rec["x"][:n] = np.array(HEX_VERTICES * (-(-n // 8)), "<f8")[:n]
+        out.append(c.compress(rec.tobytes()))
+    out.append(c.flush())
+    z = b"".join(out)
+    z += b"\0" * (-len(z) % 3)
+    return f'<VERTEX COMPRESSED="B64Z-LittleEndian" BITSIZE="64">{base64.b64encode(z).decode()}</VERTEX>'
+
+
+def _unused_vertices(folder: Path):
+    """8 M vertices (the first 8 the hexahedron's) in a compressed VERTEX section: 21 MB of file."""
+    mesh = re.sub(r"<VERTEX>.*</VERTEX>", lambda m: _compressed_vertices(8_000_000), nektar_mesh())
+    return nektar_case(folder, mesh=mesh, fld=nektar_field())
+
+
+def _element_bomb(folder: Path):
+    """A compressed ELEMENT block of zeros (1 GiB, ~1 MB of file) after the hexahedron's: no section
+    above bounds the elements, the whole file's 100x inflation budget does."""
+    z = zlib_zeros(1 << 30)
+    z += b"\0" * (-len(z) % 3)
+    block = f'<H COMPRESSED="B64Z-LittleEndian" BITSIZE="64">{base64.b64encode(z).decode()}</H>'
+    return nektar_case(folder, mesh=nektar_mesh().replace("</ELEMENT>", block + "</ELEMENT>"), fld=nektar_field())
+
+
+def _partition_symlink(folder: Path):
+    """A field directory whose one part is a symbolic link to a file outside it."""
+    (folder / "outside").mkdir()
+    (folder / "outside" / "P0000000.fld").write_text(nektar_field())
+    (folder / "m.fld").mkdir()
+    os.symlink(folder / "outside" / "P0000000.fld", folder / "m.fld" / "P0000000.fld")
+    (folder / "m.fld" / "Info.xml").write_text('<?xml version="1.0"?>\n<NEKTAR><Metadata>'
+                                               '<Partition FileName="P0000000.fld">0</Partition></Metadata></NEKTAR>\n')
+    return nektar_case(folder, fld=lambda path: None)
+
+
+HANG = {"HOVR_MAX_READ_SECONDS": "1"}  # libhdf5's loops are stopped after a second
+
+READER_CASES = [
+    Case("HDF5 one byte: vlen string type bits (SIGSEGV)", "reader process", _hdf5(VLEN_TYPE_BITS),
+         expect=("m.fld", "crashed")),
+    Case("HDF5 one byte: vlen string of 4 GiB", "reader process", _hdf5(VLEN_LENGTH), expect=("m.fld",), env=HANG),
+    Case("HDF5 one byte: global heap object of size 0 (loops)", "reader process", _hdf5(HEAP_OBJECT_SIZE),
+         expect=("m.fld", "longer than the limit of 1 s"), env=HANG),
+    Case("VTU in UTF-16, entity bomb behind an ASCII decoy", "XML", _utf16_vtu, expect=("m.vtu", "DOCTYPE")),
+    Case("mesh in UTF-16, entity bomb", "XML", _utf16_mesh, expect=("m.xml", "DOCTYPE")),
+    Case("mesh of 3 M nested elements", "XML", _nested_mesh, expect=("m.xml", "nest")),
+    Case("compressed VERTEX of 8 M unused vertices", "reader budgets", _unused_vertices,
+         expect=("m.xml", "VERTEX", "edges can use at most 24")),
+    Case("compressed ELEMENT block beyond 100x the file", "reader budgets", _element_bomb, expect=("m.xml", "100x")),
+    Case("partition file is a symbolic link", "reader budgets", _partition_symlink,
+         expect=("P0000000.fld", "symbolic link")),
+]
+CASES.extend(READER_CASES)

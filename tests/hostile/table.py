@@ -6,10 +6,14 @@ import argparse
 import json
 import sys
 import tempfile
+import unittest
 from pathlib import Path
 
-from .cases import CASES
+from .cases import CASES as READER_CASES
 from .harness import MAX_PEAK_MB, MAX_SECONDS, run_case
+from .run_cases import CLUSTER_SECONDS, RUN_CASES
+
+CASES = READER_CASES + RUN_CASES  # the readers' inputs, then issue 29's runs
 
 
 def main(argv=None) -> int:
@@ -19,7 +23,11 @@ def main(argv=None) -> int:
     rows = []
     for case in CASES:
         with tempfile.TemporaryDirectory() as tmp:
-            o, problems = run_case(case, Path(tmp))
+            try:
+                o, problems = run_case(case, Path(tmp))
+            except unittest.SkipTest as why:  # a case that needs what this machine lacks (bpy)
+                print(f"skip {case.klass:22s} {case.name:45s} {why}", file=sys.stderr, flush=True)
+                continue
         rows.append({"class": case.klass, "case": case.name, "exit": o.returncode, "seconds": round(o.seconds, 2),
                      "peak_mb": round(o.peak_mb, 1), "passed": not problems, "problems": problems,
                      "message": o.stderr.strip()[:300]})
@@ -32,7 +40,8 @@ def main(argv=None) -> int:
         print(f"| {klass} | {len(rs)} | {sum(r['passed'] for r in rs)} | {sum(r['exit'] == 2 for r in rs)} | "
               f"{sum(r['exit'] == 0 for r in rs)} | {max(r['seconds'] for r in rs):.2f} s | "
               f"{max(r['peak_mb'] for r in rs):.0f} MB |")
-    print(f"\nLimits: {MAX_SECONDS} s, {MAX_PEAK_MB:.0f} MB. {sum(r['passed'] for r in rows)} of {len(rows)} passed.")
+    print(f"\nLimits: {MAX_SECONDS} s ({CLUSTER_SECONDS:g} s where a Dask cluster or Blender starts first), "
+          f"{MAX_PEAK_MB:.0f} MB. {sum(r['passed'] for r in rows)} of {len(rows)} passed.")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
     return 0 if all(r["passed"] for r in rows) else 1

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..methods import METHOD_IDS
 from .args import MeshArgs, QuadArgs, TransferArgs
 from .geometry import ROOT_RTOL
 from .restriction import (clenshaw, clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field,
@@ -22,10 +23,10 @@ from .restriction import (clenshaw, clenshaw_and_integral, clenshaw_integral, cl
 
 wp.set_module_options({"enable_backward": False})
 
-METHOD_RIEMANN = 0
-METHOD_TRAPEZOID = 1
-METHOD_CLASSIFIED = 2
-METHOD_SPLIT = 3
+METHOD_RIEMANN = METHOD_IDS["riemann"]
+METHOD_TRAPEZOID = METHOD_IDS["trapezoid"]
+METHOD_CLASSIFIED = METHOD_IDS["classified"]
+METHOD_SPLIT = METHOD_IDS["split"]
 
 INNER_SPECTRAL = 0
 INNER_TRAPEZOID = 1

@@ -8,22 +8,25 @@ from ...engine.shapes import MAX_MODES
 from .entities import check_coordinates
 from .errors import NektarError
 from .points import POINTS_ENUM
-from .xmlfile import endianness, entity_id, parse_floats, parse_int, records
+from .xmlfile import check_count, endianness, entity_id, parse_floats, parse_int, records
 
 # The renderer's limit on modes per direction also bounds curve points (one mode per point).
 MAX_CURVE_POINTS = MAX_MODES
 
 
-def read_curves(geometry, path, edges, faces, scale, move):
-    """({edge id: (points type, (n, 3) points)}, {face id: (points type, (N, 3) points)})."""
+def read_curves(geometry, path, edges, faces, scale, move, budget):
+    """({edge id: (points type, (n, 3) points)}, {face id: (points type, (N, 3) points)}); compressed
+    blocks within the file's inflation budget and what the edges and faces can use."""
     curved_edges, curved_faces = {}, {}
     curved = geometry.find("CURVED")
     if curved is None or not len(curved):
         return curved_edges, curved_faces
     endian = endianness(curved, path, "CURVED")
     if endian:
-        entries = _compressed_entries(curved, path, endian, scale, move)
+        entries = _compressed_entries(curved, path, endian, scale, move, budget, len(edges), len(faces))
     else:
+        check_count(sum(node.tag in ("E", "F") for node in curved), len(edges) + len(faces), path, "CURVED",
+                    "edges and faces")
         entries = _plain_entries(curved, path, scale, move)
     for tag, curve_id, entity, points_type, xyz in entries:
         what = f"curved {'edge' if tag == 'E' else 'face'} {curve_id}"
@@ -43,9 +46,11 @@ def read_curves(geometry, path, edges, faces, scale, move):
     return curved_edges, curved_faces
 
 
-def _compressed_entries(curved, path, endian, scale, move):
+def _compressed_entries(curved, path, endian, scale, move, budget, num_edges, num_faces):
     """(tag 'E'/'F', curve id, entity id, points type, points) of each record; the points come
-    from the DATAPOINTS pool through its INDEX."""
+    from the DATAPOINTS pool through its INDEX. Each edge and face is curved once at most, with at
+    most MAX_CURVE_POINTS (squared for a face) points."""
+    most_points = num_edges * MAX_CURVE_POINTS + num_faces * MAX_CURVE_POINTS**2
     pools = curved.findall("DATAPOINTS")
     if len(pools) > 1:
         raise NektarError(f"{path}: CURVED has {len(pools)} DATAPOINTS blocks; one is expected")
@@ -54,8 +59,10 @@ def _compressed_entries(curved, path, endian, scale, move):
         index_node, points_node = pools[0].find("INDEX"), pools[0].find("POINTS")
         if index_node is None or points_node is None:
             raise NektarError(f"{path}: CURVED/DATAPOINTS lacks INDEX or POINTS")
-        index = records(index_node, path, "CURVED INDEX", [("i", "i8", None)], endian)["i"]
-        pool = records(points_node, path, "CURVED POINTS", [("id", "i8", None), ("x", "f8", (3,))], endian)["x"]
+        index = records(index_node, path, "CURVED INDEX", [("i", "i8", None)], endian, budget, most_points,
+                        "curved edges and faces")["i"]
+        pool = records(points_node, path, "CURVED POINTS", [("id", "i8", None), ("x", "f8", (3,))], endian, budget,
+                       most_points, "curved edges and faces")["x"]
         if not np.all(np.isfinite(pool)):
             raise NektarError(f"{path}: CURVED POINTS: coordinates are not finite")
         pool = pool * scale + move  # the compressed reader scales every curve point (docs/spec/formats.md §2.2)
@@ -64,7 +71,8 @@ def _compressed_entries(curved, path, endian, scale, move):
         if node.tag not in ("E", "F"):
             continue
         rec = records(node, path, f"CURVED {node.tag}",
-                      [(k, "i8", None) for k in ("id", "entity", "npoints", "ptid", "offset", "ptype")], endian)
+                      [(k, "i8", None) for k in ("id", "entity", "npoints", "ptid", "offset", "ptype")], endian,
+                      budget, num_edges if node.tag == "E" else num_faces, "edges" if node.tag == "E" else "faces")
         for row in rec:
             curve_id, entity, count, offset, points_type = (
                 int(row[k]) for k in ("id", "entity", "npoints", "offset", "ptype"))

@@ -1,12 +1,16 @@
 """The entities of a mesh's <GEOMETRY>: vertices, edges, faces and elements, plain or B64Z
-records (docs/spec/formats.md §2.2, §2.3), each checked to refer only to entities that exist."""
+records (docs/spec/formats.md §2.2, §2.3), each checked to refer only to entities that exist.
+
+Read from the top down (mesh.read_mesh): the elements, then at most the faces they can refer
+to, the edges those faces can, the vertices those edges can; so a section padded with millions
+of unused entries is refused before it is inflated or parsed, not after."""
 from __future__ import annotations
 
 import numpy as np
 
 from ...engine.shapes import HEX, NAMES, PRISM, PYR, TET
 from .errors import NektarError
-from .xmlfile import endianness, entity_id, parse_floats, parse_ints, parse_number, records
+from .xmlfile import check_count, endianness, entity_id, parse_floats, parse_ints, parse_number, records
 
 ELEMENT_TAGS = {"H": HEX, "R": PRISM, "A": TET, "P": PYR}
 # the tag of each face in an element's entry (docs/spec/formats.md §2.2)
@@ -24,9 +28,10 @@ def check_coordinates(x, path, what):
     return x
 
 
-def read_vertices(section, path):
+def read_vertices(section, path, budget, max_count=None):
     """({id: (3,) coordinates}, scale, move): the VERTEX section's XSCALE.. and XMOVE.. apply to
-    the vertices here and to curve points in curves.py."""
+    the vertices here and to curve points in curves.py. At most max_count vertices (what the
+    edges can use) are read."""
     scale = np.array([parse_number(section.attrib.get(k, "1"), path, f"VERTEX {k}")
                       for k in ("XSCALE", "YSCALE", "ZSCALE")])
     move = np.array([parse_number(section.attrib.get(k, "0"), path, f"VERTEX {k}")
@@ -34,7 +39,8 @@ def read_vertices(section, path):
     endian = endianness(section, path, "VERTEX")
     vertices = {}
     if endian:
-        rec = records(section, path, "VERTEX", [("id", "i8", None), ("x", "f8", (3,))], endian)
+        rec = records(section, path, "VERTEX", [("id", "i8", None), ("x", "f8", (3,))], endian, budget, max_count,
+                      "edges")
         if not np.all(np.isfinite(rec["x"])):
             bad = int(rec["id"][np.argwhere(~np.isfinite(rec["x"]))[0][0]])
             raise NektarError(f"{path}: vertex {bad}: coordinates are not finite")
@@ -44,6 +50,7 @@ def read_vertices(section, path):
                 raise NektarError(f"{path}: vertex {i} is defined twice")
             vertices[i] = check_coordinates(x, path, f"vertex {i}")
     else:
+        check_count(len(section), max_count, path, "VERTEX", "edges")
         for node in section:
             i = entity_id(node, path, "VERTEX")
             if node.tag != "V":
@@ -57,20 +64,26 @@ def read_vertices(section, path):
     return vertices, scale, move
 
 
-def read_edges(section, path, vertices):
-    """{id: (vertex id, vertex id)}."""
+def edge_entries(section, path, budget, max_count=None) -> list:
+    """[(id, (vertex id, vertex id))] of the EDGE section, at most max_count (what the faces can use)."""
     endian = endianness(section, path, "EDGE")
-    edges = {}
     if endian:
-        rec = records(section, path, "EDGE", [("id", "i8", None), ("v", "i8", (2,))], endian)
-        items = zip(rec["id"].tolist(), rec["v"].tolist())
-    else:
-        items = []
-        for node in section:
-            i = entity_id(node, path, "EDGE")
-            if node.tag != "E":
-                raise NektarError(f"{path}: unexpected <{node.tag} ID={i}> in EDGE")
-            items.append((i, parse_ints(node.text, 2, path, f"edge {i}")))
+        rec = records(section, path, "EDGE", [("id", "i8", None), ("v", "i8", (2,))], endian, budget, max_count,
+                      "faces")
+        return list(zip(rec["id"].tolist(), rec["v"].tolist()))
+    check_count(len(section), max_count, path, "EDGE", "faces")
+    items = []
+    for node in section:
+        i = entity_id(node, path, "EDGE")
+        if node.tag != "E":
+            raise NektarError(f"{path}: unexpected <{node.tag} ID={i}> in EDGE")
+        items.append((i, parse_ints(node.text, 2, path, f"edge {i}")))
+    return items
+
+
+def read_edges(items, path, vertices):
+    """{id: (vertex id, vertex id)} of edge_entries, each vertex one that exists."""
+    edges = {}
     for i, (a, b) in items:
         if i in edges:
             raise NektarError(f"{path}: edge {i} is defined twice")
@@ -83,33 +96,44 @@ def read_edges(section, path, vertices):
     return edges
 
 
-def read_faces(section, path, edges):
-    """{id: (tag 'T' or 'Q', edge ids)}."""
-    faces = {}
+def face_entries(section, path, budget, max_count=None) -> list:
+    """[(tag 'T' or 'Q', id, edge ids)] of the FACE section, at most max_count (what the elements can use)."""
+    items = []
+    plain = sum(1 for node in section if endianness(node, path, f"FACE {node.tag}") is None)
+    check_count(plain, max_count, path, "FACE", "elements")
     for node in section:
         if node.tag not in ("T", "Q"):
             raise NektarError(f"{path}: unexpected <{node.tag}> in FACE")
         num_edges = 3 if node.tag == "T" else 4
         endian = endianness(node, path, f"FACE {node.tag}")
         if endian:
-            rec = records(node, path, f"FACE {node.tag}", [("id", "i8", None), ("e", "i8", (num_edges,))], endian)
-            items = zip(rec["id"].tolist(), rec["e"].tolist())
+            left = None if max_count is None else max_count - len(items)
+            rec = records(node, path, f"FACE {node.tag}", [("id", "i8", None), ("e", "i8", (num_edges,))], endian,
+                          budget, left, "elements")
+            items.extend((node.tag, i, tuple(e)) for i, e in zip(rec["id"].tolist(), rec["e"].tolist()))
         else:
             i = entity_id(node, path, "FACE")
-            items = [(i, parse_ints(node.text, num_edges, path, f"face {node.tag} {i}"))]
-        for i, edge_ids in items:
-            if i in faces:
-                raise NektarError(f"{path}: face {i} is defined twice")
-            for e in edge_ids:
-                if e not in edges:
-                    raise NektarError(f"{path}: face {i} refers to missing edge {e}")
-            faces[i] = (node.tag, tuple(edge_ids))
+            items.append((node.tag, i, tuple(parse_ints(node.text, num_edges, path, f"face {node.tag} {i}"))))
+        check_count(len(items), max_count, path, "FACE", "elements")
+    return items
+
+
+def read_faces(items, path, edges):
+    """{id: (tag 'T' or 'Q', edge ids)} of face_entries, each edge one that exists."""
+    faces = {}
+    for tag, i, edge_ids in items:
+        if i in faces:
+            raise NektarError(f"{path}: face {i} is defined twice")
+        for e in edge_ids:
+            if e not in edges:
+                raise NektarError(f"{path}: face {i} refers to missing edge {e}")
+        faces[i] = (tag, edge_ids)
     return faces
 
 
-def read_elements(section, path, faces):
-    """{id: (shape, face ids)}, each face of the kind its position in the entry needs."""
-    elements = {}
+def element_entries(section, path, budget) -> list:
+    """[(shape, id, face ids)] of the ELEMENT section (each within the file's inflation budget)."""
+    items = []
     for node in section:
         if node.tag not in ELEMENT_TAGS:
             raise NektarError(f"{path}: <{node.tag}> in ELEMENT is not a 3-D element (A, P, R, H)")
@@ -117,19 +141,26 @@ def read_elements(section, path, faces):
         num_faces = len(FACE_KINDS[shape])
         endian = endianness(node, path, f"ELEMENT {node.tag}")
         if endian:
-            rec = records(node, path, f"ELEMENT {node.tag}", [("id", "i8", None), ("f", "i8", (num_faces,))], endian)
-            items = zip(rec["id"].tolist(), rec["f"].tolist())
+            rec = records(node, path, f"ELEMENT {node.tag}", [("id", "i8", None), ("f", "i8", (num_faces,))], endian,
+                          budget)
+            items.extend((shape, i, tuple(f)) for i, f in zip(rec["id"].tolist(), rec["f"].tolist()))
         else:
             i = entity_id(node, path, "ELEMENT")
-            items = [(i, parse_ints(node.text, num_faces, path, f"{NAMES[shape]} {i}"))]
-        for i, face_ids in items:
-            if i in elements:
-                raise NektarError(f"{path}: element {i} is defined twice")
-            for k, f in enumerate(face_ids):
-                if f not in faces:
-                    raise NektarError(f"{path}: {NAMES[shape]} {i} refers to missing face {f}")
-                if faces[f][0] != FACE_KINDS[shape][k]:
-                    want = "quadrilateral" if FACE_KINDS[shape][k] == "Q" else "triangle"
-                    raise NektarError(f"{path}: {NAMES[shape]} {i}: face {f} (position {k}) must be a {want}")
-            elements[i] = (shape, tuple(face_ids))
+            items.append((shape, i, tuple(parse_ints(node.text, num_faces, path, f"{NAMES[shape]} {i}"))))
+    return items
+
+
+def read_elements(items, path, faces):
+    """{id: (shape, face ids)} of element_entries, each face of the kind its position in the entry needs."""
+    elements = {}
+    for shape, i, face_ids in items:
+        if i in elements:
+            raise NektarError(f"{path}: element {i} is defined twice")
+        for k, f in enumerate(face_ids):
+            if f not in faces:
+                raise NektarError(f"{path}: {NAMES[shape]} {i} refers to missing face {f}")
+            if faces[f][0] != FACE_KINDS[shape][k]:
+                want = "quadrilateral" if FACE_KINDS[shape][k] == "Q" else "triangle"
+                raise NektarError(f"{path}: {NAMES[shape]} {i}: face {f} (position {k}) must be a {want}")
+        elements[i] = (shape, face_ids)
     return elements

@@ -19,7 +19,7 @@ from ...engine import limits
 from .blocks import Block, ElementBudget, coefficient_counts, finish_block, parse_header
 from .errors import NektarError, guard
 from .ranges import expand_ranges, parse_ranges, range_count
-from .xmlfile import endianness, inflate_b64z, parse_xml
+from .xmlfile import endianness, file_budget, inflate_b64z, parse_xml
 
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
@@ -87,6 +87,9 @@ def _directory_blocks(path: Path, budget):
         if not re.fullmatch(r"[A-Za-z0-9_.\-]+", name) or name in (".", ".."):
             raise NektarError(f"{info}: Partition FileName={name!r} is not a plain file name in the directory")
         ranges = parse_ranges(part.text, info, f"Partition {name}")
+        if (path / name).is_symlink():  # a part is the folder's own file, never a way out of it
+            raise NektarError(f"{info}: Partition {name} is a symbolic link; refused (the parts of a field "
+                              "directory must be files in it)")
         part_blocks = _file_blocks(path / name, budget)
         if budget is not None:
             held = set()
@@ -121,8 +124,10 @@ def _hdf5_blocks(path: Path, file, budget):
 
 
 def _xml_blocks(path: Path, root, budget):
-    """The ELEMENTS blocks of an XML field file; with budget None their headers only."""
+    """The ELEMENTS blocks of an XML field file; with budget None their headers only. Their data
+    inflates within the file's inflation budget (xmlfile.file_budget), each block to its declared size."""
     blocks = []
+    inflation = file_budget(path)
     for k, node in enumerate(root.iter("ELEMENTS")):
         what = f"ELEMENTS block {k} (ID={node.attrib.get('ID', '?')[:40]})"
         shape, basis, fields, kind, counts = parse_header(
@@ -137,6 +142,7 @@ def _xml_blocks(path: Path, root, budget):
         budget.claim(path, what, range_count(ranges), fields)
 
         def read_data(want, text=node.text or "", what=what, endian=endian):
+            inflation.spend(8 * want, f"{path}: {what}")
             raw = inflate_b64z(text, path, what, 8 * want)
             if len(raw) % 8:
                 raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of float64 values")

@@ -6,9 +6,9 @@ from pathlib import Path
 
 from .curves import read_curves
 from .domain import domain_elements
-from .entities import read_edges, read_elements, read_faces, read_vertices
+from .entities import edge_entries, element_entries, face_entries, read_edges, read_elements, read_faces, read_vertices
 from .errors import NektarError
-from .xmlfile import parse_xml
+from .xmlfile import file_budget, parse_xml
 
 
 @dataclass
@@ -30,14 +30,19 @@ def read_mesh(path: Path) -> NektarMesh:
         sections[name] = geometry.find(name)
         if sections[name] is None:
             raise NektarError(f"{path}: GEOMETRY has no <{name}> section")
-    vertices, scale, move = read_vertices(sections["VERTEX"], path)
-    edges = read_edges(sections["EDGE"], path, vertices)
-    faces = read_faces(sections["FACE"], path, edges)
-    elements = read_elements(sections["ELEMENT"], path, faces)
+    budget = file_budget(path)
+    # top down: each section holds at most what the one above it can refer to (entities.py)
+    element_items = element_entries(sections["ELEMENT"], path, budget)
+    face_items = face_entries(sections["FACE"], path, budget, sum(len(f) for _, _, f in element_items))
+    edge_items = edge_entries(sections["EDGE"], path, budget, sum(len(e) for _, _, e in face_items))
+    vertices, scale, move = read_vertices(sections["VERTEX"], path, budget, 2 * len(edge_items))
+    edges = read_edges(edge_items, path, vertices)
+    faces = read_faces(face_items, path, edges)
+    elements = read_elements(element_items, path, faces)
     if not elements:
         raise NektarError(f"{path}: the mesh has no elements")
     ids = domain_elements(geometry, path, elements)
-    curved_edges, curved_faces = read_curves(geometry, path, edges, faces, scale, move)
+    curved_edges, curved_faces = read_curves(geometry, path, edges, faces, scale, move, budget)
     return NektarMesh(path, vertices, edges, faces, [(i, *elements[i]) for i in ids], curved_edges, curved_faces)
 
 

@@ -4,35 +4,29 @@ from __future__ import annotations
 
 import base64
 import binascii
-import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from ...engine import limits
+from .. import safe_xml
 from .errors import NektarError
 
-_FORBIDDEN = (b"<!doctype", b"<!entity")
-# Mesh sections have no declared size; real ones deflate by < 20x, a zlib bomb by ~1000x.
-MESH_INFLATE_RATIO = 200
 
 
 def parse_xml(path: Path, what: str) -> ET.Element:
-    """The <NEKTAR> root of an XML file, read through the resource policy."""
+    """The <NEKTAR> root of an XML file, read through the resource policy and parsed by
+    io/safe_xml.py (no DTDs in any encoding, bounded nesting)."""
     try:
         raw = limits.read_regular(path, what)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    lowered = raw.lower()
-    # DTDs can define entities (exponential expansion, external files): no Nektar++ file has one.
-    for pattern in _FORBIDDEN:
-        for encoding in ("ascii", "utf-16-le", "utf-16-be"):
-            if pattern.decode().encode(encoding) in lowered:
-                raise NektarError(f"{path}: DOCTYPE/ENTITY declarations are refused")
     try:
-        root = ET.fromstring(raw)
-    except ET.ParseError as exc:
+        root = safe_xml.parse(raw)
+    except (safe_xml.XmlRefused, limits.ResourceLimitError) as exc:
+        raise NektarError(f"{path}: {exc}") from None
+    except safe_xml.ParseError as exc:
         raise NektarError(f"{path}: not well-formed XML ({exc})") from exc
     if root.tag != "NEKTAR":
         raise NektarError(f"{path}: root element is <{root.tag}>, expected <NEKTAR>")
@@ -101,16 +95,24 @@ def endianness(node, path, what, default=None):
 
 def inflate_b64z(text, path, what, max_bytes):
     """Bytes of a B64Z block (docs/spec/formats.md §2.3): base64 without '=' padding, zlib, NUL
-    padding after the stream."""
-    packed_text = re.sub(r"\s+", "", text or "")
+    padding after the stream. A stream beyond max_bytes raises limits.ResourceLimitError (the
+    base64 is decoded piece by piece, only as far as inflating needs)."""
+    packed_text = "".join((text or "").split())  # whitespace out (a regex takes seconds on 40 MB)
     if not packed_text:
         raise NektarError(f"{path}: {what}: empty data")
+    packed_text += "=" * (-len(packed_text) % 4)
+
+    def pieces(size=1 << 20):  # a multiple of 4 characters: each piece decodes on its own
+        for start in range(0, len(packed_text), size):
+            try:
+                yield base64.b64decode(packed_text[start : start + size], validate=True)
+            except (binascii.Error, ValueError) as exc:
+                raise NektarError(f"{path}: {what}: data is not valid base64 ({exc})") from exc
+
     try:
-        packed = base64.b64decode(packed_text + "=" * (-len(packed_text) % 4), validate=True)
-    except (binascii.Error, ValueError) as exc:
-        raise NektarError(f"{path}: {what}: data is not valid base64 ({exc})") from exc
-    try:
-        raw, rest = limits.inflate(packed, max_bytes, f"{path}: {what}")
+        raw, rest = limits.inflate(pieces(), max_bytes, f"{path}: {what}")
+    except (limits.ResourceLimitError, NektarError):
+        raise
     except ValueError as exc:
         raise NektarError(str(exc)) from exc
     if rest.strip(b"\0"):  # NUL padding to a multiple of 3 is normal, anything else is not
@@ -118,16 +120,38 @@ def inflate_b64z(text, path, what, max_bytes):
     return raw
 
 
-def records(node, path, what, fields, endian):
+def file_budget(path) -> limits.InflationBudget:
+    """What all of one file's compressed blocks may inflate to, together (engine/limits.py)."""
+    return limits.InflationBudget(Path(path).stat().st_size, Path(path).name)
+
+
+def check_count(count, max_count, path, what, users):
+    """A section's entries, at most what `users` can refer to (max_count None: no bound)."""
+    if max_count is not None and count > max_count:
+        raise NektarError(f"{path}: {what} holds {count:,} entries or more; the mesh's {users} can use at most "
+                          f"{max_count:,}; refused")
+
+
+def records(node, path, what, fields, endian, budget, max_records=None, users=""):
     """Structured array of the fixed-size records of a compressed mesh block
-    (docs/spec/formats.md §2.3 table); fields: (name, numpy kind, shape or None)."""
-    text = node.text or ""
-    # the ratio bounds a bomb; the memory limit caps the bound so that a low limit refuses only
-    # sections that really inflate beyond it
-    bound = min(MESH_INFLATE_RATIO * len(text) + 4096, limits.current().max_memory)
-    raw = inflate_b64z(text, path, what, bound)
+    (docs/spec/formats.md §2.3 table); fields: (name, numpy kind, shape or None). The block
+    inflates within the file's budget (file_budget) and to at most max_records records, the
+    most its users (the entities that refer to it) can use."""
     dtype = np.dtype([(name, endian + kind, shape) if shape else (name, endian + kind)
                       for name, kind, shape in fields])
+    room = max(budget.allowed - budget.spent, 0)
+    cap = room if max_records is None else min(room, int(max_records) * dtype.itemsize)
+    try:
+        raw = inflate_b64z(node.text or "", path, what, min(cap, limits.current().max_memory))
+    except limits.ResourceLimitError:  # say which bound it met
+        memory = limits.current().max_memory
+        if max_records is not None and max_records * dtype.itemsize <= min(room, memory):
+            check_count(max_records + 1, max_records, path, what, users)
+        if room <= memory:
+            budget.spend(room + 1, f"{path}: {what}")
+        limits.check_bytes(memory + 1, f"inflating {path}: {what}")
+        raise
+    budget.spend(len(raw), f"{path}: {what}")
     if len(raw) % dtype.itemsize:
         raise NektarError(f"{path}: {what}: {len(raw)} bytes is not a whole number of {dtype.itemsize}-byte records")
     return np.frombuffer(raw, dtype=dtype)

@@ -9,24 +9,23 @@ inflation of zlib/lzma blocks; raw appended data re-encoded as base64).
 from __future__ import annotations
 
 import re
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
 from ...engine import limits
+from .. import safe_xml
 from .decoding import CODECS, NUMPY_TYPES, LoadedFile
 from .errors import VtuError
 
-_FORBIDDEN = (b"<!doctype", b"<!entity")
 _APPENDED_TAG = re.compile(rb"<AppendedData\b[^>]*>")
 _APPENDED_MARK = re.compile(rb"\s*_")
 
 
 def _tag_attributes(path, tag: bytes, name):
     try:
-        return ET.fromstring(tag[:-1].rstrip(b"/") + b"/>").attrib
-    except ET.ParseError as exc:
+        return safe_xml.parse(tag[:-1].rstrip(b"/") + b"/>").attrib
+    except (safe_xml.ParseError, safe_xml.XmlRefused) as exc:
         raise VtuError(f"{path}: malformed <{name}> element ({exc})") from None
 
 
@@ -42,14 +41,14 @@ def load(path: Path):
         raise VtuError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     cut = raw.find(b"<AppendedData")
     head = raw if cut < 0 else raw[:cut]
-    lowered = head.lower()
-    # DTDs can define entities (exponential expansion, external files): no VTK writer emits one.
-    if any(p in lowered for p in _FORBIDDEN):
-        raise VtuError(f"{path}: DOCTYPE/ENTITY declarations are refused")
     header_type, compressor, byte_order = _file_attributes(path, head)
+    # DTDs can define entities (exponential expansion, external files): no VTK writer emits one,
+    # and safe_xml refuses them after decoding, whatever the file's encoding.
     try:
-        root = ET.fromstring(head + (b"</VTKFile>" if cut >= 0 else b""))
-    except ET.ParseError as exc:
+        root = safe_xml.parse(head + (b"</VTKFile>" if cut >= 0 else b""))
+    except (safe_xml.XmlRefused, limits.ResourceLimitError) as exc:
+        raise VtuError(f"{path}: {exc}") from None
+    except safe_xml.ParseError as exc:
         raise VtuError(f"{path}: not well-formed XML ({exc})") from None
     appended, appended_base64 = _appended_data(path, raw, cut) if cut >= 0 else (None, False)
     order = {"LittleEndian": "<", "BigEndian": ">", None: "="}[byte_order]  # none: this machine's, as in VTK

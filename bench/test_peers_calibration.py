@@ -9,18 +9,12 @@ edge-on, grid sampling). Skipped, with the reason, where VTK cannot render offsc
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "bench"))
-
 vtk = pytest.importorskip("vtk")
-import vtk_peer as vp  # noqa: E402
 
+from bench import vtk_peer as vp  # noqa: E402  (after the skip: it imports vtk)
 from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.io.synthetic import brick  # noqa: E402
 

@@ -1,0 +1,607 @@
+"""Reading untrusted files in a separate process: a crash, a hang or a blown limit inside a C
+library (libhdf5, expat, zlib) ends that process, never Blender or the `hovr` command.
+
+Every parse of a data file (io.sources.load_volume, the field listing behind the import dialog,
+a Nektar++ mesh's composites for the walls) is a task of `reader_process.py`, run by `call` in a
+reader process of this package: `python -I -c BOOT` on this interpreter (Blender's own Python, not
+Blender: `interpreter`), with this process's module path, importing this package under its own
+name (the extension's `bl_ext.<repo>.hovr_blender` as `hovr_blender`). Nothing is pickled: a task's
+arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtypes that this
+process reads into arrays it allocates after checking their sizes against the memory limit.
+
+Limits of each task, in the reader process: its address space may grow by the memory limit
+(engine/limits.py, RLIMIT_AS; Linux), its wall time is the read time limit (this process kills it;
+an alarm in it ends it anyway should this process be gone). A reader process ends with this one:
+a parent-death signal (Linux), the end of its request pipe (everywhere). It ignores SIGINT: Ctrl-C
+reaches this process, which stops it.
+
+One reader process is kept warm between tasks (`prestart` starts it early; the `hovr` command
+does, so that its start overlaps the command's own imports): a series of frames on one mesh
+reuses the mesh's parsed geometry (io/nektar/reader.py's cache), and the import dialog's listing
+costs milliseconds. A failed, stopped or cancelled task's process is killed, never reused.
+
+HOVR_ISOLATION=0 reads in this process instead (benchmarks: bench/load.py, debugging).
+"""
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import signal
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict, fields as dataclass_fields
+from pathlib import Path
+
+from ..engine import limits
+
+ENV_SWITCH = "HOVR_ISOLATION"
+LIST_SECONDS = 30.0  # listing fields or composites reads headers only; the dialog waits for it
+START_SECONDS = 120.0  # for a reader process to start (import numpy, the readers) before its time limit runs
+ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allocations during a task
+MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
+ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
+# dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
+ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
+HEADER = struct.Struct("<Q")
+
+BOOT = (
+    "import importlib.util, json, sys\n"
+    "cfg = json.loads(sys.argv[1])\n"
+    "sys.path[:] = cfg['path']\n"
+    "spec = importlib.util.spec_from_file_location('hovr_blender', cfg['init'], "
+    "submodule_search_locations=[cfg['package']])\n"
+    "package = importlib.util.module_from_spec(spec)\n"
+    "sys.modules['hovr_blender'] = package\n"
+    "spec.loader.exec_module(package)\n"
+    "from hovr_blender.io import reader_process\n"
+    "reader_process.main(cfg)\n"
+)
+
+
+class ReaderFailure(ValueError):
+    """The reader process crashed, hung, ran out of its memory or failed to start: one line that
+    names the file being read."""
+
+
+class ReadCancelled(Exception):
+    """A read stopped by the user (Esc, a cancelled job)."""
+
+
+def enabled() -> bool:
+    return os.environ.get(ENV_SWITCH, "1").strip().lower() not in ("0", "off", "no", "false")
+
+
+def interpreter() -> str:
+    """The Python to run readers with: sys.executable, unless that is Blender itself (Blender
+    before 2.91 set it to its own binary), then the Python under sys.prefix."""
+    exe = sys.executable or ""
+    if os.path.basename(exe).lower().startswith("python"):
+        return exe
+    version = f"{sys.version_info.major}.{sys.version_info.minor}"
+    candidates = [getattr(sys, "_base_executable", "")]
+    if os.name == "nt":
+        candidates += [os.path.join(sys.prefix, "bin", "python.exe"), os.path.join(sys.prefix, "python.exe")]
+    else:
+        candidates += [os.path.join(sys.prefix, "bin", f"python{version}"), os.path.join(sys.prefix, "bin", "python3")]
+    for candidate in candidates:
+        if candidate and os.path.basename(candidate).lower().startswith("python") and os.path.isfile(candidate):
+            return candidate
+    raise ReaderFailure(f"no Python interpreter found to run the reader process (sys.executable is {exe!r}); "
+                        f"set {ENV_SWITCH}=0 to read in this process")
+
+
+# ----------------------------------------------------------------------------- messages
+
+def send(fd: int, message: dict, arrays=()):
+    """One JSON message, then the raw bytes of `arrays` (their dtypes and shapes in it)."""
+    body = json.dumps(message).encode()
+    _write_all(fd, HEADER.pack(len(body)) + body)
+    for a in arrays:
+        _write_all(fd, memoryview(a).cast("B"))
+
+
+def _write_all(fd: int, data):
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
+def encode(value, arrays: list):
+    """A task's result as JSON, its arrays appended to `arrays`: numbers, strings, lists,
+    tuples, dicts with string keys, arrays and VolumeMesh."""
+    import numpy as np
+
+    from ..engine.mesh import VolumeMesh
+
+    if isinstance(value, np.ndarray):
+        if value.dtype.str not in ARRAY_DTYPES:  # a big-endian array goes as its native copy
+            value = value.astype(value.dtype.newbyteorder("<")) if value.dtype.byteorder == ">" else value
+        if value.dtype.str not in ARRAY_DTYPES:
+            raise TypeError(f"array of dtype {value.dtype} cannot leave the reader process")
+        arrays.append(np.ascontiguousarray(value))
+        return {"$array": len(arrays) - 1, "dtype": value.dtype.str, "shape": list(value.shape)}
+    if isinstance(value, VolumeMesh):
+        names = [f.name for f in dataclass_fields(VolumeMesh)]
+        extra = {k: v for k, v in vars(value).items() if k not in names}
+        return {"$mesh": {k: encode(getattr(value, k), arrays) for k in names},
+                "extra": {k: encode(v, arrays) for k, v in extra.items()}}
+    if isinstance(value, tuple):
+        return {"$tuple": [encode(v, arrays) for v in value]}
+    if isinstance(value, list):
+        return [encode(v, arrays) for v in value]
+    if isinstance(value, dict):
+        return {"$dict": {str(k): encode(v, arrays) for k, v in value.items()}}
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"a {type(value).__name__} cannot leave the reader process")
+
+
+def _array_specs(tree, out: list):
+    """The array entries of an encoded tree, in index order."""
+    if isinstance(tree, dict):
+        if "$array" in tree:
+            out.append(tree)
+        for v in tree.values():
+            _array_specs(v, out)
+    elif isinstance(tree, list):
+        for v in tree:
+            _array_specs(v, out)
+    return out
+
+
+def decode(tree, arrays: list):
+    from ..engine.mesh import VolumeMesh
+
+    if isinstance(tree, list):
+        return [decode(v, arrays) for v in tree]
+    if not isinstance(tree, dict):
+        return tree
+    if "$array" in tree:
+        return arrays[tree["$array"]]
+    if "$tuple" in tree:
+        return tuple(decode(v, arrays) for v in tree["$tuple"])
+    if "$dict" in tree:
+        return {k: decode(v, arrays) for k, v in tree["$dict"].items()}
+    if "$mesh" in tree:
+        names = {f.name for f in dataclass_fields(VolumeMesh)}
+        given = {k: decode(v, arrays) for k, v in tree["$mesh"].items() if k in names}
+        mesh = VolumeMesh(**given)
+        for k, v in tree.get("extra", {}).items():
+            if k.isidentifier() and not k.startswith("_") and k not in names:
+                setattr(mesh, k, decode(v, arrays))
+        return mesh
+    raise ReaderFailure("the reader process sent a malformed result")
+
+
+# ----------------------------------------------------------------------------- the process
+
+def _package_dir() -> Path:
+    return Path(__file__).resolve().parents[1]
+
+
+def _wait_readable(fd: int, timeout: float) -> bool:
+    if os.name == "nt":  # select() takes sockets only there: poll the pipe
+        import _winapi
+        import msvcrt
+
+        end = time.monotonic() + timeout
+        handle = msvcrt.get_osfhandle(fd)
+        while True:
+            try:
+                if _winapi.PeekNamedPipe(handle, 0)[0]:
+                    return True
+            except OSError:  # the other end is gone: reading says so
+                return True
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.005)
+    import select
+
+    return bool(select.select([fd], [], [], max(timeout, 0.0))[0])
+
+
+class _Worker:
+    """One reader process and its pipes."""
+
+    def __init__(self):
+        package = _package_dir()
+        config = {"path": [p for p in sys.path if isinstance(p, str)], "package": str(package),
+                  "init": str(package / "__init__.py"), "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
+                  "address_slack": ADDRESS_SLACK, "death_signal": threading.current_thread() is threading.main_thread()}
+        self.owner = os.getpid()
+        self.log = tempfile.TemporaryFile(prefix="hovr-reader-")  # its stderr: kept for HOVR_DEBUG, never shown
+        self.proc = subprocess.Popen([interpreter(), "-I", "-c", BOOT, json.dumps(config)], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True)
+        self.stdin = self.proc.stdin.fileno()
+        self.stdout = self.proc.stdout
+
+    def alive(self) -> bool:
+        return self.owner == os.getpid() and self.proc.poll() is None
+
+    def kill(self):
+        if self.owner != os.getpid():
+            return
+        try:
+            self.proc.kill()
+        except OSError:
+            pass
+        self._reap()
+
+    def close(self):
+        """End an idle process: the end of its request pipe ends its loop."""
+        if self.owner != os.getpid():
+            return
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=2.0)
+        except (OSError, subprocess.TimeoutExpired):
+            self.kill()
+        self._reap()
+
+    def _reap(self):
+        try:
+            self.proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            pass
+        for f in (self.proc.stdin, self.proc.stdout, self.log):
+            try:
+                f.close()
+            except OSError:
+                pass
+
+    def log_tail(self) -> str:
+        try:
+            self.log.seek(0, os.SEEK_END)
+            size = self.log.tell()
+            self.log.seek(max(0, size - 4000))
+            return self.log.read().decode(errors="replace")
+        except (OSError, ValueError):
+            return ""
+
+
+_IDLE: list = []
+_LOCK = threading.Lock()
+
+
+def _take() -> _Worker:
+    with _LOCK:
+        while _IDLE:
+            worker = _IDLE.pop()
+            if worker.alive():
+                return worker
+            if worker.owner == os.getpid():
+                worker.kill()
+    return _Worker()
+
+
+def _give_back(worker: _Worker):
+    with _LOCK:
+        if not _IDLE and worker.alive():
+            _IDLE.append(worker)
+            return
+    worker.close()
+
+
+def prestart():
+    """Start the warm reader process now, without waiting for it (no-op when one is idle)."""
+    if not enabled():
+        return
+    with _LOCK:
+        if any(w.alive() for w in _IDLE):
+            return
+    try:
+        _give_back(_Worker())
+    except (OSError, ReaderFailure):
+        pass  # the first task reports it
+
+
+@atexit.register
+def shutdown():
+    """End the idle reader processes (at exit; tests)."""
+    with _LOCK:
+        idle = list(_IDLE)
+        _IDLE.clear()
+    for worker in idle:
+        worker.close()
+
+
+# ----------------------------------------------------------------------------- one task
+
+def _one_line(text: str, limit: int = 1000) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _error_class(kind: str):
+    """The class a reader's error of that name is raised as here: a registered format's own
+    error, or one of the loader's and the policy's."""
+    from ..engine.mesh import MeshError
+    from . import derived, formats, sources
+
+    known = {"SourceError": sources.SourceError, "DerivedError": derived.DerivedError, "MeshError": MeshError,
+             "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
+             "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
+             "ModuleNotFoundError": ModuleNotFoundError}
+    known.update({f.error.__name__: f.error for f in formats.FORMATS})
+    return known.get(kind)
+
+
+class Request:
+    """One task in a reader process: `poll()` until it is done (then `value()`), or `cancel()`.
+    `stage` is what the reader is doing, in words ("reading flow.fld")."""
+
+    def __init__(self, task: str, args: dict, seconds: float, what: str = ""):
+        self.task, self.what, self.seconds = task, what, float(seconds)
+        self.stage = "starting the reader"
+        self.done = False
+        self._result = self._error = None
+        self._file = what
+        self._limits = limits.current()
+        self._worker = _take()
+        self._deadline = time.monotonic() + START_SECONDS  # then the time limit, from its "started"
+        self._pending = bytearray(HEADER.size)  # what is being read: a length, a message or an array
+        self._got = 0
+        self._on_filled = self._length_read
+        self._arrays: list = []
+        self._specs: list = []
+        self._reply = None
+        self._started = False
+        try:
+            send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits),
+                                      "seconds": self.seconds})
+        except OSError:  # it died before the request: a broken start
+            self._fail_dead()
+
+    @property
+    def pid(self) -> int | None:
+        """The reader process's id while the task runs."""
+        return None if self._worker is None else self._worker.proc.pid
+
+    # ---------------------------------------------------------------- reading the reply
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        """Read what the reader has sent (waiting up to `timeout`); True once the task is done."""
+        end = time.monotonic() + max(timeout, 0.0)
+        while not self.done:
+            now = time.monotonic()
+            if now >= self._deadline:
+                self._stop(f"reading took longer than the limit of {self.seconds:g} s and was stopped (raise it "
+                           "with HOVR_MAX_READ_SECONDS if the file is genuine)" if self._started else
+                           f"the reader process did not start within {START_SECONDS:g} s")
+                break
+            wait = min(end, self._deadline) - now
+            if not _wait_readable(self._worker.stdout.fileno(), max(wait, 0.0)):
+                if time.monotonic() >= end:
+                    break
+                continue
+            try:
+                n = self._worker.stdout.readinto(memoryview(self._pending)[self._got:])
+            except OSError:
+                n = 0
+            if not n:
+                self._fail_dead()
+                break
+            self._got += n
+            if self._got == len(self._pending):
+                self._on_filled()
+        return self.done
+
+    def _expect(self, size: int, on_filled, buffer=None):
+        self._pending = bytearray(size) if buffer is None else buffer
+        self._got = 0
+        self._on_filled = on_filled
+        if size == 0:
+            on_filled()
+
+    def _length_read(self):
+        (size,) = HEADER.unpack(bytes(self._pending))
+        if size > MAX_MESSAGE:
+            self._stop(f"the reader process sent a message of {size:,} bytes; refused")
+            return
+        self._expect(size, self._message_read)
+
+    def _message_read(self):
+        try:
+            message = json.loads(bytes(self._pending))
+        except ValueError:
+            self._stop("the reader process sent a malformed message")
+            return
+        if "stage" in message:
+            if not self._started:
+                self._started = True
+                self._deadline = time.monotonic() + self.seconds
+            self.stage = _one_line(message["stage"], 200)
+            self._file = _one_line(message.get("file", self._file), 1000)
+            self._expect(HEADER.size, self._length_read)
+        elif "error" in message:
+            self._reply = message
+            self._finish()
+        else:
+            self._reply = message
+            import numpy as np
+
+            try:
+                self._specs = _array_specs(message.get("result"), [])
+                total = 0
+                for index, spec in enumerate(self._specs):
+                    dtype, shape = np.dtype(spec["dtype"]), tuple(int(s) for s in spec["shape"])
+                    if spec["$array"] != index or dtype.str not in ARRAY_DTYPES or any(s < 0 for s in shape):
+                        raise ValueError(spec)
+                    total += int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+                limits.check_bytes(total, f"the arrays read from {self._file or 'the file'}")
+            except limits.ResourceLimitError as exc:
+                self._stop(str(exc))
+                return
+            except (ValueError, TypeError, KeyError, AttributeError):
+                self._stop("the reader process sent a malformed result")
+                return
+            self._next_array()
+
+    def _next_array(self):
+        import numpy as np
+
+        if len(self._arrays) == len(self._specs):
+            self._finish()
+            return
+        spec = self._specs[len(self._arrays)]
+        array = np.empty(tuple(spec["shape"]), dtype=np.dtype(spec["dtype"]))
+        self._arrays.append(array)
+        self._expect(array.nbytes, self._next_array, memoryview(array.reshape(-1).view(np.uint8)))
+
+    def _finish(self):
+        self.done = True
+        message, worker = self._reply, self._worker
+        self._worker = None
+        _give_back(worker)
+        if "error" in message:
+            error = message["error"]
+            text = _one_line(error.get("message", ""))
+            kind = error.get("kind", "")
+            if kind == "MemoryError":
+                self._error = limits.ResourceLimitError(
+                    f"{self._file or 'the file'}: reading it needed more memory than the limit of "
+                    f"{limits.format_size(self._limits.max_memory)} (raise it with --max-memory or HOVR_MAX_MEMORY)")
+                return
+            cls = _error_class(kind)
+            self._error = cls(text) if cls is not None else ReaderFailure(
+                f"unexpected {kind} while reading {self._file or 'the file'}: {text} (a bug: please report it)")
+            return
+        try:
+            self._result = decode(message.get("result"), self._arrays)
+        except Exception as exc:  # noqa: BLE001  (whatever the result fails, it is the file's)
+            cls = _error_class(type(exc).__name__)
+            self._error = cls(_one_line(exc)) if cls is not None else ReaderFailure(
+                f"{self._file or 'the file'}: the reader's result is not a valid mesh ({_one_line(exc)})")
+
+    # ---------------------------------------------------------------- endings
+
+    def _stop(self, why: str):
+        """Kill the reader and fail with `why`, naming the file."""
+        worker, self._worker = self._worker, None
+        if worker is not None:
+            worker.kill()
+        self.done = True
+        self._error = ReaderFailure(f"{self._file}: {why}" if self._file else why)
+
+    def _fail_dead(self):
+        worker = self._worker
+        worker.kill()
+        code = worker.proc.returncode
+        if code is not None and code < 0:
+            try:
+                name = signal.Signals(-code).name
+            except ValueError:
+                name = f"signal {-code}"
+            if -code == getattr(signal, "SIGALRM", None):
+                why = f"reading took longer than the limit of {self.seconds:g} s and was stopped"
+            elif -code == signal.SIGKILL:
+                why = "the reader process was killed (SIGKILL, perhaps out of memory) while reading it; refused"
+            else:
+                why = (f"the reader process crashed ({name}) while reading it: the file is damaged or not a valid "
+                       "data file; nothing was loaded")
+        else:
+            tail = [line for line in worker.log_tail().splitlines() if line.strip()]
+            why = (f"the reader process ended unexpectedly (exit status {code})"
+                   + (f": {_one_line(tail[-1], 300)}" if tail else ""))
+        if os.environ.get("HOVR_DEBUG"):
+            sys.stderr.write(worker.log_tail())
+        self._worker = None
+        self.done = True
+        self._error = ReaderFailure(f"{self._file}: {why}" if self._file else why)
+
+    def cancel(self):
+        """Stop the task now (its process is killed); value() raises ReadCancelled."""
+        if not self.done:
+            worker, self._worker = self._worker, None
+            if worker is not None:
+                worker.kill()
+            self.done = True
+            self._error = ReadCancelled(f"reading {self._file or 'the file'} was cancelled")
+
+    def value(self):
+        if not self.done:
+            raise RuntimeError("the read is not done")
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
+def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
+    """Run reader_process.TASKS[task](**args) in a reader process and return its result; its
+    errors are raised here as the reader's own classes. `what`: the file named by failures before
+    the reader says which it opened; on_stage(text) at each stage; cancelled() -> True stops it."""
+    if not enabled():
+        from .reader_process import TASKS
+
+        return TASKS[task](**args)
+    if seconds is None:
+        seconds = limits.current().max_read_seconds
+    request = Request(task, args, seconds, what)
+    stage = None
+    try:
+        while not request.poll(0.1):
+            if cancelled is not None and cancelled():
+                request.cancel()
+            elif on_stage is not None and request.stage != stage:
+                stage = request.stage
+                on_stage(stage)
+    except BaseException:  # KeyboardInterrupt included: the reader must not outlive the wait
+        request.cancel()
+        raise
+    return request.value()
+
+
+# ----------------------------------------------------------------------------- the tasks, called here
+
+def _extra_formats() -> list:
+    """[(name, module file)] of the formats registered at run time from outside this package: the
+    reader process registers them from their files before it reads."""
+    import inspect
+
+    from . import formats
+
+    package = __name__.rsplit(".", 2)[0]
+    out = []
+    for data_format in formats.FORMATS:
+        module = inspect.getmodule(data_format.read)
+        if module is not None and not module.__name__.startswith(package + ".") and getattr(module, "__file__", None):
+            out.append((data_format.name, module.__file__))
+    return out
+
+
+def read_volume(source, **kwargs):
+    """io.sources.read_volume(source) in a reader process."""
+    args = {"path": source.path, "solution": source.solution, "field": source.field, "component": source.component,
+            "extra_formats": _extra_formats()}
+    return call("read_volume", args, what=source.path, **kwargs)
+
+
+def list_fields(format_name: str, path, **kwargs):
+    """The fields a file offers (its format's list_fields: names, or {name: components} for the
+    formats with vector fields), read in a reader process."""
+    return call("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
+                seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path), **kwargs)
+
+
+def wall_choices(format_name: str, mesh_path, **kwargs) -> list:
+    """[(selection, label)] of a mesh's named boundaries (its format's boundaries(path).choices())."""
+    choices = call("wall_choices", {"format_name": format_name, "path": str(mesh_path),
+                                    "extra_formats": _extra_formats()},
+                   seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path), **kwargs)
+    return [tuple(c) for c in choices]
+
+
+def wall_faces(format_name: str, mesh_path, selection: str, **kwargs):
+    """The faces of a selection of a mesh's named boundaries (boundaries(path).select(selection)),
+    read in a reader process."""
+    return call("wall_faces", {"format_name": format_name, "path": str(mesh_path), "selection": selection,
+                               "extra_formats": _extra_formats()}, what=str(mesh_path), **kwargs)

@@ -1,0 +1,184 @@
+"""A render-series cluster only its owner can reach (issue 29): another local process can neither
+run code on the scheduler nor on a worker (TLS with keys made for the run), the only ports open
+are the Dask comm ports that require those keys (no HTTP: no dashboard, no health or metrics
+pages), and the workers end when the process that made the cluster dies."""
+import os
+import signal
+import socket
+import ssl
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+
+distributed = pytest.importorskip("distributed")
+pytest.importorskip("cryptography")
+psutil = pytest.importorskip("psutil")
+
+from hovr_blender.distributed import series  # noqa: E402
+
+pytestmark = pytest.mark.slow
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+
+def _listening(pids):
+    """(pid, port) of every TCP socket in LISTEN state of the processes `pids`."""
+    out = []
+    for pid in pids:
+        for conn in psutil.Process(pid).net_connections(kind="inet"):
+            if conn.status == psutil.CONN_LISTEN:
+                out.append((pid, conn.laddr.port))
+    return out
+
+
+def _tree():
+    me = psutil.Process()
+    return [me.pid] + [p.pid for p in me.children(recursive=True)]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    cluster = series.local_cluster(2, "cpu")
+    client = series.cluster_client(cluster)
+    try:
+        yield cluster, client
+    finally:
+        client.close()
+        cluster.close()
+
+
+def _port(address):
+    return int(address.rsplit(":", 1)[1])
+
+
+def test_only_the_runs_comm_ports_listen(cluster):
+    cluster, client = cluster
+    info = client.scheduler_info()
+    assert cluster.scheduler_address.startswith("tls://127.0.0.1:")
+    comm = {_port(cluster.scheduler_address)}
+    for addr, w in info["workers"].items():
+        comm.add(_port(addr))
+        if w.get("nanny"):
+            comm.add(_port(w["nanny"]))
+    listening = _listening(_tree())
+    assert {port for _, port in listening} == comm, (listening, comm)
+    for port in comm:  # each one wants TLS with the run's certificate
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as raw:
+            raw.sendall(b"GET / HTTP/1.0\r\n\r\n")
+            raw.settimeout(5)
+            try:
+                answer = raw.recv(100)
+            except (ConnectionResetError, socket.timeout):
+                answer = b""
+            assert not answer.startswith(b"HTTP"), port
+        ctx = ssl.create_default_context()
+        ctx.check_hostname = False
+        ctx.verify_mode = ssl.CERT_NONE
+        with pytest.raises((ssl.SSLError, ConnectionResetError, BrokenPipeError, socket.timeout, OSError)):
+            with socket.create_connection(("127.0.0.1", port), timeout=5) as raw:
+                with ctx.wrap_socket(raw) as tls:  # no client certificate
+                    tls.sendall(b"x" * 64)
+                    tls.settimeout(5)
+                    if not tls.recv(1):
+                        raise ConnectionResetError("closed")
+
+
+ATTACKER = textwrap.dedent("""
+    import asyncio, sys
+    from distributed import Client
+    from distributed.comm import connect
+    from distributed.security import Security
+    marker, scheduler, workers = sys.argv[1], sys.argv[2], sys.argv[3:]
+
+    def payload():
+        open(marker, "w").write("ran")
+
+    for address, security in ((scheduler, None), (scheduler.replace("tls://", "tcp://"), None),
+                              (scheduler, Security(require_encryption=True))):
+        try:
+            with Client(address, timeout=4, security=security) as c:
+                c.run(payload)
+                c.run_on_scheduler(payload)
+            print("CONNECTED", address)
+        except BaseException as exc:
+            print("refused", address, type(exc).__name__)
+
+    async def worker(address):
+        try:
+            comm = await asyncio.wait_for(connect(address, timeout=4), 6)
+            await comm.write({"op": "run", "function": b"", "args": b"", "kwargs": b"", "reply": True})
+            print("CONNECTED", address, await asyncio.wait_for(comm.read(), 6))
+        except BaseException as exc:
+            print("refused", address, type(exc).__name__)
+
+    for address in workers:
+        asyncio.run(worker(address))
+""")
+
+
+def test_another_process_cannot_run_code(cluster, tmp_path):
+    cluster, client = cluster
+    marker = tmp_path / "ran"
+    workers = list(client.scheduler_info()["workers"])
+    proc = subprocess.run([sys.executable, "-c", ATTACKER, str(marker), cluster.scheduler_address, *workers],
+                          capture_output=True, text=True, timeout=120, env=dict(os.environ, PYTHONPATH=REPO))
+    assert "CONNECTED" not in proc.stdout, proc.stdout + proc.stderr
+    assert proc.stdout.count("refused") == 3 + len(workers), proc.stdout + proc.stderr
+    assert not marker.exists()
+    assert client.run(os.getpid)  # its owner still can
+
+
+OWNER = textwrap.dedent("""
+    import os, sys, time
+    from hovr_blender.distributed import series
+    cluster = series.local_cluster(1, "cpu")
+    client = series.cluster_client(cluster)
+    print(" ".join(str(p) for p in client.run(os.getpid).values()), flush=True)
+    time.sleep(600)
+""")
+
+
+def test_workers_end_with_the_process_that_made_the_cluster():
+    proc = subprocess.Popen([sys.executable, "-c", OWNER], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True, env=dict(os.environ, PYTHONPATH=REPO))
+    try:
+        pids = [int(p) for p in proc.stdout.readline().split()]
+        assert pids and all(psutil.pid_exists(p) for p in pids)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(_alive(p) for p in pids):
+            time.sleep(0.2)
+        assert not any(_alive(p) for p in pids)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def _alive(pid):
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def test_scheduler_option_connects_with_the_users_tls_files(cluster, tmp_path):
+    """--scheduler with --tls-ca-file/--tls-cert/--tls-key (series.remote_client): the cluster's CA
+    and a certificate it signed connect; half the files, or a plain address, are refused."""
+    cluster, _ = cluster
+    files = {}
+    for name, pem in (("ca", cluster.security.tls_ca_file), ("cert", cluster.security.tls_client_cert),
+                      ("key", cluster.security.tls_client_key)):
+        files[name] = tmp_path / f"{name}.pem"
+        files[name].write_text(pem)
+        os.chmod(files[name], 0o600)
+    with series.remote_client(cluster.scheduler_address, str(files["ca"]), str(files["cert"]),
+                              str(files["key"])) as client:
+        assert client.run(os.getpid)
+    with pytest.raises(ValueError, match="go together"):
+        series.remote_client(cluster.scheduler_address, str(files["ca"]))
+    with pytest.raises(RuntimeError, match="encryption required"):  # a plain tcp address is refused
+        series.remote_client(cluster.scheduler_address.replace("tls://", "tcp://"), str(files["ca"]),
+                             str(files["cert"]), str(files["key"]))
