@@ -25,6 +25,7 @@ from .limits import cpu_cores
 from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients)
 from .methods import METHOD_IDS
+from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
 from .view import AUTO_STEP_ERROR, RenderOptions, resolving_step
@@ -71,6 +72,8 @@ def _init_warp():
 
 
 def _start_warp():
+    # portable CPU objects: the add-on's shipped kernels (shipped_kernels.py) match on any CPU
+    wp.config.cpu_compiler_flags = CPU_COMPILER_FLAGS
     debug = bool(os.environ.get("HOVR_DEBUG"))
     wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
     if debug:
@@ -170,26 +173,36 @@ def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> lis
     return [table[name] for name in kernels.RENDER_KERNELS]
 
 
-def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
-                 surfaces: bool = False) -> None:
-    """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
-    (and the surface cast with `surfaces`): compiled on first use, tens of seconds on a CPU, else
-    read from Warp's kernel cache on disk. The modules compile side by side in worker threads
-    joined before it returns."""
-    kernels = render_kernels(variant, precision)
+def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfaces: bool = False) -> list:
+    """The kernels of render_kernels, the re-shade of a transfer-function edit, and the surface
+    cast with `surfaces`: what an interactive session (Blender) loads before its first render, and
+    what the add-on ships compiled (scripts/build_extension.py)."""
+    kernels = render_kernels(variant, precision) + [Precision.named(precision).kernels.shade]
     if surfaces:
         from .kernels import surfaces as surface_kernels
 
         kernels.append(surface_kernels.cast_surfaces)
-    load_modules(kernels, resolve_device(device))
+    return kernels
 
 
-def load_modules(kernels, device: str) -> None:
-    """Compile (first use) or load from Warp's disk cache the modules of `kernels` on `device`,
-    side by side (on first use the largest module's compile is the wait)."""
+def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
+                 surfaces: bool = False) -> LoadReport:
+    """Load the session_kernels of `variant` in `precision` on `device`: from the add-on's
+    shipped binaries where they were built from this source, else compiled on first use (tens of
+    seconds on a CPU) or read from Warp's kernel cache on disk. The modules compile side by side
+    in worker threads joined before it returns."""
+    return load_modules(session_kernels(variant, precision, surfaces), resolve_device(device))
+
+
+def load_modules(kernels, device: str) -> LoadReport:
+    """Load the modules of `kernels` on `device`: the shipped binaries of their source where the
+    add-on has them (shipped_kernels.py), the rest compiled (first use) or read from Warp's disk
+    cache, side by side (on first use the largest module's compile is the wait)."""
+    report = load_shipped(kernels, device)
     modules = list({id(k.module): k.module for k in kernels}.values())
     workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
     wp.force_load(device=device, modules=modules, max_workers=workers)
+    return report
 
 
 def _check_float32_range(what: str, values, offsets):

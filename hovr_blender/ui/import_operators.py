@@ -177,8 +177,10 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         context.view_layer.objects.active = obj
     if read.values is not None and read.values.size:
         warning = operators.fit_value_range(obj, context.scene, read.values)[3]
-        if warning:
+        if warning:  # a constant field keeps the smooth ramp: there is no structure to place a look by
             warnings.append(warning)
+        else:
+            operators.apply_look(obj, read.values)  # the first picture's look, chosen from the data
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart
@@ -199,7 +201,8 @@ class _ImportVolume(ImportHelper):
     bl_options = {'REGISTER', 'UNDO', 'PRESET'}
 
     fit_range: BoolProperty(name="Fit Value Range", default=True,
-                            description="Set the new volume's Value Min/Max to its field's range")
+                            description="Set the new volume's Value Min/Max to its field's range, and its look "
+                                        "from the field's values (shells at their 10, 50 and 90 % quantiles)")
     frame: BoolProperty(name="Frame Camera", default=True,
                         description="Point the scene camera (a new one if there is none) at the HOVR volumes and "
                                     "set its clip start/end from their size")

@@ -64,13 +64,26 @@ class Job:
 
 class CompiledKernels:
     """Render kernels compiled in this session, by key (device, precision, kernel variant,
-    surfaces); `compile_key(key)` does the compiling (the core's load_kernels)."""
+    surfaces); `compile_key(key)` does the compiling (the core's load_kernels), `shipped(key)`
+    says whether the add-on's compiled kernels hold them all (and whether it ships any)."""
 
     COMPILING = "Compiling render kernels (first use)"
+    LOADING = "Loading the add-on's compiled render kernels"
+    NOT_SHIPPED = ("the render kernels of these volumes are not among the add-on's compiled kernels (built from "
+                   "other kernel source, or for other orders or precision): compiling them once, tens of seconds on a CPU")
 
-    def __init__(self, compile_key: Callable[[tuple], None]):
+    def __init__(self, compile_key: Callable[[tuple], None], shipped: Callable[[tuple], tuple] | None = None):
         self.compile_key = compile_key
+        self.shipped = shipped
         self._ready: set = set()
+
+    def stage(self, key) -> tuple[str, str]:
+        """(status text, note) before `key`'s kernels load: loading the shipped ones, or compiling,
+        with a note to log where the add-on ships compiled kernels but not these."""
+        covered, any_shipped = self.shipped(key) if self.shipped else (False, False)
+        if covered:
+            return self.LOADING, ""
+        return self.COMPILING, self.NOT_SHIPPED if any_shipped else ""
 
     def is_ready(self, key) -> bool:
         return key in self._ready
@@ -103,8 +116,18 @@ def compile_render_kernels(key: tuple) -> None:
     load_kernels(variant, expand_devices(device)[0], precision, surfaces=surfaces)
 
 
+def shipped_render_kernels(key: tuple) -> tuple[bool, bool]:
+    """(the add-on's compiled kernels hold every kernel of a kernel_key, it ships any)."""
+    from ..engine import shipped_kernels
+    from ..engine.renderer import expand_devices, session_kernels
+
+    device, precision, variant, surfaces = key
+    covered = shipped_kernels.covers(session_kernels(variant, precision, surfaces), expand_devices(device)[0])
+    return covered, shipped_kernels.store_dir().is_dir()
+
+
 # What this Blender session has compiled (render.py asks before a render's first use)
-KERNELS = CompiledKernels(compile_render_kernels)
+KERNELS = CompiledKernels(compile_render_kernels, shipped_render_kernels)
 
 
 class ProgressLines:

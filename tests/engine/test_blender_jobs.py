@@ -85,3 +85,14 @@ def test_per_face_warnings_are_summarised():
                      "|u|: magnitude fitted with 7 modes"]
     assert summarise_warnings([f"kind {k}: x" for k in "abcdefg"], limit=3) == ["kind a: x", "kind b: x",
                                                                                  "5 more kinds of warning"]
+
+
+def test_the_status_says_loading_shipped_kernels_or_compiling():
+    """Issue 30: the first F12's status names what it waits for, and where the add-on ships compiled
+    kernels but not these (other kernel source, order or precision) a note says they compile."""
+    key = jobs.kernel_key("cpu", "float32", (False, 3), False)
+    assert jobs.CompiledKernels(print, lambda k: (True, True)).stage(key) == (jobs.CompiledKernels.LOADING, "")
+    assert jobs.CompiledKernels(print, lambda k: (False, True)).stage(key) == (jobs.CompiledKernels.COMPILING,
+                                                                              jobs.CompiledKernels.NOT_SHIPPED)
+    assert jobs.CompiledKernels(print, lambda k: (False, False)).stage(key) == (jobs.CompiledKernels.COMPILING, "")
+    assert jobs.CompiledKernels(print).stage(key) == (jobs.CompiledKernels.COMPILING, "")

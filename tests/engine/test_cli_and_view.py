@@ -339,3 +339,5 @@ def test_legend_layout_labels_the_range_and_units():
     np.testing.assert_allclose(layout.bar_rgb[0], [1, 0, 0], atol=0.01)
     x0, y0, x1, y1 = layout.bar
     assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)
+    moved = legend_layout(tf, -0.5, 2.5, "p", 640, 480, top=26)  # below a viewport's tool header
+    assert moved.bar[1] == y0 + 26 and moved.texts[-1].y == layout.texts[-1].y + 26 and moved.bar[3] <= 480
