@@ -535,17 +535,49 @@ class Request:
         return self._result
 
 
-def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
-    """Run reader_process.TASKS[task](**args) in a reader process and return its result; its
-    errors are raised here as the reader's own classes. `what`: the file named by failures before
-    the reader says which it opened; on_stage(text) at each stage; cancelled() -> True stops it."""
+class Finished:
+    """A task already run in this process (HOVR_ISOLATION=0, or a built-in dataset): a Request's
+    interface, done from the start."""
+
+    done = True
+    pid = None
+
+    def __init__(self, run, stage: str = "reading"):
+        self.stage = stage
+        self._result = self._error = None
+        try:
+            self._result = run()
+        except Exception as exc:  # noqa: BLE001  (raised by value(), as a Request's)
+            self._error = exc
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        return True
+
+    def cancel(self):
+        pass
+
+    def value(self):
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
+def start(task: str, args: dict, seconds: float | None = None, what: str = ""):
+    """reader_process.TASKS[task](**args) started in a reader process: a Request to poll (or a
+    Finished one where isolation is off). `what`: the file named by failures before the reader
+    says which it opened."""
     if not enabled():
         from .reader_process import TASKS
 
-        return TASKS[task](**args)
+        return Finished(lambda: TASKS[task](**args))
     if seconds is None:
         seconds = limits.current().max_read_seconds
-    request = Request(task, args, seconds, what)
+    return Request(task, args, seconds, what)
+
+
+def wait(request, on_stage=None, cancelled=None):
+    """The result of a started task, waited for here; its errors are raised here as the reader's
+    own classes. on_stage(text) at each stage; cancelled() -> True stops it."""
     stage = None
     try:
         while not request.poll(0.1):
@@ -558,6 +590,12 @@ def call(task: str, args: dict, seconds: float | None = None, what: str = "", on
         request.cancel()
         raise
     return request.value()
+
+
+def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
+    """Run reader_process.TASKS[task](**args) in a reader process and return its result (start,
+    then wait)."""
+    return wait(start(task, args, seconds, what), on_stage, cancelled)
 
 
 # ----------------------------------------------------------------------------- the tasks, called here
@@ -578,30 +616,45 @@ def _extra_formats() -> list:
     return out
 
 
-def read_volume(source, **kwargs):
-    """io.sources.read_volume(source) in a reader process."""
+def read_volume_request(source):
+    """io.sources.read_volume(source) started in a reader process (start)."""
     args = {"path": source.path, "solution": source.solution, "field": source.field, "component": source.component,
             "extra_formats": _extra_formats()}
-    return call("read_volume", args, what=source.path, **kwargs)
+    return start("read_volume", args, what=source.path)
 
 
-def list_fields(format_name: str, path, **kwargs):
+def read_volume(source, **progress):
+    """io.sources.read_volume(source) in a reader process."""
+    return wait(read_volume_request(source), **progress)
+
+
+def list_fields_request(format_name: str, path):
+    """list_fields started in a reader process (start)."""
+    return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
+                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path))
+
+
+def list_fields(format_name: str, path, **progress):
     """The fields a file offers (its format's list_fields: names, or {name: components} for the
     formats with vector fields), read in a reader process."""
-    return call("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path), **kwargs)
+    return wait(list_fields_request(format_name, path), **progress)
 
 
-def wall_choices(format_name: str, mesh_path, **kwargs) -> list:
+def wall_choices(format_name: str, mesh_path, **progress) -> list:
     """[(selection, label)] of a mesh's named boundaries (its format's boundaries(path).choices())."""
     choices = call("wall_choices", {"format_name": format_name, "path": str(mesh_path),
                                     "extra_formats": _extra_formats()},
-                   seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path), **kwargs)
+                   seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path), **progress)
     return [tuple(c) for c in choices]
 
 
-def wall_faces(format_name: str, mesh_path, selection: str, **kwargs):
+def wall_faces_request(format_name: str, mesh_path, selection: str):
+    """wall_faces started in a reader process (start)."""
+    return start("wall_faces", {"format_name": format_name, "path": str(mesh_path), "selection": selection,
+                                "extra_formats": _extra_formats()}, what=str(mesh_path))
+
+
+def wall_faces(format_name: str, mesh_path, selection: str, **progress):
     """The faces of a selection of a mesh's named boundaries (boundaries(path).select(selection)),
     read in a reader process."""
-    return call("wall_faces", {"format_name": format_name, "path": str(mesh_path), "selection": selection,
-                               "extra_formats": _extra_formats()}, what=str(mesh_path), **kwargs)
+    return wait(wall_faces_request(format_name, mesh_path, selection), **progress)

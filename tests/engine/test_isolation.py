@@ -15,7 +15,7 @@ import pytest
 from hovr_blender.engine import limits
 from hovr_blender.io import isolation, nektar, vtu
 from hovr_blender.io.sources import SourceError, VolumeSource, load_volume, read_volume
-from tests.helpers import REPO, data_file
+from tests.helpers import REPO, data_file, stopped_warm_reader
 
 
 def _tet():
@@ -74,7 +74,7 @@ def test_reader_errors_keep_their_class_and_words(tmp_path):
 
 
 def test_a_crash_in_the_reader_is_one_line_naming_the_file_and_the_next_read_works():
-    pid = _stopped_warm_reader()
+    pid = stopped_warm_reader()
     request = _started("list_fields", {"kind": "nektar", "path": "hump3D_GLL.xml"}, what="hump3D_GLL.xml")
     os.kill(pid, signal.SIGSEGV)
     os.kill(pid, signal.SIGCONT)
@@ -85,14 +85,6 @@ def test_a_crash_in_the_reader_is_one_line_naming_the_file_and_the_next_read_wor
     assert "\n" not in str(info.value)
     assert _gone(pid)
     assert load_volume(_tet()).num_elements == 48
-
-
-def _stopped_warm_reader() -> int:
-    """The warm reader process, stopped (SIGSTOP): as good as libhdf5's endless loop."""
-    isolation.prestart()
-    pid = isolation._IDLE[0].proc.pid
-    os.kill(pid, signal.SIGSTOP)
-    return pid
 
 
 def test_a_hang_is_stopped_at_the_time_limit():
@@ -118,7 +110,7 @@ def test_the_time_limit_comes_from_the_resource_limits(monkeypatch):
 
 
 def test_cancel_kills_the_reader():
-    pid = _stopped_warm_reader()
+    pid = stopped_warm_reader()
     request = _started("list_fields", {"kind": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))})
     assert request.pid == pid and not request.poll(0.2)
     request.cancel()
@@ -128,7 +120,7 @@ def test_cancel_kills_the_reader():
 
 
 def test_cancel_through_call():
-    _stopped_warm_reader()
+    stopped_warm_reader()
     with pytest.raises(isolation.ReadCancelled):
         isolation.call("list_fields", {"kind": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))},
                        cancelled=lambda: True)
