@@ -35,10 +35,26 @@ def view3d():
     return win, area, next(r for r in area.regions if r.type == 'WINDOW')
 
 
-def press(win, key, x=None, y=None):
-    """A key pressed and released with the mouse over (x, y) of `win` (its middle by default)."""
+X11_KEYS = {'RET': "Return", 'ESC': "Escape"}
+
+
+def press(win, key, x=None, y=None, title=""):
+    """A key pressed and released with the mouse over (x, y) of `win` (its middle by default):
+    through Blender's event queue (event_simulate), or with HOVR_KEYS=xdotool as X11 input to
+    the window titled `title`, which Blender reads when it next handles events."""
     x = win.width // 2 if x is None else x
     y = win.height // 2 if y is None else y
+    if os.environ.get("HOVR_KEYS") == "xdotool":
+        import subprocess
+
+        found = subprocess.run(["xdotool", "search", "--onlyvisible", "--name", title], capture_output=True,
+                               text=True, timeout=30).stdout.split()
+        if not found:
+            raise RuntimeError(f"no X11 window titled {title!r}")
+        # no window manager under Xvfb: the keyboard focus is given to the window by hand
+        subprocess.run(["xdotool", "windowfocus", "--sync", found[-1], "mousemove", "--window", found[-1], str(x),
+                        str(win.height - y), "key", X11_KEYS[key]], check=True, timeout=30)
+        return
     win.event_simulate(type='MOUSEMOVE', value='NOTHING', x=x, y=y)
     win.event_simulate(type=key, value='PRESS', x=x, y=y)
     win.event_simulate(type=key, value='RELEASE', x=x, y=y)
@@ -125,7 +141,7 @@ def step():
 
             state["reader"] = isolation._IDLE[0].proc.pid
             os.kill(state["reader"], signal.SIGSTOP)
-        press(win, 'RET', area.x + area.width // 2, area.y + area.height // 2)
+        press(win, 'RET', area.x + area.width // 2, area.y + area.height // 2, title="File View")
         log(f"run {state['run']}: Return in the file browser")
         state.update(phase="reading", since=time.time())
         return 0.2
@@ -142,16 +158,21 @@ def step():
         state.update(phase="confirm", since=time.time(), run=2)
         return 0.5
     if phase == "reading":  # run 2: the stopped reader holds the import; the status bar says so
-        if not waited(1.5):
+        phases = running_import_phases()
+        if not phases or not phases[0][-1].endswith("starting the reader"):  # Return not handled yet
+            if waited(60):
+                raise RuntimeError(f"the second import did not start reading: {phases}")
             return 0.2
         report["volumes_while_reading"] = volumes()
         report["reader_alive_before_esc"] = _alive(state["reader"])
-        report["phases"] = running_import_phases()
-        press(main_window(), 'ESC')
+        report["phases"] = phases
+        press(main_window(), 'ESC', title="factory.blend")
         log("run 2: Esc")
         state.update(phase="cancelled", since=time.time())
-        return 1.0
+        return 0.2
     if phase == "cancelled":
+        if running_import_phases() and not waited(30):  # Esc not handled yet
+            return 0.2
         report["volumes_after_esc"] = volumes()
         report["reader_alive_after_esc"] = _alive(state["reader"])
         report["reports"] = reports()

@@ -16,8 +16,15 @@ from .test_legacy_xvfb import HERE, XVFB_RUN, BLENDER, legacy_env  # noqa: F401 
 pytestmark = [pytest.mark.blender, pytest.mark.slow]
 
 
-def test_esc_cancels_an_import_in_a_window(legacy_env, tmp_path):
+@pytest.mark.parametrize("keys", ["event_simulate", "xdotool"])
+def test_esc_cancels_an_import_in_a_window(legacy_env, tmp_path, keys):
+    """Keys through Blender's event queue (event_simulate), or as X11 input (xdotool)."""
     root, env = legacy_env
+    simulate = ["--enable-event-simulate"]  # Blender then reads no X11 input
+    if keys == "xdotool":
+        if shutil.which("xdotool") is None:
+            pytest.skip("needs xdotool (apt-get install xdotool)")
+        env, simulate = dict(env, HOVR_KEYS="xdotool"), []
     xml = data_file("nektar", "Tet_channel_m3.xml")
     out = tmp_path / "cancel"
     (tmp_path / "copy").mkdir()
@@ -29,7 +36,7 @@ def test_esc_cancels_an_import_in_a_window(legacy_env, tmp_path):
                     f"import bpy; bpy.ops.wm.save_as_mainfile(filepath={str(fresh)!r})"],
                    env=env, check=True, capture_output=True, timeout=300)
     proc = subprocess.run([XVFB_RUN, "-a", "-s", "-screen 0 900x800x24", BLENDER, str(fresh), "-p", "0", "0",
-                           "900", "800", "--enable-event-simulate", "--python", str(HERE / "import_cancel_capture.py"),
+                           "900", "800", *simulate, "--python", str(HERE / "import_cancel_capture.py"),
                            "--", str(out), str(xml), str(tmp_path / "copy" / xml.name)],
                           env=env, capture_output=True, text=True, timeout=600)
     report_path = out / "report.json"
