@@ -4,8 +4,9 @@ library (libhdf5, expat, zlib) ends that process, never Blender or the `hovr` co
 Every parse of a data file (io.sources.load_volume, the field listing behind the import dialog,
 a Nektar++ mesh's composites for the walls) is a task of `reader_process.py`, run by `call` in a
 reader process of this package: `python -I -c BOOT` on this interpreter (Blender's own Python, not
-Blender: `interpreter`), with this process's module path, importing this package under its own
-name (the extension's `bl_ext.<repo>.hovr_blender` as `hovr_blender`). Nothing is pickled: a task's
+Blender: `interpreter`), with this process's module path, loading this package from its folder
+under this process's name for it (the extension's `bl_ext.<repo>.hovr_blender`) as the render
+devices' processes do (engine/bootstrap.py). Nothing is pickled: a task's
 arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtypes that this
 process reads into arrays it allocates after checking their sizes against the memory limit.
 
@@ -49,17 +50,14 @@ ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should
 ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
 
+# The package is loaded as the render devices' processes load it (engine/bootstrap.py, run from
+# its file: nothing of the package is importable before), under this process's name for it.
 BOOT = (
-    "import importlib.util, json, sys\n"
+    "import importlib, json, runpy, sys\n"
     "cfg = json.loads(sys.argv[1])\n"
     "sys.path[:] = cfg['path']\n"
-    "spec = importlib.util.spec_from_file_location('hovr_blender', cfg['init'], "
-    "submodule_search_locations=[cfg['package']])\n"
-    "package = importlib.util.module_from_spec(spec)\n"
-    "sys.modules['hovr_blender'] = package\n"
-    "spec.loader.exec_module(package)\n"
-    "from hovr_blender.io import reader_process\n"
-    "reader_process.main(cfg)\n"
+    "runpy.run_path(cfg['bootstrap'])['import_package'](cfg['package'], cfg['folder'])\n"
+    "importlib.import_module(cfg['package'] + '.io.reader_process').main(cfg)\n"
 )
 
 
@@ -213,9 +211,10 @@ class _Worker:
     """One reader process and its pipes."""
 
     def __init__(self):
-        package = _package_dir()
-        config = {"path": [p for p in sys.path if isinstance(p, str)], "package": str(package),
-                  "init": str(package / "__init__.py"), "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
+        folder = _package_dir()
+        config = {"path": [p for p in sys.path if isinstance(p, str)], "package": __name__.rsplit(".", 2)[0],
+                  "folder": str(folder), "bootstrap": str(folder / "engine" / "bootstrap.py"),
+                  "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
                   "address_slack": ADDRESS_SLACK, "death_signal": threading.current_thread() is threading.main_thread()}
         self.owner = os.getpid()
         self.log = tempfile.TemporaryFile(prefix="hovr-reader-")  # its stderr: kept for HOVR_DEBUG, never shown

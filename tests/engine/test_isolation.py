@@ -168,6 +168,36 @@ def test_the_interpreter_is_python_not_blender(monkeypatch):
     assert os.path.basename(isolation.interpreter()).lower().startswith("python")
 
 
+_EXTENSION = textwrap.dedent("""
+    import importlib, json, runpy, sys
+    folder = sys.argv[1] + "/hovr_blender"
+    name = "fake_bl_ext.user_repo.hovr_blender"  # as Blender names an installed extension
+    runpy.run_path(folder + "/engine/bootstrap.py")["import_package"](name, folder)
+    sources = importlib.import_module(name + ".io.sources")
+    isolation = importlib.import_module(name + ".io.isolation")
+    mesh = sources.load_volume(sources.VolumeSource.resolve(sys.argv[2], field="w"))
+    reader = isolation._IDLE[0].proc.pid
+    with open(f"/proc/{reader}/cmdline", "rb") as fh:
+        config = json.loads(fh.read().split(b"\\0")[-2])
+    print(json.dumps({"elements": mesh.num_elements, "mesh_class": type(mesh).__module__,
+                      "reader_package": config["package"], "importable": "hovr_blender" in sys.modules}))
+""")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the reader's command line from /proc")
+def test_the_reader_loads_the_package_under_the_parents_name_as_the_device_processes_do():
+    """An installed extension's package (bl_ext.<repo>.hovr_blender, no folder on sys.path gives
+    it): the reader process loads it from its folder under that name, through the one bootstrap
+    the render devices' processes use (engine/bootstrap.py)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    proc = subprocess.run([sys.executable, "-c", _EXTENSION, str(REPO), str(data_file("nektar", "Tet_channel_m3.xml"))],
+                          env=env, cwd="/", capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.splitlines()[-1])
+    assert out == {"elements": 48, "mesh_class": "fake_bl_ext.user_repo.hovr_blender.engine.mesh",
+                   "reader_package": "fake_bl_ext.user_repo.hovr_blender", "importable": False}
+
+
 _PARENT = textwrap.dedent("""
     import os, sys, time
     from hovr_blender.io import isolation
