@@ -189,8 +189,9 @@ def _run(args) -> str:
         isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
+    from .engine.mesh import data_diagonal
     from .engine.view import View
-    from .io import load_view_data
+    from .io.sources import view_data_request
 
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
@@ -204,17 +205,30 @@ def _run(args) -> str:
         lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         view = View.load(args.view)
-        t0 = time.perf_counter()
-        mesh = load_view_data(view)
-        load_s = time.perf_counter() - t0
         if args.command == "render":
-            from .engine.renderer import render_view
-
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
                 min_transmittance=args.min_transmittance, inner=args.inner, device=args.device,
                 precision=args.precision,
             )
+            # what the policy refuses without the data or Warp is refused first (Warp takes seconds to load)
+            w, h = view.camera.width, view.camera.height
+            limits.check_bytes(view.options.image_bytes(w, h), f"a {w}x{h} image in {view.options.precision} "
+                                                               "(its pixels alone)")
+        reading = view_data_request(view)
+        try:
+            if args.command == "render" and not view.options.fixed_step:  # the data cannot refuse it:
+                from .engine.renderer import render_view  # Warp loads while the reader reads
+            t0 = time.perf_counter()
+            mesh = isolation.wait(reading)
+            load_s = time.perf_counter() - t0  # what the run waited for the data
+        except BaseException:
+            reading.cancel()
+            raise
+        if args.command == "render":
+            view.options.check_steps(data_diagonal(mesh))
+            from .engine.renderer import render_view
+
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats
             for warning in stats.get("warnings", []):
