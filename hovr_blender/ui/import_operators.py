@@ -261,6 +261,7 @@ class _ImportVolume(ImportHelper):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         request = self.request(context, path)
         if getattr(self, "from_file_browser", False) and context.window is not None:
+            self.from_file_browser = False  # a redo of this operator (the same instance) runs here, to the end
             self.modal_import = ModalImport(self, context, request, self.frame)
             return self.modal_import.begin(context)
         wm = context.window_manager  # a script's import (EXEC_DEFAULT), or a redo: to the end here

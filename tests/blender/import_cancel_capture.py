@@ -152,6 +152,13 @@ def step():
             return 0.2
         report["volumes_after_import"] = volumes()
         log("run 1: the volume appeared")
+        from hovr_blender.io import sources
+
+        sources.clear_cache()  # the redo reads again: the reader process, not the cached mesh
+        win, area, region = view3d()  # a redo (undo, then the operator again) reads to the end at once
+        with bpy.context.temp_override(window=win, area=area, region=region):
+            report["redo_result"] = sorted(bpy.ops.ed.undo_redo())
+        report["volumes_after_redo"] = volumes()
         # the Solution given: the browser's options list no fields (that listing would wait on the
         # stopped reader too, for as long as the dialog's listing may take)
         report["invoke_result_2"] = invoke_import(OTHER, os.path.splitext(OTHER)[0] + ".fld")

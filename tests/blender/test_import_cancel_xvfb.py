@@ -45,6 +45,7 @@ def test_esc_cancels_an_import_in_a_window(legacy_env, tmp_path, keys):
     assert "error" not in report, report["error"] + "\n".join(report["log"])
     assert report["invoke_result"] == ["RUNNING_MODAL"]  # the file browser
     assert report["volumes_after_import"] == report["volumes_before"] + ["Tet_channel_m3"]
+    assert report["redo_result"] == ["FINISHED"] and report["volumes_after_redo"] == report["volumes_after_import"]
     # the second import waits on its stopped reader: nothing made until Esc, nothing after
     assert report["reader_alive_before_esc"] and not report["reader_alive_after_esc"]
     assert report["volumes_while_reading"] == report["volumes_after_esc"] == report["volumes_after_import"]
