@@ -135,18 +135,21 @@ def write_views(size: str, out: str) -> list[str]:
 
 
 def time_trees(trees: list[tuple[str, str]], views: list[str], device: str, methods: list[str], repeats: int,
-               images: str) -> dict:
+               images: str, progress=lambda partial: None) -> dict:
+    """{tree name: that tree's rows}; progress(partial) after each tree (a long run keeps what it has)."""
     out = {}
     for name, tree in trees:
         img_dir = os.path.join(images, name)
         os.makedirs(img_dir, exist_ok=True)
         spec = {"views": views, "device": device, "methods": methods, "repeats": repeats, "images": img_dir}
-        env = dict(os.environ, PYTHONPATH=os.path.abspath(tree))
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([os.path.abspath(tree)] + [p for p in os.environ.get(
+            "PYTHONPATH", "").split(os.pathsep) if p]))
         proc = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(spec)], env=env, cwd=tempfile.gettempdir(),
                               capture_output=True, text=True)
         sys.stdout.write(f"== {name} ({tree})\n" + proc.stdout[-4000:] + proc.stderr[-2000:])
         line = [ln for ln in proc.stdout.splitlines() if ln.startswith("HOVR-COMMITS ")]
         out[name] = json.loads(line[-1][len("HOVR-COMMITS "):]) if line else {"error": proc.stderr[-2000:]}
+        progress(out)
     first = trees[0][0]
     import numpy as np
 
@@ -179,24 +182,20 @@ def main(argv=None):
         write_views(args.size, args.out)
         return 0
     names = [n for n in args.only.split(",") if n]
-    views = sorted(os.path.join(args.views, f) for f in os.listdir(args.views) if f.endswith(".json")
+    views = sorted(os.path.abspath(os.path.join(args.views, f)) for f in os.listdir(args.views) if f.endswith(".json")
                    and (not names or f[:-5] in names))
     trees = [tuple(s.split("=", 1)) for s in args.tree]
     from bench.common import command_line
 
     result = {"date": datetime.date.today().isoformat(), "command": command_line(), "device": args.device,
-              "trees": dict(trees),
-              "methods": args.methods.split(","), "repeats": args.repeats,
-              "results": time_trees(trees, views, args.device, args.methods.split(","), args.repeats, args.images)}
-    try:
-        import warp as wp
+              "trees": dict(trees), "methods": args.methods.split(","), "repeats": args.repeats}
 
-        wp.init()
-        result["device_name"] = wp.get_device(args.device).name
-    except Exception:
-        pass
-    with open(args.out, "w") as f:
-        json.dump(result, f, indent=1)
+    def save(partial):
+        result["results"] = partial
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
+
+    save(time_trees(trees, views, args.device, args.methods.split(","), args.repeats, args.images, progress=save))
     return 0
 
 

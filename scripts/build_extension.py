@@ -21,6 +21,7 @@ the manifest plus the *contents* of hovr_blender/ at its root (no tests, no cach
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib.util
 import re
 import subprocess
@@ -106,9 +107,10 @@ def _wheel_project(path: Path) -> str:
 
 def download_wheels(platform: str, cache: Path = WHEEL_CACHE) -> list[Path]:
     """Wheels of RUNTIME_REQUIREMENTS and their dependencies for a Blender platform, numpy
-    excepted, from the package index through pip (cached in build/wheels/<platform>/)."""
+    excepted, from the package index through pip (cached in build/wheels/<platform>/<digest of
+    the requirements>/, so a wheel a former requirement brought is never bundled)."""
     tag = WHEEL_PLATFORMS[platform]
-    dest = cache / platform
+    dest = cache / platform / hashlib.sha256("\n".join(RUNTIME_REQUIREMENTS).encode()).hexdigest()[:12]
     dest.mkdir(parents=True, exist_ok=True)
     subprocess.run([sys.executable, "-m", "pip", "download", *RUNTIME_REQUIREMENTS, "--only-binary=:all:",
                     "--platform", tag, "--python-version", PYTHON_VERSION, "--implementation", "cp",
