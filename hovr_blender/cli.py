@@ -191,7 +191,7 @@ def _run(args) -> str:
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
     from .engine.mesh import data_diagonal
     from .engine.view import View
-    from .io.sources import view_data_request
+    from .io import load_view_data
 
     out = _output_path(args.output, ".npy", "-o")
     png = _output_path(args.png, ".png", "--png") if args.png else None
@@ -215,16 +215,9 @@ def _run(args) -> str:
             w, h = view.camera.width, view.camera.height
             limits.check_bytes(view.options.image_bytes(w, h), f"a {w}x{h} image in {view.options.precision} "
                                                                "(its pixels alone)")
-        reading = view_data_request(view)
-        try:
-            if args.command == "render" and not view.options.fixed_step:  # the data cannot refuse it:
-                from .engine.renderer import render_view  # Warp loads while the reader reads
-            t0 = time.perf_counter()
-            mesh = isolation.wait(reading)
-            load_s = time.perf_counter() - t0  # what the run waited for the data
-        except BaseException:
-            reading.cancel()
-            raise
+        t0 = time.perf_counter()
+        mesh = load_view_data(view)  # before Warp loads: most hostile files are refused by their reader
+        load_s = time.perf_counter() - t0
         if args.command == "render":
             view.options.check_steps(data_diagonal(mesh))
             from .engine.renderer import render_view

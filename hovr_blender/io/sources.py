@@ -157,13 +157,7 @@ def read_volume(source: VolumeSource) -> VolumeMesh:
 
 def load_view_data(view) -> VolumeMesh:
     """The mesh a view file (engine.view.View) names in its `data` object."""
-    return isolation.wait(view_data_request(view))
-
-
-def view_data_request(view):
-    """load_view_data started, not waited for (volume_request): the `hovr` command loads the
-    renderer while the reader reads."""
-    return volume_request(VolumeSource.from_view_data(view.data, view.base_dir))
+    return load_volume(VolumeSource.from_view_data(view.data, view.base_dir))
 
 
 # Loaded meshes (object space) by VolumeSource.key: moving the object, another device or the

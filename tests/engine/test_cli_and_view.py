@@ -249,12 +249,12 @@ def test_memory_limit_refuses_a_huge_image_before_allocating(tmp_path, capsys):
 
 
 def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, capsys, monkeypatch):
-    from hovr_blender.io import sources
+    from hovr_blender import io
 
     def bug(view):
         raise KeyError("boom")
 
-    monkeypatch.setattr(sources, "view_data_request", bug)
+    monkeypatch.setattr(io, "load_view_data", bug)
     p = write_view(tmp_path)
     assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
     err = capsys.readouterr().err
