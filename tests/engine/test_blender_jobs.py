@@ -1,7 +1,10 @@
 """The add-on's non-Blender work (hovr_blender/ui/jobs.py), without Blender: a Job's steps,
-progress callback, result and error, and the compiled-kernel registry compiling a key once."""
+progress callback, result and error; a Job whose work waits for reader tasks, polled (the modal
+import) or waited for, and cancelled; and the compiled-kernel registry compiling a key once."""
 import numpy as np
+import pytest
 
+from hovr_blender.io import isolation
 from hovr_blender.ui import jobs
 
 
@@ -25,6 +28,93 @@ def test_job_keeps_the_error_for_the_operator():
 
     job = jobs.Job(work, "failing").run()
     assert job.done and isinstance(job.error, ValueError) and job.result is None
+
+
+class _Task:
+    """A reader task (isolation.Request's interface) done after `polls` polls."""
+
+    def __init__(self, value, polls=3, error=None):
+        self.value_, self.polls, self.error = value, polls, error
+        self.stage, self.cancelled = "starting the reader", False
+
+    def poll(self, timeout=0.0):
+        self.polls -= 1
+        self.stage = "reading m.fld"
+        return self.polls <= 0
+
+    def cancel(self):
+        self.cancelled = True
+
+    def value(self):
+        if self.cancelled:
+            raise isolation.ReadCancelled("reading m.fld was cancelled")
+        if self.error is not None:
+            raise self.error
+        return self.value_
+
+
+def _reading(tasks, ended):
+    def work(job):
+        job.step("listing")
+        names = yield tasks[0]
+        job.step("reading")
+        try:
+            data = yield tasks[1]
+        finally:
+            ended.append(True)
+        return names, data
+    return work
+
+
+def test_a_job_waiting_for_reader_tasks_is_polled_without_waiting():
+    tasks, ended = [_Task(["p"]), _Task(np.arange(3), polls=2)], []
+    job = jobs.Job(_reading(tasks, ended), "importing m.xml", steps=2).start()
+    assert not job.done and job.waiting is tasks[0] and job.phase() == "listing (1/2): starting the reader"
+    polls = 1
+    while not job.advance(0.0):
+        polls += 1
+        assert job.phase().startswith(("listing (1/2): reading m.fld", "reading (2/2)"))
+    assert polls == 5 and job.result[0] == ["p"] and list(job.result[1]) == [0, 1, 2] and ended == [True]
+    assert job.waiting is None and job.phase() == "reading (2/2)"
+    waited = jobs.Job(_reading([_Task(["p"]), _Task(1)], []), "importing m.xml").run()  # a script's: here, to the end
+    assert waited.done and waited.result == (["p"], 1)
+
+
+def test_a_reader_error_is_raised_in_the_work_at_its_yield():
+    caught = []
+
+    def work(job):
+        try:
+            yield _Task(None, error=ValueError("m.fld: damaged"))
+        except ValueError as exc:
+            caught.append(str(exc))
+            raise
+    job = jobs.Job(work, "importing").run()
+    assert caught == ["m.fld: damaged"] and isinstance(job.error, ValueError) and job.done
+
+
+def test_cancel_stops_the_reader_task_and_ends_the_work():
+    tasks, ended = [_Task(["p"]), _Task(1, polls=10 ** 9)], []
+    job = jobs.Job(_reading(tasks, ended), "importing m.xml").start()
+    while job.waiting is not tasks[1]:
+        job.advance()
+    job.advance()
+    job.cancel()
+    assert tasks[1].cancelled and ended == [True] and job.done and job.cancelled
+    assert isinstance(job.error, isolation.ReadCancelled) and job.result is None
+    job.cancel()  # once done, nothing more
+    assert job.advance() is True
+
+
+def test_an_interrupted_wait_cancels_the_reader_task():
+    class Interrupting(_Task):
+        def poll(self, timeout=0.0):
+            raise KeyboardInterrupt
+
+    task = Interrupting(None)
+    with pytest.raises(KeyboardInterrupt):
+        jobs.Job(lambda job: (yield task), "importing").run()
+    assert task.cancelled
 
 
 def test_kernels_compile_once_per_key():
