@@ -639,12 +639,17 @@ def list_fields(format_name: str, path, **progress):
     return wait(list_fields_request(format_name, path), **progress)
 
 
+def wall_choices_request(format_name: str, mesh_path):
+    """wall_choices started in a reader process (start); its value as the reader sends it
+    (lists: wall_choices makes them tuples)."""
+    return start("wall_choices", {"format_name": format_name, "path": str(mesh_path),
+                                  "extra_formats": _extra_formats()},
+                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path))
+
+
 def wall_choices(format_name: str, mesh_path, **progress) -> list:
     """[(selection, label)] of a mesh's named boundaries (its format's boundaries(path).choices())."""
-    choices = call("wall_choices", {"format_name": format_name, "path": str(mesh_path),
-                                    "extra_formats": _extra_formats()},
-                   seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path), **progress)
-    return [tuple(c) for c in choices]
+    return [tuple(c) for c in wait(wall_choices_request(format_name, mesh_path), **progress)]
 
 
 def wall_faces_request(format_name: str, mesh_path, selection: str):

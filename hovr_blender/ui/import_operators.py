@@ -34,7 +34,7 @@ from ..engine import walls as core_walls
 from ..io import formats, isolation
 from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, parse_component
 from . import compat, operators
-from .jobs import Job, summarise_warnings
+from .jobs import Job, Listings, summarise_warnings
 from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
 
@@ -433,9 +433,29 @@ def create_walls_object(context, volume, walls, name=None):
     return obj
 
 
-# The file browser redraws the operator's panel often: field-file scans per folder and field
-# names per file are remembered (by modification time) so drawing stays cheap.
+# The file browser redraws the operator's panel often: field-file scans per folder are
+# remembered (by modification time) so drawing stays cheap; a file's fields and composites are
+# read by the reader process without waiting for it (LISTINGS), a timer redrawing when they come.
 _SCAN_CACHE: dict = {}
+LISTINGS = Listings()
+LISTING_POLL_SECONDS = 0.1
+
+
+def _poll_listings():
+    """bpy.app.timers: redraw the windows when a listing came in; again while any is read."""
+    if LISTINGS.poll():
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                area.tag_redraw()
+    return LISTING_POLL_SECONDS if LISTINGS.waiting else None
+
+
+def _listed(kind: str, path: str, start, finish=lambda value: value):
+    """LISTINGS.get, with the timer that redraws the dialog once the reader has answered."""
+    value = LISTINGS.get(kind, path, path, start, finish)
+    if value is Listings.PENDING and not bpy.app.timers.is_registered(_poll_listings):
+        bpy.app.timers.register(_poll_listings, first_interval=LISTING_POLL_SECONDS)
+    return value
 
 
 def _cached(key, stamp_path, compute):
@@ -464,8 +484,12 @@ WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domai
 
 def draw_wall_choices(layout, path, data_format):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
-    choices = _cached(("walls", path), path, lambda: isolation.wall_choices(data_format.name, path))
+    choices = _listed("walls", path, lambda: isolation.wall_choices_request(data_format.name, path),
+                      lambda value: [tuple(c) for c in value])
     box = layout.box()
+    if choices is Listings.PENDING:
+        box.label(text="Reading the file's composites...", icon='TIME')
+        return
     if choices is None:
         box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
         return
@@ -552,8 +576,10 @@ def draw_solution_choice(layout, path, data_format):
         return
     box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
     box.label(text=why[:60])
-    fields = _cached(("fields", str(picked)), str(picked), lambda: list(isolation.list_fields(data_format.name, picked)))
-    if fields:
+    fields = _listed("fields", str(picked), lambda: isolation.list_fields_request(data_format.name, picked), list)
+    if fields is Listings.PENDING:
+        box.label(text="Fields: reading...", icon='TIME')
+    elif fields:
         box.label(text="Fields: " + ", ".join(fields[:8]))
     for p in [p for p in others if p != picked][:5]:
         box.label(text=f"also: {p.name}", icon='FILE')
@@ -689,3 +715,6 @@ def unregister():
     for cls in (HOVR_OT_add_walls, *reversed(OPERATORS.values())):
         bpy.utils.unregister_class(cls)
     OPERATORS.clear()
+    if bpy.app.timers.is_registered(_poll_listings):
+        bpy.app.timers.unregister(_poll_listings)
+    LISTINGS.cancel()

@@ -9,6 +9,8 @@
   whose work is a generator waits on the reader's requests it yields, either here to the end
   (`run`, a script's import) or a poll at a time (`advance`, from a modal operator's timer,
   so Blender stays responsive and Esc cancels it).
+- `Listings`: what the import dialog shows of a file (its fields, its composites), read by
+  reader tasks that draw() starts and never waits for.
 - `CompiledKernels`: the render kernels compiled in this session, by (device, precision,
   kernel variant, surfaces), so a render says "compiling (first use)" only when it does.
 - `ProgressLines`: when a background render's log gets a progress line (a few a frame).
@@ -142,6 +144,78 @@ class Job:
     def status(self) -> str:
         """e.g. 'reading the data (2/4): reading flow.fld, 3.1 s'."""
         return f"{self.phase()}, {self.seconds:.1f} s"
+
+
+class Listings:
+    """What a dialog shows of a file (the fields of a solution, a mesh's composites), read by
+    reader tasks (io.isolation requests) that draw() starts and never waits for, so browsing to
+    a file the reader takes long over (or hangs on: libhdf5's loops) never holds Blender: get()
+    answers PENDING until the task is done, and poll() (a timer's) says when one finished, for
+    a redraw. One task of each kind at a time: a file browsed away from has its task cancelled.
+    Answers are kept by the file's modification time; a failed listing is None."""
+
+    PENDING = "pending"
+
+    def __init__(self, size: int = 64):
+        self.size = size
+        self._done: dict = {}  # (kind, key) -> (stamp, value)
+        self._pending: dict = {}  # kind -> (key, stamp, request, finish)
+
+    def get(self, kind: str, key, stamp_path, start: Callable[[], object], finish: Callable = lambda v: v):
+        """The listing of `key` (finish(the task's value)), PENDING while its task runs (start()
+        starts it), or None when it failed or `stamp_path` is gone."""
+        import os
+
+        try:
+            stamp = os.stat(stamp_path).st_mtime_ns
+        except OSError:
+            return None
+        hit = self._done.get((kind, key))
+        if hit is not None and hit[0] == stamp:
+            return hit[1]
+        pending = self._pending.get(kind)
+        if pending is None or pending[:2] != (key, stamp):
+            if pending is not None:
+                pending[2].cancel()
+            try:
+                self._pending[kind] = (key, stamp, start(), finish)
+            except Exception:  # noqa: BLE001  (the import itself says why)
+                self._pending.pop(kind, None)
+                return self._keep(kind, key, stamp, None)
+        self.poll()
+        hit = self._done.get((kind, key))
+        return hit[1] if hit is not None and hit[0] == stamp else self.PENDING
+
+    def poll(self) -> bool:
+        """Read what the running tasks sent; True if one finished."""
+        finished = False
+        for kind, (key, stamp, request, finish) in list(self._pending.items()):
+            if not request.poll(0.0):
+                continue
+            del self._pending[kind]
+            try:
+                value = finish(request.value())
+            except Exception:  # noqa: BLE001  (the import itself says why)
+                value = None
+            self._keep(kind, key, stamp, value)
+            finished = True
+        return finished
+
+    @property
+    def waiting(self) -> bool:
+        return bool(self._pending)
+
+    def cancel(self):
+        """Stop every running task (the add-on unregistering)."""
+        for _, _, request, _ in self._pending.values():
+            request.cancel()
+        self._pending.clear()
+
+    def _keep(self, kind, key, stamp, value):
+        if len(self._done) >= self.size:
+            self._done.clear()
+        self._done[(kind, key)] = (stamp, value)
+        return value
 
 
 class CompiledKernels:

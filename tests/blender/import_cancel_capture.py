@@ -159,8 +159,8 @@ def step():
         with bpy.context.temp_override(window=win, area=area, region=region):
             report["redo_result"] = sorted(bpy.ops.ed.undo_redo())
         report["volumes_after_redo"] = volumes()
-        # the Solution given: the browser's options list no fields (that listing would wait on the
-        # stopped reader too, for as long as the dialog's listing may take)
+        # the Solution given: the browser's options list no fields (that listing would take the
+        # stopped reader, which the import is to wait on)
         report["invoke_result_2"] = invoke_import(OTHER, os.path.splitext(OTHER)[0] + ".fld")
         state.update(phase="confirm", since=time.time(), run=2)
         return 0.5

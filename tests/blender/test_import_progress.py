@@ -171,6 +171,45 @@ def test_a_modal_import_that_fails_before_reading_ends_at_once(scene, tmp_path):
     assert datablock_counts() == before
 
 
+class _Layout:
+    """Stands in for a UILayout: records the labels drawn."""
+
+    def __init__(self):
+        self.labels = []
+
+    def box(self):
+        return self
+
+    def label(self, text="", icon='NONE'):
+        self.labels.append(text)
+
+
+def test_the_import_dialog_never_waits_for_the_reader(scene, tmp_path):
+    """Browsing to a file the reader hangs on (libhdf5's loops) draws at once, saying the fields
+    are being read; a timer redraws once the reader has answered."""
+    import signal
+
+    xml = copy_tet(tmp_path)
+    nektar = import_operators.formats.named("nektar")
+    pid = stopped_warm_reader()
+    layout, t0 = _Layout(), time.monotonic()
+    import_operators.draw_solution_choice(layout, str(xml), nektar)
+    import_operators.draw_wall_choices(layout, str(xml), nektar)
+    assert time.monotonic() - t0 < 5.0  # (a wait would be the listing's limit: 30 s)
+    assert "Fields: reading..." in layout.labels and "Reading the file's composites..." in layout.labels
+    assert bpy.app.timers.is_registered(import_operators._poll_listings)
+    os.kill(pid, signal.SIGCONT)
+    deadline = time.monotonic() + 60
+    while import_operators._poll_listings() is not None:
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    layout = _Layout()
+    import_operators.draw_solution_choice(layout, str(xml), nektar)
+    import_operators.draw_wall_choices(layout, str(xml), nektar)
+    assert "Fields: u, v, w, p" in layout.labels and "Walls From (empty: all boundary faces):" in layout.labels
+    bpy.app.timers.unregister(import_operators._poll_listings)
+
+
 class _Stats:
     """Wraps the engine: records the stats lines."""
 

@@ -1,6 +1,8 @@
 """The add-on's non-Blender work (hovr_blender/ui/jobs.py), without Blender: a Job's steps,
 progress callback, result and error; a Job whose work waits for reader tasks, polled (the modal
 import) or waited for, and cancelled; and the compiled-kernel registry compiling a key once."""
+import os
+
 import numpy as np
 import pytest
 
@@ -115,6 +117,43 @@ def test_an_interrupted_wait_cancels_the_reader_task():
     with pytest.raises(KeyboardInterrupt):
         jobs.Job(lambda job: (yield task), "importing").run()
     assert task.cancelled
+
+
+def test_listings_never_wait_and_one_of_a_kind_runs_at_a_time(tmp_path):
+    """The import dialog's listings (jobs.Listings): PENDING while the reader reads, the value once
+    it has answered, a file browsed away from has its task cancelled, a changed file is listed
+    again, a failure is None."""
+    a, b = tmp_path / "a.fld", tmp_path / "b.fld"
+    a.write_text("a")
+    b.write_text("b")
+    listings, started = jobs.Listings(), []
+
+    def start(value, polls=2, error=None):
+        def go():
+            started.append(_Task(value, polls, error))
+            return started[-1]
+        return go
+
+    assert listings.get("fields", str(a), a, start(["p"], polls=3)) is jobs.Listings.PENDING  # polled once
+    assert listings.waiting and not listings.poll()
+    assert listings.poll() and not listings.waiting
+    assert listings.get("fields", str(a), a, start(["never"])) == ["p"] and len(started) == 1  # kept
+    assert listings.get("fields", str(b), b, start(["q"], polls=10 ** 9)) is jobs.Listings.PENDING
+    assert listings.get("walls", str(a), a, start([["C[1]", "C[1] wall"]]), lambda v: [tuple(c) for c in v]) \
+        is jobs.Listings.PENDING  # another kind runs beside it
+    assert listings.get("fields", str(a), a, start(["never"])) == ["p"]  # done ones need no task
+    assert listings.poll() and listings.get("walls", str(a), a, start(None)) == [("C[1]", "C[1] wall")]
+    os.utime(a, ns=(0, 10 ** 9))  # changed on disk: listed again, the other file's task cancelled
+    assert listings.get("fields", str(a), a, start(None, polls=1, error=ValueError("damaged"))) is None
+    assert started[1].cancelled and not listings.waiting
+    assert listings.get("fields", str(tmp_path / "gone"), tmp_path / "gone", start(["x"])) is None
+
+    def broken():
+        raise OSError("no reader")
+    assert listings.get("fields", str(b), b, broken) is None and not listings.waiting
+    listings.get("fields", str(tmp_path), tmp_path, start(["x"], polls=10 ** 9))
+    listings.cancel()
+    assert started[-1].cancelled and not listings.waiting
 
 
 def test_kernels_compile_once_per_key():
