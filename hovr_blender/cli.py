@@ -220,7 +220,7 @@ def _run(args) -> str:
         load_s = time.perf_counter() - t0
         if args.command == "render":
             view.options.check_steps(data_diagonal(mesh))
-            from .engine.renderer import render_view
+            from .engine.multi_device import render_view
 
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats

@@ -16,11 +16,31 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import subprocess
 import tempfile
 import time
 
+
+
+def _ptxas(ptxas: str, ptx: str, arch: int, tmp: str):
+    """ptxas -v on the module's PTX. An older ptxas refuses a newer PTX ISA version by name even
+    where the code uses nothing newer (NVRTC 13.4 writes 9.4, CUDA 13.0's ptxas reads 9.0): the
+    version line is lowered to the one it names and the PTX assembled again, saying so."""
+    clean = os.path.join(tmp, "clean.ptx")
+    with open(ptx, "rb") as src:
+        text = src.read().replace(b"\x00", b"")
+    for attempt in range(2):
+        with open(clean, "wb") as dst:
+            dst.write(text)
+        r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", clean, "-o", os.devnull], capture_output=True, text=True)
+        m = re.search(r"Unsupported \.version (\S+); current version is '(\S+)'", r.stderr)
+        if r.returncode == 0 or not m or attempt:
+            return r
+        print(f"    (ptxas reads PTX {m.group(2)}: the module's .version {m.group(1)} lowered to it)")
+        text = text.replace(f".version {m.group(1)}".encode(), f".version {m.group(2)}".encode(), 1)
+    return r
 
 
 def main(argv=None):
@@ -40,18 +60,17 @@ def main(argv=None):
     from hovr_blender.engine.kernels.precision import Precision
 
     raycast = Precision.named(args.precision).kernels
-    kernels = []
+    # every Warp module of the kernel table (kernels/raycast.kernel_table), once, named by its kernels
+    modules = {}
     for kind in ("curved", "affine"):
-        search, traverse, _ = raycast.walk_kernels(kind == "curved")
-        kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
-        kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
-                    for m in args.modes]
-    kernels.append(("integrate", raycast.integrate))
-    kernels.append(("shade (transfer-function edits from a segment cache)", raycast.shade))
-    # the module's own kernels: init_rays, refine, coefficients, finalize, trace_*, sum_counts
-    kernels.append(("init_rays, refine, coefficients, finalize, trace_reserve, trace_write, trace_ends, sum_counts",
-                    raycast.finalize))
-    kernels.append(("step_terms", raycast.step_terms))
+        for m in args.modes:
+            for name, kern in raycast.kernel_table(kind == "curved", m).items():
+                label = {"search": f"search ({kind})", "traverse": f"traverse ({kind})",
+                         "sample": f"sample ({kind}, modes {m or 'generic'})"}.get(name, name)
+                labels = modules.setdefault(id(kern.module), (kern, []))[1]
+                if label not in labels:
+                    labels.append(label)
+    kernels = [(", ".join(labels), kern) for kern, labels in modules.values()]
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:
@@ -64,11 +83,9 @@ def main(argv=None):
         secs = time.perf_counter() - t0
         print(f"{name}: NVRTC {secs:.1f} s (PTX and CUBIN)")
         if ptxas:
-            clean = os.path.join(tmp, "clean.ptx")
-            with open(ptx, "rb") as src, open(clean, "wb") as dst:
-                dst.write(src.read().replace(b"\x00", b""))
-            r = subprocess.run([ptxas, f"-arch=sm_{args.arch}", "-v", clean, "-o", os.devnull],
-                               capture_output=True, text=True)
+            r = _ptxas(ptxas, ptx, args.arch, tmp)
+            if r.returncode != 0:
+                print("    ptxas:", r.stderr.strip().splitlines()[0] if r.stderr.strip() else f"exit {r.returncode}")
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:

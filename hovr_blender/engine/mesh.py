@@ -35,8 +35,10 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
             f"element {element}: hexahedron is not a parallelepiped (trilinear and curved "
             "geometry arrive with the element issue)"
         )
+    from .validity import TOLERANCE  # validity imports this module
+
     det = np.linalg.det(J)
-    if not np.isfinite(det) or abs(det) <= 1e-12 * scale**3:
+    if not np.isfinite(det) or abs(det) <= TOLERANCE * np.prod(np.linalg.norm(J, axis=0)):
         raise MeshError(f"element {element}: degenerate hexahedron (Jacobian determinant {det:.3g})")
     if det < 0:
         raise MeshError(f"element {element}: inverted hexahedron (negative Jacobian)")

@@ -38,7 +38,8 @@ from .processes import sigint_blocked, watch_parent
 from .renderer import Renderer, RenderError, RenderResult, expand_devices
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
-                "segments_piecewise_smooth", "curved_locates", "walks")
+                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
+                "ray_rounds")
 
 
 def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
@@ -425,3 +426,13 @@ def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None):
     if len(devices) == 1:
         return Renderer(mesh, devices[0], max_tile_rays=max_tile_rays)
     return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays)
+
+
+def render_view(view, mesh) -> RenderResult:
+    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
+    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
+    devices = expand_devices(view.options.device)
+    if len(devices) > 1:
+        with MultiDeviceRenderer(mesh, devices) as r:
+            return r.render(view.camera, view.transfer_function, view.background, view.options)
+    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options)

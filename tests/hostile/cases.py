@@ -452,6 +452,13 @@ def _hdf5(builder):
     return build
 
 
+def _folded_hex(folder):
+    """Issue 29: a quadratic hexahedron whose det J is -0.40 between its 4 x 4 x 4 fit points."""
+    from tests.helpers import folded_hex_map, lagrange_hex_vtu
+
+    return vtu_case(folder, lagrange_hex_vtu(folded_hex_map))
+
+
 def _huge_image(folder):
     v = base_view({"builtin": "sphere"}, 32768, 32768)
     return render_args(folder, v)
@@ -503,6 +510,8 @@ CASES = [
     # numbers a mesh cannot hold
     Case("vertex at 1e200", "mesh values", lambda f: nektar_case(f, mesh=nektar_mesh(vertex_scale=1e200), fld=nektar_field()),
          expect=("m.xml", "too large")),
+    Case("quadratic hex folded between its fit points", "mesh values", _folded_hex,
+         expect=("m.vtu", "cell 0: inverted or tangled hexahedron", "-0.4")),
     # VTU compressed blocks
     Case("VTU 800 blocks of 1 MiB zeros", "VTU compressed blocks", many_blocks_of_zeros, expect=("m.vtu",)),
     Case("VTU 3 GiB zlib bomb in one block", "VTU compressed blocks", one_block_bomb, expect=("m.vtu",)),
@@ -583,7 +592,7 @@ def hdf5_one_byte(position, change):
 # the issue's bytes 5937/6017 of its 12 KB file: the type of a variable-length string attribute,
 # its class bits flipped (a string becomes a sequence: libhdf5 crashes converting it, SIGSEGV);
 # bytes 8273/8328: a global heap object's size 0 (H5HG__cache_heap_deserialize never advances);
-# and a string length of 4 GiB (libhdf5 allocates and fills it: seconds and GB, then an error)
+# and a string length of 4 GiB (libhdf5 allocates and fills it: refused at once, a header's allocations are capped)
 VLEN_TYPE_BITS = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[0] + 1, lambda b: b ^ 0xFF)
 VLEN_LENGTH = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[1] + 3, lambda b: b ^ 0xFF)
 HEAP_OBJECT_SIZE = hdf5_one_byte(lambda d: _global_heap_object(d, b"p"), lambda b: 0)

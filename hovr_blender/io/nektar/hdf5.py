@@ -222,7 +222,12 @@ def _attribute(path, attributes, key, what):
         raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
     if int(np.prod(attributes.get_id(key).shape or ())) > MAX_ATTRIBUTE_VALUES:
         raise NektarError(f"{path}: {what}: attribute {key} holds more than {MAX_ATTRIBUTE_VALUES} values")
-    return attributes[key]
+    try:
+        with limits.small_allocations():  # a damaged string length asks libhdf5 for gigabytes
+            return attributes[key]
+    except MemoryError:
+        raise NektarError(f"{path}: {what}: attribute {key} is larger than a header value can be "
+                          "(damaged file?)") from None
 
 
 def _text(value):
