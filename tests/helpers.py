@@ -189,3 +189,17 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
         mesh = builtin.sphere().transformed(cls.object_matrix() if matrix is None else matrix)
         options = RenderOptions(method=method, h=h, tolerance=1e-6, device="cpu")
         return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
+
+
+def stopped_warm_reader() -> int:
+    """The warm reader process (io/isolation.py), stopped (SIGSTOP): as good as libhdf5's endless
+    loop. Its pid; the next read waits on it until it is killed (cancel, the time limit)."""
+    import os
+    import signal
+
+    from hovr_blender.io import isolation
+
+    isolation.prestart()
+    pid = isolation._IDLE[0].proc.pid
+    os.kill(pid, signal.SIGSTOP)
+    return pid

@@ -151,6 +151,20 @@ def check_bytes(nbytes, what: str) -> int:
     return int(nbytes)
 
 
+def check_samples_per_ray(h: float, diagonal: float) -> float:
+    """Refuse a fixed step h that would take more samples than the limit on a ray across data
+    whose bounding box has this diagonal. Returns the samples it may take."""
+    lim = current()
+    steps = float(diagonal) / float(h)
+    if not steps <= lim.max_samples_per_ray:
+        raise ResourceLimitError(
+            f"step h = {h:g} would take up to {steps:.3g} samples per ray across the data "
+            f"(its bounding box diagonal is {diagonal:.4g}); the limit is "
+            f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
+            f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
+    return steps
+
+
 def check_processes(n: int, what: str) -> int:
     """Refuse starting `n` processes for `what` beyond the process limit, before any starts."""
     limit = current().max_processes or default_max_processes()

@@ -6,7 +6,7 @@ same ray whichever device traces it: Renderer.render's `rows`).
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
 kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork), each running device_bootstrap.py first: it never re-runs the parent's script
+not survive a fork), each running bootstrap.py first: it never re-runs the parent's script
 (a bpy script, with or without a main guard), and imports the package under the parent's name
 (`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any
 reply is waited for; each writes its rows into one shared-memory image (SharedImage, made once per
@@ -199,7 +199,7 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None):
 
 
 def serve_spawned(conn, payload: bytes):
-    """A device's process once device_bootstrap.py has imported the package: its mesh, device
+    """A device's process once bootstrap.py has imported the package: its mesh, device
     and tile limit unpickled (the package's classes resolve now), then _serve."""
     try:
         mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)  # the parent's own objects
@@ -239,7 +239,7 @@ class DeviceProcess:
         payload = (mesh, device, max_tile_rays, os.getpid())
         start = {"conn": child, "package": __name__.rsplit(".", 2)[0], "folder": os.path.dirname(engine_folder),
                  "payload": pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)}
-        bootstrap = os.path.join(engine_folder, "device_bootstrap.py")
+        bootstrap = os.path.join(engine_folder, "bootstrap.py")
         self._proc = ctx.Process(target=runpy.run_path, args=(bootstrap, {"START": start}, "__hovr_device_process__"),
                                  daemon=True, name=f"hovr-{device}")
         with _main_script_hidden(), sigint_blocked():

@@ -22,8 +22,8 @@ from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
 from .kernels.element import static_modes
 from .kernels.precision import Precision
 from .limits import cpu_cores
-from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
-                   element_volumes, mapped_coefficients)
+from .mesh import (MeshError, VolumeMesh, boxes_diagonal, element_coefficient_scale, element_field_ranges,
+                   element_volumes, mapped_coefficients, padded_element_boxes)
 from .methods import METHOD_IDS
 from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
@@ -283,12 +283,9 @@ class Renderer:
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
-            lowers, uppers = element_boxes(mesh)
-            pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
-            self._box_lo = lowers - pad
-            self._box_hi = uppers + pad
+            self._box_lo, self._box_hi = padded_element_boxes(mesh)
             # no ray is longer inside the data than this (the fixed-step methods' samples per ray)
-            self.data_diagonal = float(np.linalg.norm(self._box_hi.max(axis=0) - self._box_lo.min(axis=0)))
+            self.data_diagonal = boxes_diagonal(self._box_lo, self._box_hi)
             # Warp's BVH is float32 in both precisions (padded boxes: conservative either way)
             self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
@@ -427,29 +424,13 @@ class Renderer:
         classified without h never steps below the diagonal / that limit). The launch tile's
         buffers count where they are host memory (the CPU device); on a GPU the tile follows the
         device's free memory (_tile_limit). Returns the bytes counted."""
-        self._check_steps(options)
+        options.check_steps(self.data_diagonal)
         prec = self._upload(options.precision).precision
-        num_stats = prec.kernels.NUM_STATS
-        total = int(width) * int(height)
-        # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
-        per_pixel = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats + 8 * num_stats + 16
-        rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
+        rays = min(int(width) * int(height), tile if tile is not None else CPU_TILE_RAYS)
         if wp.get_device(self.device).is_cuda:
             rays = 0
-        return limits.check_bytes(total * per_pixel + rays * self._ray_bytes(prec),
-                                  f"a {width}x{height} image in {options.precision}")
-
-    def _check_steps(self, options: RenderOptions):
-        """The fixed-step methods' samples per ray across the data against the resource policy."""
-        lim = limits.current()
-        if options.method != "split" and options.h is not None:
-            steps = self.data_diagonal / float(options.h)
-            if not steps <= lim.max_samples_per_ray:
-                raise limits.ResourceLimitError(
-                    f"step h = {options.h:g} would take up to {steps:.3g} samples per ray across the data "
-                    f"(its bounding box diagonal is {self.data_diagonal:.4g}); the limit is "
-                    f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
-                    f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
+        return limits.check_bytes(options.image_bytes(width, height, prec.kernels.NUM_STATS)
+                                  + rays * self._ray_bytes(prec), f"a {width}x{height} image in {options.precision}")
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct with the field in its own units (for kernels that
@@ -851,7 +832,7 @@ class Renderer:
             raise SegmentCacheError("this transfer function maps the field into another frame than the cached "
                                     "segments' (engine/field_frame.py); trace again")
         options, step_warnings = resolving_step(options, tf, self.data_ranges)
-        self._check_steps(options)
+        options.check_steps(self.data_diagonal)
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels

@@ -99,7 +99,7 @@ def test_the_hash_does_not_depend_on_where_the_package_lives(tmp_path):
     script = textwrap.dedent("""
         import json, sys
         sys.path.insert(0, sys.argv[1])
-        from hovr_blender.engine.device_bootstrap import import_package
+        from hovr_blender.engine.bootstrap import import_package
         import_package("bl_ext.user_default.hovr_blender", sys.argv[2])
         from bl_ext.user_default.hovr_blender.engine import renderer, shipped_kernels
         import warp as wp

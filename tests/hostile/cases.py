@@ -338,6 +338,31 @@ def _chunk_bomb(path):
     hdf5_field(path, mutate=bomb)
 
 
+def _chunks_beyond_the_file(path):
+    """4,000 fields of 15 modes a direction on the one hexahedron: a DATA of 13.5 M values (108 MB)
+    the mesh can use, gzip chunks of 2^20 zeros each inflating to exactly its declared size, in a
+    file of 137 KiB: within every per-chunk bound, 780x the file in all."""
+    import h5py
+
+    fields, values, chunk = 4000, 4000 * 15 ** 3, 1 << 20
+
+    def declare(h5, folder):
+        g = h5["NEKTAR"]
+        del g["DATA"], g["DECOMPOSITION"], g["1000"]
+        sub = g.create_group("1000")
+        sub.attrs["FIELDS"] = np.array([b"p"] + [f"f{k}".encode() for k in range(1, fields)])
+        sub.attrs["BASIS"] = np.array([4, 4, 4], dtype=np.int64)
+        sub.attrs["SHAPE"] = b"Hexahedron"
+        sub.attrs["NUMMODESPERDIR"] = b"UNIORDER:15,15,15"
+        g.create_dataset("DECOMPOSITION", data=np.array([1, values, 0, 0, 0, 0, 1000], np.uint64))
+        ds = g.create_dataset("DATA", shape=(values,), chunks=(chunk,), dtype="<f8", compression="gzip")
+        zeros = zlib_zeros(chunk * 8, 9)
+        for start in range(0, values, chunk):
+            ds.id.write_direct_chunk((start,), zeros)
+    hdf5_field(path, mutate=declare)
+    assert h5py.is_hdf5(path)
+
+
 # -------------------------------------------------------------------------------- the cases
 
 def _view_mutation(mutate):
@@ -465,6 +490,8 @@ CASES = [
     Case("HDF5 DATA of 10^8 unwritten values", "amplification", _hdf5(_fill_value(100_000_000)), expect=("m.fld",)),
     Case("HDF5 DATA of 2.68e8 unwritten values", "amplification", _hdf5(_fill_value(268_000_000)), expect=("m.fld",)),
     Case("HDF5 gzip chunk inflating to 64 MiB", "amplification", _hdf5(_chunk_bomb), expect=("m.fld", "inflates")),
+    Case("HDF5 gzip chunks, each within its size, 780x the file", "amplification", _hdf5(_chunks_beyond_the_file),
+         expect=("m.fld", "DATA", "100x")),
     # HDF5 references to other files
     Case("HDF5 external storage -> /etc/passwd", "HDF5 references", _hdf5(_external_data("/etc/passwd")),
          expect=("m.fld", "external")),
