@@ -5,7 +5,9 @@ float64 render converged far below 1e-3 (the independent reference's audit is sc
 
     python -m bench.interactive --device cuda:0 --out $OUT/interactive.json
     python -m bench.interactive --device cuda:0 --cold --out $OUT/cold.json      first image, empty caches
+    python -m bench.interactive --device cpu --cold --cold-dataset sphere --size 480x270 --out $OUT/cold_cpu.json
     python -m bench.interactive --device cuda:0 --million --out $OUT/million.json  1 M curved elements
+    python -m bench.interactive --device cuda:0 --all --out $OUT/all.json     datasets, edits and 1 M elements
     python -m bench.interactive --device cpu --size 192x108 --datasets hump3D    (a small CPU check)
 
 Datasets, views and transfer functions are the audit's (hovr_blender/audit/datasets.py: the oblique view, three
@@ -17,7 +19,20 @@ kernel launch waited for and timed (its total is a little above the plain time).
 process with an empty Warp kernel cache (a new temporary WARP cache folder) and the CUDA driver's
 compute cache off (CUDA_CACHE_DISABLE=1) loads hump3D, builds the renderer and renders one
 1920x1080 frame; reported: the process's wall time to the image, and the render call's (what F12
-costs once the data is imported: kernel compile + first frame).
+costs once the data is imported: kernel compile + first frame). A third row, "shipped kernels",
+first builds the dataset's kernels as the extension's build step ships them (scripts/build_extension.py:
+CPU objects and PTX, into a temporary store; its time is reported apart as build_seconds, not the
+user's wait), then runs the child with an empty kernel cache and that store (HOVR_KERNEL_BINARIES):
+the first image as the installed extension gives it (target 5 s); `compiled` lists any module that
+still compiled. --cold-dataset sphere is the built-in sphere.
+
+Each frame records its work counts (engine/renderer.work_counts: per ray, Newton iterations by
+phase, BVH candidates, segments, samples, and each one's divergence over 32-ray blocks; the
+counts tests/perf guards on the CPU), and per dataset and method a transfer-function edit: the
+view traced once (Renderer.trace) and --tf-edits edits shaded from its segments (bench/tf_edit.py's
+edits, which keep the field's frame), the best of --repeats each.
+
+--all: the datasets (with their edits) and --million in one run, one JSON.
 
 --million: copies of the curved paper-scale channel (order 6, 11,008 elements each) side by side
 in a grid, one volume of about 1 M curved elements (elements of different copies never touch;
@@ -76,6 +91,8 @@ def options(renderer, method, classified_div):
 
 
 def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_div=None):
+    from hovr_blender.engine.renderer import work_counts
+
     cam = _camera(mesh, W, H)
     opts = options(renderer, method, classified_div)
     renderer.render(cam, tf, np.zeros(3), opts)  # warm-up (kernels loaded, buffers sized)
@@ -84,15 +101,39 @@ def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_
         res = renderer.render(cam, tf, np.zeros(3), opts)
         if best is None or res.stats["render_seconds"] < best.stats["render_seconds"]:
             best = res
-    prof = renderer.render(cam, tf, np.zeros(3), opts, profile=True)
+    prof = renderer.render(cam, tf, np.zeros(3), opts, profile=True, ray_counts=True)
     s = best.stats
     row = {"size": [W, H], "method": method, "seconds": s["render_seconds"], "rounds": s["rounds"],
            "samples_per_ray": s["samples_per_ray"], "segments_per_ray": s["segments"] / (W * H),
            "curved_locates_per_ray": s["curved_locates"] / (W * H), "walks": s["walks"],
-           "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict()}
+           "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict(),
+           "work_counts": work_counts(renderer._upload(opts.precision).precision.kernels, prof.ray_counts),
+           "lane_occupancy": prof.stats["lane_occupancy"], "regroup": renderer.regroup}
     if reference is not None:
         row["max_error_vs_float64"] = float(np.abs(best.rgba.astype(np.float64) - reference).max())
     return row
+
+
+def tf_edit(renderer, mesh, tf, W, H, method, edits, repeats, classified_div=None) -> dict:
+    """The view traced once, then `edits` transfer functions (tf_edit.edits: the field's frame kept)
+    shaded from its segments: the best of `repeats` shades each (after a warm-up shade)."""
+    from bench import tf_edit as edit_bench
+
+    from hovr_blender.engine.limits import ResourceLimitError
+
+    cam = _camera(mesh, W, H)
+    opts = options(renderer, method, classified_div)
+    try:
+        cache = renderer.trace(cam, tf, opts)
+    except ResourceLimitError as exc:  # the cache over the memory limit (HOVR_MAX_MEMORY raises it)
+        return {"size": [W, H], "method": method, "refused": str(exc)}
+    seconds = []
+    for edited in edit_bench.edits(tf, edits):
+        secs, _, _ = edit_bench.best(lambda: renderer.shade(cache, edited, np.zeros(3), opts), repeats, "render_seconds")
+        seconds.append(secs)
+    return {"size": [W, H], "method": method, "trace_seconds": cache.stats["trace_seconds"],
+            "shade_seconds_min_median_max": [min(seconds), float(np.median(seconds)), max(seconds)],
+            "target_seconds": 0.010, "cache": cache.describe()}
 
 
 def reference_image(renderer, mesh, tf, W, H):
@@ -119,7 +160,7 @@ def run_datasets(args, out):
             continue
         tf = datasets.transfer_function(mesh)
         t0 = time.perf_counter()
-        r = Renderer(mesh, args.device)
+        r = Renderer(mesh, args.device, regroup=not args.no_regroup)
         load_kernels(r.kernel_variant, r.device, "float32")
         setup = time.perf_counter() - t0
         entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
@@ -133,6 +174,12 @@ def run_datasets(args, out):
             entry["frames"].append(row)
             print(f"{name} {W}x{H} {method}: {1e3 * row['seconds']:.1f} ms, {row['rounds']} rounds, "
                   f"{row['segments_per_ray']:.2f} seg/ray, err {row.get('max_error_vs_float64', float('nan')):.1e}", flush=True)
+            if args.tf_edits > 0:
+                edit = tf_edit(r, mesh, tf, W, H, method, args.tf_edits, args.repeats, args.classified_div)
+                entry.setdefault("tf_edits", []).append(edit)
+                print(f"{name} {W}x{H} {method}: transfer-function edit from cached segments: "
+                      + (edit["refused"] if "refused" in edit else
+                         f"{1e3 * edit['shade_seconds_min_median_max'][1]:.1f} ms (median)"), flush=True)
         if name in SMALL and not args.no_small:
             for method in METHODS:
                 row = frame(r, mesh, tf, 512, 512, method, max(args.repeats, 10), None, args.classified_div)
@@ -173,7 +220,7 @@ def run_million(args, out):
     build = time.perf_counter() - t0
     print(f"million: {mesh.num_elements} elements ({copies} copies), built in {build:.1f} s", flush=True)
     t0 = time.perf_counter()
-    r = Renderer(mesh, args.device)
+    r = Renderer(mesh, args.device, regroup=not args.no_regroup)
     load_kernels(r.kernel_variant, r.device, "float32")
     setup = time.perf_counter() - t0
     V = mesh.vertices.reshape(-1, 3)
@@ -211,34 +258,64 @@ def cold_child(args):
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
 
-    mesh, _ = datasets.load(args.cold_child)
+    from hovr_blender.engine.renderer import load_kernels
+
+    mesh = _cold_mesh(args.cold_child)
     tf = datasets.transfer_function(mesh)
-    r = Renderer(mesh, args.device)
+    r = Renderer(mesh, args.device, regroup=not args.no_regroup)
     W, H = map(int, args.size.split("x"))
     t0 = time.perf_counter()
-    res = r.render(_camera(mesh, W, H), tf, np.zeros(3), RenderOptions(method="split", device=args.device))
+    report = load_kernels(r.kernel_variant, r.device)  # what F12 does first (ui/jobs.compile_render_kernels)
+    res = r.render(_camera(mesh, W, H), tf, np.zeros(3), RenderOptions(method="classified", device=args.device))
     t1 = time.perf_counter()
     print(json.dumps({"render_call_seconds": t1 - t0, "frame_seconds": res.stats["render_seconds"],
-                      "process_seconds": time.time() - t_start, "alpha_max": float(res.rgba[..., 3].max())}), flush=True)
+                      "process_seconds": time.time() - t_start, "alpha_max": float(res.rgba[..., 3].max()),
+                      "shipped": len(report.shipped), "compiled": report.compiled}), flush=True)
+
+
+def _cold_mesh(name):
+    if name == "sphere":
+        from hovr_blender.io.builtin import sphere
+
+        return sphere()
+    return datasets.load(name)[0]
 
 
 def run_cold(args, out):
+    from hovr_blender.engine.renderer import kernel_variant
+    from scripts import build_extension  # the extension's kernel build step
+
     rows = []
-    for label, workers in (("parallel modules", "0"), ("one module at a time", "1")):
-        with tempfile.TemporaryDirectory() as cache:
-            env = dict(os.environ, WARP_CACHE_PATH=cache, CUDA_CACHE_DISABLE="1", HOVR_COMPILE_WORKERS=workers,
-                       HOVR_COLD_T0=repr(time.time()))
-            p = subprocess.run([sys.executable, "-m", __spec__.name, "--cold-child", args.cold_dataset, "--device",
-                                args.device, "--size", args.size], cwd=common.REPO, env=env, capture_output=True,
-                               text=True, timeout=600)
+    settings = [("parallel modules", "0", None), ("one module at a time", "1", None), ("shipped kernels", "0", "store")]
+    with tempfile.TemporaryDirectory() as store:
+        for label, workers, shipped in settings:
+            extra = {}
+            if shipped:
+                t0 = time.perf_counter()
+                build_extension.compile_kernels(build_extension.host_platform(),
+                                                variants=[kernel_variant([_cold_mesh(args.cold_dataset)])],
+                                                store=build_extension.Path(store))
+                extra = {"HOVR_KERNEL_BINARIES": store}
+                build_seconds = time.perf_counter() - t0
+            with tempfile.TemporaryDirectory() as cache:
+                env = dict(os.environ, WARP_CACHE_PATH=cache, CUDA_CACHE_DISABLE="1", HOVR_COMPILE_WORKERS=workers,
+                           HOVR_COLD_T0=repr(time.time()))
+                env.pop("HOVR_KERNEL_BINARIES", None)
+                env.update(extra)
+                p = subprocess.run([sys.executable, "-m", __spec__.name, "--cold-child", args.cold_dataset, "--device",
+                                    args.device, "--size", args.size], cwd=common.REPO, env=env, capture_output=True,
+                                   text=True, timeout=900)
             lines = [ln for ln in p.stdout.splitlines() if ln.startswith("{")]
             if p.returncode != 0 or not lines:
                 raise RuntimeError(f"cold child failed: {p.stderr[-2000:]}")
             row = {"setting": label, "HOVR_COMPILE_WORKERS": workers, **json.loads(lines[-1])}
+            if shipped:
+                row["build_seconds"] = build_seconds
             rows.append(row)
-            print(f"cold ({label}): render call {row['render_call_seconds']:.1f} s, process {row['process_seconds']:.1f} s",
-                  flush=True)
-    out["cold"] = {"dataset": args.cold_dataset, "size": args.size, "rows": rows, "target_seconds": 5.0}
+            print(f"cold ({label}): render call {row['render_call_seconds']:.1f} s, process {row['process_seconds']:.1f} s,"
+                  f" {len(row['compiled'])} modules compiled", flush=True)
+    out["cold"] = {"dataset": args.cold_dataset, "size": args.size, "method": "classified", "rows": rows,
+                   "target_seconds": 5.0}
     _write(args.out, out)
 
 
@@ -265,6 +342,11 @@ def main(argv=None):
     ap.add_argument("--cold-child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--million", action="store_true")
     ap.add_argument("--million-elements", type=int, default=1_000_000)
+    ap.add_argument("--tf-edits", type=int, default=4, help="transfer-function edits shaded from cached segments "
+                    "per dataset and method (0: none)")
+    ap.add_argument("--all", action="store_true", help="the datasets, then --million, in one run and one JSON")
+    ap.add_argument("--no-regroup", action="store_true", help="the rays in the order each round leaves them "
+                    "(Renderer(regroup=False)), to time the regrouping against it")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     if args.cold_child:
@@ -284,6 +366,8 @@ def main(argv=None):
         run_million(args, out)
     else:
         run_datasets(args, out)
+        if args.all:
+            run_million(args, out)
 
 
 if __name__ == "__main__":

@@ -1,14 +1,19 @@
 """Load time of every shared dataset, read in this process and in the reader process (issue 29).
 
-    python -m bench.load [--out bench/results/cpu/load.json] [--repeat 3] [--only NAME ...]
+    python -m bench.load [--out bench/results/cpu/load.json] [--repeat 3] [--only NAME ...] [--package-root DIR]
 
 Each (dataset, mode) runs in a fresh subprocess that loads the data twice with
 io.sources.load_volume: `first` is what a `hovr` command or Blender's first import pays (with
 the reader process: starting it, its imports included), `again` a second load of the same source
 in the same session (the warm reader process; in both modes Nektar++'s parsed-geometry cache
 holds the mesh). Modes: HOVR_ISOLATION=0 (read here) and the default (the reader process). The
-best of --repeat runs is kept; peak_rss_growth_MB is this process's (in the reader mode the reader
-process's memory is not in it), mesh_arrays_MB what the VolumeMesh keeps.
+best of --repeat runs is kept; first_cpu_seconds is the first load's CPU time in this process
+(what a busy shared machine disturbs least; in the reader mode the reader's work is not in it),
+validity_cpu_seconds the part of it spent certifying elements (engine/validity.check_elements;
+in process only, None where the package has no such check); peak_rss_growth_MB is this
+process's (in the reader mode the reader process's memory is not in it), mesh_arrays_MB what
+the VolumeMesh keeps. --package-root loads through another checkout's hovr_blender (two
+commits on one machine: run both, alternating).
 """
 from __future__ import annotations
 
@@ -44,30 +49,48 @@ CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 from hovr_blender.io.sources import VolumeSource, load_volume
+try:
+    from hovr_blender.engine import validity
+except ImportError:
+    validity = None
+spent = [0.0]
+if validity is not None:
+    check = validity.check_elements
+
+    def timed(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return check(*args, **kwargs)
+        finally:
+            spent[0] += time.process_time() - t
+
+    validity.check_elements = timed
 source = VolumeSource.resolve({path!r}, {sol!r} or "", {field!r} or "")
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 m = load_volume(source)
-first = time.perf_counter() - t0
+first, first_cpu = time.perf_counter() - t0, time.process_time() - c0
 after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t0 = time.perf_counter()
 load_volume(source)
 again = time.perf_counter() - t0
 kept = sum(v.nbytes for v in vars(m).values() if isinstance(v, np.ndarray))
-print(json.dumps({{"first_seconds": first, "again_seconds": again, "peak_rss_growth_MB": (after - before) / 1024.0,
+print(json.dumps({{"first_seconds": first, "again_seconds": again, "first_cpu_seconds": first_cpu,
+                  "validity_cpu_seconds": spent[0] if validity is not None and spent[0] > 0 else None,
+                  "peak_rss_growth_MB": (after - before) / 1024.0,
                   "mesh_arrays_MB": kept / 2**20, "elements": int(m.num_elements)}}))
 """
 
 
-def measure(name, isolated: bool, repeat: int) -> dict:
+def measure(name, isolated: bool, repeat: int, root: str = REPO) -> dict:
     path, sol, field = DATASETS[name]
     code = CHILD.format(path=os.path.join(SHARED, path), sol=os.path.join(SHARED, sol) if sol else None, field=field)
-    env = dict(os.environ, PYTHONPATH=REPO, HOVR_ISOLATION="1" if isolated else "0")
+    env = dict(os.environ, PYTHONPATH=root, HOVR_ISOLATION="1" if isolated else "0")
     runs = []
     for _ in range(repeat):
         res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
         runs.append(json.loads(res.stdout.strip().splitlines()[-1]))
-    best = {k: min(r[k] for r in runs) for k in ("first_seconds", "again_seconds")}
+    best = {k: min(r[k] for r in runs) for k in ("first_seconds", "again_seconds", "first_cpu_seconds")}
     return {**runs[0], **best}
 
 
@@ -76,6 +99,7 @@ def main(argv=None):
     ap.add_argument("--out", default=str(common.RESULTS / "cpu" / "load.json"))
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--package-root", default=REPO)
     args = ap.parse_args(argv)
     out = {"date": time.strftime("%Y-%m-%d"), "machine": f"{platform.processor() or platform.machine()}, "
            f"{os.cpu_count()} cores", "command": common.command_line(),
@@ -84,7 +108,8 @@ def main(argv=None):
         if not os.path.exists(os.path.join(SHARED, DATASETS[name][0])):
             print(name, "missing: skipped", flush=True)
             continue
-        here, there = measure(name, False, args.repeat), measure(name, True, args.repeat)
+        root = os.path.abspath(args.package_root)
+        here, there = measure(name, False, args.repeat, root), measure(name, True, args.repeat, root)
         row = {"in_process": here, "reader_process": there,
                "first_extra_seconds": round(there["first_seconds"] - here["first_seconds"], 3),
                "again_ratio": round(there["again_seconds"] / max(here["again_seconds"], 1e-9), 3)}

@@ -192,6 +192,7 @@ def _run(args) -> str:
         isolation.prestart()  # the reader process starts while this one imports the readers and the engine
     from .engine import limits
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
+    from .engine.mesh import data_diagonal
     from .engine.view import View
     from .io import load_view_data
 
@@ -209,17 +210,23 @@ def _run(args) -> str:
         view = View.load(args.view)
         if getattr(args, "field", None):
             view.data = {**view.data, "field": args.field}
-        t0 = time.perf_counter()
-        mesh = load_view_data(view)
-        load_s = time.perf_counter() - t0
         if args.command == "render":
-            from .engine.renderer import render_view
-
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
                 min_transmittance=args.min_transmittance, inner=args.inner, device=args.device,
                 precision=args.precision,
             )
+            # what the policy refuses without the data or Warp is refused first (Warp takes seconds to load)
+            w, h = view.camera.width, view.camera.height
+            limits.check_bytes(view.options.image_bytes(w, h), f"a {w}x{h} image in {view.options.precision} "
+                                                               "(its pixels alone)")
+        t0 = time.perf_counter()
+        mesh = load_view_data(view)  # before Warp loads: most hostile files are refused by their reader
+        load_s = time.perf_counter() - t0
+        if args.command == "render":
+            view.options.check_steps(data_diagonal(mesh))
+            from .engine.multi_device import render_view
+
             result = render_view(view, mesh)
             rgba, stats = result.rgba, result.stats
             for warning in stats.get("warnings", []):

@@ -14,6 +14,18 @@
       checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
+  Compiled kernels (--kernels; on by default with --wheels, --no-kernels leaves them out): every
+      kernel module a render loads (engine/renderer.session_kernels) for each --kernel-variants
+      (affine and curved, the sample kernel's orders 0..6 and generic) in --kernel-precisions,
+      compiled into kernel_binaries/warp-<version>/ of the zip (engine/shipped_kernels.py loads
+      them where their source's hash matches): PTX for CUDA (arch 75; the driver compiles it for
+      newer GPUs) in every zip but macOS's, and the CPU's objects in the zip of this machine's
+      platform only (Warp's LLVM compiles for its host: the other platforms' zips compile their
+      CPU kernels on first use); --kernel-cubin-archs adds CUBIN for chosen GPUs (no driver compile
+      at the first render; also loads with drivers older than Warp's NVRTC, where PTX does not).
+      Compiled once into --kernel-store (build/kernels/), in a child
+      Python so this process's Warp is untouched; minutes on a CPU the first time.
+
 The repository keeps blender_manifest.toml at the top and the add-on in hovr_blender/;
 Blender wants the manifest and the package's __init__.py side by side, so the zip holds
 the manifest plus the *contents* of hovr_blender/ at its root (no tests, no caches).
@@ -23,6 +35,9 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib.util
+import json
+import os
+import platform as host
 import re
 import subprocess
 import sys
@@ -53,6 +68,13 @@ WHEEL_PLATFORMS = {
     "macos-arm64": "macosx_11_0_arm64",
 }
 DEFAULT_PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
+
+KERNEL_STORE = REPO / "build" / "kernels"
+KERNEL_FOLDER = "kernel_binaries"  # in the zip; engine/shipped_kernels.store_dir() reads it there
+# (curved, sample modes): the sample kernel's specialisations of the usual orders (element.STATIC_MODES)
+# and the generic one (0: tetrahedra and pyramids only, or mixed orders), affine and curved
+DEFAULT_KERNEL_VARIANTS = tuple((curved, modes) for curved in (False, True) for modes in (0, 2, 3, 4, 5, 6, 7))
+NO_CUDA_PLATFORMS = {"macos-arm64", "macos-x64"}
 
 BLENDER_PLATFORMS = {"windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64"}
 PERMISSIONS = {"files", "network", "clipboard", "camera", "microphone"}
@@ -92,13 +114,72 @@ def _with_keys(text: str, lines: list[str]) -> str:
     return text[:at] + "\n".join(lines) + "\n\n" + text[at:]
 
 
-def _write_zip(out: Path, manifest_text: str, wheels=()):
+def _write_zip(out: Path, manifest_text: str, wheels=(), kernels=None):
     with zipfile.ZipFile(out, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("blender_manifest.toml", manifest_text)
         for path, name in package_files(PACKAGE):
             zf.write(path, name)
         for wheel in wheels:
             zf.write(wheel, f"wheels/{wheel.name}", compress_type=zipfile.ZIP_STORED)  # already compressed
+        if kernels:
+            for path in kernels["files"]:
+                zf.write(path, f"{KERNEL_FOLDER}/warp-{kernels['warp']}/{Path(path).name}")
+
+
+def host_platform() -> str | None:
+    """This machine's Blender platform name (the only one whose CPU kernels can be built here)."""
+    machine = host.machine().lower()
+    arch = {"x86_64": "x64", "amd64": "x64", "arm64": "arm64", "aarch64": "arm64"}.get(machine)
+    system = {"linux": "linux", "win32": "windows", "darwin": "macos"}.get(sys.platform)
+    return f"{system}-{arch}" if system and arch else None
+
+
+def parse_variants(text: str) -> tuple:
+    """"affine:3,curved:0-7" -> ((False, 3), (True, 0), ..., (True, 7)) (modes as in kernel_variant)."""
+    out = []
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        kind, _, modes = item.partition(":")
+        if kind not in ("affine", "curved") or not modes:
+            raise SystemExit(f"--kernel-variants: {item!r} is not affine:N or curved:N (N, or N-M)")
+        lo, _, hi = modes.partition("-")
+        out += [(kind == "curved", m) for m in range(int(lo), int(hi or lo) + 1) if m != 1]
+    return tuple(out)
+
+
+def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=("float32",),
+                    store: Path = KERNEL_STORE, cubin_archs=()) -> dict:
+    """The compiled kernels of a zip for `platform`: {"warp": version, "files": [paths]} (see the
+    module's docstring), compiled in a child Python into `store` where not there already."""
+    cpu = platform == host_platform()
+    ptx = platform not in NO_CUDA_PLATFORMS
+    if not (cpu or ptx):
+        return {"warp": WARP_VERSION, "files": []}
+    job = {"store": str(store), "cpu": cpu, "ptx": ptx, "variants": [list(v) for v in variants],
+           "precisions": list(precisions), "cubin_archs": list(cubin_archs) if ptx else []}
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
+    proc = subprocess.run([sys.executable, "-m", "scripts.build_extension", "compile-kernels", json.dumps(job)],
+                          cwd=REPO, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"compiling the kernels failed:\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _compile_kernels_here(job: dict) -> dict:
+    """compile_kernels' child: the repository's engine builds its store (shipped_kernels.build_store)."""
+    from hovr_blender.engine import renderer, shipped_kernels
+
+    renderer.resolve_device("cpu")  # starts Warp as a render does (its CPU flags, shipped_kernels.py)
+    import warp as wp
+
+    store = Path(job["store"]) / f"warp-{wp.config.version}"
+    files = set()
+    for precision in job["precisions"]:
+        for curved, modes in job["variants"]:
+            kernels = renderer.session_kernels((bool(curved), int(modes)), precision, surfaces=True)
+            files.update(shipped_kernels.build_store(kernels, store, cpu=job["cpu"],
+                                                     ptx_archs=shipped_kernels.PTX_ARCHS if job["ptx"] else (),
+                                                     cubin_archs=job["cubin_archs"]))
+    return {"warp": wp.config.version, "files": sorted(str(f) for f in files)}
 
 
 def _wheel_project(path: Path) -> str:
@@ -136,15 +217,19 @@ def download_wheel(platform: str, cache: Path = WHEEL_CACHE) -> Path:
     return next(w for w in download_wheels(platform, cache) if _wheel_project(w) == "warp-lang")
 
 
-def build(output_dir: Path) -> Path:
+def build(output_dir: Path, kernels: dict | None = None) -> Path:
+    """The zip without wheels; `kernels` are compile_kernels(...) arguments to ship compiled kernels
+    of this machine's platform."""
     text, manifest = _load_manifest()
     output_dir.mkdir(parents=True, exist_ok=True)
     out = output_dir / f"{manifest['id']}-{manifest['version']}.zip"
-    _write_zip(out, text)
+    compiled = compile_kernels(host_platform(), **kernels) if kernels is not None else None
+    _write_zip(out, text, kernels=compiled)
     return out
 
 
-def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path = WHEEL_CACHE) -> list[Path]:
+def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path = WHEEL_CACHE,
+                      kernels: dict | None = None) -> list[Path]:
     text, manifest = _load_manifest()
     output_dir.mkdir(parents=True, exist_ok=True)
     outs = []
@@ -155,7 +240,11 @@ def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path
         listed = ", ".join(f'"./wheels/{w.name}"' for w in wheels)
         lines = [f'platforms = ["{platform}"]', f"wheels = [{listed}]"]
         out = output_dir / f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"
-        _write_zip(out, _with_keys(text, lines), wheels)
+        compiled = compile_kernels(platform, **kernels) if kernels is not None else None
+        if compiled and compiled["warp"] != WARP_VERSION:
+            raise SystemExit(f"the kernels were compiled with Warp {compiled['warp']}, the zip ships Warp {WARP_VERSION}: "
+                             f"build with warp-lang=={WARP_VERSION} installed")
+        _write_zip(out, _with_keys(text, lines), wheels, compiled)
         outs.append(out)
     return outs
 
@@ -266,6 +355,9 @@ def validate(path: Path) -> list[str]:
 
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["compile-kernels"]:  # compile_kernels' child
+        print(json.dumps(_compile_kernels_here(json.loads(argv[1]))))
+        return 0
     if argv[:1] == ["validate"]:
         p = argparse.ArgumentParser(prog="build_extension.py validate")
         p.add_argument("path", type=Path, help="the extension zip or source directory")
@@ -282,11 +374,30 @@ def main(argv=None) -> int:
     p.add_argument("--wheels", action="store_true", help="one zip per platform with the wheels of every runtime dependency bundled")
     p.add_argument("--platforms", default=",".join(DEFAULT_PLATFORMS),
                    help=f"with --wheels: comma-separated Blender platforms (default {','.join(DEFAULT_PLATFORMS)})")
+    p.add_argument("--kernels", action=argparse.BooleanOptionalAction, default=None,
+                   help="ship compiled kernels (default: with --wheels)")
+    p.add_argument("--kernel-variants", default="affine:0-7,curved:0-7",
+                   help="(affine|curved):MODES[-MODES], comma-separated: the sample kernels to ship (default %(default)s)")
+    p.add_argument("--kernel-precisions", default="float32", help="float32 and/or float64, comma-separated")
+    p.add_argument("--kernel-cubin-archs", default="",
+                   help="also CUBIN for these CUDA archs, comma-separated (e.g. 90 for H100/H200: no driver compile)")
+    p.add_argument("--kernel-store", type=Path, default=KERNEL_STORE, help="where compiled kernels are kept between builds")
     args = p.parse_args(argv)
-    outs = (build_with_wheels(args.output_dir, [s.strip() for s in args.platforms.split(",") if s.strip()])
-            if args.wheels else [build(args.output_dir)])
+    kernels = None
+    if args.kernels or (args.kernels is None and args.wheels):
+        kernels = {"variants": parse_variants(args.kernel_variants), "store": args.kernel_store,
+                   "cubin_archs": tuple(int(a) for a in args.kernel_cubin_archs.split(",") if a.strip()),
+                   "precisions": tuple(x.strip() for x in args.kernel_precisions.split(",") if x.strip())}
+    outs = (build_with_wheels(args.output_dir, [s.strip() for s in args.platforms.split(",") if s.strip()],
+                              kernels=kernels)
+            if args.wheels else [build(args.output_dir, kernels)])
     for out in outs:
-        print(f"built {out}")
+        size = out.stat().st_size / 2**20
+        with zipfile.ZipFile(out) as zf:
+            shipped = [i for i in zf.infolist() if i.filename.startswith(KERNEL_FOLDER + "/")]
+        note = (f", {len(shipped)} compiled-kernel files ({sum(i.compress_size for i in shipped) / 2**20:.1f} MiB in the zip)"
+                if shipped else "")
+        print(f"built {out} ({size:.1f} MiB{note})")
     return 0
 
 

@@ -25,20 +25,22 @@ import time
 
 
 
-def run_ptxas(ptxas: str, arch: int, ptx: str):
-    """ptxas -v on the PTX file; where this ptxas is older than the PTX's .version (CUDA 13.0's
-    reads PTX 9.0, Warp's NVRTC 13.4 writes 9.4), again with the header lowered to the version
-    ptxas names (the kernels use nothing newer)."""
-    r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", ptx, "-o", os.devnull], capture_output=True, text=True)
-    m = re.search(r"Unsupported \.version (\S+); current version is '(\S+)'", r.stderr)
-    if m:
-        with open(ptx, "rb") as f:
-            text = f.read()
-        with open(ptx, "wb") as f:
-            f.write(text.replace(f".version {m.group(1)}".encode(), f".version {m.group(2)}".encode(), 1))
-        r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", ptx, "-o", os.devnull], capture_output=True, text=True)
-    if r.returncode != 0:
-        print("    ptxas failed:", r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode)
+def _ptxas(ptxas: str, ptx: str, arch: int, tmp: str):
+    """ptxas -v on the module's PTX. An older ptxas refuses a newer PTX ISA version by name even
+    where the code uses nothing newer (NVRTC 13.4 writes 9.4, CUDA 13.0's ptxas reads 9.0): the
+    version line is lowered to the one it names and the PTX assembled again, saying so."""
+    clean = os.path.join(tmp, "clean.ptx")
+    with open(ptx, "rb") as src:
+        text = src.read().replace(b"\x00", b"")
+    for attempt in range(2):
+        with open(clean, "wb") as dst:
+            dst.write(text)
+        r = subprocess.run([ptxas, f"-arch=sm_{arch}", "-v", clean, "-o", os.devnull], capture_output=True, text=True)
+        m = re.search(r"Unsupported \.version (\S+); current version is '(\S+)'", r.stderr)
+        if r.returncode == 0 or not m or attempt:
+            return r
+        print(f"    (ptxas reads PTX {m.group(2)}: the module's .version {m.group(1)} lowered to it)")
+        text = text.replace(f".version {m.group(1)}".encode(), f".version {m.group(2)}".encode(), 1)
     return r
 
 
@@ -61,22 +63,22 @@ def main(argv=None):
     from hovr_blender.engine.kernels.precision import Precision
 
     raycast = Precision.named(args.precision).kernels
-    kernels = []
-    for kind in ("curved", "affine"):
-        search, traverse, _ = raycast.walk_kernels(kind == "curved")
-        kernels += [(f"search ({kind})", search), (f"traverse ({kind})", traverse)]
-        kernels += [(f"sample ({kind}, modes {m or 'generic'})", raycast.walk_kernels(kind == "curved", m)[2])
-                    for m in args.modes]
-        kernels.append((f"sample ({kind}, a derived field)", raycast.walk_kernels(kind == "curved", 0, True)[2]))
-    for iso in (False, True):
-        integrate, shade = raycast.integrate_kernels(iso)
+    # every Warp module of the kernel table (kernels/raycast.kernel_table), once, named by its kernels:
+    # each walk variant, a derived field's sample kernel, integrate and shade with and without surfaces
+    modules = {}
+    variants = [(kind, m, False, iso) for kind in ("curved", "affine") for m in args.modes for iso in (False, True)]
+    variants += [(kind, 0, True, False) for kind in ("curved", "affine")]
+    for kind, m, derived, iso in variants:
         with_iso = " with isosurfaces and planes" if iso else ""
-        kernels.append((f"integrate{with_iso}", integrate))
-        kernels.append((f"shade{with_iso} (transfer-function edits from a segment cache)", shade))
-    # the module's own kernels: init_rays, refine, coefficients, finalize, trace_*, sum_counts
-    kernels.append(("init_rays, refine, coefficients, finalize, trace_reserve, trace_write, trace_ends, sum_counts",
-                    raycast.finalize))
-    kernels.append(("step_terms", raycast.step_terms))
+        sampled = "a derived field" if derived else f"modes {m or 'generic'}"
+        for name, kern in raycast.kernel_table(kind == "curved", m, derived, iso).items():
+            label = {"search": f"search ({kind})", "traverse": f"traverse ({kind})",
+                     "sample": f"sample ({kind}, {sampled})", "integrate": f"integrate{with_iso}",
+                     "shade": f"shade{with_iso}"}.get(name, name)
+            labels = modules.setdefault(id(kern.module), (kern, []))[1]
+            if label not in labels:
+                labels.append(label)
+    kernels = [(", ".join(labels), kern) for kern, labels in modules.values()]
     if args.only:
         kernels = [(name, kern) for name, kern in kernels if name.startswith(tuple(args.only))]
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
@@ -91,10 +93,9 @@ def main(argv=None):
         secs = time.perf_counter() - t0
         print(f"{name}: NVRTC {secs:.1f} s (PTX and CUBIN)")
         if ptxas:
-            clean = os.path.join(tmp, "clean.ptx")
-            with open(ptx, "rb") as src, open(clean, "wb") as dst:
-                dst.write(src.read().replace(b"\x00", b""))
-            r = run_ptxas(ptxas, args.arch, clean)
+            r = _ptxas(ptxas, ptx, args.arch, tmp)
+            if r.returncode != 0:
+                print("    ptxas:", r.stderr.strip().splitlines()[0] if r.stderr.strip() else f"exit {r.returncode}")
             for line in r.stderr.splitlines():
                 line = line.strip()
                 if "Compiling entry" in line:

@@ -98,6 +98,40 @@ def jittered_trilinear_brick(n, jitter, seed=3) -> VolumeMesh:
     return VolumeMesh.from_elements([shapes.HEX] * n**3, (2, 2, 2), coeffs, (2, 2, 2), geoms)
 
 
+def folded_hex_map(xi, fold=1.4):
+    """A quadratic hexahedron folded between its fit points (issue 29): x0 = xi0 (1 - fold (1 -
+    xi1^2)(1 - xi2^2)), x1 = xi1, x2 = xi2, so det J = 1 - fold (1 - xi1^2)(1 - xi2^2): 1 - fold
+    (-0.40) along the axis xi1 = xi2 = 0 and 1 - 0.64 fold (0.104) or more wherever |xi1| and |xi2|
+    are 1/sqrt(5) or 1, as at every point of the 4 x 4 x 4 fit grid. fold < 1: valid and strongly
+    curved (det J from 1 - fold to 1)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    x = xi.copy()
+    x[..., 0] = xi[..., 0] * (1.0 - fold * (1.0 - xi[..., 1] ** 2) * (1.0 - xi[..., 2] ** 2))
+    return x
+
+
+def lagrange_hex_vtu(mapping, degree=2) -> bytes:
+    """An ASCII .vtu of one VTK Lagrange hexahedron of `degree` whose nodes lie at mapping(xi),
+    with the point field f = x0."""
+    from hovr_blender.io.vtu.cells import vtk_node_params
+
+    nodes = mapping(2.0 * vtk_node_params(shapes.HEX, (degree,) * 3) - 1.0)
+    n = len(nodes)
+
+    def array(kind, name, values, components=1):
+        text = " ".join(repr(float(v)) if kind == "Float64" else str(int(v)) for v in np.ravel(values))
+        return (f'<DataArray type="{kind}" Name="{name}" NumberOfComponents="{components}" format="ascii">'
+                f'{text}</DataArray>')
+
+    return (f'<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="2.2" byte_order="LittleEndian">'
+            f'<UnstructuredGrid><Piece NumberOfPoints="{n}" NumberOfCells="1">'
+            f'<Points>{array("Float64", "Points", nodes, 3)}</Points>'
+            f'<Cells>{array("Int64", "connectivity", range(n))}{array("Int64", "offsets", [n])}'
+            f'{array("UInt8", "types", [72])}</Cells>'
+            f'<PointData>{array("Float64", "f", nodes[:, 0])}</PointData>'
+            f'</Piece></UnstructuredGrid></VTKFile>\n').encode()
+
+
 # ------------------------------------------------------------------------ the Blender sphere scene
 
 
@@ -155,3 +189,17 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
         mesh = builtin.sphere().transformed(cls.object_matrix() if matrix is None else matrix)
         options = RenderOptions(method=method, h=h, tolerance=1e-6, device="cpu")
         return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
+
+
+def stopped_warm_reader() -> int:
+    """The warm reader process (io/isolation.py), stopped (SIGSTOP): as good as libhdf5's endless
+    loop. Its pid; the next read waits on it until it is killed (cancel, the time limit)."""
+    import os
+    import signal
+
+    from hovr_blender.io import isolation
+
+    isolation.prestart()
+    pid = isolation._IDLE[0].proc.pid
+    os.kill(pid, signal.SIGSTOP)
+    return pid

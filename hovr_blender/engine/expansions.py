@@ -17,6 +17,7 @@ Functions (all vectorised over leading point dimensions; xi (..., 3)):
     num_coeffs(shape, modes) -> int
     mode_triples(shape, modes) -> (K, 3) int      the (p, q, r) of each stored coefficient
     collapse(shape, xi) -> eta (..., 3)           denominators clamped at 1e-12 as Nektar++
+    uncollapse(shape, eta) -> xi (..., 3)         the cube of collapsed coordinates onto the shape
     eval_modal(shape, modes, coeffs, xi) -> (...,) or (..., C)
     eval_modal_grad(shape, modes, coeffs, xi) -> (..., 3) or (..., C, 3)   d/dxi
     fit_points(shape, modes) -> xi (M, 3), M >= K  unisolvent points inside the shape
@@ -45,7 +46,7 @@ from .shapes import CENTROIDS, HEX, NAMES, PRISM, PYR, TET, VERTICES
 #   vertex_mode_indices(shape, modes) -> (nv,) storage index of each vertex's mode
 #   shapes.CENTROIDS[shape] -> (3,) reference centroid
 # One-dimensional Modified_A modes, GLL points and tensor-product fits (the hexahedron's basis,
-# used by the built-in datasets and the reference): modified_a, gll_points,
+# used by the built-in datasets and the reference): modified_a, modified_a_derivative, gll_points,
 # fit_tensor_coefficients, eval_tensor.
 
 ZERO_TOL = 1e-12  # Nektar++ kNekZeroTol: collapsed-coordinate denominators are clamped to it
@@ -180,6 +181,11 @@ def collapse(shape, xi) -> np.ndarray:
     return eta
 
 
+def uncollapse(shape, eta) -> np.ndarray:
+    """xi (..., 3) of collapsed coordinates eta (..., 3): the cube [-1, 1]^3 onto the shape."""
+    return _uncollapse(_check_shape(shape), eta)
+
+
 def _uncollapse(shape, eta) -> np.ndarray:
     eta = np.asarray(eta, dtype=np.float64)
     xi = eta.copy()
@@ -244,6 +250,11 @@ def _mod_a(n: int, x):
         for p in range(2, n):
             der[:, p] = -0.5 * (p - 1) * leg[:, p - 1]
     return val, der
+
+
+def modified_a_derivative(n: int, x) -> np.ndarray:
+    """(N, n) derivatives of Modified_A modes 0..n-1 at x (N,)."""
+    return _mod_a(n, np.asarray(x, dtype=np.float64).reshape(-1))[1]
 
 
 def _w_power(k, m, dm, w):

@@ -1,5 +1,6 @@
 """The colour legend's layout, one home for the CLI's PNG (`hovr render --legend`, drawn here with
-Pillow) and Blender's viewport overlay (ui/legend_overlay.py, drawn with gpu and blf): a vertical
+Pillow), Blender's viewport overlay (ui/legend_overlay.py, drawn with gpu and blf) and F12's result
+(ui/legend_render.py: draw_legend, its text drawn with blf): a vertical
 bar of the transfer function at the image's right edge, the value at five ticks beside it, and the
 field's name (with its units, where known) above it.
 
@@ -39,9 +40,10 @@ def tick_label(value: float) -> str:
 
 
 def legend_layout(tf, value_min: float, value_max: float, title: str, width: int, height: int,
-                  background=(0.0, 0.0, 0.0), units: str | None = None) -> Legend:
+                  background=(0.0, 0.0, 0.0), units: str | None = None, top: int = 0) -> Legend:
     """The legend of transfer function `tf` (engine/transfer_function.py) over value_min..value_max
-    for a width x height image."""
+    for a width x height image, `top` pixels below its top edge (what covers the image there: a
+    viewport's tool header)."""
     if not value_max > value_min:
         raise ValueError(f"legend: Value Max must exceed Value Min, got {value_min:.6g}..{value_max:.6g}")
     width, height = int(width), int(height)
@@ -50,8 +52,9 @@ def legend_layout(tf, value_min: float, value_max: float, title: str, width: int
     bar_w = max(6, font)
     x1 = width - margin
     x0 = x1 - bar_w
-    y0 = margin + 2 * font  # room for the title
-    y1 = max(y0 + 2, int(round(0.55 * height)))
+    top = int(np.clip(top, 0, height // 3))
+    y0 = top + margin + 2 * font  # room for the title
+    y1 = max(y0 + 2, top + int(round(0.55 * (height - top))))
     rows = y1 - y0
     s = value_max - (np.arange(rows) + 0.5) / rows * (value_max - value_min)
     tau = tf.density(s)
@@ -64,7 +67,7 @@ def legend_layout(tf, value_min: float, value_max: float, title: str, width: int
     texts = [LegendText(x0 - font // 2, y0 + k / (TICKS - 1) * (rows - 1), tick_label(v), "right")
              for k, v in enumerate(np.linspace(value_max, value_min, TICKS))]
     name = f"{title} [{units}]" if units else title
-    texts.append(LegendText(x1, margin + font // 2, name, "right"))
+    texts.append(LegendText(x1, top + margin + font // 2, name, "right"))
     return Legend((x0, y0, x1, y1), bar_rgb, tuple(texts), text_rgb, font)
 
 
@@ -75,22 +78,28 @@ def tf_value_range(tf) -> tuple[float, float]:
     return (lo, hi) if hi > lo else (lo - 0.5, hi + 0.5)
 
 
-def draw_legend(rgba, legend: Legend) -> np.ndarray:
-    """(H, W, 4) linear RGBA (straight alpha) with the legend drawn on it, opaque where it is: the
-    bar's pixels set, the text blended in through a Pillow text mask (Pillow's scalable font)."""
+def pillow_text_mask(legend: Legend, width: int, height: int) -> np.ndarray:
+    """(H, W) coverage of the legend's text, 0..1, drawn with Pillow's scalable font."""
     from PIL import Image, ImageDraw, ImageFont
 
-    out = np.array(rgba, dtype=np.float64)
-    height, width = out.shape[:2]
-    x0, y0, x1, y1 = legend.bar
-    out[y0:y1, x0:x1, :3] = legend.bar_rgb[:, None, :]
-    out[y0:y1, x0:x1, 3] = 1.0
     mask = Image.new("L", (width, height), 0)
     draw = ImageDraw.Draw(mask)
     font = ImageFont.load_default(size=legend.font_px)
     for t in legend.texts:
         draw.text((t.x, t.y), t.text, fill=255, font=font, anchor="rm" if t.anchor == "right" else "lm")
-    a = np.asarray(mask, dtype=np.float64)[..., None] / 255.0
+    return np.asarray(mask, dtype=np.float64) / 255.0
+
+
+def draw_legend(rgba, legend: Legend, text_mask=pillow_text_mask) -> np.ndarray:
+    """(H, W, 4) linear RGBA with the legend drawn on it, opaque where it is: the bar's pixels set,
+    the text composited over through `text_mask(legend, width, height)` ((H, W) coverage; Blender
+    draws it with blf, ui/legend_render.py). Over straight or premultiplied alpha alike."""
+    out = np.array(rgba, dtype=np.float64)
+    height, width = out.shape[:2]
+    x0, y0, x1, y1 = legend.bar
+    out[y0:y1, x0:x1, :3] = legend.bar_rgb[:, None, :]
+    out[y0:y1, x0:x1, 3] = 1.0
+    a = np.clip(text_mask(legend, width, height), 0.0, 1.0)[..., None]
     out[..., :3] = (1.0 - a) * out[..., :3] + a * np.asarray(legend.text_rgb)
     out[..., 3:] = a + (1.0 - a) * out[..., 3:]
     return out

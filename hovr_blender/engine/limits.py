@@ -151,6 +151,20 @@ def check_bytes(nbytes, what: str) -> int:
     return int(nbytes)
 
 
+def check_samples_per_ray(h: float, diagonal: float) -> float:
+    """Refuse a fixed step h that would take more samples than the limit on a ray across data
+    whose bounding box has this diagonal. Returns the samples it may take."""
+    lim = current()
+    steps = float(diagonal) / float(h)
+    if not steps <= lim.max_samples_per_ray:
+        raise ResourceLimitError(
+            f"step h = {h:g} would take up to {steps:.3g} samples per ray across the data "
+            f"(its bounding box diagonal is {diagonal:.4g}); the limit is "
+            f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
+            f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
+    return steps
+
+
 def check_processes(n: int, what: str) -> int:
     """Refuse starting `n` processes for `what` beyond the process limit, before any starts."""
     limit = current().max_processes or default_max_processes()
@@ -259,6 +273,62 @@ def open_output(path, what: str = "output", append: bool = False):
 
 
 # ------------------------------------------------------------------------------ inflating
+
+# A process whose address space this module may cap (the reader process sets it: capping
+# Blender's or the command's own would fail allocations of other threads).
+_ADDRESS_SPACE_OWNED = False
+
+
+def own_address_space():
+    """This process is a reader process: its address space may be capped (cap_address_space,
+    small_allocations)."""
+    global _ADDRESS_SPACE_OWNED
+    _ADDRESS_SPACE_OWNED = True
+
+
+def address_space() -> int | None:
+    """This process's address space now, in bytes (Linux), else None."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def cap_address_space(extra: int) -> int | None:
+    """Let the address space grow by at most `extra` bytes from now (RLIMIT_AS's soft limit, in a
+    process that owns its address space); returns the soft limit it replaced, None where nothing
+    was capped."""
+    now = address_space() if _ADDRESS_SPACE_OWNED else None
+    if now is None:
+        return None
+    try:
+        import resource
+
+        old, hard = resource.getrlimit(resource.RLIMIT_AS)
+        soft = now + int(extra)
+        if hard != resource.RLIM_INFINITY:
+            soft = min(soft, hard)
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+        return old
+    except (ImportError, ValueError, OSError):
+        return None
+
+
+@contextlib.contextmanager
+def small_allocations(extra: int = 64 << 20):
+    """A block whose allocations together stay under `extra` bytes in a reader process: a C
+    library that a damaged file makes allocate gigabytes for a small header value (a string of
+    4 GiB) fails with MemoryError at once instead of filling memory until the time limit."""
+    old = cap_address_space(extra)
+    try:
+        yield
+    finally:
+        if old is not None:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_AS, (old, resource.getrlimit(resource.RLIMIT_AS)[1]))
+
 
 class InflationBudget:
     """How much one file's compressed data may inflate to, in all: max(INFLATE_FLOOR, the

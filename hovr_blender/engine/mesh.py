@@ -36,8 +36,10 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
             f"element {element}: hexahedron is not a parallelepiped (trilinear and curved "
             "geometry arrive with the element issue)"
         )
+    from .validity import TOLERANCE  # validity imports this module
+
     det = np.linalg.det(J)
-    if not np.isfinite(det) or abs(det) <= 1e-12 * scale**3:
+    if not np.isfinite(det) or abs(det) <= TOLERANCE * np.prod(np.linalg.norm(J, axis=0)):
         raise MeshError(f"element {element}: degenerate hexahedron (Jacobian determinant {det:.3g})")
     if det < 0:
         raise MeshError(f"element {element}: inverted hexahedron (negative Jacobian)")
@@ -474,3 +476,21 @@ def element_boxes(mesh: "VolumeMesh"):
             lo[sel] = mesh.vertices[sel, :count].min(axis=1)
             hi[sel] = mesh.vertices[sel, :count].max(axis=1)
     return lo, hi
+
+
+def padded_element_boxes(mesh: "VolumeMesh"):
+    """element_boxes widened by 1e-5 of each box's size or distance from the origin: the
+    renderer's BVH boxes (float32 in both precisions: conservative either way)."""
+    lowers, uppers = element_boxes(mesh)
+    pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
+    return lowers - pad, uppers + pad
+
+
+def boxes_diagonal(lowers, uppers) -> float:
+    """The diagonal of the box around all the boxes: no ray is longer inside the data."""
+    return float(np.linalg.norm(np.asarray(uppers).max(axis=0) - np.asarray(lowers).min(axis=0)))
+
+
+def data_diagonal(mesh: "VolumeMesh") -> float:
+    """The renderer's data_diagonal of `mesh` (the fixed-step methods' samples per ray), without Warp."""
+    return boxes_diagonal(*padded_element_boxes(mesh))

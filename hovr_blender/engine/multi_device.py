@@ -6,7 +6,7 @@ same ray whichever device traces it: Renderer.render's `rows`).
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
 kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork), each running device_bootstrap.py first: it never re-runs the parent's script
+not survive a fork), each running bootstrap.py first: it never re-runs the parent's script
 (a bpy script, with or without a main guard), and imports the package under the parent's name
 (`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any
 reply is waited for; each writes its rows into one shared-memory image (SharedImage, made once per
@@ -38,7 +38,8 @@ from .processes import sigint_blocked, watch_parent
 from .renderer import Renderer, RenderError, RenderResult, expand_devices
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
-                "segments_piecewise_smooth", "curved_locates", "walks")
+                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
+                "ray_rounds")
 
 
 def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
@@ -198,7 +199,7 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None):
 
 
 def serve_spawned(conn, payload: bytes):
-    """A device's process once device_bootstrap.py has imported the package: its mesh, device
+    """A device's process once bootstrap.py has imported the package: its mesh, device
     and tile limit unpickled (the package's classes resolve now), then _serve."""
     try:
         mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)  # the parent's own objects
@@ -238,7 +239,7 @@ class DeviceProcess:
         payload = (mesh, device, max_tile_rays, os.getpid())
         start = {"conn": child, "package": __name__.rsplit(".", 2)[0], "folder": os.path.dirname(engine_folder),
                  "payload": pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)}
-        bootstrap = os.path.join(engine_folder, "device_bootstrap.py")
+        bootstrap = os.path.join(engine_folder, "bootstrap.py")
         self._proc = ctx.Process(target=runpy.run_path, args=(bootstrap, {"START": start}, "__hovr_device_process__"),
                                  daemon=True, name=f"hovr-{device}")
         with _main_script_hidden(), sigint_blocked():
@@ -425,3 +426,16 @@ def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None):
     if len(devices) == 1:
         return Renderer(mesh, devices[0], max_tile_rays=max_tile_rays)
     return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays)
+
+
+def render_view(view, mesh) -> RenderResult:
+    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
+    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
+    devices = expand_devices(view.options.device)
+    if len(devices) > 1:
+        if view.surfaces:
+            raise RenderError("isosurfaces and planes render on one device; give one --device")
+        with MultiDeviceRenderer(mesh, devices) as r:
+            return r.render(view.camera, view.transfer_function, view.background, view.options)
+    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options,
+                                             surfaces=view.surfaces)

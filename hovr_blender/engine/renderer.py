@@ -23,12 +23,13 @@ from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
 from .kernels.element import static_modes
 from .kernels.precision import Precision
 from .limits import cpu_cores
-from .mesh import (MeshError, VolumeMesh, element_boxes, element_coefficient_scale, element_field_ranges,
-                   element_volumes, mapped_coefficients)
+from .mesh import (MeshError, VolumeMesh, boxes_diagonal, element_coefficient_scale, element_field_ranges,
+                   element_volumes, mapped_coefficients, padded_element_boxes)
 from .methods import METHOD_IDS
+from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
-from .view import AUTO_STEP_ERROR, RenderOptions, View, resolving_step
+from .view import AUTO_STEP_ERROR, RenderOptions, resolving_step
 
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
 
@@ -52,6 +53,8 @@ class RenderResult:
     # (H,) the work each row took (ray_cost of its pixels' counters): what a render split over
     # several devices balances its rows by (engine/multi_device.py)
     row_cost: np.ndarray | None = None
+    # (rows, W, NUM_STATS) int32: every ray's counters, with render(ray_counts=True) (work_counts)
+    ray_counts: np.ndarray | None = None
 
 
 _WARP_READY = False
@@ -70,6 +73,8 @@ def _init_warp():
 
 
 def _start_warp():
+    # portable CPU objects: the add-on's shipped kernels (shipped_kernels.py) match on any CPU
+    wp.config.cpu_compiler_flags = CPU_COMPILER_FLAGS
     debug = bool(os.environ.get("HOVR_DEBUG"))
     wp.config.log_level = wp.LOG_INFO if debug else wp.LOG_ERROR
     if debug:
@@ -132,10 +137,11 @@ GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
 # H100, paper-scale 1920x1080: 8 tiles of 2^18 rays ran 49 rounds (curved), most of them the
 # few-ray tails of each tile, where a round costs the latency of its slowest ray
 TILE_MEMORY_FRACTION = 0.25
-TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a launch tile's buffers may take
+TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a CPU launch tile's buffers may take
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
+WARP_SIZE = 32  # the rays a GPU warp runs together: the work counts' divergence blocks, lane occupancy
 # a ray's work in the units of one field evaluation, from its counters (kernels/args.py STAT_*):
 # each element segment and each curved location costs about a Newton solve's evaluations, and a
 # ray a few for its search and finalize. A load-balancing estimate, not a timing model.
@@ -167,33 +173,43 @@ def render_kernels(variant: tuple[bool, int], precision: str = "float32", isosur
     """Every kernel Renderer.render launches for a mesh of kernel_variant `variant` (with
     `isosurfaces`: a look with isosurfaces or planes, contract §7)."""
     kernels = Precision.named(precision).kernels
-    search, traverse, sample = kernels.walk_kernels(*variant)
-    # coefficients lives in the module of finalize
-    return [search, traverse, sample, kernels.refine, kernels.init_rays, kernels.integrate_kernels(isosurfaces)[0],
-            kernels.step_terms, kernels.finalize]
+    table = kernels.kernel_table(*variant, isosurfaces=isosurfaces)
+    return [table[name] for name in kernels.RENDER_KERNELS]
 
 
-def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
-                 surfaces: bool = False, isosurfaces: bool = False) -> None:
-    """Load the kernels a render of kernel_variant `variant` in `precision` needs on `device`
-    (and the surface cast with `surfaces`; with `isosurfaces`, integrate's variant for
-    isosurfaces and planes): compiled on first use, tens of seconds on a CPU, else read from
-    Warp's kernel cache on disk. The modules compile side by side in worker threads joined
-    before it returns."""
+def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfaces: bool = False,
+                    isosurfaces: bool = False) -> list:
+    """The kernels of render_kernels, the re-shade of a transfer-function edit, and the surface
+    cast with `surfaces`: what an interactive session (Blender) loads before its first render, and
+    what the add-on ships compiled (scripts/build_extension.py); with `isosurfaces`, integrate and
+    shade in their variant for isosurfaces and planes."""
     kernels = render_kernels(variant, precision, isosurfaces)
+    kernels.append(Precision.named(precision).kernels.kernel_table(*variant, isosurfaces=isosurfaces)["shade"])
     if surfaces:
         from .kernels import surfaces as surface_kernels
 
         kernels.append(surface_kernels.cast_surfaces)
-    load_modules(kernels, resolve_device(device))
+    return kernels
 
 
-def load_modules(kernels, device: str) -> None:
-    """Compile (first use) or load from Warp's disk cache the modules of `kernels` on `device`,
-    side by side (on first use the largest module's compile is the wait)."""
+def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
+                 surfaces: bool = False, isosurfaces: bool = False) -> LoadReport:
+    """Load the session_kernels of `variant` in `precision` on `device`: from the add-on's
+    shipped binaries where they were built from this source, else compiled on first use (tens of
+    seconds on a CPU) or read from Warp's kernel cache on disk. The modules compile side by side
+    in worker threads joined before it returns."""
+    return load_modules(session_kernels(variant, precision, surfaces, isosurfaces), resolve_device(device))
+
+
+def load_modules(kernels, device: str) -> LoadReport:
+    """Load the modules of `kernels` on `device`: the shipped binaries of their source where the
+    add-on has them (shipped_kernels.py), the rest compiled (first use) or read from Warp's disk
+    cache, side by side (on first use the largest module's compile is the wait)."""
+    report = load_shipped(kernels, device)
     modules = list({id(k.module): k.module for k in kernels}.values())
     workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0
     wp.force_load(device=device, modules=modules, max_workers=workers)
+    return report
 
 
 def _check_float32_range(what: str, values, offsets):
@@ -251,9 +267,12 @@ def sample_stride(mesh: VolumeMesh, geo_degree) -> int:
 class Renderer:
     """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
 
-    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None):
+    def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None,
+                 regroup: bool = True):
         # bounds the per-render buffers (about 4 kB a ray in float32); None: from the device's memory
         self.max_tile_rays = None if max_tile_rays is None else int(max_tile_rays)
+        # the rays regrouped between rounds (_regroup); False: in the order the last round left them
+        self.regroup = bool(regroup)
         self.device = resolve_device(device)
         self.mesh = mesh
         self._id = next(_RENDERER_IDS)
@@ -273,12 +292,9 @@ class Renderer:
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
-            lowers, uppers = element_boxes(mesh)
-            pad = 1e-5 * np.maximum(np.abs(lowers).max(axis=1, keepdims=True), np.abs(uppers - lowers).max(axis=1, keepdims=True))
-            self._box_lo = lowers - pad
-            self._box_hi = uppers + pad
+            self._box_lo, self._box_hi = padded_element_boxes(mesh)
             # no ray is longer inside the data than this (the fixed-step methods' samples per ray)
-            self.data_diagonal = float(np.linalg.norm(self._box_hi.max(axis=0) - self._box_lo.min(axis=0)))
+            self.data_diagonal = boxes_diagonal(self._box_lo, self._box_hi)
             # Warp's BVH is float32 in both precisions (padded boxes: conservative either way)
             self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
             self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
@@ -377,7 +393,10 @@ class Renderer:
         # a curved slot refined (degree doubled) goes on one of these for its odd points
         again = [zeros(slots, wp.int32) for _ in range(2)]
         again_count = [zeros(1, wp.int32) for _ in range(2)]
-        return _TileBuffers(rays, segs, again, again_count, sum(a.capacity for a in allocated))
+        # the next round's list sorted by regroup_keys (radix sort: room for twice the rays)
+        sort_keys = zeros(2 * tile, wp.int64)
+        sort_values = zeros(2 * tile, wp.int32)
+        return _TileBuffers(rays, segs, again, again_count, sort_keys, sort_values, sum(a.capacity for a in allocated))
 
     def _launch_tile(self, prec, rays: int, progress, tile_pixels) -> int:
         """Rays per launch tile of a render of `rays` rays: the progress/cancel unit (tile_pixels,
@@ -388,17 +407,17 @@ class Renderer:
     def _tile_limit(self, prec) -> int:
         """Rays per launch tile: max_tile_rays if given; on a GPU, what TILE_MEMORY_FRACTION of
         its free memory holds (one tile per frame where it fits: every tile ends in rounds of
-        few rays, which leave the GPU idle); on the CPU, CPU_TILE_RAYS."""
+        few rays, which leave the GPU idle; a 1920x1080 frame is one launch on a card with
+        about 32 GB free); on the CPU, CPU_TILE_RAYS within TILE_LIMIT_SHARE of the memory limit,
+        which guards host memory (a GPU tile's buffers are the device's: check_limits)."""
         if self.max_tile_rays is not None:
             return self.max_tile_rays
-        # the resource policy's memory limit holds the tile too, with room left for the image's
-        # own buffers (a full-HD tile is ~8 GB in float32: over the 4 GiB default)
-        policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
+            policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
             return int(max(1024, min(CPU_TILE_RAYS, policy)))
-        return int(max(1024, min(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec),
-                                         MIN_TILE_RAYS, MAX_TILE_RAYS), policy)))
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec), MIN_TILE_RAYS,
+                           MAX_TILE_RAYS))
 
     def _ray_bytes(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
@@ -413,32 +432,24 @@ class Renderer:
         """Refuse a render the resource policy does not allow (engine/limits.py), before
         anything is allocated: the image's buffers against the memory limit, and for the
         fixed-step methods the samples a ray may take across the data (its box diagonal / h;
-        classified without h never steps below the diagonal / that limit). Returns the bytes counted."""
+        classified without h never steps below the diagonal / that limit). The launch tile's
+        buffers count where they are host memory (the CPU device); on a GPU the tile follows the
+        device's free memory (_tile_limit). Returns the bytes counted."""
         self._check_steps(options)
         prec = self._upload(options.precision).precision
-        num_stats = prec.kernels.NUM_STATS
-        total = int(width) * int(height)
-        # device: RGBA, depth/error and counters per pixel; host: their copies (float, int64 counters)
-        per_pixel = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats + 8 * num_stats + 16
-        rays = min(total, tile if tile is not None else CPU_TILE_RAYS)
-        return limits.check_bytes(total * per_pixel + rays * self._ray_bytes(prec),
-                                  f"a {width}x{height} image in {options.precision}")
+        rays = min(int(width) * int(height), tile if tile is not None else CPU_TILE_RAYS)
+        if wp.get_device(self.device).is_cuda:
+            rays = 0
+        return limits.check_bytes(options.image_bytes(width, height, prec.kernels.NUM_STATS)
+                                  + rays * self._ray_bytes(prec), f"a {width}x{height} image in {options.precision}")
 
     def _check_steps(self, options: RenderOptions):
-        """The fixed-step methods' samples per ray across the data against the resource policy;
-        a derived field only with a method that samples it."""
+        """A derived field only with a method that samples it, and a fixed step against the
+        samples-per-ray limit across the data (RenderOptions.check_steps)."""
         if self.mesh.derived is not None and options.method not in _SAMPLING_METHODS:
             raise RenderError(f"{self.mesh.field_name} is sampled exactly at each point and integrated on its "
                               f"series: method classified or split, not {options.method}")
-        lim = limits.current()
-        if options.method != "split" and options.h is not None:
-            steps = self.data_diagonal / float(options.h)
-            if not steps <= lim.max_samples_per_ray:
-                raise limits.ResourceLimitError(
-                    f"step h = {options.h:g} would take up to {steps:.3g} samples per ray across the data "
-                    f"(its bounding box diagonal is {self.data_diagonal:.4g}); the limit is "
-                    f"{lim.max_samples_per_ray} samples per ray (raise it with --max-samples-per-ray or "
-                    f"HOVR_MAX_SAMPLES_PER_RAY, or use a larger h, or the split method, which needs no h)")
+        options.check_steps(self.data_diagonal)
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct with the field in its own units (for kernels that
@@ -489,10 +500,17 @@ class Renderer:
             gk = [wp.array(a.astype(fdt), dtype=scalar) for a in (x, wk, wg)]
             gk_s = wp.array(S.astype(fdt), dtype=scalar)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
-            walk = raycast.walk_kernels(*self.kernel_variant)
+            table = raycast.kernel_table(*self.kernel_variant)
             self._sample_stride = sample_stride(mesh, gdeg)
-        self._uploads[name] = _Upload(prec, m, gk, gk_s, *walk)
+        self._uploads[name] = _Upload(prec, m, gk, gk_s, table)
         return self._uploads[name]
+
+    def _kernels(self, upload: _Upload, isosurfaces: bool) -> dict:
+        """The upload's kernel table, integrate and shade in their variant for isosurfaces and
+        planes where the look has them (kernels.kernel_table)."""
+        if not isosurfaces:
+            return upload.kernels
+        return upload.precision.kernels.kernel_table(*self.kernel_variant, isosurfaces=True)
 
     def _surface_args(self, upload: _Upload, fr: field_frame.FieldFrame, surfaces: Surfaces | None,
                       options: RenderOptions):
@@ -583,7 +601,7 @@ class Renderer:
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
                rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None,
-               surface_t=None, surfaces: Surfaces | None = None) -> RenderResult:
+               surface_t=None, ray_counts: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -599,8 +617,9 @@ class Renderer:
         `surface_t`, an (H, W) array of the whole image (rows from the top), each pixel's ray
         integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
         surface: engine/surfaces.py; +inf where none); the depth output is then that t where the
-        volume's opacity stays under 0.5. `surfaces`: isosurfaces and cut planes (contract §7),
-        composited with the volume in depth order."""
+        volume's opacity stays under 0.5. With `ray_counts`, the result's ray_counts holds every
+        ray's work counters (kernels/args.py STAT_*; work_counts summarises them). `surfaces`:
+        isosurfaces and cut planes (contract §7), composited with the volume in depth order."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -614,7 +633,7 @@ class Renderer:
         options, step_warnings = resolving_step(options, tf, self.data_ranges)
         warnings = warnings + step_warnings
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
             transfer.surf = self._surface_args(upload, fr, surfaces, options)
@@ -631,14 +650,15 @@ class Renderer:
             load_kernels(self.kernel_variant, self.device, options.precision,  # compiled outside the timed region
                          isosurfaces=bool(surfaces))
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, self._kernels(upload, bool(surfaces)))
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
+            lanes = _LaneCounts(kernels) if ray_counts else None
             for start in range(first, end, tile):
                 n = min(tile, end - start)
-                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit)
-                launch("finalize", kernels.finalize, n, [quad, start, buffers.rays, rgba, aux])
+                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes)
+                launch("finalize", n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n - first) / (end - first)) is False:
@@ -650,7 +670,9 @@ class Renderer:
             # without an int64 copy of them (the same integers: what the row costs and stats need)
             img = rgba[first:end].numpy().reshape(row1 - row0, W, 4)
             depth_err = aux[first:end].numpy().reshape(row1 - row0, W, 2)
-            row_counts = stats[first:end].numpy().reshape(row1 - row0, W, -1).sum(axis=1, dtype=np.int64)
+            ray_array = stats[first:end].numpy().reshape(row1 - row0, W, -1)
+            row_counts = ray_array.sum(axis=1, dtype=np.int64)
+            per_ray = ray_array.copy() if ray_counts else None
             counts = row_counts.sum(axis=0)
             row_cost = ray_cost(kernels, row_counts, W)
         if out is not None:
@@ -666,68 +688,91 @@ class Renderer:
                 "parameters": options.as_dict(), **_counter_stats(kernels, counts, end - first), "rounds": rounds,
                 **({"rows": [row0, row1]} if rows is not None else {}),
                 **({"kernel_seconds": launch.seconds} if profile else {}),
+                **({"lane_occupancy": lanes.occupancy()} if lanes is not None else {}),
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
-                            stats=info, row_cost=row_cost)
+                            stats=info, row_cost=row_cost, ray_counts=per_ray)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
-                    n: int, limit: tuple, record=None) -> int:
+                    n: int, limit: tuple, record=None, lanes: _LaneCounts | None = None) -> int:
         """Rays start .. start + n of the image, in rounds until none is left: search, traverse,
-        sample, integrate (or record(active rays): a trace keeps the segments instead).
-        Returns the rounds."""
-        kernels = upload.precision.kernels
+        sample, integrate (or record(active rays): a trace keeps the segments instead), the next
+        round's rays regrouped (_regroup). With `lanes`, the lanes of each search and traverse
+        launch that have work are counted. Returns the rounds."""
         rays, segs = buffers.rays, buffers.segs
-        launch("init_rays", kernels.init_rays, n, [cam, start, rays, *limit])
+        launch("init_rays", n, [cam, start, rays, *limit])
         active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
         rounds = 0
         while active > 0:
             rays.active_count.zero_()
             segs.list_count.zero_()
-            launch("search", upload.search, active, [upload.mesh_args, cam, start, rays])
-            launch("traverse", upload.traverse, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            if lanes is not None:
+                lanes.count("search", rays, active, start)
+            launch("search", active, [upload.mesh_args, cam, start, rays])
+            if self.regroup and active > WARP_SIZE:  # the rays that walk on by element, those done last
+                self._regroup(launch, buffers, active)
+            if lanes is not None:
+                lanes.count("traverse", rays, active, start)
+            launch("traverse", active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+            if lanes is not None:
+                lanes.walked(rays)
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
                 if listed and quad.method == METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
-                    launch("step_terms", kernels.step_terms, listed,
+                    launch("step_terms", listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
-                integrate = kernels.integrate_kernels(transfer.surf.n_iso + transfer.surf.n_planes > 0)[0]
-                launch("integrate", integrate, active, [upload.mesh_args, cam, transfer, quad, start, rays, segs])
+                launch("integrate", active,
+                       [upload.mesh_args, cam, transfer, quad, start, rays, segs])
             else:
                 record(active)
             rounds += 1
             active = int(rays.active_count.numpy()[0])
             rays.active, rays.active_next = rays.active_next, rays.active
+            if self.regroup and active > WARP_SIZE:  # the rays that search first
+                self._regroup(launch, buffers, active)
             if rounds > MAX_ROUNDS_PER_TILE:
                 raise RenderError(f"the traversal did not finish after {rounds} rounds ({active} rays "
                                   f"still going): a bug, please report it with the data")
         return rounds
 
+    def _regroup(self, launch: _Launcher, buffers: _TileBuffers, active: int):
+        """The list of rays (rays.active) sorted by kernels.regroup_keys: the rays that search first,
+        then by the element each walks into, then those whose walk is over, each group in pixel
+        order, so the lanes of a warp search together or walk the same element (the atomic
+        compaction that builds each round's list leaves the rays in any order on a GPU). Run before
+        each round's search and before its traverse. Each ray's work is its own: no image or count
+        changes."""
+        rays = buffers.rays
+        launch("regroup_keys", active, [rays, buffers.sort_keys, buffers.sort_values])
+        wp.utils.radix_sort_pairs(buffers.sort_keys, buffers.sort_values, active)
+        wp.copy(rays.active, buffers.sort_values, count=active)
+
     def _sample_segments(self, launch: _Launcher, upload: _Upload, cam, start: int, buffers: _TileBuffers) -> int:
         """The samples of the segments traverse listed, then their Chebyshev coefficients; curved
         interpolants whose tail is too large get their degree doubled (twice at most). Returns how
         many segments were listed."""
-        kernels = upload.precision.kernels
         rays, segs, again, again_count = buffers.rays, buffers.segs, buffers.again, buffers.again_count
         listed = int(segs.list_count.numpy()[0])
         if listed == 0:
             return 0
         stride = self._sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
-        launch("sample", upload.sample, listed * stride, [upload.mesh_args, cam, start, segs, segs.list, stride, 0])
+        launch("sample", listed * stride,
+               [upload.mesh_args, cam, start, segs, segs.list, stride, 0, rays.stats])
         if self._interpolants:
             slots, count, n_slots = segs.list, segs.list_count, listed
             for p in range(2):
                 again_count[p].zero_()
-                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
+                launch("refine", n_slots, [start, rays, segs, slots, count, again[p], again_count[p], 1])
                 n_slots = int(again_count[p].numpy()[0])
                 if n_slots == 0:
                     break
-                launch("sample", upload.sample, n_slots * odd_stride,
-                       [upload.mesh_args, cam, start, segs, again[p], odd_stride, 1])
+                launch("sample", n_slots * odd_stride,
+                       [upload.mesh_args, cam, start, segs, again[p], odd_stride, 1, rays.stats])
                 slots, count = again[p], again_count[p]
             if n_slots > 0:  # the last refined slots: their tails, no more doubling
-                launch("refine", kernels.refine, n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
-        launch("coefficients", kernels.coefficients, listed * stride, [segs, segs.list, stride])
+                launch("refine", n_slots, [start, rays, segs, slots, count, again[0], again_count[0], 0])
+        launch("coefficients", listed * stride, [segs, segs.list, stride])
         return listed
 
     # ------------------------------------------------------------------ the segment cache
@@ -783,7 +828,7 @@ class Renderer:
         fr, _, warnings = self.field_frame(tf, options.precision)
         key = self.trace_key(camera, options, (row0, row1), surface_key)
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, _DENSE_EVERYWHERE)
             quad = _quad_args(prec, options, np.zeros(3), upload, self.data_diagonal)
@@ -800,10 +845,9 @@ class Renderer:
                 store = _CacheStore(prec, end - first, base_bytes, what)
             except RuntimeError as exc:
                 raise SegmentCacheError(f"cannot allocate {what} on {self.device}: {exc}") from exc
-            load_modules([upload.search, upload.traverse, upload.sample, kernels.refine, kernels.init_rays,
-                          kernels.trace_reserve], self.device)
+            load_modules([upload.kernels[name] for name in kernels.TRACE_KERNELS], self.device)
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, upload.kernels)
             t0 = time.perf_counter()
             complete = True
             rounds = 0
@@ -814,13 +858,13 @@ class Renderer:
                 def record(active, ray_offset=start - first):
                     rays, segs = buffers.rays, buffers.segs
                     store.check_offsets(active)
-                    launch("trace_reserve", kernels.trace_reserve, active, [rays, segs, store.args(), reserved])
+                    launch("trace_reserve", active, [rays, segs, store.args(), reserved])
                     store.ensure(*(int(v) for v in store.counts.numpy()))
-                    launch("trace_write", kernels.trace_write, active * SEGMENTS_PER_ROUND,
+                    launch("trace_write", active * SEGMENTS_PER_ROUND,
                            [rays, segs, store.args(), reserved, last_chunk, ray_offset])
 
                 rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, record)
-                launch("trace_ends", kernels.trace_ends, n, [buffers.rays, store.args(), start - first])
+                launch("trace_ends", n, [buffers.rays, store.args(), start - first])
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n - first) / (end - first)) is False:
@@ -840,7 +884,7 @@ class Renderer:
               tile_pixels: int | None = None, profile: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """The render of the cache's view through `tf` (a TransferFunction or one per volume), with
         this background and these options, from the cached segments alone: one kernel, a thread per
-        ray, integrating as the render's integrate kernel does (kernels/raycast.py shade), so the
+        ray, integrating as the render's integrate kernel does (kernels/cache.py shade), so the
         image equals render(camera, tf, background, options) of the same view. SegmentCacheError
         where the cache does not fit: another renderer or field, a precision or a method family
         (riemann/trapezoid against classified/split) other than the trace's, a transfer function
@@ -871,7 +915,7 @@ class Renderer:
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
         limits.check_bytes(cache.nbytes + n * per_ray, f"a {W}x{row1 - row0} image shaded in {options.precision}")
         with wp.ScopedDevice(self.device):
-            cam = _camera_args(prec, camera)
+            cam = camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
             transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
@@ -883,17 +927,17 @@ class Renderer:
                 nonfinite = wp.zeros(1, dtype=wp.int32)
             except RuntimeError as exc:
                 raise RenderError(f"cannot allocate a {W}x{row1 - row0} image on {self.device}: {exc}") from exc
-            shade = kernels.integrate_kernels(bool(surfaces))[1]
-            load_modules([shade, kernels.sum_counts], self.device)
+            table = self._kernels(upload, bool(surfaces))
+            load_modules([table[name] for name in kernels.SHADE_KERNELS], self.device)
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile)
+            launch = _Launcher(self.device, profile, table)
             args = cache.args(kernels)
             t0 = time.perf_counter()
             tile = n if progress is None else max(1, int(tile_pixels or 65536))
             cancelled = False
             for start in range(0, n, tile):
                 k = min(tile, n - start)
-                launch("shade", shade, k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
+                launch("shade", k, [upload.mesh_args, cam, transfer, quad, row0 * W, start, args, rgba,
                                                    aux, counters, nonfinite])
                 if progress is not None:
                     wp.synchronize_device(self.device)
@@ -901,7 +945,7 @@ class Renderer:
                         cancelled = True
                         break
             threads = min(n, SUM_THREADS)
-            launch("sum_counts", kernels.sum_counts, threads, [counters, threads, sums])
+            launch("sum_counts", threads, [counters, threads, sums])
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
             if int(nonfinite.numpy()[0]) > 0 and not cancelled:
@@ -928,9 +972,7 @@ class _Upload:
     mesh_args: object  # kernels.MeshArgs
     gk: list  # Gauss-Kronrod nodes, Kronrod and Gauss weights
     gk_s: object  # the spectral integration matrix on the nodes
-    search: object
-    traverse: object
-    sample: object
+    kernels: dict  # every kernel by name, the walk's specialised for the mesh (kernels.kernel_table)
     field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
     field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
     gradient: tuple | None = None  # (field_key, the reference gradient on the device in that frame)
@@ -944,20 +986,66 @@ class _TileBuffers:
     segs: object  # kernels.Segments
     again: list  # per refine pass: the slots whose degree it doubled (their odd points to sample)
     again_count: list
+    sort_keys: object  # the next round's list and its keys while they are sorted (Renderer._regroup)
+    sort_values: object
     nbytes: int
 
 
-class _Launcher:
-    """wp.launch by kernel name; with `profile`, each launch is waited for and timed."""
+class _LaneCounts:
+    """For render(ray_counts=True): per kernel, the lanes of its launches' 32-lane groups (the
+    round's list in order, as a GPU's warps take it) that have work, over the lanes of the groups
+    that have any (occupancy 1: a warp's lanes all work; 1/32: one works while 31 wait); and the
+    traverse launches' divergence: over the groups with work, the mean of each group's largest
+    lane's walk work (Newton iterations and steps) over its lanes' mean. Read on the host around
+    the launches (a measurement: it waits for the device)."""
 
-    def __init__(self, device: str, profile: bool):
+    def __init__(self, kernels):
+        self.kernels = kernels
+        self.busy = {"search": 0, "traverse": 0}
+        self.lanes = {"search": 0, "traverse": 0}
+        self.walk_ratio, self.walk_groups = 0.0, 0
+        self._walking = None
+
+    def count(self, kernel: str, rays, active: int, pixel_offset: int):
+        ids = rays.active.numpy()[:active]
+        nxt, phase = rays.next_element.numpy()[ids], rays.phase.numpy()[ids]
+        work = (phase == 0) & ((nxt < 0) if kernel == "search" else (nxt >= 0))
+        groups = np.pad(work, (0, -active % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        self.busy[kernel] += int(groups.sum())
+        self.lanes[kernel] += WARP_SIZE * int(groups.any(axis=1).sum())
+        if kernel == "traverse":
+            self._walking = (ids + pixel_offset, self._walk_work(rays, ids + pixel_offset))
+
+    def _walk_work(self, rays, pixels):
+        c = rays.stats.numpy()[pixels]
+        return c[:, self.kernels.STAT_NEWTON_WALK].astype(np.int64) + c[:, self.kernels.STAT_WALKS]
+
+    def walked(self, rays):
+        """After a traverse launch: its lanes' work (counted since count("traverse", ...))."""
+        pixels, before = self._walking
+        work = np.pad(self._walk_work(rays, pixels) - before, (0, -len(pixels) % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        busy = work.max(axis=1) > 0
+        self.walk_ratio += float((work[busy].max(axis=1) / work[busy].mean(axis=1)).sum())
+        self.walk_groups += int(busy.sum())
+
+    def occupancy(self) -> dict:
+        out = {k: self.busy[k] / self.lanes[k] if self.lanes[k] else 1.0 for k in self.busy}
+        out["traverse_divergence"] = self.walk_ratio / self.walk_groups if self.walk_groups else 1.0
+        return out
+
+
+class _Launcher:
+    """wp.launch by kernel name (a name kernels.kernel_table lacks is a KeyError on any device);
+    with `profile`, each launch is waited for and timed."""
+
+    def __init__(self, device: str, profile: bool, kernels: dict):
         self.device = device
         self.profile = profile
-        self.seconds = {name: 0.0 for name in ("init_rays", "search", "traverse", "sample", "refine",
-                                               "coefficients", "step_terms", "integrate", "finalize", "trace_reserve",
-                                               "trace_write", "trace_ends", "shade", "sum_counts")}
+        self.kernels = kernels
+        self.seconds = {name: 0.0 for name in kernels}
 
-    def __call__(self, name: str, kernel, dim: int, inputs: list):
+    def __call__(self, name: str, dim: int, inputs: list):
+        kernel = self.kernels[name]
         t_launch = time.perf_counter()
         wp.launch(kernel, dim=dim, inputs=inputs)
         if self.profile:
@@ -965,7 +1053,7 @@ class _Launcher:
             self.seconds[name] += time.perf_counter() - t_launch
 
 
-def _camera_args(prec: Precision, camera: RayCamera):
+def camera_args(prec: Precision, camera: RayCamera):
     cam = prec.kernels.CameraArgs()
     for name in ("o0", "ou", "ov", "d0", "du", "dv"):
         setattr(cam, name, prec.vec3(*map(float, getattr(camera, name))))
@@ -1049,7 +1137,7 @@ _DENSE_EVERYWHERE = TransferFunction(np.zeros(1), np.zeros((1, 3)), np.zeros(1),
 
 
 def _camera_key(camera: RayCamera) -> tuple:
-    """What the kernels read of a camera (_camera_args), as plain numbers."""
+    """What the kernels read of a camera (camera_args), as plain numbers."""
     vectors = tuple(tuple(float(x) for x in np.asarray(getattr(camera, k), dtype=np.float64).reshape(3))
                     for k in ("o0", "ou", "ov", "d0", "du", "dv", "clip_axis"))
     return (int(camera.width), int(camera.height), vectors, float(camera.t_min), float(camera.t_max),
@@ -1251,6 +1339,33 @@ def ray_cost(kernels, counts: np.ndarray, rays: int | np.ndarray = 1) -> np.ndar
             + RAY_COST_BASE * np.asarray(rays, dtype=np.float64))
 
 
+def work_counts(kernels, ray_counts: np.ndarray) -> dict:
+    """The work counts of a render (RenderResult.ray_counts): per counter, its mean per ray and its
+    divergence, the mean over blocks of WARP_SIZE consecutive rays (a warp's rays in the first
+    round: pixels in row order) of the block's largest count over its mean (1: every ray of a
+    block works alike; blocks with no work are left out). Samples are field plus restriction
+    evaluations; `work` is ray_cost's estimate."""
+    c = np.asarray(ray_counts, dtype=np.int64).reshape(-1, kernels.NUM_STATS)
+    series = {"bvh_candidates": c[:, kernels.STAT_BVH_CANDIDATES],
+              "newton_search": c[:, kernels.STAT_NEWTON_SEARCH], "newton_walk": c[:, kernels.STAT_NEWTON_WALK],
+              "newton_sample": c[:, kernels.STAT_NEWTON_SAMPLE],
+              "element_locations": c[:, kernels.STAT_LOCATES], "segments": c[:, kernels.STAT_SEGMENTS],
+              "samples": c[:, kernels.STAT_FIELD_EVALS] + c[:, kernels.STAT_RESTRICTION_EVALS],
+              "walks": c[:, kernels.STAT_WALKS], "rounds": c[:, kernels.STAT_ROUNDS],
+              "work": ray_cost(kernels, c)}
+    rays = len(c)
+    out = {"rays": rays}
+    for name, v in series.items():
+        v = np.asarray(v, dtype=np.float64)
+        blocks = np.pad(v, (0, -rays % WARP_SIZE)).reshape(-1, WARP_SIZE)
+        fill = np.minimum(WARP_SIZE, rays - WARP_SIZE * np.arange(len(blocks)))  # the last block's rays
+        mean = blocks.sum(axis=1) / fill
+        busy = mean > 0
+        out[name] = {"per_ray": float(v.sum() / max(rays, 1)),
+                     "divergence": float((blocks.max(axis=1)[busy] / mean[busy]).mean()) if busy.any() else 1.0}
+    return out
+
+
 def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
     """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
     return {
@@ -1263,19 +1378,8 @@ def _counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
         "segments_piecewise_smooth": int(counts[kernels.STAT_PIECEWISE]),
         "curved_locates": int(counts[kernels.STAT_LOCATES]),
         "walks": int(counts[kernels.STAT_WALKS]),
+        "bvh_candidates": int(counts[kernels.STAT_BVH_CANDIDATES]),
+        "newton_iterations": int(counts[kernels.STAT_NEWTON_SEARCH] + counts[kernels.STAT_NEWTON_WALK]
+                                 + counts[kernels.STAT_NEWTON_SAMPLE]),
+        "ray_rounds": int(counts[kernels.STAT_ROUNDS]),
     }
-
-
-def render_view(view: View, mesh: VolumeMesh) -> RenderResult:
-    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
-    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
-    devices = expand_devices(view.options.device)
-    if len(devices) > 1:
-        from .multi_device import MultiDeviceRenderer
-
-        if view.surfaces:
-            raise RenderError("isosurfaces and planes render on one device; give one --device")
-        with MultiDeviceRenderer(mesh, devices) as r:
-            return r.render(view.camera, view.transfer_function, view.background, view.options)
-    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options,
-                                             surfaces=view.surfaces)

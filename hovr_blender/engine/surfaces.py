@@ -3,7 +3,7 @@ its volume integral ends, and what lies behind is the surface instead of the bac
 
 For the pixel's ray x(t) = o + t d (contract §4, |d| = 1), let t_s be the first hit of an
 opaque triangle with t in the camera's range (+inf where none). The volume is integrated over
-[0, t_s] only (Renderer.render(surface_t=...): kernels/raycast.py init_rays), which gives
+[0, t_s] only (Renderer.render(surface_t=...): kernels/rays.py init_rays), which gives
 C and T of contract §3 with the upper limit t_s, and the pixel is
 
     no hit:                 RGB = C + T background,   alpha = 1 - T   (contract §3, unchanged)
@@ -134,13 +134,13 @@ class SurfaceScene:
 
             from .kernels import surfaces as kernels
             from .kernels.precision import Precision
-            from .renderer import _camera_args
+            from .renderer import camera_args
 
             mesh = self._device_mesh()
             with wp.ScopedDevice(self.device):
                 t_out = wp.zeros(W * H, dtype=wp.float32)
                 face_out = wp.zeros(W * H, dtype=wp.int32)
-                wp.launch(kernels.cast_surfaces, dim=W * H, inputs=[mesh.id, _camera_args(Precision.named("float32"), camera), t_out,
+                wp.launch(kernels.cast_surfaces, dim=W * H, inputs=[mesh.id, camera_args(Precision.named("float32"), camera), t_out,
                                                                     face_out])
                 t = t_out.numpy().astype(np.float64).reshape(H, W)
                 face = face_out.numpy().astype(np.int64).reshape(H, W)

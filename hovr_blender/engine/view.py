@@ -112,6 +112,24 @@ class RenderOptions:
     def with_(self, **kw) -> "RenderOptions":
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
 
+    @property
+    def fixed_step(self) -> bool:
+        """Whether rays march with the fixed step h (the samples-per-ray limit applies)."""
+        return self.method != "split" and self.h is not None
+
+    def check_steps(self, data_diagonal: float):
+        """A fixed step against the samples-per-ray limit across the data (engine/limits.py)."""
+        if self.fixed_step:
+            limits.check_samples_per_ray(self.h, data_diagonal)
+
+    def image_bytes(self, width: int, height: int, num_stats: int = 0) -> int:
+        """Bytes of a render's per-pixel buffers: RGBA and depth/error on the device and their
+        host copies in this precision, num_stats counters (device int32, host int64) and 16
+        bytes more a pixel. Renderer.check_limits adds its launch tiles' ray buffers; without
+        Warp (num_stats 0) it is a lower bound, for refusing before Warp loads."""
+        itemsize = np.dtype(self.precision).itemsize
+        return int(width) * int(height) * ((4 + 2) * itemsize * 2 + 4 * num_stats + 8 * num_stats + 16)
+
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in ("method", "h", "tolerance", "min_transmittance", "inner", "device", "precision")}
 

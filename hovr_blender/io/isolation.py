@@ -4,8 +4,9 @@ library (libhdf5, expat, zlib) ends that process, never Blender or the `hovr` co
 Every parse of a data file (io.sources.load_volume, the field listing behind the import dialog,
 a Nektar++ mesh's composites for the walls) is a task of `reader_process.py`, run by `call` in a
 reader process of this package: `python -I -c BOOT` on this interpreter (Blender's own Python, not
-Blender: `interpreter`), with this process's module path, importing this package under its own
-name (the extension's `bl_ext.<repo>.hovr_blender` as `hovr_blender`). Nothing is pickled: a task's
+Blender: `interpreter`), with this process's module path, loading this package from its folder
+under this process's name for it (the extension's `bl_ext.<repo>.hovr_blender`) as the render
+devices' processes do (engine/bootstrap.py). Nothing is pickled: a task's
 arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtypes that this
 process reads into arrays it allocates after checking their sizes against the memory limit.
 
@@ -49,17 +50,14 @@ ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should
 ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
 
+# The package is loaded as the render devices' processes load it (engine/bootstrap.py, run from
+# its file: nothing of the package is importable before), under this process's name for it.
 BOOT = (
-    "import importlib.util, json, sys\n"
+    "import importlib, json, runpy, sys\n"
     "cfg = json.loads(sys.argv[1])\n"
     "sys.path[:] = cfg['path']\n"
-    "spec = importlib.util.spec_from_file_location('hovr_blender', cfg['init'], "
-    "submodule_search_locations=[cfg['package']])\n"
-    "package = importlib.util.module_from_spec(spec)\n"
-    "sys.modules['hovr_blender'] = package\n"
-    "spec.loader.exec_module(package)\n"
-    "from hovr_blender.io import reader_process\n"
-    "reader_process.main(cfg)\n"
+    "runpy.run_path(cfg['bootstrap'])['import_package'](cfg['package'], cfg['folder'])\n"
+    "importlib.import_module(cfg['package'] + '.io.reader_process').main(cfg)\n"
 )
 
 
@@ -227,9 +225,10 @@ class _Worker:
     """One reader process and its pipes."""
 
     def __init__(self):
-        package = _package_dir()
-        config = {"path": [p for p in sys.path if isinstance(p, str)], "package": str(package),
-                  "init": str(package / "__init__.py"), "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
+        folder = _package_dir()
+        config = {"path": [p for p in sys.path if isinstance(p, str)], "package": __name__.rsplit(".", 2)[0],
+                  "folder": str(folder), "bootstrap": str(folder / "engine" / "bootstrap.py"),
+                  "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
                   "address_slack": ADDRESS_SLACK, "death_signal": threading.current_thread() is threading.main_thread()}
         self.owner = os.getpid()
         self.log = tempfile.TemporaryFile(prefix="hovr-reader-")  # its stderr: kept for HOVR_DEBUG, never shown
@@ -549,17 +548,49 @@ class Request:
         return self._result
 
 
-def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
-    """Run reader_process.TASKS[task](**args) in a reader process and return its result; its
-    errors are raised here as the reader's own classes. `what`: the file named by failures before
-    the reader says which it opened; on_stage(text) at each stage; cancelled() -> True stops it."""
+class Finished:
+    """A task already run in this process (HOVR_ISOLATION=0, or a built-in dataset): a Request's
+    interface, done from the start."""
+
+    done = True
+    pid = None
+
+    def __init__(self, run, stage: str = "reading"):
+        self.stage = stage
+        self._result = self._error = None
+        try:
+            self._result = run()
+        except Exception as exc:  # noqa: BLE001  (raised by value(), as a Request's)
+            self._error = exc
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        return True
+
+    def cancel(self):
+        pass
+
+    def value(self):
+        if self._error is not None:
+            raise self._error
+        return self._result
+
+
+def start(task: str, args: dict, seconds: float | None = None, what: str = ""):
+    """reader_process.TASKS[task](**args) started in a reader process: a Request to poll (or a
+    Finished one where isolation is off). `what`: the file named by failures before the reader
+    says which it opened."""
     if not enabled():
         from .reader_process import TASKS
 
-        return TASKS[task](**args)
+        return Finished(lambda: TASKS[task](**args))
     if seconds is None:
         seconds = limits.current().max_read_seconds
-    request = Request(task, args, seconds, what)
+    return Request(task, args, seconds, what)
+
+
+def wait(request, on_stage=None, cancelled=None):
+    """The result of a started task, waited for here; its errors are raised here as the reader's
+    own classes. on_stage(text) at each stage; cancelled() -> True stops it."""
     stage = None
     try:
         while not request.poll(0.1):
@@ -572,6 +603,12 @@ def call(task: str, args: dict, seconds: float | None = None, what: str = "", on
         request.cancel()
         raise
     return request.value()
+
+
+def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
+    """Run reader_process.TASKS[task](**args) in a reader process and return its result (start,
+    then wait)."""
+    return wait(start(task, args, seconds, what), on_stage, cancelled)
 
 
 # ----------------------------------------------------------------------------- the tasks, called here
@@ -592,30 +629,50 @@ def _extra_formats() -> list:
     return out
 
 
-def read_volume(source, **kwargs):
-    """io.sources.read_volume(source) in a reader process."""
+def read_volume_request(source):
+    """io.sources.read_volume(source) started in a reader process (start)."""
     args = {"path": source.path, "solution": source.solution, "field": source.field, "component": source.component,
             "extra_formats": _extra_formats()}
-    return call("read_volume", args, what=source.path, **kwargs)
+    return start("read_volume", args, what=source.path)
 
 
-def list_fields(format_name: str, path, **kwargs):
+def read_volume(source, **progress):
+    """io.sources.read_volume(source) in a reader process."""
+    return wait(read_volume_request(source), **progress)
+
+
+def list_fields_request(format_name: str, path):
+    """list_fields started in a reader process (start)."""
+    return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
+                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path))
+
+
+def list_fields(format_name: str, path, **progress):
     """The fields a file offers (its format's list_fields: names, or {name: components} for the
     formats with vector fields), read in a reader process."""
-    return call("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path), **kwargs)
+    return wait(list_fields_request(format_name, path), **progress)
 
 
-def wall_choices(format_name: str, mesh_path, **kwargs) -> list:
+def wall_choices_request(format_name: str, mesh_path):
+    """wall_choices started in a reader process (start); its value as the reader sends it
+    (lists: wall_choices makes them tuples)."""
+    return start("wall_choices", {"format_name": format_name, "path": str(mesh_path),
+                                  "extra_formats": _extra_formats()},
+                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path))
+
+
+def wall_choices(format_name: str, mesh_path, **progress) -> list:
     """[(selection, label)] of a mesh's named boundaries (its format's boundaries(path).choices())."""
-    choices = call("wall_choices", {"format_name": format_name, "path": str(mesh_path),
-                                    "extra_formats": _extra_formats()},
-                   seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path), **kwargs)
-    return [tuple(c) for c in choices]
+    return [tuple(c) for c in wait(wall_choices_request(format_name, mesh_path), **progress)]
 
 
-def wall_faces(format_name: str, mesh_path, selection: str, **kwargs):
+def wall_faces_request(format_name: str, mesh_path, selection: str):
+    """wall_faces started in a reader process (start)."""
+    return start("wall_faces", {"format_name": format_name, "path": str(mesh_path), "selection": selection,
+                                "extra_formats": _extra_formats()}, what=str(mesh_path))
+
+
+def wall_faces(format_name: str, mesh_path, selection: str, **progress):
     """The faces of a selection of a mesh's named boundaries (boundaries(path).select(selection)),
     read in a reader process."""
-    return call("wall_faces", {"format_name": format_name, "path": str(mesh_path), "selection": selection,
-                               "extra_formats": _extra_formats()}, what=str(mesh_path), **kwargs)
+    return wait(wall_faces_request(format_name, mesh_path, selection), **progress)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..engine import expansions as ex
-from ..engine import shapes
+from ..engine import shapes, validity
 from ..engine.mesh import MeshError, VolumeMesh
 
 # relative interpolation error bounds of the default flow at order 6, by cells across the block
@@ -145,8 +145,8 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
     prisms, field fitted with order + 1 modes per direction. curved=False: the straight mesh
     (2 geometry modes, affine elements). func(x, y, z): another field instead of the flow.
     ``block_cells`` fixes b (cells across the block; else chosen for a ~10:6:2 channel).
-    ``curvature`` scales the displacement. MeshError if an element's Jacobian determinant is
-    not positive at every geometry and field fit point.
+    ``curvature`` scales the displacement. MeshError if an element is not certified valid
+    (engine/validity.py).
 
     The returned mesh carries ``mesh.paper_scale``: counts, grid, the map and the source field."""
     if order < 1 or order + 1 > 15:
@@ -172,7 +172,7 @@ def paper_scale_mesh(n_hex: int = 3400, n_prism: int = 7600, order: int = 6, cur
             continue
         G2 = np.einsum("kv,evc->ekc", _vertex_inverse(shape), V)  # straight geometry (ne, K2, 3)
         G = _mapped_geometry(shape, geometry_modes, G2, cmap) if curved else G2
-        _check_jacobians(shape, geometry_modes, G, [geometry_modes, field_modes])
+        _check_jacobians(shape, geometry_modes, G, len(geoms) + np.arange(len(G)))
         field_points = ex.fit_points(shape, field_modes)
         X = np.einsum("pk,ekc->epc", ex.basis_matrix(shape, geometry_modes, field_points), G)
         vals = np.asarray(source(X[..., 0], X[..., 1], X[..., 2]), dtype=np.float64)  # (ne, P)
@@ -277,21 +277,19 @@ def jacobian_determinants(shape, geometry_modes, G, pts) -> np.ndarray:
     return np.moveaxis(np.linalg.det(J), 0, 1)
 
 
-def _check_jacobians(shape, geometry_modes, G, mode_sets):
-    pts = np.concatenate([ex.fit_points(shape, ms) for ms in mode_sets])
-    det = jacobian_determinants(shape, geometry_modes, G, pts)
-    ref = np.abs(det).max()
-    bad = np.nonzero(det.min(axis=1) <= 1e-9 * ref)[0]
-    if bad.size:
-        raise MeshError(f"{bad.size} {shapes.NAMES[shape]} elements have a non-positive Jacobian "
-                        f"(min det {det.min():.3g}): lower the curvature")
+def _check_jacobians(shape, geometry_modes, G, ids):
+    """MeshError for the first element not certified valid (engine/validity.py), named by ids."""
+    try:
+        validity.check_elements(shape, geometry_modes, G, ids)
+    except MeshError as exc:
+        raise MeshError(f"{exc}: lower the curvature") from None
 
 
 def curved_copy(mesh: VolumeMesh, displacement, geom_modes: int = 3) -> VolumeMesh:
     """The same elements and field coefficients on geometry x + displacement(x), for a mesh of
     straight affine elements of any shape (e.g. io/synthetic.mixed_cube). The displacement
     must be a polynomial of total degree < geom_modes, so every curved map is exact and the
-    result stays conforming (MeshError otherwise, or for a non-positive Jacobian). The field
+    result stays conforming (MeshError otherwise, or for an element not certified valid). The field
     keeps its reference-space coefficients: it moves with the geometry."""
     if mesh.geom_coeffs is None or mesh.affine is None or not mesh.affine.all():
         raise MeshError("curved_copy needs a mesh of straight affine elements with modal geometry")
@@ -311,7 +309,7 @@ def curved_copy(mesh: VolumeMesh, displacement, geom_modes: int = 3) -> VolumeMe
             raise MeshError("curved_copy needs 2 geometry modes (straight elements)")
         G2 = mesh.geom_coeffs[mesh.geom_offset[idx][:, None] + np.arange(k2)[None, :]]
         G = _mapped_geometry(shape, modes, G2, phi)
-        _check_jacobians(shape, modes, G, [modes, tuple(mesh.modes[idx[0]])])
+        _check_jacobians(shape, modes, G, idx)
         for j, e in enumerate(idx):
             geoms[e] = G[j]
     return VolumeMesh.from_elements(mesh.shape, mesh.modes, [mesh.element_coeffs(e) for e in range(n)],

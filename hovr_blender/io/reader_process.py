@@ -77,32 +77,6 @@ def _die_with_parent(parent: int, death_signal: bool):
         os._exit(0)
 
 
-def _address_space() -> int | None:
-    """This process's address space now, in bytes (Linux), else None."""
-    try:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _limit_memory(max_memory: int, slack: int):
-    """The address space may grow by the memory limit during this task (Linux: RLIMIT_AS)."""
-    now = _address_space()
-    if now is None:
-        return
-    try:
-        import resource
-
-        _, hard = resource.getrlimit(resource.RLIMIT_AS)
-        soft = now + max_memory + slack
-        if hard != resource.RLIM_INFINITY:
-            soft = min(soft, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-    except (ImportError, ValueError, OSError):
-        pass
-
-
 def _read_exact(fd: int, n: int) -> bytes | None:
     out = bytearray()
     while len(out) < n:
@@ -123,7 +97,7 @@ def _run(request: dict, out: int, config: dict):
     isolation.send(out, {"stage": "reading"})  # the parent's time limit starts now
     task = TASKS[request["task"]]
     lim = limits.ResourceLimits(**request["limits"])
-    _limit_memory(lim.max_memory, int(config["address_slack"]))
+    limits.cap_address_space(lim.max_memory + int(config["address_slack"]))
     if hasattr(signal, "setitimer"):  # SIGALRM's default action ends the process, C loops included
         signal.setitimer(signal.ITIMER_REAL, float(request["seconds"]) + float(config["alarm_grace"]))
     try:
@@ -143,6 +117,7 @@ def _run(request: dict, out: int, config: dict):
 
 def main(config: dict):
     faulthandler.enable(sys.stderr)  # a crash's C stack goes to the log the parent keeps
+    limits.own_address_space()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     _die_with_parent(int(config["parent"]), bool(config["death_signal"]))
     out = os.dup(1)

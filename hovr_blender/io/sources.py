@@ -118,10 +118,16 @@ def load_volume(source: VolumeSource, **progress) -> VolumeMesh:
     reader process (io/isolation.py; `progress`: its on_stage and cancelled). Nektar++ field
     "|u,v,w|" and a VTU vector (the default for vector arrays) are magnitudes derived from the
     exact components (io/derived.py); `component` picks one component of a vector instead."""
+    return isolation.wait(volume_request(source), **progress)
+
+
+def volume_request(source: VolumeSource):
+    """load_volume started, not waited for: an isolation.Request to poll (a built-in dataset is
+    made here, isolation.Finished). A missing file or an unknown format is raised now."""
     if source.path.startswith("builtin:"):
-        return read_volume(source)
+        return isolation.Finished(lambda: read_volume(source))
     file_format(source)
-    return isolation.read_volume(source, **progress)
+    return isolation.read_volume_request(source)
 
 
 def file_format(source: VolumeSource):
@@ -162,6 +168,17 @@ _MESHES = LRUCache(6)  # several volumes in one scene, each with its previous fr
 def cached_volume(source: VolumeSource) -> VolumeMesh:
     """load_volume(source), read again only when source.key changes."""
     return _MESHES.get(source.key, lambda: load_volume(source))
+
+
+def cached_volume_steps(source: VolumeSource):
+    """cached_volume for a caller that must not wait (Blender's modal import): a generator that
+    yields the reader's request (volume_request) only when the mesh is not cached, is sent its
+    value, and returns the mesh, now cached."""
+    mesh = _MESHES.get(source.key)
+    if mesh is None:
+        mesh = yield volume_request(source)
+        _MESHES.put(source.key, mesh)
+    return mesh
 
 
 def clear_cache():

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 DENSITY_UNITS = ("RELATIVE", "WORLD")
+# Blender's default camera looks at the origin from (7.36, -6.93, 4.96): new cameras keep that view.
+DEFAULT_VIEW = (-7.36, 6.93, -4.96)
 
 
 def box_corners(lo, hi) -> np.ndarray:

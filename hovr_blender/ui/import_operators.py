@@ -12,8 +12,11 @@ record or composite where the reader can tell). Add Walls (hovr.add_walls) makes
 for a volume already imported. Importing never changes another volume. By default the scene
 camera (made if there is none) then frames the new volume.
 
-The reading runs in Blender's main thread, its stages in the progress bar (a thread left
-running after the operator returns is not supported by Blender: jobs.py says why).
+From the file browser the import is modal (ModalImport): the reader process reads while a
+window-manager timer polls it, the status bar shows the stage, and Esc or right-click cancels
+(the reader is killed; nothing was made). A script's import (bpy.ops...(filepath=...),
+EXEC_DEFAULT) and a redo read to the end before returning, as before. No thread either way (a
+thread left running after the operator returns is not supported by Blender: jobs.py says why).
 
 The object stores the data's path relative to the saved .blend ('//'); a save handler keeps
 that true when the .blend is first saved or saved elsewhere (Blender's own relative-path
@@ -29,9 +32,9 @@ from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
 from ..io import formats, isolation
-from ..io.sources import VolumeSource, cached_volume, parse_component
+from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, parse_component
 from . import compat, operators
-from .jobs import Job, summarise_warnings
+from .jobs import Job, Listings, summarise_warnings
 from .render import failure_text, volume_extent, volume_points
 from .scene import field_samples
 
@@ -110,21 +113,47 @@ class ImportRead:
     walls: object = None  # engine.walls.Walls (Walls as Mesh)
 
 
-def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
+class _Unlisted(Exception):
+    """Format.choose needs the fields of a file not listed yet (_choose lists it, then asks again)."""
+
+    def __init__(self, path):
+        super().__init__(path)
+        self.path = path
+
+
+def _choose(data_format, request: ImportRequest):
+    """data_format.choose's defaults for the request, a file's fields listed in the reader
+    process: a generator that yields the listing's request (read_import)."""
+    listed = {}
+
+    def list_fields(path):
+        if path not in listed:
+            raise _Unlisted(path)
+        return listed[path]
+
+    while True:
+        try:
+            return data_format.choose(request.path, request.solution, request.field, request.component,
+                                      list_fields=list_fields)
+        except _Unlisted as missing:
+            listed[missing.path] = yield isolation.list_fields_request(data_format.name, missing.path)
+
+
+def read_import(request: ImportRequest, step=lambda stage: None):
     """Everything an import reads and computes, with no bpy: the solution and field, the data
     (kept in io.sources' cache for the first render), its extent and corner points (the panel's
     step, Frame Camera), the sampled field (Fit Value Range) and the walls. step(stage) is called
-    before each stage (a jobs.Job's step: the progress bar)."""
+    before each stage (a jobs.Job's step: the progress bar). A generator (a jobs.Job's work): it
+    yields each reader task it waits for, and returns an ImportRead."""
     step("finding the solution and field")
     data_format = formats.named(request.kind)
     if data_format.components:
         parse_component(request.component)  # a bad entry is reported before the file is read
-    choice = data_format.choose(request.path, request.solution, request.field, request.component,
-                                list_fields=lambda path: isolation.list_fields(data_format.name, path))
+    choice = yield from _choose(data_format, request)
     step("reading the data")
     source = VolumeSource.resolve(request.path, choice.solution, choice.field, request.frame,
                                   component=choice.component)
-    mesh = cached_volume(source)
+    mesh = yield from cached_volume_steps(source)
     step("measuring the volume")
     volume_extent(source)
     volume_points(source)
@@ -134,13 +163,16 @@ def read_import(request: ImportRequest, step=lambda stage: None) -> ImportRead:
         values = field_samples(mesh)
     if request.walls:
         step("tessellating the walls")
-        walls = make_walls(mesh, request.path, request.walls_from, request.walls_tolerance)
+        faces_read = wall_faces_request(request.path, request.walls_from)
+        faces = None if faces_read is None else (yield faces_read)
+        walls = tessellate_walls(mesh, faces, request.walls_tolerance)
     return ImportRead(request, source, mesh, choice.solution, choice.field, choice.component, list(choice.notes),
                       list(choice.warnings), values, walls)
 
 
 def import_job(request: ImportRequest, on_step=None) -> Job:
-    """The import's reading as a Job (run() it), on_step(job) called at each stage."""
+    """The import's reading as a Job (run() it, or start() and advance() it), on_step(job)
+    called at each stage."""
     return Job(lambda job: read_import(request, job.step), f"importing {os.path.basename(request.path)}",
                steps=request.steps, on_step=on_step)
 
@@ -177,8 +209,10 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         context.view_layer.objects.active = obj
     if read.values is not None and read.values.size:
         warning = operators.fit_value_range(obj, context.scene, read.values)[3]
-        if warning:
+        if warning:  # a constant field keeps the smooth ramp: there is no structure to place a look by
             warnings.append(warning)
+        else:
+            operators.apply_look(obj, read.values)  # the first picture's look, chosen from the data
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart
@@ -199,7 +233,8 @@ class _ImportVolume(ImportHelper):
     bl_options = {'REGISTER', 'UNDO', 'PRESET'}
 
     fit_range: BoolProperty(name="Fit Value Range", default=True,
-                            description="Set the new volume's Value Min/Max to its field's range")
+                            description="Set the new volume's Value Min/Max to its field's range, and its look "
+                                        "from the field's values (shells at their 10, 50 and 90 % quantiles)")
     frame: BoolProperty(name="Frame Camera", default=True,
                         description="Point the scene camera (a new one if there is none) at the HOVR volumes and "
                                     "set its clip start/end from their size")
@@ -222,12 +257,17 @@ class _ImportVolume(ImportHelper):
 
     def invoke(self, context, event):
         isolation.prestart()  # the reader process starts while the user picks a file
+        self.from_file_browser = True  # the browser's execute() then imports modally (Esc cancels)
         return super().invoke(context, event)
 
     def execute(self, context):
         path = os.path.abspath(bpy.path.abspath(self.filepath))
         request = self.request(context, path)
-        wm = context.window_manager
+        if getattr(self, "from_file_browser", False) and context.window is not None:
+            self.from_file_browser = False  # a redo of this operator (the same instance) runs here, to the end
+            self.modal_import = ModalImport(self, context, request, self.frame)
+            return self.modal_import.begin(context)
+        wm = context.window_manager  # a script's import (EXEC_DEFAULT), or a redo: to the end here
         job = import_job(request, on_step=lambda j: wm.progress_update(j.step_index))
         wm.progress_begin(0, request.steps)
         try:
@@ -236,6 +276,99 @@ class _ImportVolume(ImportHelper):
             wm.progress_end()
         return finish_import(self, context, request, job, self.frame)
 
+    def modal(self, context, event):
+        return self.modal_import.on_event(context, event)
+
+    def cancel(self, context):
+        """Blender ends the modal import (a file loaded, the window closed): the reader stops."""
+        self.modal_import.stop(context)
+
+
+class ModalImport:
+    """An import from the file browser, read while Blender stays responsive: a window-manager
+    timer polls the reader process (jobs.Job.advance), the status bar and the progress cursor
+    show the stage, Esc or right-click cancels it (the reader is killed, nothing was made, one
+    line in the report). Only the finished read creates objects (finish_import). No thread:
+    the reading is a process, the rest runs in this, the main, thread between events."""
+
+    CANCEL_EVENTS = ('ESC', 'RIGHTMOUSE')
+    INTERVAL = 0.1  # seconds between polls
+
+    def __init__(self, op, context, request: ImportRequest, frame_camera: bool = True):
+        self.op, self.request, self.frame_camera = op, request, frame_camera
+        self.timer = None
+        self.job = import_job(request, on_step=self._progress)
+        self.context = None  # the context of the event being handled (a step's progress goes there)
+        self.phases: list = []  # each phase shown (jobs.Job.phase), in order
+
+    def begin(self, context) -> set:
+        """Start the read and the timer, as the operator's execute() (or invoke()) returns."""
+        wm = context.window_manager
+        wm.progress_begin(0, self.request.steps)
+        self.context = context
+        try:
+            self.job.start()
+        finally:
+            self.context = None
+        if self.job.done:  # nothing to wait for (a cached mesh), or a failure before the read
+            return self._end(context)
+        self.timer = wm.event_timer_add(self.INTERVAL, window=context.window)
+        wm.modal_handler_add(self.op)
+        self._show(context)
+        return {'RUNNING_MODAL'}
+
+    def on_event(self, context, event) -> set:
+        """The operator's modal(): a timer tick polls the reader; Esc or right-click cancels;
+        other events pass through (the viewport stays usable)."""
+        if event.type in self.CANCEL_EVENTS and event.value == 'PRESS':
+            self.job.cancel()
+            self._cleanup(context)
+            self.op.report({'WARNING'}, f"HOVR: import of {os.path.basename(self.request.path)} cancelled "
+                                        f"({self.job.stage}); nothing was made")
+            return {'CANCELLED'}
+        if event.type == 'TIMER':
+            self.context = context
+            try:
+                self.job.advance(0.0)
+            finally:
+                self.context = None
+            if self.job.done:
+                return self._end(context)
+            self._show(context)
+        return {'PASS_THROUGH'}
+
+    def stop(self, context):
+        """Cancelled by Blender (a file loaded, the window closed)."""
+        self.job.cancel()
+        self._cleanup(context)
+
+    def _progress(self, job):
+        if self.context is not None:
+            self.context.window_manager.progress_update(job.step_index)
+            self._show(self.context)
+
+    def _show(self, context):
+        if not self.phases or self.phases[-1] != self.job.phase():
+            self.phases.append(self.job.phase())
+        text = f"HOVR: {self.job.title}: {self.job.status()} (Esc to cancel)"
+        workspace = getattr(context, "workspace", None)
+        if workspace is not None:
+            workspace.status_text_set(text)
+
+    def _end(self, context) -> set:
+        self._cleanup(context)
+        return finish_import(self.op, context, self.request, self.job, self.frame_camera)
+
+    def _cleanup(self, context):
+        wm = context.window_manager
+        if self.timer is not None:
+            wm.event_timer_remove(self.timer)
+            self.timer = None
+        wm.progress_end()
+        workspace = getattr(context, "workspace", None)
+        if workspace is not None:
+            workspace.status_text_set(None)
+
 
 def _with_boundaries(path: str):
     """The format of `path` if it names boundary faces (Nektar++'s composites and regions), else None."""
@@ -243,18 +376,30 @@ def _with_boundaries(path: str):
     return data_format if data_format is not None and data_format.boundaries is not None else None
 
 
+def wall_faces_request(path: str, selection: str):
+    """The reader task (started) that finds a selection's faces (C[...], B[...] or names: a
+    Nektar++ file's composites or boundary regions), or None for an empty selection (every
+    boundary face)."""
+    if not selection.strip():
+        return None
+    data_format = _with_boundaries(path)
+    if data_format is None:
+        which = " or ".join(f"{f.label} mesh's ({', '.join(f.extensions)})" for f in formats.FORMATS if f.boundaries)
+        raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a {which}, "
+                         f"not {os.path.basename(path) or path}'s; leave the selection empty for all boundary "
+                         "faces")
+    return isolation.wall_faces_request(data_format.name, path, selection)
+
+
 def make_walls(mesh, path: str, selection: str, relative_tolerance: float):
     """core_walls.Walls of the volume `mesh` read from `path`: its boundary faces, or with a
     selection (C[...], B[...] or names) those of a Nektar++ file's composites or boundary regions."""
-    faces = None
-    if selection.strip():
-        data_format = _with_boundaries(path)
-        if data_format is None:
-            which = " or ".join(f"{f.label} mesh's ({', '.join(f.extensions)})" for f in formats.FORMATS if f.boundaries)
-            raise ValueError(f"walls from {selection.strip()!r}: composites and boundary regions are a {which}, "
-                             f"not {os.path.basename(path) or path}'s; leave the selection empty for all boundary "
-                             "faces")
-        faces = isolation.wall_faces(data_format.name, path, selection)
+    faces_read = wall_faces_request(path, selection)
+    return tessellate_walls(mesh, None if faces_read is None else isolation.wait(faces_read), relative_tolerance)
+
+
+def tessellate_walls(mesh, faces, relative_tolerance: float):
+    """core_walls.Walls of `faces` (None: every boundary face) within the relative tolerance."""
     return core_walls.tessellate(mesh, core_walls.default_tolerance(mesh, relative_tolerance), faces=faces)
 
 
@@ -291,9 +436,29 @@ def create_walls_object(context, volume, walls, name=None):
     return obj
 
 
-# The file browser redraws the operator's panel often: field-file scans per folder and field
-# names per file are remembered (by modification time) so drawing stays cheap.
+# The file browser redraws the operator's panel often: field-file scans per folder are
+# remembered (by modification time) so drawing stays cheap; a file's fields and composites are
+# read by the reader process without waiting for it (LISTINGS), a timer redrawing when they come.
 _SCAN_CACHE: dict = {}
+LISTINGS = Listings()
+LISTING_POLL_SECONDS = 0.1
+
+
+def _poll_listings():
+    """bpy.app.timers: redraw the windows when a listing came in; again while any is read."""
+    if LISTINGS.poll():
+        for window in bpy.context.window_manager.windows:
+            for area in window.screen.areas:
+                area.tag_redraw()
+    return LISTING_POLL_SECONDS if LISTINGS.waiting else None
+
+
+def _listed(kind: str, path: str, start, finish=lambda value: value):
+    """LISTINGS.get, with the timer that redraws the dialog once the reader has answered."""
+    value = LISTINGS.get(kind, path, path, start, finish)
+    if value is Listings.PENDING and not bpy.app.timers.is_registered(_poll_listings):
+        bpy.app.timers.register(_poll_listings, first_interval=LISTING_POLL_SECONDS)
+    return value
 
 
 def _cached(key, stamp_path, compute):
@@ -322,8 +487,12 @@ WALLS_FROM_DESCRIPTION = ("Which faces become the walls: empty for all the domai
 
 def draw_wall_choices(layout, path, data_format):
     """The composites and boundary regions a Nektar++ mesh offers for Walls From."""
-    choices = _cached(("walls", path), path, lambda: isolation.wall_choices(data_format.name, path))
+    choices = _listed("walls", path, lambda: isolation.wall_choices_request(data_format.name, path),
+                      lambda value: [tuple(c) for c in value])
     box = layout.box()
+    if choices is Listings.PENDING:
+        box.label(text="Reading the file's composites...", icon='TIME')
+        return
     if choices is None:
         box.label(text="Cannot list the file's composites (importing says why)", icon='ERROR')
         return
@@ -410,8 +579,10 @@ def draw_solution_choice(layout, path, data_format):
         return
     box.label(text=f"Solution: {picked.name}", icon='CHECKMARK')
     box.label(text=why[:60])
-    fields = _cached(("fields", str(picked)), str(picked), lambda: list(isolation.list_fields(data_format.name, picked)))
-    if fields:
+    fields = _listed("fields", str(picked), lambda: isolation.list_fields_request(data_format.name, picked), list)
+    if fields is Listings.PENDING:
+        box.label(text="Fields: reading...", icon='TIME')
+    elif fields:
         box.label(text="Fields: " + ", ".join(fields[:8]))
     for p in [p for p in others if p != picked][:5]:
         box.label(text=f"also: {p.name}", icon='FILE')
@@ -547,3 +718,6 @@ def unregister():
     for cls in (HOVR_OT_add_walls, *reversed(OPERATORS.values())):
         bpy.utils.unregister_class(cls)
     OPERATORS.clear()
+    if bpy.app.timers.is_registered(_poll_listings):
+        bpy.app.timers.unregister(_poll_listings)
+    LISTINGS.cancel()

@@ -19,23 +19,40 @@ def legend_for_region(scene, region, space) -> Legend | None:
     """The layout to draw in this 3D view region, or None (another engine or shading, the legend
     off, no volume, a look that cannot be drawn). The legend is the active volume's, else the
     scene's first."""
-    from .render import legend_volume_inputs
-
     if scene is None or scene.render.engine != 'HOVR' or not getattr(scene.hovr, "show_legend", False):
         return None
     if space is None or space.type != 'VIEW_3D' or space.shading.type != 'RENDERED':
         return None
-    active = bpy.context.view_layer.objects.active if bpy.context.view_layer is not None else None
+    world = scene.world.color if scene.world is not None else (0.0, 0.0, 0.0)
+    area = getattr(bpy.context, "area", None)
+    top = covered_top(region, area.regions if area is not None else ())
+    try:
+        return scene_legend(scene, bpy.context.view_layer, region.width, region.height, world, top)
+    except ValueError:
+        return None  # the render reports what is wrong with the look
+
+
+def covered_top(region, regions) -> int:
+    """How many pixels at the top of the 3D view's `region` other regions of its area cover
+    (with Region Overlap, the tool header lies over the view: the legend's title went under it)."""
+    top = region.y + region.height
+    covered = [r for r in regions if r.type in ("HEADER", "TOOL_HEADER") and r.height > 1
+               and region.y <= r.y < top and r.x < region.x + region.width and r.x + r.width > region.x]
+    return int(top - min(r.y for r in covered)) if covered else 0
+
+
+def scene_legend(scene, view_layer, width: int, height: int, background, top: int = 0) -> Legend | None:
+    """The legend of the active volume (else the scene's first) for a width x height image, or
+    None without a volume; ValueError where its look cannot be drawn."""
+    from .render import legend_volume_inputs
+
+    active = view_layer.objects.active if view_layer is not None else None
     obj = active if active is not None and active.hovr.is_volume else None
     obj = obj or next((o for o in scene.objects if o.hovr.is_volume), None)
     if obj is None:
         return None
-    try:
-        tf, value_min, value_max, title = legend_volume_inputs(obj, scene)
-        world = scene.world.color if scene.world is not None else (0.0, 0.0, 0.0)
-        return legend_layout(tf, value_min, value_max, title, region.width, region.height, world)
-    except ValueError:
-        return None  # the render reports what is wrong with the look
+    tf, value_min, value_max, title = legend_volume_inputs(obj, scene)
+    return legend_layout(tf, value_min, value_max, title, width, height, background, top=top)
 
 
 def bar_triangles(legend: Legend, region_height: int):

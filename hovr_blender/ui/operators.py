@@ -8,7 +8,7 @@ import numpy as np
 from ..engine.cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
-from .scene import DEFAULT_PRESET, TF_PRESETS, field_samples, value_histogram, value_range
+from .scene import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_histogram, value_range
 
 
 def field_range(mesh, samples: int = 9):
@@ -133,9 +133,9 @@ class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
         return {'FINISHED'}
 
 
-def fit_value_range(obj, scene, values=None):
-    """Set the volume's Value Min/Max to its field's sampled range (scene.value_range: a field
-    constant up to rounding gets a range around its value); returns (lo, hi, samples, warning)."""
+def volume_samples(obj, scene, values=None):
+    """The volume's sampled field values (kept in SAMPLES for the histogram): `values` where the
+    caller has them, else the cached ones, else sampled now."""
     source = volume_source(obj, scene)
     if values is None:
         values = SAMPLES.get(source.key)
@@ -144,6 +144,13 @@ def fit_value_range(obj, scene, values=None):
     if values.size == 0:
         raise ValueError(f"{obj.name!r} has no finite field values")
     SAMPLES.put(source.key, values)
+    return values
+
+
+def fit_value_range(obj, scene, values=None):
+    """Set the volume's Value Min/Max to its field's sampled range (scene.value_range: a field
+    constant up to rounding gets a range around its value); returns (lo, hi, samples, warning)."""
+    values = volume_samples(obj, scene, values)
     lo, hi, warning = value_range(values)
     obj.hovr.value_min, obj.hovr.value_max = lo, hi
     return lo, hi, values.size, warning
@@ -172,8 +179,6 @@ class HOVR_OT_fit_value_range(_OnVolume, bpy.types.Operator):
 
 # ------------------------------------------------------------------------------------ framing
 
-# Blender's default camera looks at the origin from (7.36, -6.93, 4.96): new cameras keep that view.
-DEFAULT_VIEW = (-7.36, 6.93, -4.96)
 
 
 def volume_points(obj, scene):
@@ -196,7 +201,7 @@ def frame_volumes(context, objects, margin: float = 1.1):
     from mathutils import Matrix
 
     from .camera import ray_camera_from_blender
-    from .framing import clip_planes, fit_view, look_at_matrix
+    from .framing import DEFAULT_VIEW, clip_planes, fit_view, look_at_matrix
 
     scene = context.scene
     corners = np.concatenate([volume_points(o, scene) for o in objects])
@@ -276,8 +281,23 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
         return {'FINISHED'}
 
 
-# Explicit indices: saved operator presets and keymaps keep working if items are reordered.
-PRESET_ITEMS = tuple((key, label, desc, i) for i, (key, (label, desc, _)) in enumerate(TF_PRESETS.items()))
+def apply_look(obj, values, look: str = FIRST_LOOK):
+    """Give the volume a look chosen from its field's samples (scene.FIRST_LOOKS) over its Value
+    Min/Max: the ramp's stops and Density (across the volume)."""
+    stops, density = FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max)
+    if obj.hovr.transfer_function is None:
+        obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
+    obj.hovr.transfer_function.use_color_ramp = True
+    set_ramp_stops(obj.hovr.transfer_function.color_ramp, stops)
+    obj.hovr.density, obj.hovr.density_units = density, 'RELATIVE'
+
+
+# The fixed ramps, then the looks chosen from the data (placed by the field's samples over Value
+# Min/Max, with their Density). Explicit indices: saved operator presets and keymaps keep working
+# if items are reordered.
+PRESET_ITEMS = tuple((key, label, desc, i) for i, (key, (label, desc, _)) in enumerate(TF_PRESETS.items())) + tuple(
+    (key, f"{label} (from data)", " ".join(fn.__doc__.split()), len(TF_PRESETS) + i)
+    for i, (key, (label, _, fn)) in enumerate((k, v) for k, v in FIRST_LOOKS.items() if k not in TF_PRESETS))
 
 
 class HOVR_OT_transfer_function_preset(_OnVolume, bpy.types.Operator):
@@ -293,6 +313,13 @@ class HOVR_OT_transfer_function_preset(_OnVolume, bpy.types.Operator):
         obj = _volume_object(context)
         if obj.hovr.transfer_function is None:
             obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
+        if self.preset not in TF_PRESETS:  # a look from the data
+            try:
+                apply_look(obj, volume_samples(obj, context.scene), self.preset)
+            except Exception as exc:  # the data cannot be read: say so, change nothing
+                self.report({'ERROR'}, f"HOVR: {exc}")
+                return {'CANCELLED'}
+            return {'FINISHED'}
         texture = obj.hovr.transfer_function
         texture.use_color_ramp = True
         set_ramp_stops(texture.color_ramp, TF_PRESETS[self.preset][2])

@@ -106,6 +106,7 @@ class HOVR_RENDER_PT_film(HovrButtonsPanel, bpy.types.Panel):
         layout.prop(scene.render, "film_transparent")
         layout.prop(scene.hovr, "surfaces")
         layout.prop(scene.hovr, "show_legend")
+        layout.prop(scene.hovr, "legend_in_render")
         layout.operator("hovr.setup_compositing", icon='NODE_COMPOSITING')
         if scene.world is not None:
             row = layout.row()

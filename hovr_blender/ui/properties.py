@@ -99,6 +99,9 @@ class HovrRenderSettings(bpy.types.PropertyGroup):
     show_legend: BoolProperty(name="Legend", default=True,
                               description="Draw the active volume's colour legend (its ramp over Value Min..Max, "
                                           "with the field's name) over the viewport in Rendered shading")
+    legend_in_render: BoolProperty(name="Legend in Render", default=False,
+                                   description="Draw the same legend onto F12's image (Combined pass), at its right "
+                                               "edge: the bar, five values and the field's name")
     # Before 0.2 the look was the scene's, shared by every volume. Kept registered (never drawn)
     # so old .blend files keep their values: versioning.py moves them onto the volumes, and
     # render.py reads them for a volume that has no look of its own yet.

@@ -475,7 +475,7 @@ def render_stats(stats: dict, n_elements: int, seconds: float, device: str, load
         parts.append(f"{int(stats['field_evaluations']):,} field evaluations")
     parts.append(f"{seconds:.2f} s on {device}")
     if load_seconds >= 0.5:
-        parts.append(f"{load_seconds:.1f} s reading data and compiling")
+        parts.append(f"{load_seconds:.1f} s loading the data and the kernels")
     return "HOVR | " + " | ".join(parts)
 
 
@@ -571,7 +571,7 @@ def final_render(engine, api, depsgraph):
 
     device = job.options.device
     names = ", ".join(v.name for v in job.inputs.volumes)
-    status(f"HOVR | reading {names}")
+    status(f"HOVR | loading {names} into the renderer")  # read now unless the import or a render kept it
     t0 = time.perf_counter()
     try:
         renderer, n_elements = _renderer(job.inputs.volumes, device)
@@ -588,7 +588,10 @@ def final_render(engine, api, depsgraph):
         return
     try:
         if not KERNELS.is_ready(key):  # their first use in this session: tens of seconds on a CPU
-            status(f"HOVR | {n_elements} elements | {KERNELS.COMPILING}\u2026")
+            stage, note = KERNELS.stage(key)
+            if note:
+                api.report({'WARNING'}, f"HOVR: {note}")
+            status(f"HOVR | {n_elements} elements | {stage}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -605,14 +608,18 @@ def final_render(engine, api, depsgraph):
 
     try:
         result = render_final(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
-        pixels = combined_pass(result.rgba, job.film_transparent)
+        from .legend_render import with_legend
+
+        shown, legend_warning = with_legend(depsgraph.scene_eval, depsgraph.view_layer_eval, result.rgba,
+                                            job.inputs.background)
+        pixels = combined_pass(shown, job.film_transparent)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
         return
     if result.cancelled or api.test_break():
         status("HOVR | cancelled")
         return
-    for w in result.stats.get("warnings", []):
+    for w in result.stats.get("warnings", []) + ([legend_warning] if legend_warning else []):
         api.report({'WARNING'}, f"HOVR: {w}")
     from .framing import image_warning
 
@@ -663,7 +670,7 @@ def view_draw(engine, context, depsgraph):
         key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
                          depsgraph.scene.hovr.surfaces != "NONE")
         if not KERNELS.is_ready(key):
-            engine.update_stats("", f"HOVR | {KERNELS.COMPILING}\u2026")
+            engine.update_stats("", f"HOVR | {KERNELS.stage(key)[0]}\u2026")
             KERNELS.compile_now(key)
         frame = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None

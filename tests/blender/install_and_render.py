@@ -6,6 +6,7 @@ throw-away directory (set before bpy is imported). Only the installed copy
 """
 import json
 import sys
+import time
 
 import bpy
 import numpy as np
@@ -28,7 +29,9 @@ def main():
     build_sphere_scene(scene, spec["contract"], spec["width"], spec["height"], [tuple(s) for s in spec["stops"]],
                        spec["value_range"], spec["density_scale"], spec["background"], spec["location"],
                        spec["angle_z"], spec["method"])
+    t0 = time.perf_counter()
     rgba = render_to_exr(scene, spec["exr"])
+    first_render_seconds = time.perf_counter() - t0
     np.save(spec["out"], rgba)
     if spec.get("out_all_cores"):  # again on All CPU Cores: processes of the installed extension
         scene.hovr.device = "cpu:all"
@@ -42,6 +45,7 @@ def main():
         "renderer_loaded": f"{REPO_MODULE}.engine.renderer" in sys.modules,
         "foreign_modules": [m for m in loaded if m == "hovr_blender" or m.startswith("hovr_blender.")],
         "user_extensions": bpy.utils.user_resource("EXTENSIONS"),
+        "first_render_seconds": first_render_seconds,
     }
     with open(spec["report"], "w", encoding="utf-8") as fh:
         json.dump(report, fh)

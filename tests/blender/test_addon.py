@@ -261,3 +261,12 @@ def test_legend_overlay_layout_of_the_active_volume(scene):
     assert positions.shape == (6 * (y1 - y0), 2) and colours.shape == (6 * (y1 - y0), 4)
     assert positions[:, 1].max() == 300 - y0 and positions[:, 1].min() == 300 - y1  # region rows count up
     assert scene.hovr.show_legend and legend_overlay._handle is None  # no viewport to draw on in background mode
+    # With Region Overlap the tool header lies over the view's top (the window test's Blender 3.4
+    # drew the field's name under it): the legend starts below what covers the view
+    from types import SimpleNamespace as R
+
+    view = R(type="WINDOW", x=0, y=20, width=700, height=600)
+    header = R(type="HEADER", x=0, y=620, width=700, height=26)  # above the view: covers nothing
+    tool_header = R(type="TOOL_HEADER", x=0, y=594, width=700, height=26)
+    assert legend_overlay.covered_top(view, [view, header]) == 0
+    assert legend_overlay.covered_top(view, [view, header, tool_header]) == 26

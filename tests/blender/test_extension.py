@@ -20,9 +20,9 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 
 
-def build_zip(out_dir: Path) -> Path:
-    out = subprocess.run([sys.executable, "-m", "scripts.build_extension", "--output-dir", str(out_dir)], cwd=REPO,
-                         check=True, capture_output=True, text=True)
+def build_zip(out_dir: Path, *options) -> Path:
+    out = subprocess.run([sys.executable, "-m", "scripts.build_extension", "--output-dir", str(out_dir), *options],
+                         cwd=REPO, check=True, capture_output=True, text=True)
     zips = list(out_dir.glob("hovr_blender-*.zip"))
     assert len(zips) == 1 and str(zips[0]) in out.stdout
     return zips[0]
@@ -37,16 +37,23 @@ def test_zip_layout(tmp_path):
 
 @pytest.mark.slow
 def test_install_enable_and_render(tmp_path):
-    zip_path = build_zip(tmp_path / "dist")
+    """Also the shipped kernels (issue 30): the zip carries the sphere's compiled kernels, Warp's
+    kernel cache starts empty, and neither F12 nor All CPU Cores' processes compile anything."""
+    zip_path = build_zip(tmp_path / "dist", "--kernels", "--kernel-variants", "affine:3")  # the sphere's
+    assert [n for n in zipfile.ZipFile(zip_path).namelist() if n.startswith("kernel_binaries/warp-") and n.endswith(".o")]
     user = tmp_path / "blender-user"
+    warp_cache = tmp_path / "empty-warp-cache"
+    warp_cache.mkdir()
     env = dict(os.environ)
     env.update({  # honoured by Blender 5.0 when set before bpy is imported
         "BLENDER_USER_RESOURCES": str(user / "resources"),
         "BLENDER_USER_CONFIG": str(user / "config"),
         "BLENDER_USER_SCRIPTS": str(user / "scripts"),
         "BLENDER_USER_EXTENSIONS": str(user / "extensions"),
+        "WARP_CACHE_PATH": str(warp_cache),
     })
     env.pop("PYTHONPATH", None)
+    env.pop("HOVR_KERNEL_BINARIES", None)
     spec = {
         "zip": str(zip_path), "out": str(tmp_path / "rgba.npy"), "exr": str(tmp_path / "ext.exr"),
         "report": str(tmp_path / "report.json"), "contract": SPHERE.PERSPECTIVE, "width": SPHERE.W, "height": SPHERE.H,
@@ -63,6 +70,8 @@ def test_install_enable_and_render(tmp_path):
     assert report["renderer_loaded"] and report["foreign_modules"] == []
     assert Path(report["user_extensions"]).resolve() == (user / "extensions").resolve()
     assert (user / "extensions" / "user_default" / "hovr_blender" / "blender_manifest.toml").is_file()
+    assert [f for f in warp_cache.rglob("*") if f.is_file()] == []  # every kernel came from the zip: none compiled
+    print(f"first F12 with the shipped kernels and an empty kernel cache: {report['first_render_seconds']:.2f} s")
 
     got = np.load(spec["out"])
     want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)

@@ -68,6 +68,51 @@ def test_import_defaults_then_f12_show_the_volume(factory_scene, tmp_path, capfd
     assert camera.data.clip_start < 0.1 or kind == "vtu"
 
 
+def _ramp(obj):
+    """The volume's ramp stops, flat: [position, r, g, b, a, position, ...]."""
+    return [v for e in obj.hovr.transfer_function.color_ramp.elements for v in (e.position, *e.color)]
+
+
+def _flat(stops):
+    return [v for p, c in stops for v in (p, *c)]
+
+
+def test_an_import_gets_the_look_chosen_from_its_data(factory_scene):
+    """Issue 30: an import with the defaults gets scene.FIRST_LOOK (shells at the field's 10, 50
+    and 90 % quantiles) placed by the field's own samples, with its Density; the smooth ramp of
+    before stays a preset, and the other looks from the data are presets too."""
+    from hovr_blender.ui import operators
+    from hovr_blender.ui.scene import FIRST_LOOK, FIRST_LOOKS, TF_PRESETS
+
+    assert FIRST_LOOK == "QUANTILE_TENTS"
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", "Tet_channel_m3.xml")), field="w") \
+        == {'FINISHED'}
+    obj = bpy.context.active_object
+    values = operators.volume_samples(obj, factory_scene)
+    stops, density = FIRST_LOOKS[FIRST_LOOK][2](values, obj.hovr.value_min, obj.hovr.value_max)
+    assert _ramp(obj) == pytest.approx(_flat(stops), abs=1e-6) and obj.hovr.density == pytest.approx(density)
+    assert obj.hovr.density_units == 'RELATIVE'
+    top = max(stops, key=lambda st: st[1][3])[0]  # the opaque shell: w's 90 % quantile, its maximum 0.25
+    assert top == pytest.approx((np.quantile(values, 0.9) - obj.hovr.value_min) / (obj.hovr.value_max - obj.hovr.value_min))
+
+    assert bpy.ops.hovr.transfer_function_preset(preset="SMOOTH") == {'FINISHED'}  # today's look, by hand
+    assert _ramp(obj) == pytest.approx(_flat(TF_PRESETS["SMOOTH"][2]), abs=1e-6)
+    assert bpy.ops.hovr.transfer_function_preset(preset="MEDIAN_SHELL") == {'FINISHED'}
+    shell = FIRST_LOOKS["MEDIAN_SHELL"][2](values, obj.hovr.value_min, obj.hovr.value_max)
+    assert _ramp(obj) == pytest.approx(_flat(shell[0]), abs=1e-6) and obj.hovr.density == pytest.approx(shell[1])
+
+
+def test_a_constant_field_keeps_the_smooth_ramp(factory_scene):
+    """No structure to place shells by: wss_3D_periodic's rho (constant) keeps the smooth ramp."""
+    from hovr_blender.ui.scene import TF_PRESETS
+
+    path = data_file("nektar", "wss_3D_periodic.xml")
+    assert bpy.ops.import_scene.hovr_nektar(filepath=str(path), field="rho") == {'FINISHED'}
+    obj = bpy.context.active_object
+    assert _ramp(obj) == pytest.approx(_flat(TF_PRESETS["SMOOTH"][2]), abs=1e-6)
+    assert obj.hovr.density == pytest.approx(4.0)
+
+
 def test_frame_volume_brings_a_lost_volume_into_view(factory_scene, tmp_path, capfd):
     scene = factory_scene
     bpy.ops.hovr.add_sphere_volume()

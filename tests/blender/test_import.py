@@ -261,8 +261,8 @@ def test_render_cache_reuses_the_mesh_and_rereads_changed_files(scene, tmp_path,
     xml = copy_tet(tmp_path)
     render.clear_cache()
     reads = []
-    real_load = sources.load_volume
-    monkeypatch.setattr(sources, "load_volume", lambda *a: reads.append(a) or real_load(*a))
+    real_start = sources.volume_request  # every read, waited for or polled (the modal import), starts here
+    monkeypatch.setattr(sources, "volume_request", lambda *a: reads.append(a) or real_start(*a))
     bpy.ops.import_scene.hovr_nektar(filepath=str(xml), field="|u,v,w|")
     assert len(reads) == 1
     obj = bpy.context.active_object

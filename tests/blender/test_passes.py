@@ -195,3 +195,37 @@ def test_a_transfer_function_float32_cannot_resolve_is_reported(scene, tmp_path,
     warned = [m for kind, m in calls.get("reports", []) if kind == {'WARNING'} and "float64" in m]
     assert len(warned) == 1 and warned[0].startswith("HOVR: float32 rounds the field")
     assert calls["progress"][-1] == 1.0
+
+
+def test_legend_in_render_is_composited_on_the_combined_pass(scene, tmp_path, capfd, monkeypatch):
+    """Issue 30: Legend in Render (off by default) draws engine/legend.py's layout onto F12's
+    Combined pass, the bar's colours exactly and the values and field name as text (blf into an
+    image on Blender 4.5+); nothing else in the image changes. Without a way to draw text the
+    render says so and leaves the image as it is."""
+    from hovr_blender.ui import legend_render
+    from hovr_blender.ui.legend_overlay import scene_legend
+
+    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    scene.render.resolution_percentage = 400  # 256 x 192: room for the legend's text
+    assert scene.hovr.legend_in_render is False
+    plain = render_to_exr(scene, tmp_path / "plain.exr")
+    scene.hovr.legend_in_render = True
+    drawn = render_to_exr(scene, tmp_path / "legend.exr")
+    H, W = plain.shape[:2]
+    legend = scene_legend(scene, bpy.context.view_layer, W, H, scene.world.color)
+    x0, y0, x1, y1 = legend.bar
+    np.testing.assert_allclose(drawn[y0:y1, x0:x1, :3], np.broadcast_to(legend.bar_rgb[:, None, :], (y1 - y0, x1 - x0, 3)),
+                               atol=1e-6)
+    changed = np.abs(drawn - plain).max(axis=2) > 1e-6
+    changed[y0:y1, x0:x1] = False
+    ys, xs = np.nonzero(changed)
+    assert len(xs) > 50, "no text drawn"
+    left_of_bar = changed[y0:y1, :x0]
+    assert left_of_bar.sum() > 20 and changed[:y0].sum() > 10  # the values beside the bar, the name above it
+    assert xs.min() > W // 3 and ys.max() < y1 + legend.font_px  # the legend's corner only
+
+    monkeypatch.setattr(legend_render, "text_mask_drawer", lambda: None)
+    capfd.readouterr()
+    again = render_to_exr(scene, tmp_path / "no_text.exr")
+    assert legend_render.NO_TEXT in capfd.readouterr().out
+    np.testing.assert_array_equal(again, plain)

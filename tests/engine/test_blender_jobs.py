@@ -1,7 +1,12 @@
 """The add-on's non-Blender work (hovr_blender/ui/jobs.py), without Blender: a Job's steps,
-progress callback, result and error, and the compiled-kernel registry compiling a key once."""
-import numpy as np
+progress callback, result and error; a Job whose work waits for reader tasks, polled (the modal
+import) or waited for, and cancelled; and the compiled-kernel registry compiling a key once."""
+import os
 
+import numpy as np
+import pytest
+
+from hovr_blender.io import isolation
 from hovr_blender.ui import jobs
 
 
@@ -25,6 +30,130 @@ def test_job_keeps_the_error_for_the_operator():
 
     job = jobs.Job(work, "failing").run()
     assert job.done and isinstance(job.error, ValueError) and job.result is None
+
+
+class _Task:
+    """A reader task (isolation.Request's interface) done after `polls` polls."""
+
+    def __init__(self, value, polls=3, error=None):
+        self.value_, self.polls, self.error = value, polls, error
+        self.stage, self.cancelled = "starting the reader", False
+
+    def poll(self, timeout=0.0):
+        self.polls -= 1
+        self.stage = "reading m.fld"
+        return self.polls <= 0
+
+    def cancel(self):
+        self.cancelled = True
+
+    def value(self):
+        if self.cancelled:
+            raise isolation.ReadCancelled("reading m.fld was cancelled")
+        if self.error is not None:
+            raise self.error
+        return self.value_
+
+
+def _reading(tasks, ended):
+    def work(job):
+        job.step("listing")
+        names = yield tasks[0]
+        job.step("reading")
+        try:
+            data = yield tasks[1]
+        finally:
+            ended.append(True)
+        return names, data
+    return work
+
+
+def test_a_job_waiting_for_reader_tasks_is_polled_without_waiting():
+    tasks, ended = [_Task(["p"]), _Task(np.arange(3), polls=2)], []
+    job = jobs.Job(_reading(tasks, ended), "importing m.xml", steps=2).start()
+    assert not job.done and job.waiting is tasks[0] and job.phase() == "listing (1/2): starting the reader"
+    polls = 1
+    while not job.advance(0.0):
+        polls += 1
+        assert job.phase().startswith(("listing (1/2): reading m.fld", "reading (2/2)"))
+    assert polls == 5 and job.result[0] == ["p"] and list(job.result[1]) == [0, 1, 2] and ended == [True]
+    assert job.waiting is None and job.phase() == "reading (2/2)"
+    waited = jobs.Job(_reading([_Task(["p"]), _Task(1)], []), "importing m.xml").run()  # a script's: here, to the end
+    assert waited.done and waited.result == (["p"], 1)
+
+
+def test_a_reader_error_is_raised_in_the_work_at_its_yield():
+    caught = []
+
+    def work(job):
+        try:
+            yield _Task(None, error=ValueError("m.fld: damaged"))
+        except ValueError as exc:
+            caught.append(str(exc))
+            raise
+    job = jobs.Job(work, "importing").run()
+    assert caught == ["m.fld: damaged"] and isinstance(job.error, ValueError) and job.done
+
+
+def test_cancel_stops_the_reader_task_and_ends_the_work():
+    tasks, ended = [_Task(["p"]), _Task(1, polls=10 ** 9)], []
+    job = jobs.Job(_reading(tasks, ended), "importing m.xml").start()
+    while job.waiting is not tasks[1]:
+        job.advance()
+    job.advance()
+    job.cancel()
+    assert tasks[1].cancelled and ended == [True] and job.done and job.cancelled
+    assert isinstance(job.error, isolation.ReadCancelled) and job.result is None
+    job.cancel()  # once done, nothing more
+    assert job.advance() is True
+
+
+def test_an_interrupted_wait_cancels_the_reader_task():
+    class Interrupting(_Task):
+        def poll(self, timeout=0.0):
+            raise KeyboardInterrupt
+
+    task = Interrupting(None)
+    with pytest.raises(KeyboardInterrupt):
+        jobs.Job(lambda job: (yield task), "importing").run()
+    assert task.cancelled
+
+
+def test_listings_never_wait_and_one_of_a_kind_runs_at_a_time(tmp_path):
+    """The import dialog's listings (jobs.Listings): PENDING while the reader reads, the value once
+    it has answered, a file browsed away from has its task cancelled, a changed file is listed
+    again, a failure is None."""
+    a, b = tmp_path / "a.fld", tmp_path / "b.fld"
+    a.write_text("a")
+    b.write_text("b")
+    listings, started = jobs.Listings(), []
+
+    def start(value, polls=2, error=None):
+        def go():
+            started.append(_Task(value, polls, error))
+            return started[-1]
+        return go
+
+    assert listings.get("fields", str(a), a, start(["p"], polls=3)) is jobs.Listings.PENDING  # polled once
+    assert listings.waiting and not listings.poll()
+    assert listings.poll() and not listings.waiting
+    assert listings.get("fields", str(a), a, start(["never"])) == ["p"] and len(started) == 1  # kept
+    assert listings.get("fields", str(b), b, start(["q"], polls=10 ** 9)) is jobs.Listings.PENDING
+    assert listings.get("walls", str(a), a, start([["C[1]", "C[1] wall"]]), lambda v: [tuple(c) for c in v]) \
+        is jobs.Listings.PENDING  # another kind runs beside it
+    assert listings.get("fields", str(a), a, start(["never"])) == ["p"]  # done ones need no task
+    assert listings.poll() and listings.get("walls", str(a), a, start(None)) == [("C[1]", "C[1] wall")]
+    os.utime(a, ns=(0, 10 ** 9))  # changed on disk: listed again, the other file's task cancelled
+    assert listings.get("fields", str(a), a, start(None, polls=1, error=ValueError("damaged"))) is None
+    assert started[1].cancelled and not listings.waiting
+    assert listings.get("fields", str(tmp_path / "gone"), tmp_path / "gone", start(["x"])) is None
+
+    def broken():
+        raise OSError("no reader")
+    assert listings.get("fields", str(b), b, broken) is None and not listings.waiting
+    listings.get("fields", str(tmp_path), tmp_path, start(["x"], polls=10 ** 9))
+    listings.cancel()
+    assert started[-1].cancelled and not listings.waiting
 
 
 def test_kernels_compile_once_per_key():
@@ -85,3 +214,14 @@ def test_per_face_warnings_are_summarised():
                      "|u|: magnitude fitted with 7 modes"]
     assert summarise_warnings([f"kind {k}: x" for k in "abcdefg"], limit=3) == ["kind a: x", "kind b: x",
                                                                                  "5 more kinds of warning"]
+
+
+def test_the_status_says_loading_shipped_kernels_or_compiling():
+    """Issue 30: the first F12's status names what it waits for, and where the add-on ships compiled
+    kernels but not these (other kernel source, order or precision) a note says they compile."""
+    key = jobs.kernel_key("cpu", "float32", (False, 3), False)
+    assert jobs.CompiledKernels(print, lambda k: (True, True)).stage(key) == (jobs.CompiledKernels.LOADING, "")
+    assert jobs.CompiledKernels(print, lambda k: (False, True)).stage(key) == (jobs.CompiledKernels.COMPILING,
+                                                                              jobs.CompiledKernels.NOT_SHIPPED)
+    assert jobs.CompiledKernels(print, lambda k: (False, False)).stage(key) == (jobs.CompiledKernels.COMPILING, "")
+    assert jobs.CompiledKernels(print).stage(key) == (jobs.CompiledKernels.COMPILING, "")

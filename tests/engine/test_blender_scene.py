@@ -151,3 +151,49 @@ def test_value_range_of_a_field_constant_up_to_rounding():
     assert value_range(np.array([0.5, 2.0, 1.0])) == (0.5, 2.0, None)
     lo, hi, warning = value_range(np.array([1.0, 1.0 + 1e-9]))
     assert warning is None and np.float32(hi) > np.float32(lo) and hi - lo < 1e-6
+
+
+# --- looks chosen from the data (issue 30) ------------------------------------------------
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from hovr_blender.ui.scene import (  # noqa: E402
+    FIRST_LOOK, FIRST_LOOKS, LOOK_MIN_GAP, look_quantile_tents, ramp_positions, value_range,
+)
+
+
+def test_quantile_tents_peak_at_the_fields_quantiles():
+    """Values bunched low (x^1.5 of a uniform x): the 10/50/90 % shells sit where the values are
+    (ramp 0.03, 0.35, 0.85), not at a fixed 20/50/80 % of the range; the ramp's stops stay
+    LOOK_MIN_GAP apart, so float32 resolves them."""
+    values = np.linspace(0.0, 1.0, 10001) ** 1.5
+    lo, hi, _ = value_range(values)
+    stops, density = look_quantile_tents(values, lo, hi)
+    want = np.quantile(values, [0.1, 0.5, 0.9])
+    pos = np.array([p for p, _ in stops])
+    alpha = np.array([c[3] for _, c in stops])
+    peaks = [pos[(pos > a) & (pos < b)][np.argmax(alpha[(pos > a) & (pos < b)])] for a, b in ((0, 0.2), (0.2, 0.6), (0.6, 1))]
+    np.testing.assert_allclose(peaks, want, atol=1e-9)
+    assert [alpha[pos == p][0] for p in peaks] == [0.5, 0.5, 1.0] and density > 4.0  # thin shells: denser than a fog
+    assert np.diff(pos).min() >= LOOK_MIN_GAP and pos[0] == 0.0 and pos[-1] == 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=2, max_size=200), st.sampled_from(sorted(FIRST_LOOKS)))
+def test_every_first_look_is_a_valid_ramp_for_any_field(values, look):
+    values = np.asarray(values)
+    if not np.ptp(values) > 1e-9 * max(1.0, np.abs(values).max()):
+        return  # a constant field keeps the smooth ramp (the import's rule)
+    lo, hi, _ = value_range(values)
+    stops, density = FIRST_LOOKS[look][2](values, lo, hi)
+    pos = [p for p, _ in stops]
+    assert pos[0] == 0.0 and pos[-1] == 1.0 and len(stops) <= 32  # a Blender ramp
+    assert np.diff(pos).min() >= LOOK_MIN_GAP - 1e-12  # no feature float32 cannot resolve
+    assert all(0.0 <= v <= 1.0 for _, c in stops for v in c) and density > 0
+    tf = transfer_function_from_ramp("LINEAR", "RGB", pos, [c for _, c in stops], density, lo, hi)
+    assert tf.density_tau.max() > 0
+
+
+def test_the_import_look_is_one_of_the_first_looks_and_today_stays_a_preset():
+    assert FIRST_LOOK in FIRST_LOOKS and "SMOOTH" in TF_PRESETS
+    np.testing.assert_allclose(ramp_positions([0, 1, 2, 3, 4], 0.0, 8.0, [0.5]), [0.25])

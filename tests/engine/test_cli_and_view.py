@@ -197,6 +197,38 @@ def test_tiny_step_is_refused_with_the_limit_named(tmp_path, capsys, method):
     assert "h = 1e-12" in err and "diagonal is 6.6" in err and "100000 samples per ray" in err
 
 
+_WITHOUT_WARP = """
+import sys
+class NoWarp:  # Warp takes seconds to load: what the policy refuses without it must not load it
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] == "warp":
+            raise ImportError("Warp was loaded for a refusal")
+sys.meta_path.insert(0, NoWarp())
+from hovr_blender.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("args, image, words", [(["--method", "riemann", "--h", "1e-6"], None, "samples per ray"),
+                                                ([], {"width": 32768, "height": 32768}, "memory limit")])
+def test_refusals_that_need_no_renderer_do_not_load_warp(tmp_path, args, image, words):
+    """A step too small for the data and an image too large for the memory limit are refused
+    before the renderer (and Warp) is imported: the hostile table's cases in a second, not five."""
+    import os
+    import subprocess
+    import sys
+
+    from ..helpers import REPO
+
+    view = json.loads(write_view(tmp_path).read_text())
+    view["image"] = image or view["image"]
+    path = write_view(tmp_path, view)
+    proc = subprocess.run([sys.executable, "-c", _WITHOUT_WARP, "render", str(path), "-o", str(tmp_path / "o.npy"),
+                           *args], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                          env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert proc.returncode == 2 and words in proc.stderr and "Warp was loaded" not in proc.stderr, proc.stderr
+
+
 def test_sample_limit_can_be_raised_and_is_honoured(tmp_path):
     p = write_view(tmp_path)
     out = tmp_path / "o.npy"
@@ -339,3 +371,5 @@ def test_legend_layout_labels_the_range_and_units():
     np.testing.assert_allclose(layout.bar_rgb[0], [1, 0, 0], atol=0.01)
     x0, y0, x1, y1 = layout.bar
     assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)
+    moved = legend_layout(tf, -0.5, 2.5, "p", 640, 480, top=26)  # below a viewport's tool header
+    assert moved.bar[1] == y0 + 26 and moved.texts[-1].y == layout.texts[-1].y + 26 and moved.bar[3] <= 480

@@ -260,12 +260,16 @@ def test_view_files_accept_the_magnitude_syntax(tmp_path):
     def load_data(data):
         return load_volume(VolumeSource.from_view_data(data))
 
+    def assert_same_fit(got, want):
+        # the reader process's BLAS may sum the least-squares fit in another order (it runs with its
+        # address space capped): the same fit to rounding, far below the fit's own error
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+
     vec = _vector_vtu(tmp_path)
-    np.testing.assert_array_equal(load_data({"path": str(vec), "field": "vel"}).coeffs,
-                                  read_vtu_field(vec, "vel").coeffs)
+    assert_same_fit(load_data({"path": str(vec), "field": "vel"}).coeffs, read_vtu_field(vec, "vel").coeffs)
 
     xml, fld = shared_file("nektar", "Tet_channel_m3.xml"), shared_file("nektar", "Tet_channel_m3.fld")
     mesh = load_data({"path": str(xml), "solution": str(fld), "field": "|u,v,w|"})
-    np.testing.assert_array_equal(mesh.coeffs, read_nektar_field(xml, fld, "|u,v,w|").coeffs)
+    assert_same_fit(mesh.coeffs, read_nektar_field(xml, fld, "|u,v,w|").coeffs)
     with pytest.raises(nektar.NektarError, match="no field 'q'"):
         load_data({"path": str(xml), "solution": str(fld), "field": "|u,q|"})

@@ -132,7 +132,7 @@ def _under(name, prefixes):
 # (layer, its modules, what of the package it may import, what else it may import beyond the
 # standard library, which layers of the package may import it). A "may import" entry is a layer
 # or, written as a module, that module alone. docs/architecture.md's table says the same.
-BLENDER = ("bpy", "bpy_extras", "blf", "gpu", "gpu_extras", "mathutils")
+BLENDER = ("bpy", "bpy_extras", "blf", "gpu", "gpu_extras", "imbuf", "mathutils")
 LAYERS = (
     ("engine", "hovr_blender.engine", ("engine/kernels",), ("numpy", "warp", "PIL"),
      ("engine/kernels", "io", "ui", "distributed", "cli", "audit")),
@@ -198,13 +198,18 @@ def test_each_layer_is_imported_only_by_the_rows_that_may():
 
 def test_warp_is_imported_at_module_level_only_by_the_renderer_and_the_kernels():
     """Elsewhere in the engine Warp is imported inside the functions that launch, so that the view,
-    the readers and the Blender layer's bpy-free parts load without it."""
+    the readers and the Blender layer's bpy-free parts load without it (the shipped kernels' loader
+    is the renderer's: it is imported at module level by the renderer alone)."""
     top = sorted(str(path.relative_to(REPO)) for path, name, _, tree in _modules(ENGINE)
                  for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
                  and any(n.split(".")[0] == "warp" for n in ([a.name for a in node.names] if isinstance(node, ast.Import)
                                                              else [node.module or ""]))
-                 and not name.startswith("hovr_blender.engine.kernels") and name != "hovr_blender.engine.renderer")
+                 and not name.startswith("hovr_blender.engine.kernels")
+                 and name not in ("hovr_blender.engine.renderer", "hovr_blender.engine.shipped_kernels"))
     assert top == []
+    importers = sorted(name for path, name, _, tree in _modules(PACKAGE) for node in tree.body
+                       if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("shipped_kernels"))
+    assert importers == ["hovr_blender.engine.renderer"]
 
 
 def test_only_compat_asks_which_blender_this_is():

@@ -193,7 +193,7 @@ import json, sys
 sys.path.insert(0, {repo!r})
 with open({runs!r}, "a") as fh:
     fh.write("run\n")  # a device's process that re-ran this script would add a line
-from hovr_blender.engine.device_bootstrap import import_package
+from hovr_blender.engine.bootstrap import import_package
 ext = "fake_bl_ext.user_repo.hovr_blender"  # the package under an installed extension's kind of name
 import_package(ext, {repo!r} + "/hovr_blender")
 import importlib
@@ -242,10 +242,10 @@ def test_a_device_process_that_cannot_import_the_package_says_so():
     pipe at once, in words, instead of leaving the parent waiting."""
     import multiprocessing
 
-    from hovr_blender.engine.device_bootstrap import start
+    from hovr_blender.engine.bootstrap import start_device
 
     parent, child = multiprocessing.Pipe()
-    start(child, "nowhere_ext.repo.hovr_blender", "/nonexistent/hovr_blender", b"")
+    start_device(child, "nowhere_ext.repo.hovr_blender", "/nonexistent/hovr_blender", b"")
     kind, message = parent.recv()
     assert kind == "error" and message.startswith("cannot import nowhere_ext.repo.hovr_blender in a device process")
     assert "nowhere_ext.repo.hovr_blender" not in sys.modules

@@ -541,8 +541,8 @@ def malformed_cases():
         "missing vertex": (re.sub(r'<V ID="6">[^<]*</V>', "", x), None, "edge 6 refers to missing vertex 6", "m.xml"),
         "bad vertex": (x.replace("<V ID=\"2\">1 1 -4</V>", "<V ID=\"2\">1 one -4</V>"), None, "vertex 2", "m.xml"),
         "wrong faces": (x.replace('<H ID="0">0 1 2 3 4 5</H>', '<H ID="0">0 1 2 3 4 4</H>'), None, "local vertex", "m.xml"),
-        "inverted": (inverted, None, "hexahedron 0 is inverted", "m.xml"),
-        "degenerate": (flat, None, "hexahedron 0 is (degenerate|inverted)", "m.xml"),
+        "inverted": (inverted, None, "element 0: inverted or tangled hexahedron", "m.xml"),
+        "degenerate": (flat, None, "element 0: (degenerate|inverted or tangled) hexahedron", "m.xml"),
         "missing element in field": (None, f.replace('ID="0"', 'ID="1"'), r"no coefficients of field 'p' for mesh element\(s\) \[0\]", "m.fld"),
         "huge ID range": (None, f.replace('ID="0"', 'ID="0-999999999999"'), "declares", "m.fld"),
         "huge modes": (None, f.replace("UNIORDER:3,3,3", "UNIORDER:300,3,3"), "outside 1..15", "m.fld"),
@@ -849,12 +849,28 @@ def test_composites_select_elements_by_intersecting_ranges(tmp_path):
         load(lambda x: x.replace("<DOMAIN> C[0,7,8,9] </DOMAIN>", "<DOMAIN> C[0-9] </DOMAIN>"))
 
 
-def test_compressed_hdf5_data_is_read_chunk_by_chunk(tmp_path):
+def test_compressed_hdf5_data_is_read_chunk_by_chunk(tmp_path, monkeypatch):
+    from hovr_blender.engine import limits
+
     def gzip(g, v):
         g.create_dataset("DATA", data=v, chunks=(333,), compression="gzip", shuffle=True)
 
-    got = read_nektar(copy_mesh(tmp_path), hdf5_field(tmp_path / "m.fld", gzip), field="w")
+    spent = []  # (budget, bytes, part): every compressed dataset of the file from one budget
+    real_spend = limits.InflationBudget.spend
+    monkeypatch.setattr(limits.InflationBudget, "spend",
+                        lambda self, n, part: spent.append((self, n, part)) or real_spend(self, n, part))
+    f = hdf5_field(tmp_path / "m.fld", gzip)
+    got = read_nektar(copy_mesh(tmp_path), f, field="w")
     np.testing.assert_array_equal(got.coeffs, reference_w().coeffs)
+    (budget, n, part), = [spend for spend in spent if spend[0].what == "m.fld"]  # (the mesh has its own)
+    assert n == -(-got.coeffs.size * 4 // 333) * 333 * 8 and "/NEKTAR/DATA" in part  # its chunks, padded
+    assert budget.file_bytes == f.stat().st_size and budget.spent == n
+    zeros = hdf5_field(tmp_path / "z.fld", lambda g, v: gzip(g, np.zeros_like(v)))  # a file smaller than its data
+    assert zeros.stat().st_size < n
+    monkeypatch.setattr(limits, "INFLATE_FLOOR", 0)
+    with limits.using(limits.ResourceLimits(max_inflate_ratio=1)):
+        with pytest.raises(NektarError, match=r"z.fld: /NEKTAR/DATA \(\d+ compressed chunks\): .* 1x"):
+            read_nektar(tmp_path / "m.xml", zeros, field="w")
 
 
 def test_magnitude_reader_refuses_hostile_solution(tmp_path):

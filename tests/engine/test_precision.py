@@ -29,23 +29,31 @@ def test_generated_source_has_no_float32_arithmetic():
                 if node.attr in F32_NAMES:
                     assert node.attr in ("vec3f", "float32"), f"{name}: wp.{node.attr} left in the float64 source"
         for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and precision._is_warp_decorated(n)):
+            parent = {child: node for node in ast.walk(fn) for child in ast.iter_child_nodes(node)}
             for node in ast.walk(fn):
                 if isinstance(node, ast.Constant) and isinstance(node.value, float):
-                    # only as the argument of wp.float64(...)
-                    pass
+                    call = parent.get(node)  # only as the argument of wp.float64(...), signed or not
+                    while isinstance(call, ast.UnaryOp):
+                        call = parent.get(call)
+                    assert isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute) \
+                        and call.func.attr == "float64", f"{name}.{fn.name}: float literal {node.value} left float32"
                 if isinstance(node, ast.Name):
                     assert node.id != "float", f"{name}.{fn.name}: float() left"
-        assert src.count("vec3f(") == (2 if name == "raycast" else 0)
-        assert src.count("float32(") == (1 if name == "raycast" else 0)
+        # the entry search's BVH query: its ray (origin, direction) and its max_dist
+        assert src.count("vec3f(") == (2 if name == "entry" else 0)
+        assert src.count("float32(") == (1 if name == "entry" else 0)
 
 
 def test_generated_source_keeps_module_constants_float64_and_uncast():
     """Every module-level float constant (signed ones too: NEWTON_FAILED = -1.0e30) is float64,
-    and no Warp function casts a module constant by name: Warp retypes the constant's own
-    variable in place, so a later write to the cast's result changed the constant."""
+    and no Warp function casts a module constant by name, its own or one it imports: Warp retypes
+    the constant's own variable in place, so a later write to the cast's result changed the
+    constant."""
     for name in precision.float64_modules():
         tree = ast.parse(precision.float64_source(name))
         constants = {t.id for n in tree.body if isinstance(n, ast.Assign) for t in n.targets if isinstance(t, ast.Name)}
+        constants |= {a.asname or a.name for n in tree.body if isinstance(n, ast.ImportFrom) for a in n.names
+                      if a.name.isupper()}
         for node in tree.body:
             if isinstance(node, ast.Assign):
                 assert not isinstance(precision._literal(node.value), float), f"{name}: {ast.unparse(node)} left float32"
@@ -53,6 +61,44 @@ def test_generated_source_keeps_module_constants_float64_and_uncast():
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "float64":
                 assert not (node.args and isinstance(node.args[0], ast.Name) and node.args[0].id in constants), \
                     f"{name}: {ast.unparse(node)}"
+
+
+def test_tolerance_pairs_live_in_one_table():
+    """Each float32 tolerance's float64 value sits beside it in kernels/tolerances.py, and the
+    twin takes it: every float there has its pair, and a pair anywhere else is an error."""
+    from hovr_blender.engine.kernels import tolerances
+
+    values = {k: v for k, v in vars(tolerances).items() if k.isupper()}
+    floats = [k for k in values if not k.endswith(precision.FLOAT64_SUFFIX)]
+    assert floats and all(f"{k}{precision.FLOAT64_SUFFIX}" in values for k in floats)
+    assert all(values[f"{k}{precision.FLOAT64_SUFFIX}"] < values[k] for k in floats)  # float64 resolves finer
+    twin = ast.parse(precision.float64_source("tolerances"))
+    for node in twin.body:
+        if isinstance(node, ast.Assign):
+            k = node.targets[0].id
+            assert not k.endswith(precision.FLOAT64_SUFFIX)
+            assert ast.literal_eval(node.value.args[0]) == values[f"{k}{precision.FLOAT64_SUFFIX}"]
+    with pytest.raises(precision.TwinError, match="tolerances.py"):
+        precision._to_float64("toy", ast.parse("TOL = 1.0e-5\nTOL_FLOAT64 = 1.0e-11\n"), set())
+    with pytest.raises(precision.TwinError, match="LONELY has no LONELY_FLOAT64"):
+        precision._float64_pairs("tolerances", ast.parse("LONELY = 1.0e-5\n"))
+
+
+@pytest.mark.parametrize("source, name", [
+    # a computed constant: Python arithmetic the rewrite never sees, so it would stay float32
+    ("TOL = 1.0e-5\nTWICE = 2 * TOL\n", "TWICE"),
+    # a float from a module with no twin
+    ("from ..shapes import EDGE_TOL\n", "EDGE_TOL"),
+])
+def test_a_float_the_twin_cannot_convert_is_an_error_naming_it(source, name, monkeypatch):
+    from hovr_blender.engine import shapes
+
+    monkeypatch.setattr(shapes, "EDGE_TOL", 0.25, raising=False)
+    kernel = f"import warp as wp\n{source}@wp.func\ndef f(x: float):\n    return x * {name}\n"
+    with pytest.raises(precision.TwinError, match=f"reads {name} = "):
+        precision._to_float64("toy", ast.parse(kernel), set())
+    # read only outside Warp code, it is no error
+    precision._to_float64("toy", ast.parse(f"import warp as wp\n{source}"), set())
 
 
 def test_precision_option_is_validated():
@@ -131,9 +177,10 @@ def test_float64_watertight_curved_brick(device):
 def test_float32_overflow_is_named_and_float64_renders(device):
     """A field beyond float32's range, read through a transfer function at unit scale: float32
     renders stop with a clear error naming the element (not inf pixels); the float64 kernels
-    render the same data. Through a transfer function at the field's own scale, the field's
-    frame (engine/field_frame.py) brings it into range and float32 renders it too."""
+    render the same data. A transfer function at the field's own scale (1e300) is refused by the
+    transfer function's own bound (+-1e30, engine/transfer_function.py)."""
     from hovr_blender.engine.renderer import RenderError
+    from hovr_blender.engine.transfer_function import TransferFunctionError
 
     mesh = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0e300)
     unit = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2, 1, 1, 1]],
@@ -146,10 +193,9 @@ def test_float32_overflow_is_named_and_float64_renders(device):
     L = box_chord(o, d, np.zeros(3), np.ones(3))
     res = r.render(cam, unit, [0, 0, 0], RenderOptions(method="split", min_transmittance=0, precision="float64"))
     np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-9, atol=1e-12)
-    own = TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],
-                                          "density": [[0, 0.0], [0.5e300, 2.0], [2e300, 2.0]]})
-    res = r.render(cam, own, [0, 0, 0], RenderOptions(method="split", min_transmittance=0))
-    np.testing.assert_allclose(1 - res.rgba[..., 3], np.exp(-2.0 * L), rtol=1e-5, atol=1e-6)
+    with pytest.raises(TransferFunctionError, match="within"):
+        TransferFunction.from_contract({"color": [[0, 1, 1, 1], [2e300, 1, 1, 1]],
+                                        "density": [[0, 0.0], [0.5e300, 2.0], [2e300, 2.0]]})
 
 
 @pytest.mark.slow

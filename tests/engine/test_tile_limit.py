@@ -26,3 +26,25 @@ def test_tile_follows_memory_limit_and_keeps_pixels():
         assert tile < cam.width * cam.height  # the 96x64 image takes several tiles
         tiled = r.render(cam, tf, np.zeros(3), RenderOptions())
     np.testing.assert_array_equal(tiled.rgba, whole.rgba)
+
+
+def test_gpu_tiles_follow_device_memory_not_the_host_limit(monkeypatch):
+    """On a GPU a launch tile's buffers are device memory: a 1920x1080 frame (~8 GB of them in
+    float32) is one launch on a card with 40 GB free under the 4 GiB host limit, which still
+    counts the image's own buffers and copies (a card stood in by its two properties)."""
+    import warp as wp
+
+    r = Renderer(curved_cube(1), "cpu")
+    prec = r._upload("float32").precision
+    ray_bytes = r._ray_bytes(prec)
+
+    class Card:
+        is_cuda = True
+        free_memory = 40 * 2**30
+
+    monkeypatch.setattr(wp, "get_device", lambda *args: Card())
+    with limits.using(limits.ResourceLimits(max_memory=4 * 2**30)):
+        tile = r._tile_limit(prec)
+        assert tile >= 1920 * 1080 > 4 * 2**30 / ray_bytes
+        counted = r.check_limits(1920, 1080, RenderOptions(), tile)
+    assert 0 < counted < 4 * 2**30 < tile * ray_bytes

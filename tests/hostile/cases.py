@@ -338,6 +338,31 @@ def _chunk_bomb(path):
     hdf5_field(path, mutate=bomb)
 
 
+def _chunks_beyond_the_file(path):
+    """4,000 fields of 15 modes a direction on the one hexahedron: a DATA of 13.5 M values (108 MB)
+    the mesh can use, gzip chunks of 2^20 zeros each inflating to exactly its declared size, in a
+    file of 137 KiB: within every per-chunk bound, 780x the file in all."""
+    import h5py
+
+    fields, values, chunk = 4000, 4000 * 15 ** 3, 1 << 20
+
+    def declare(h5, folder):
+        g = h5["NEKTAR"]
+        del g["DATA"], g["DECOMPOSITION"], g["1000"]
+        sub = g.create_group("1000")
+        sub.attrs["FIELDS"] = np.array([b"p"] + [f"f{k}".encode() for k in range(1, fields)])
+        sub.attrs["BASIS"] = np.array([4, 4, 4], dtype=np.int64)
+        sub.attrs["SHAPE"] = b"Hexahedron"
+        sub.attrs["NUMMODESPERDIR"] = b"UNIORDER:15,15,15"
+        g.create_dataset("DECOMPOSITION", data=np.array([1, values, 0, 0, 0, 0, 1000], np.uint64))
+        ds = g.create_dataset("DATA", shape=(values,), chunks=(chunk,), dtype="<f8", compression="gzip")
+        zeros = zlib_zeros(chunk * 8, 9)
+        for start in range(0, values, chunk):
+            ds.id.write_direct_chunk((start,), zeros)
+    hdf5_field(path, mutate=declare)
+    assert h5py.is_hdf5(path)
+
+
 # -------------------------------------------------------------------------------- the cases
 
 def _view_mutation(mutate):
@@ -427,6 +452,13 @@ def _hdf5(builder):
     return build
 
 
+def _folded_hex(folder):
+    """Issue 29: a quadratic hexahedron whose det J is -0.40 between its 4 x 4 x 4 fit points."""
+    from tests.helpers import folded_hex_map, lagrange_hex_vtu
+
+    return vtu_case(folder, lagrange_hex_vtu(folded_hex_map))
+
+
 def _huge_image(folder):
     v = base_view({"builtin": "sphere"}, 32768, 32768)
     return render_args(folder, v)
@@ -458,6 +490,8 @@ CASES = [
     Case("HDF5 DATA of 10^8 unwritten values", "amplification", _hdf5(_fill_value(100_000_000)), expect=("m.fld",)),
     Case("HDF5 DATA of 2.68e8 unwritten values", "amplification", _hdf5(_fill_value(268_000_000)), expect=("m.fld",)),
     Case("HDF5 gzip chunk inflating to 64 MiB", "amplification", _hdf5(_chunk_bomb), expect=("m.fld", "inflates")),
+    Case("HDF5 gzip chunks, each within its size, 780x the file", "amplification", _hdf5(_chunks_beyond_the_file),
+         expect=("m.fld", "DATA", "100x")),
     # HDF5 references to other files
     Case("HDF5 external storage -> /etc/passwd", "HDF5 references", _hdf5(_external_data("/etc/passwd")),
          expect=("m.fld", "external")),
@@ -476,6 +510,8 @@ CASES = [
     # numbers a mesh cannot hold
     Case("vertex at 1e200", "mesh values", lambda f: nektar_case(f, mesh=nektar_mesh(vertex_scale=1e200), fld=nektar_field()),
          expect=("m.xml", "too large")),
+    Case("quadratic hex folded between its fit points", "mesh values", _folded_hex,
+         expect=("m.vtu", "cell 0: inverted or tangled hexahedron", "-0.4")),
     # VTU compressed blocks
     Case("VTU 800 blocks of 1 MiB zeros", "VTU compressed blocks", many_blocks_of_zeros, expect=("m.vtu",)),
     Case("VTU 3 GiB zlib bomb in one block", "VTU compressed blocks", one_block_bomb, expect=("m.vtu",)),
@@ -556,7 +592,7 @@ def hdf5_one_byte(position, change):
 # the issue's bytes 5937/6017 of its 12 KB file: the type of a variable-length string attribute,
 # its class bits flipped (a string becomes a sequence: libhdf5 crashes converting it, SIGSEGV);
 # bytes 8273/8328: a global heap object's size 0 (H5HG__cache_heap_deserialize never advances);
-# and a string length of 4 GiB (libhdf5 allocates and fills it: seconds and GB, then an error)
+# and a string length of 4 GiB (libhdf5 allocates and fills it: refused at once, a header's allocations are capped)
 VLEN_TYPE_BITS = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[0] + 1, lambda b: b ^ 0xFF)
 VLEN_LENGTH = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR")[1] + 3, lambda b: b ^ 0xFF)
 HEAP_OBJECT_SIZE = hdf5_one_byte(lambda d: _global_heap_object(d, b"p"), lambda b: 0)

@@ -3,9 +3,10 @@ quadrature settings, the per-round segment buffer and the per-ray state (one mod
 float64 twin of every kernel module sees the same struct types; kernels/precision.py).
 
 A render is a loop of rounds over a tile of rays (kernels/raycast.py): the search kernel finds
-where rays that need it enter the mesh, the traverse kernel walks each ray through the mesh
-and writes up to SEGMENTS_PER_ROUND element segments, the sample kernel fills in the field's
-samples along them, and the integrate kernel turns them into colour and transmittance.
+where rays that need it enter the mesh (kernels/entry.py), the traverse kernel walks each ray
+through the mesh and writes up to SEGMENTS_PER_ROUND element segments, the sample kernel fills in
+the field's samples along them (kernels/walk.py), and the integrate kernel turns them into colour
+and transmittance (kernels/integrate.py).
 Per-ray state carries everything from one round to the next. A trace (Renderer.trace) keeps
 every segment of every ray in a SegmentCache instead of integrating them, and the shade
 kernel integrates them later through any transfer function.
@@ -33,7 +34,14 @@ STAT_SMOOTH = 4  # segments integrated as smooth
 STAT_PIECEWISE = 5  # segments integrated as piecewise-smooth
 STAT_LOCATES = 6  # curved elements searched for along the ray (entry search, no neighbour to walk to)
 STAT_WALKS = 7  # element entries through a shared face (no search)
-NUM_STATS = 8
+# the work counts (tests/perf): deterministic on the CPU, what a change of the traversal costs
+STAT_BVH_CANDIDATES = 8  # candidates the search's BVH queries returned (Warp exposes no node count)
+# Newton iterations (each a map evaluation with its Jacobian) in the search, the walk and the samples
+STAT_NEWTON_SEARCH = 9
+STAT_NEWTON_WALK = 10
+STAT_NEWTON_SAMPLE = 11
+STAT_ROUNDS = 12  # rounds the ray took part in (traverse launches it was active in)
+NUM_STATS = 13
 
 # segment flags
 SEG_CURVED = 1  # samples of a Chebyshev interpolant (not exact): classify by the element's range
@@ -73,7 +81,7 @@ class MeshArgs:
     # how far an evaluation of the element's field can be off by rounding (a segment's bound
     # from its samples is widened by this): EVAL_ERROR_FACTOR eps sum |c_m| max |phi_m|
     field_err: wp.array(dtype=wp.float32)
-    # element e's neighbour across its reference face f (element.face_plane order): e * 6 + f;
+    # element e's neighbour across its reference face f (element.face_plane order): e * MAX_FACES + f;
     # -1 on the boundary or where no element shares the face exactly
     neighbour: wp.array(dtype=wp.int32)
     # curved / non-affine elements: (x - centre) w^2 as tensor Legendre coefficients of
@@ -123,7 +131,7 @@ class SurfaceArgs:
     # (opacity, clip, 0, 0): clip +1 removes the volume where n . x > c, -1 where n . x < c, 0 none
     plane_style: wp.array(dtype=wp.vec4)
     # per element: 1 where a level lies in its certified range or a plane crosses its box, so
-    # the walk samples it even where the density is 0 (raycast.element_transparent)
+    # the walk samples it even where the density is 0 (walk.element_transparent)
     keep: wp.array(dtype=wp.int32)
     # the reference gradient of the field, component k of element e's expansion at
     # k * grad_stride + MeshArgs.coeff_offset[e] (engine/isosurfaces.reference_gradient); 0: none

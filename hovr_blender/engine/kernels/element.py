@@ -9,14 +9,12 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ..shapes import HEX, PRISM, PYR, TET
+from ..shapes import HEX, MAX_MODES, PRISM, PYR, TET
+from .tolerances import CLIP_TOL  # reference_clip's margin: a few ulps of 1
 
 wp.set_module_options({"enable_backward": False})
 
-ModeValues = wp.types.vector(length=16, dtype=wp.float32)
-# reference-space margin of the affine clip (reference_clip): a few ulps of 1
-CLIP_TOL = 1.0e-6
-CLIP_TOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
+ModeValues = wp.types.vector(length=MAX_MODES, dtype=wp.float32)  # one direction's modes
 
 
 @wp.func

@@ -19,19 +19,16 @@ from __future__ import annotations
 
 import warp as wp
 
+from ..shapes import MAX_FACES
 from . import element
 from .args import MeshArgs
+# the precision's tolerances (kernels/tolerances.py): INSIDE_TOL, the reference-space margin still
+# counted as inside; NEWTON_STEP_TOL, Newton's last step; ROOT_RTOL, a crossing's relative bracket
+from .tolerances import INSIDE_TOL, NEWTON_STEP_TOL, ROOT_RTOL
 
 wp.set_module_options({"enable_backward": False})
 
-# Tolerances sized for float32; NAME_FLOAT64 is NAME in the float64 twin (kernels/precision.py).
-INSIDE_TOL = 1.0e-5  # reference-space margin still counted as inside (float32 noise in xi)
-INSIDE_TOL_FLOAT64 = 1.0e-11
-NEWTON_STEP_TOL = 1.0e-5  # Newton stops after a step below this (quadratic: xi then ~1e-10 off)
-NEWTON_STEP_TOL_FLOAT64 = 1.0e-8
 NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larger, up to this
-ROOT_RTOL = 1.0e-7  # relative bracket width where boundary and level crossings stop
-ROOT_RTOL_FLOAT64 = 1.0e-13
 # Newton's iterations at most: quadratic convergence needs a few, but next to an edge where
 # the element's Jacobian vanishes (NGSolve's ball) it converges linearly, about a bit a step
 NEWTON_ITERATIONS = 40
@@ -136,13 +133,16 @@ def start_guess(mesh: MeshArgs, e: int, p: wp.vec3) -> wp.vec3:
 @wp.func
 def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
     """(xi, converged) with x(xi) = p: Newton with the exact Jacobian, steps clamped so xi
-    stays in a slightly enlarged reference box; and the last inverse Jacobian dxi/dx (it turns
-    the ray direction into the reference-space velocity, for warm starts and slopes)."""
+    stays in a slightly enlarged reference box; the last inverse Jacobian dxi/dx (it turns
+    the ray direction into the reference-space velocity, for warm starts and slopes); and the
+    iterations taken (each one map evaluation with its Jacobian: the work counts' STAT_NEWTON_*)."""
     xi = xi0
     ok = float(0.0)
     Jinv = wp.identity(n=3, dtype=float)
     held_count = int(0)
+    iterations = int(0)
     for it in range(NEWTON_ITERATIONS):
+        iterations += 1
         x, J = geometry_with_jacobian(mesh, e, xi)
         det = wp.determinant(J)
         if wp.abs(det) < 1.0e-30:
@@ -183,7 +183,7 @@ def invert_point(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
             if step < jn * noise:
                 ok = 1.0
                 break
-    return wp.vec4(xi[0], xi[1], xi[2], ok), Jinv
+    return wp.vec4(xi[0], xi[1], xi[2], ok), Jinv, iterations
 
 
 @wp.func
@@ -204,15 +204,15 @@ def margin_and_face(shape: int, xi: wp.vec3) -> wp.vec2:
 @wp.func
 def solved_margin(mesh: MeshArgs, e: int, p: wp.vec3, xi0: wp.vec3):
     """invert_point from xi0 and the solution's margin + INSIDE_TOL (NEWTON_FAILED where Newton
-    did not converge), with the inverse Jacobian and the nearest face."""
-    r, Jinv = invert_point(mesh, e, p, xi0)
+    did not converge), with the inverse Jacobian, the nearest face and Newton's iterations."""
+    r, Jinv, its = invert_point(mesh, e, p, xi0)
     m = float(NEWTON_FAILED)
     face = float(0.0)
     if r[3] > 0.0:
         mf = margin_and_face(mesh.shape[e], wp.vec3(r[0], r[1], r[2]))
         m = mf[0] + INSIDE_TOL
         face = mf[1]
-    return wp.vec3(r[0], r[1], r[2]), m, face, Jinv
+    return wp.vec3(r[0], r[1], r[2]), m, face, Jinv, its
 
 
 @wp.func
@@ -231,8 +231,9 @@ def reference_centre(shape: int) -> wp.vec3:
 def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0: wp.vec3):
     """(xi, margin + INSIDE_TOL) at ray parameter t: > 0 inside; NEWTON_FAILED where Newton does
     not converge; and (dxi/dt, dmargin/dt) there, for warm starts one step ahead and Newton on
-    the margin. A warm start that fails, or that lands outside the element, is retried from the
-    affine guess and then from the element's centre; the best answer is kept.
+    the margin; and Newton's iterations. A warm start that fails, or that lands outside the
+    element, is retried from the affine guess and then from the element's centre; the best
+    answer is kept.
 
     Beyond the element the polynomial map can fold (an element whose Jacobian vanishes along an
     edge, as where NGSolve's ball puts a hexahedron's edge on the sphere with its faces at 180
@@ -242,16 +243,18 @@ def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0:
     search stepped between such a point and one before the element until it gave up, and the
     ray lost the element."""
     p = o + t * d
-    xi, m, face, Jinv = solved_margin(mesh, e, p, xi0)
+    xi, m, face, Jinv, its = solved_margin(mesh, e, p, xi0)
     if m <= 0.0:
-        xi2, m2, face2, Jinv2 = solved_margin(mesh, e, p, start_guess(mesh, e, p))
+        xi2, m2, face2, Jinv2, its2 = solved_margin(mesh, e, p, start_guess(mesh, e, p))
+        its += its2
         if m2 > m:
             xi = xi2
             m = m2
             face = face2
             Jinv = Jinv2
     if m <= 0.0:
-        xi3, m3, face3, Jinv3 = solved_margin(mesh, e, p, reference_centre(mesh.shape[e]))
+        xi3, m3, face3, Jinv3, its3 = solved_margin(mesh, e, p, reference_centre(mesh.shape[e]))
+        its += its3
         if m3 > m:
             xi = xi3
             m = m3
@@ -262,7 +265,7 @@ def curved_inside(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, xi0:
     if m > NEWTON_FAILED:
         pl = element.face_plane(mesh.shape[e], int(face))
         slope = -(pl[0] * v[0] + pl[1] * v[1] + pl[2] * v[2])
-    return wp.vec4(xi[0], xi[1], xi[2], m), wp.vec4(v[0], v[1], v[2], slope)
+    return wp.vec4(xi[0], xi[1], xi[2], m), wp.vec4(v[0], v[1], v[2], slope), its
 
 
 @wp.func
@@ -431,7 +434,8 @@ def tangent_face_step(shape: int, xi: wp.vec3, v: wp.vec3) -> float:
 def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_in: wp.vec4, dv_in: wp.vec4,
                 t_end: float):
     """The ray is inside curved element e at t_in (solution r_in, velocity dv_in): where it
-    leaves, as (t_exit, exit face or -1, 0), with the solution and velocity there. Steps go to
+    leaves, as (t_exit, exit face or -1, 0), with the solution and velocity there, and Newton's
+    iterations. Steps go to
     the face the tangent in reference space predicts (a little beyond it, at most half the box
     chord at a time) until one lands outside; then the bracket closes on the crossing. Reaching
     t_end (the box's or the ray's end) inside ends the stretch there with face -1."""
@@ -442,6 +446,7 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
     shape = mesh.shape[e]
     stepping = int(1)
     br = Bracket()
+    newton = int(0)
     for it in range(MAX_EXIT_STEPS + 40):
         tq = t
         start = wp.vec3(0.0, 0.0, 0.0)
@@ -451,14 +456,15 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
             start = ahead(r, dv, tq - t)
         else:
             tq, start = bracket_query(br)
-        rq, dvq = curved_inside(mesh, e, o, d, tq, start)
+        rq, dvq, its = curved_inside(mesh, e, o, d, tq, start)
+        newton += its
         if stepping == 1:
             if rq[3] > 0.0:
                 t = tq
                 r = rq
                 dv = dvq
                 if t >= t_end:
-                    return wp.vec3(t_end, -1.0, 0.0), r, dv
+                    return wp.vec3(t_end, -1.0, 0.0), r, dv, newton
             else:
                 stepping = 0
                 br = bracket_start(tq, rq[3], t, r, dv)
@@ -467,9 +473,9 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
             if br.done == 1:
                 break
     if stepping == 1:
-        return wp.vec3(t, -1.0, 0.0), r, dv
+        return wp.vec3(t, -1.0, 0.0), r, dv, newton
     mf = margin_and_face(shape, wp.vec3(br.rb[0], br.rb[1], br.rb[2]))
-    return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb
+    return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb, newton
 
 
 @wp.func
@@ -484,9 +490,10 @@ def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
 
 
 @wp.func
-def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: float, tb: float) -> wp.vec4:
+def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: float, tb: float):
     """(xi, t) where the ray crosses reference face f of curved element e within [ta, tb]
-    (t = 1e30: none found): Newton on (u, v, t) for x(xi(u, v)) = o + t d, xi(u, v) in the
+    (t = 1e30: none found), and the Newton iterations taken (each a map evaluation with its
+    Jacobian): Newton on (u, v, t) for x(xi(u, v)) = o + t d, xi(u, v) in the
     face's plane, from its centre. Beyond an edge where the map folds no point outside the
     element has a preimage, but the face itself is a regular patch."""
     shape = mesh.shape[e]
@@ -503,7 +510,9 @@ def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: fl
     t = wp.clamp(wp.dot(x0 - o, d) / wp.dot(d, d), ta, tb)
     u = float(0.0)
     v = float(0.0)
+    newton = int(1)
     for it in range(FACE_ITERATIONS):
+        newton += 1
         xi = xc + u * a + v * b
         x, J = geometry_with_jacobian(mesh, e, xi)
         ca = J * a
@@ -526,8 +535,8 @@ def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: fl
                 q = element.face_plane(shape, g)
                 if g != f and q[3] - (q[0] * xi[0] + q[1] * xi[1] + q[2] * xi[2]) < -INSIDE_TOL:
                     t = 1.0e30
-            return wp.vec4(xi[0], xi[1], xi[2], t)
-    return wp.vec4(0.0, 0.0, 0.0, 1.0e30)
+            return wp.vec4(xi[0], xi[1], xi[2], t), newton
+    return wp.vec4(0.0, 0.0, 0.0, 1.0e30), newton
 
 
 @wp.func
@@ -548,8 +557,8 @@ def back_to_face(t: float, r: wp.vec4, dv: wp.vec4, shift: float, t_min: float):
 
 @wp.func
 def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, again: int):
-    """Where the ray first is inside curved element e beyond t_from: (found, t, 0) and the
-    solution and velocity there (for curved_exit). With `again` = 1 (e is the element the ray
+    """Where the ray first is inside curved element e beyond t_from: (found, t, 0), the
+    solution and velocity there (for curved_exit) and Newton's iterations. With `again` = 1 (e is the element the ray
     has just left at t_from) it must come INSIDE_TOL inside, not INSIDE_TOL short of the face:
     right after the exit the ray is still within the band the exit counted as inside, and
     Newton's rounding there can reach INSIDE_TOL, but not 2 INSIDE_TOL.
@@ -573,7 +582,7 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, 
     ta = wp.max(bi[0], t_from)
     tb = bi[1]
     if tb <= ta:
-        return wp.vec3(0.0, 0.0, 0.0), none, none
+        return wp.vec3(0.0, 0.0, 0.0), none, none, 0
     shape = mesh.shape[e]
     span = tb - ta
     xi = start_guess(mesh, e, o + ta * d)
@@ -588,22 +597,24 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, 
     shift = float(0.0)  # taken off the margin, and given back with the solution returned
     if again == 1:
         shift = 2.0 * INSIDE_TOL
+    newton = int(0)
     for it in range(2 * n_steps + 48):
         if bracketing == 1:
             tq, start = bracket_query(br)
-        rq, dvq = curved_inside(mesh, e, o, d, tq, start)
+        rq, dvq, its = curved_inside(mesh, e, o, d, tq, start)
+        newton += its
         if rq[3] > NEWTON_FAILED:
             rq[3] = rq[3] - shift
         if bracketing == 1:
             br = bracket_update(br, tq, rq, dvq)
             if br.done == 1:
                 t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
-                return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb
+                return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb, newton
             continue
         if rq[3] > 0.0:
             if tq <= ta:
                 rq[3] = rq[3] + shift
-                return wp.vec3(1.0, tq, 0.0), rq, dvq
+                return wp.vec3(1.0, tq, 0.0), rq, dvq, newton
             bracketing = 1
             br = bracket_start(t_lo, m_lo, tq, rq, dvq)
             continue
@@ -635,9 +646,10 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, 
                 blind = 2
                 best = wp.vec4(0.0, 0.0, 0.0, 1.0e30)
                 for f in range(element.num_faces(shape)):
-                    # a clip through a shared face is walk_back's to recover (raycast.py)
-                    if mesh.neighbour[e * 6 + f] < 0:
-                        fc = face_crossing(mesh, e, o, d, f, ta, tb)
+                    # a clip through a shared face is walk_back's to recover (kernels/entry.py)
+                    if mesh.neighbour[e * MAX_FACES + f] < 0:
+                        fc, fits = face_crossing(mesh, e, o, d, f, ta, tb)
+                        newton += fits
                         if fc[3] < best[3]:
                             best = fc
                 if best[3] >= tb:
@@ -660,5 +672,5 @@ def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, 
         # out of steps before the bracket met ROOT_RTOL (float64's 1e-13 after a long search):
         # its inside end is inside the element, the nearest point known so
         t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
-        return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb
-    return wp.vec3(0.0, 0.0, 0.0), none, none
+        return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb, newton
+    return wp.vec3(0.0, 0.0, 0.0), none, none, newton

@@ -38,6 +38,7 @@ from . import geometry
 from .args import MAX_SAMPLES, MeshArgs, SurfaceArgs, TransferArgs
 from .quadrature import RayIntegral, ramp_segment, tf_color
 from .restriction import series_weights
+from .tolerances import ROOT_EPS  # the arithmetic's epsilon: rounding of a series' value, Newton's stop
 
 wp.set_module_options({"enable_backward": False})
 
@@ -46,8 +47,6 @@ ROOT_STACK = 48  # the isolation's interval stack
 ROOT_MAX_DEPTH = 40  # halvings of [-1, 1] at most (2^-40: below float32's resolution of s)
 ROOT_ITERATIONS = 64  # safeguarded Newton steps at most
 MAX_INTERVALS = 256  # intervals one level's isolation looks at, at most (a bound on a ray's work)
-ROOT_EPS = 1.2e-7  # the arithmetic's epsilon: rounding of a series' value, Newton's stop
-ROOT_EPS_FLOAT64 = 2.3e-16  # in the float64 twin (kernels/precision.py)
 ROUNDING_FACTOR = 16.0  # p's rounding: ROUNDING_FACTOR eps sum |p_k| (deg <= 47 terms of Clenshaw)
 # headlight shading of an isosurface (contract §7): colour (AMBIENT + DIFFUSE |n . d|)
 AMBIENT = 0.25
@@ -394,7 +393,7 @@ def locate(mesh: MeshArgs, e: int, x: wp.vec3):
     """(xi, dxi/dx, located) of point x in element e: the affine map, or Newton on a curved one."""
     if mesh.affine[e] == 1:
         return mesh.ref_a[e] * x + mesh.ref_b[e], mesh.ref_a[e], 1
-    r, Jinv = geometry.invert_point(mesh, e, x, geometry.start_guess(mesh, e, x))
+    r, Jinv, its = geometry.invert_point(mesh, e, x, geometry.start_guess(mesh, e, x))
     ok = int(0)
     if r[3] > 0.0:
         ok = 1

@@ -8,8 +8,14 @@ memory, once per process:
 - the module's syntax tree is rewritten (_ToFloat64): inside Warp functions float literals,
   `float(...)` and `wp.pi` become wp.float64, everywhere the float32 vector/matrix types become
   their float64 twins; the BVH query gets float32 ray arguments (Warp's BVH is float32); a
-  module-level float constant NAME takes the value of NAME_FLOAT64 where the module defines one
-  (each float64 tolerance is written beside its float32 value);
+  module-level float literal constant becomes a float64 constant;
+- the tolerances that depend on the precision sit in one table, kernels/tolerances.py: each
+  NAME is its float32 value and NAME_FLOAT64 beside it the float64 twin's, which the twin takes
+  for NAME (every float there needs its partner; a NAME_FLOAT64 anywhere else is an error);
+- a float the rewrite cannot convert is an error at generation time, naming it: a module
+  constant that Warp code reads but that is computed (`2 * TOL`) rather than written as a
+  literal, or one imported from a module that is not twinned; it would stay float32 and mix
+  with float64 (or silently keep float32's value);
 - the new text is compiled and executed into a module object registered in sys.modules as
   a sibling package of the kernels (TWIN_PACKAGE), so the modules' relative imports resolve
   unchanged: `.args` to the twin of args.py, `..shapes` to the core's own shapes;
@@ -46,6 +52,11 @@ from . import raycast
 KERNELS_PACKAGE = __package__
 TWIN_PACKAGE = KERNELS_PACKAGE.rpartition(".")[0] + "._kernels_float64"
 FLOAT64_SUFFIX = "_FLOAT64"  # NAME_FLOAT64 = value: NAME's value in the float64 twin
+TOLERANCES = "tolerances"  # the one module of float32 / float64 tolerance pairs
+
+
+class TwinError(ValueError):
+    """A kernel module the float64 generator cannot convert (the message names the constant)."""
 
 _TYPE_MAP = {"float32": "float64", "vec2": "vec2d", "vec3": "vec3d", "vec4": "vec4d", "mat33": "mat33d",
              "vec2f": "vec2d", "vec3f": "vec3d", "vec4f": "vec4d", "mat33f": "mat33d"}
@@ -97,7 +108,8 @@ class _ToFloat64(ast.NodeTransformer):
     def __init__(self, float64_values: dict, constants: dict):
         self.in_warp = 0
         self.float64_values = float64_values  # NAME -> its NAME_FLOAT64
-        self.constants = constants  # module-level number constants: NAME -> value
+        # number constants Warp code may read: this module's and those imported from twinned modules
+        self.constants = constants
 
     def visit_FunctionDef(self, node):
         warp = _is_warp_decorated(node)
@@ -179,24 +191,107 @@ def _float32_tree(name: str) -> ast.Module:
     return ast.parse(spec.loader.get_source(spec.name))
 
 
-def _to_float64(name: str, tree: ast.Module) -> str:
-    """The float64 twin's source from kernels module `name`'s syntax tree (rewritten in place)."""
+def _float64_pairs(name: str, tree: ast.Module) -> dict:
+    """{NAME: its NAME_FLOAT64} of module `name`: only the tolerance table has pairs, and there every
+    float constant has one (TwinError otherwise)."""
     constants = _float_constants(tree)
-    float64_values = {}
+    pairs = {}
     for key, value in constants.items():
         if key.endswith(FLOAT64_SUFFIX):
             base = key[: -len(FLOAT64_SUFFIX)]
+            if name != TOLERANCES:
+                raise TwinError(f"kernels/{name}.py: {key}: float32/float64 pairs belong in kernels/{TOLERANCES}.py")
             if base not in constants:
-                raise ValueError(f"kernels/{name}.py: {key} has no float constant {base} beside it")
-            float64_values[base] = value
-    tree = _ToFloat64(float64_values, _number_constants(tree)).visit(tree)
+                raise TwinError(f"kernels/{name}.py: {key} has no float constant {base} beside it")
+            pairs[base] = value
+    if name == TOLERANCES:
+        for key in constants:
+            if not key.endswith(FLOAT64_SUFFIX) and key not in pairs:
+                raise TwinError(f"kernels/{TOLERANCES}.py: {key} has no {key}{FLOAT64_SUFFIX} beside it")
+    return pairs
+
+
+def _warp_names(tree: ast.Module) -> set:
+    """The names read inside the module's Warp functions."""
+    names = set()
+    for fn in ast.walk(tree):
+        if isinstance(fn, ast.FunctionDef) and _is_warp_decorated(fn):
+            names.update(n.id for n in ast.walk(fn) if isinstance(n, ast.Name))
+    return names
+
+
+def _imported_constants(tree: ast.Module, twinned) -> dict:
+    """{NAME: value} of the number constants this module imports by name from twinned modules
+    (`from .geometry import INSIDE_TOL`), each with the value the float64 twin gives it (read
+    from the module's own source: the trees being rewritten change)."""
+    out = {}
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module in twinned:
+            source = _float32_tree(node.module)
+            constants = _number_constants(source)
+            pairs = _float64_pairs(node.module, source)
+            for alias in node.names:
+                if alias.name in constants:
+                    out[alias.asname or alias.name] = pairs.get(alias.name, constants[alias.name])
+    return out
+
+
+def _unconvertible_floats(tree: ast.Module, twinned, imported: dict) -> dict:
+    """{NAME: value} of the module-level names bound to a float the rewrite cannot make float64: a
+    computed constant (`TWICE = 2 * TOL`, evaluated from the number constants before it) or a float
+    imported from a module that has no twin (`from ..shapes import X`)."""
+    import importlib
+
+    known = {**imported, **_number_constants(tree)}
+    out = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            name = node.targets[0].id
+            if name in known:
+                continue
+            try:
+                value = eval(compile(ast.Expression(node.value), "<constant>", "eval"), {"__builtins__": {}}, dict(known))
+            except Exception:  # not arithmetic on number constants: no number
+                continue
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                known[name] = value
+                if isinstance(value, float):
+                    out[name] = value
+        elif isinstance(node, ast.ImportFrom) and node.level >= 1 and not (node.level == 1 and node.module in twinned):
+            package = KERNELS_PACKAGE.rsplit(".", node.level - 1)[0] if node.level > 1 else KERNELS_PACKAGE
+            module = importlib.import_module(f"{package}.{node.module}" if node.module else package)
+            for alias in node.names:
+                value = getattr(module, alias.name, None)
+                if isinstance(value, float):
+                    out[alias.asname or alias.name] = value
+    return out
+
+
+def _check_convertible(name: str, tree: ast.Module, twinned, imported: dict):
+    """TwinError naming the first float that Warp code of module `name` reads but the rewrite
+    cannot make float64 (_unconvertible_floats): it would stay float32."""
+    bad = _unconvertible_floats(tree, twinned, imported)
+    for n in sorted(_warp_names(tree) & set(bad)):
+        raise TwinError(f"kernels/{name}.py: Warp code reads {n} = {bad[n]!r}, a float the float64 twin cannot convert "
+                        f"(write it as a literal in this module, or as a pair in kernels/{TOLERANCES}.py)")
+
+
+def _to_float64(name: str, tree: ast.Module, twinned) -> str:
+    """The float64 twin's source from kernels module `name`'s syntax tree (rewritten in place);
+    `twinned`: the names of the modules with a twin (their constants are converted there)."""
+    imported = _imported_constants(tree, twinned)
+    constants = {**imported, **_number_constants(tree)}
+    float64_values = _float64_pairs(name, tree)
+    _check_convertible(name, tree, twinned, imported)
+    tree = _ToFloat64(float64_values, constants).visit(tree)
     ast.fix_missing_locations(tree)
     return ast.unparse(tree) + "\n"
 
 
 def float64_source(name: str) -> str:
     """The float64 twin's source of kernels module `name` (e.g. "geometry")."""
-    return _to_float64(name, _float32_tree(name))
+    trees = _dependency_order(name)
+    return _to_float64(name, trees[name], set(trees))
 
 
 def _dependency_order(root: str) -> dict:
@@ -262,9 +357,10 @@ def _float64_kernels() -> ModuleType:
         package = ModuleType(TWIN_PACKAGE, "float64 twins of the kernels (kernels/precision.py)")
         package.__path__ = []
         sys.modules[TWIN_PACKAGE] = package
-    for name, tree in _dependency_order("raycast").items():
+    trees = _dependency_order("raycast")
+    for name, tree in trees.items():
         if f"{TWIN_PACKAGE}.{name}" not in sys.modules:
-            _load_twin(name, _to_float64(name, tree))
+            _load_twin(name, _to_float64(name, tree, set(trees)))
     return sys.modules[f"{TWIN_PACKAGE}.raycast"]
 
 

@@ -17,7 +17,7 @@ import warp as wp
 
 from ..methods import METHOD_IDS
 from .args import MeshArgs, QuadArgs, TransferArgs
-from .geometry import ROOT_RTOL
+from .tolerances import ROOT_RTOL
 from .restriction import (clenshaw, clenshaw_and_integral, clenshaw_integral, clenshaw_with_slope, eval_field,
                           restriction_at, series_weights)
 

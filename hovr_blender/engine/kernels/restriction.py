@@ -21,11 +21,10 @@ import warp as wp
 from . import element
 from . import geometry
 from .args import MAX_SAMPLES, MeshArgs, Segments
+from .tolerances import CURVED_TAIL_RTOL  # a curved interpolant's tail against its samples' size
 
 wp.set_module_options({"enable_backward": False})
 
-CURVED_TAIL_RTOL = 1.0e-6  # a curved interpolant's tail against its samples' size (refine_degree)
-CURVED_TAIL_RTOL_FLOAT64 = 1.0e-12  # in the float64 twin (kernels/precision.py)
 
 
 @wp.func
@@ -254,7 +253,7 @@ def hermite_start(segs: Segments, slot: int, t: float) -> wp.vec3:
 def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
                  curved: int):
     """Where the slot's sample j of deg + 1 (Chebyshev-Lobatto point t_j of [t0, t1]) lies in its
-    element: (xi, w, dxi/dx there); the sample is f(xi) w^2.
+    element: (xi, w, dxi/dx there, Newton's iterations); the sample is f(xi) w^2.
 
     Affine element: xi = A o + b + t A d (w = 1 but for pyramids): deg + 1 samples are exact for
     the element's polynomial along the ray (restriction_degree).
@@ -265,11 +264,13 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
     w = float(1.0)
     xi = wp.vec3(0.0, 0.0, 0.0)
     A = wp.mat33()
+    newton = int(0)
     if curved == 1:
         p = o + t * d
         start = hermite_start(segs, slot, t)
         for attempt in range(2):
-            r, Jinv = geometry.invert_point(mesh, e, p, start)
+            r, Jinv, its = geometry.invert_point(mesh, e, p, start)
+            newton += its
             xi = wp.vec3(r[0], r[1], r[2])
             A = Jinv
             if r[3] > 0.0:
@@ -279,14 +280,14 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
         A = mesh.ref_a[e]
         xi = A * (o + t * d) + mesh.ref_b[e]
         w = element.restriction_weight(mesh.shape[e], xi)
-    return xi, w, A
+    return xi, w, A, newton
 
 
 @wp.func
 def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
               curved: int) -> float:
     """The slot's sample j (sample_point) through the generic evaluator."""
-    xi, w, A = sample_point(mesh, o, d, segs, slot, j, deg, curved)
+    xi, w, A, newton = sample_point(mesh, o, d, segs, slot, j, deg, curved)
     return eval_field(mesh, segs.element[slot], xi) * w * w
 
 

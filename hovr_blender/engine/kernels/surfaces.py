@@ -1,6 +1,6 @@
 """Opaque surfaces: each pixel's camera ray cast against a triangle mesh (Warp's wp.Mesh BVH).
 
-The same rays as the volume's (raycast.camera_ray: the contract's unit direction, so t is in
+The same rays as the volume's (rays.camera_ray: the contract's unit direction, so t is in
 world units), between the camera's near limit (t_min, the near clip plane) and its far one:
 the first triangle hit there is where the ray's volume integral ends (engine/surfaces.py).
 float32 only: Warp's mesh is float32 in both precisions, as its BVH is.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import warp as wp
 
 from .args import CameraArgs
-from .raycast import camera_ray
+from .rays import camera_ray, camera_span
 
 wp.set_module_options({"enable_backward": False})
 
@@ -24,12 +24,9 @@ def cast_surfaces(mesh: wp.uint64, cam: CameraArgs, t_out: wp.array(dtype=wp.flo
     face_out[pixel]: its triangle (NO_HIT where none)."""
     pixel = wp.tid()
     o, d = camera_ray(cam, pixel)
-    t_lo = cam.t_min
-    t_hi = cam.t_max
-    cax = wp.dot(d, cam.clip_axis)
-    if cax > 0.0:
-        t_lo = wp.max(t_lo, cam.clip_near / cax)
-        t_hi = wp.min(t_hi, cam.clip_far / cax)
+    span = camera_span(cam, d)
+    t_lo = span[0]
+    t_hi = span[1]
     t_out[pixel] = wp.inf
     face_out[pixel] = NO_HIT
     if t_hi > t_lo:

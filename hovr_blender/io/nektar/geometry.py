@@ -2,7 +2,7 @@
 coordinates; each curved edge's modes are fitted to Nektar++'s edge curve (interpolant of the
 points with the end points moved onto the vertices); each face with F points adds its bubble
 (the interior-mode part of the face interpolant); interior modes stay zero. For hexes this is
-the Gordon-Hall blend the spec describes. Every element's Jacobian is checked to be positive."""
+the Gordon-Hall blend the spec describes. Every element is certified valid (engine/validity.py)."""
 from __future__ import annotations
 
 from functools import lru_cache
@@ -10,7 +10,9 @@ from functools import lru_cache
 import numpy as np
 
 from ...engine import expansions as ex
+from ...engine import validity
 from ...engine.expansions import gll_points
+from ...engine.mesh import MeshError
 from ...engine.shapes import EDGES, FACES, NAMES, VERTICES
 from .errors import NektarError
 from .mesh import NektarMesh
@@ -222,26 +224,11 @@ def _straight_elements(shape, corners):
 
 
 def _check_jacobians(path, shape, num_modes, ids, coeffs):
-    """NektarError for the first inverted or degenerate element (det dx/dxi <= 0 somewhere sampled)."""
-    if not len(ids):
-        return
-    modes = np.array([num_modes, num_modes, num_modes])
-    K = ex.num_coeffs(shape, modes)
-    ref = VERTICES[shape]
-    centre = ref.mean(axis=0)
-    points = np.concatenate([np.asarray(ex.fit_points(shape, modes), float), centre + 0.98 * (ref - centre)])
-    gradients = np.asarray(ex.eval_modal_grad(shape, modes, np.eye(K), points))  # (M, K, 3)
-    for start in range(0, len(ids), 4096):
-        chunk = coeffs[start : start + 4096]
-        J = np.einsum("mkd,nkj->nmjd", gradients, chunk)  # dx_j/dxi_d
-        det = np.linalg.det(J)
-        size = np.ptp(chunk[:, _geometry_space(shape, num_modes).vertex_modes], axis=1).max(axis=1)
-        tol = 1e-10 * np.maximum(size, 1e-300) ** 3
-        bad = np.flatnonzero(~np.all(det > tol[:, None], axis=1))
-        if len(bad):
-            i = int(bad[0])
-            kind = "inverted (negative Jacobian)" if np.nanmin(det[i]) < -tol[i] else "degenerate (zero Jacobian)"
-            raise NektarError(f"{path}: {NAMES[shape]} {ids[start + i]} is {kind}")
+    """NektarError for the first element not certified valid (engine/validity.py)."""
+    try:
+        validity.check_elements(shape, (num_modes,) * 3, coeffs, ids)
+    except MeshError as exc:
+        raise NektarError(f"{path}: {exc}") from None
 
 
 def mesh_geometry(mesh: NektarMesh, warnings):

@@ -8,6 +8,8 @@ and its compression have been checked (`read_dataset`).
 """
 from __future__ import annotations
 
+import os
+
 import h5py
 import numpy as np
 
@@ -46,11 +48,12 @@ def child(group, name: str, what: str):
     return obj
 
 
-def read_dataset(dataset, max_values: int, what: str):
+def read_dataset(dataset, max_values: int, what: str, inflation: limits.InflationBudget):
     """All values of an h5py dataset (reached through `child`), in its own dtype, read only
     after its declared size (at most max_values), its storage in the file and its compression
-    have been checked. Compressed chunks are inflated here, each bounded by its declared size:
-    HDF5's own deflate filter grows its buffer until the stream ends."""
+    have been checked. Compressed chunks are inflated here, each bounded by its declared size
+    (HDF5's own deflate filter grows its buffer until the stream ends), all of them together
+    first spent from the file's `inflation` budget, which every dataset of the file shares."""
     count = int(dataset.size)
     if count > max_values:
         raise limits.ResourceLimitError(f"{what} declares {count:,} values, more than the {max_values:,} it can need")
@@ -74,8 +77,10 @@ def read_dataset(dataset, max_values: int, what: str):
     per_chunk = int(np.prod(chunk))
     if per_chunk > max(count, 1 << 16):
         raise limits.ResourceLimitError(f"{what}: chunks of {per_chunk:,} values for {count:,} values; refused")
+    chunks = dataset.id.get_num_chunks()
+    inflation.spend(chunks * per_chunk * itemsize, f"{what} ({chunks:,} compressed chunks)")
     out = np.full(dataset.shape, dataset.fillvalue, dtype=dataset.dtype)
-    for i in range(dataset.id.get_num_chunks()):
+    for i in range(chunks):
         offset = dataset.id.get_chunk_info(i).chunk_offset
         skipped, raw = dataset.id.read_direct_chunk(offset)  # bit k: filter k was skipped
         if not skipped & (1 << filters.index(deflate)):
@@ -93,30 +98,33 @@ def read_dataset(dataset, max_values: int, what: str):
 # ----------------------------------------------------------------------------- field files
 
 def read_blocks(path, file, budget):
-    """The blocks of the HDF5 field file open as `file`; with budget None their headers only."""
+    """The blocks of the HDF5 field file open as `file`; with budget None their headers only.
+    Its compressed datasets inflate within one budget for the file (engine/limits.py)."""
+    inflation = limits.InflationBudget(os.fstat(file.fileno()).st_size, os.path.basename(path))
     try:
         with h5py.File(file, "r") as h5:  # the checked descriptor: HDF5 never opens the path itself
-            return _blocks(path, h5, budget)
+            return _blocks(path, h5, budget, inflation)
     except (NektarError, limits.ResourceLimitError, limits.UnsafeFileError):
         raise
     except (OSError, KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise NektarError(f"{path}: unreadable HDF5 field file ({type(exc).__name__}: {exc})") from exc
 
 
-def _blocks(path, h5, budget):
+def _blocks(path, h5, budget, inflation):
     root = child(h5, "NEKTAR", f"{path}: /NEKTAR")
     if not isinstance(root, h5py.Group):
         raise NektarError(f"{path}: HDF5 file without a /NEKTAR group (not a Nektar++ field file)")
-    rows = _decomposition(path, h5, root)
+    rows = _decomposition(path, h5, root, inflation)
     headers = _headers(path, root, rows)
     if budget is None:
         return [Block(shape, basis, fields, None, None, None, f"definition {definition}")
                 for definition, (shape, basis, fields, _, _) in headers.items()]
     _check_declared_sizes(path, rows, headers, budget)
-    all_ids = _values(path, _dataset(path, root, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(row[0] for row in rows))
-    all_data = _values(path, _dataset(path, root, "DATA", "f"), "DATA", sum(row[1] for row in rows))
+    all_ids = _values(path, _dataset(path, root, "ELEMENTIDS", "iu"), "ELEMENTIDS", sum(row[0] for row in rows),
+                      inflation)
+    all_data = _values(path, _dataset(path, root, "DATA", "f"), "DATA", sum(row[1] for row in rows), inflation)
     all_orders = _values(path, _dataset(path, root, "POLYORDERS", "iu", required=False), "POLYORDERS",
-                         sum(row[2] for row in rows))
+                         sum(row[2] for row in rows), inflation)
     blocks = []
     id_start = data_start = order_start = 0
     for index, (num_elements, num_values, num_orders, _, _, _, definition) in enumerate(rows):
@@ -134,11 +142,12 @@ def _blocks(path, h5, budget):
     return blocks
 
 
-def _decomposition(path, h5, root):
+def _decomposition(path, h5, root, inflation):
     """The DECOMPOSITION rows (elements, values, POLYORDERS entries, 0, 0, 0, definition hash)."""
     dataset = _dataset(path, root, "DECOMPOSITION", "iu")
     # the index of the data, read for headers too: bounded by the file (it is far smaller than the data)
-    table = read_dataset(dataset, h5.id.get_filesize() // dataset.dtype.itemsize, f"{path}: /NEKTAR/DECOMPOSITION")
+    table = read_dataset(dataset, h5.id.get_filesize() // dataset.dtype.itemsize, f"{path}: /NEKTAR/DECOMPOSITION",
+                         inflation)
     if table.size % 7:
         raise NektarError(f"{path}: DECOMPOSITION has {table.size} entries, not a multiple of 7")
     if dataset.dtype.kind == "i" and np.any(table < 0):
@@ -194,7 +203,7 @@ def _dataset(path, root, name, kinds, required=True):
     return dataset
 
 
-def _values(path, dataset, name, count):
+def _values(path, dataset, name, count, inflation):
     """The values of a dataset from _dataset, which must hold exactly `count` of them."""
     size = 0 if dataset is None else dataset.size
     if size != count:
@@ -202,7 +211,7 @@ def _values(path, dataset, name, count):
                           f"which holds {size:,}")
     if dataset is None:
         return np.zeros(0)
-    values = read_dataset(dataset, count, f"{path}: /NEKTAR/{name}")
+    values = read_dataset(dataset, count, f"{path}: /NEKTAR/{name}", inflation)
     if dataset.dtype.kind == "i" and np.any(values < 0):
         raise NektarError(f"{path}: /NEKTAR/{name}: negative entries")
     return values
@@ -213,7 +222,12 @@ def _attribute(path, attributes, key, what):
         raise NektarError(f"{path}: {what}: definition lacks the {key} attribute")
     if int(np.prod(attributes.get_id(key).shape or ())) > MAX_ATTRIBUTE_VALUES:
         raise NektarError(f"{path}: {what}: attribute {key} holds more than {MAX_ATTRIBUTE_VALUES} values")
-    return attributes[key]
+    try:
+        with limits.small_allocations():  # a damaged string length asks libhdf5 for gigabytes
+            return attributes[key]
+    except MemoryError:
+        raise NektarError(f"{path}: {what}: attribute {key} is larger than a header value can be "
+                          "(damaged file?)") from None
 
 
 def _text(value):

@@ -9,8 +9,9 @@ matrix per cell kind and degree serves all its cells.
 Reference-cell correspondence. Hex and tet: xi = 2r - 1. Wedge: VTK's triangle (r, s) is our
 (xi3, xi1) triangle and VTK's t is our xi2 -- a cyclic permutation, so orientation is kept;
 VTK corners 0..5 land on our prism vertices 0, 4, 1, 3, 5, 2. Writers differ in handedness
-(NGSolve's hexahedra are all left-handed in VTK's frame), so a cell whose Jacobian is negative
-throughout is read through the mirrored correspondence: every element comes out right-handed.
+(NGSolve's hexahedra are all left-handed in VTK's frame), so a cell whose signed volume is
+negative is read through the mirrored correspondence (`mirror`): every element comes out
+right-handed, and then the engine certifies it (engine/validity.py).
 """
 from __future__ import annotations
 
@@ -22,7 +23,6 @@ import numpy as np
 from ...engine import expansions as ex
 from ...engine.shapes import HEX, PRISM, TET
 from .cells import hex_order, tet_order, wedge_order
-from .errors import VtuError
 
 
 def xi_to_vtk(shape, xi, mirror=False):
@@ -113,45 +113,3 @@ def conversion_matrix(shape, family, degrees, vtk8=False, mirror=False):
     T = np.asarray(ex.fit_modal(shape, modes, E), dtype=np.float64)
     T.setflags(write=False)
     return T
-
-
-@lru_cache(maxsize=64)
-def _jacobian_probe(shape, modes):
-    """The (S, K, 3) reference gradients of every geometry mode at the shape's fit points."""
-    xi = np.asarray(ex.fit_points(shape, modes), dtype=np.float64)
-    k = ex.num_coeffs(shape, modes)
-    G = np.asarray(ex.eval_modal_grad(shape, modes, np.eye(k), xi), dtype=np.float64)
-    G.setflags(write=False)
-    return G
-
-
-def mirrored_cells(path, shape, modes, G, X, members):
-    """(n,) bool: cells to read mirrored (Jacobian negative at every sample point), given their
-    geometry coefficients G (n, K, 3), nodes X (n, N, 3) and file cell numbers. Cells whose
-    Jacobian det(dx/dxi) changes sign or vanishes (inverted corners, tangled curved cells,
-    collapsed cells) raise VtuError."""
-    D = _jacobian_probe(shape, modes)  # (S, K, 3)
-    n, k = G.shape[:2]
-    s = D.shape[0]
-    with np.errstate(over="ignore", invalid="ignore"):
-        J = (G.transpose(0, 2, 1).reshape(n * 3, k) @ D.transpose(1, 0, 2).reshape(k, s * 3))
-        det = np.linalg.det(J.reshape(n, 3, s, 3).transpose(0, 2, 1, 3))  # (n, S): J[e, s, c, d]
-        size = np.ptp(X, axis=1).max(axis=1)
-        tol = 1e-12 * size**3
-    # finite coordinates can still be too large for the test (and the geometry) in doubles:
-    # an inf/NaN Jacobian or tolerance is neither inverted nor degenerate
-    big = np.flatnonzero(~(np.isfinite(tol) & np.isfinite(det).all(axis=1)))
-    if big.size:
-        i = big[0]
-        raise VtuError(f"{path}: cell {members[i]}: node coordinates too large (up to "
-                       f"{np.abs(X[i]).max():.3g}): the geometry overflows double precision")
-    lo, hi = det.min(axis=1), det.max(axis=1)
-    for i in np.flatnonzero(~((lo > tol) | (hi < -tol))):
-        if size[i] == 0 or (hi[i] <= tol[i] and lo[i] >= -tol[i]):
-            what = "degenerate (zero volume)"
-        elif lo[i] > -tol[i] or hi[i] < tol[i]:
-            what = f"degenerate (Jacobian determinant vanishes: {lo[i]:.3g} .. {hi[i]:.3g})"
-        else:
-            what = f"inverted or tangled (Jacobian determinant changes sign: {lo[i]:.3g} .. {hi[i]:.3g})"
-        raise VtuError(f"{path}: cell {members[i]}: {what}")
-    return hi < -tol

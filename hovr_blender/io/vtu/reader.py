@@ -8,11 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ...engine import limits
+from ...engine import limits, validity
 from ...engine.mesh import MeshError, VolumeMesh
 from ...engine.shapes import HEX, MAX_MODES, PRISM, TET
 from .cells import CELL_TYPES, PYRAMIDS, infer_degrees, node_count
-from .conversion import conversion_matrix, mirrored_cells, modes_for
+from .conversion import conversion_matrix, modes_for
 from .decoding import LoadedFile, decode
 from .errors import VtuError
 from .vtkfile import load, pieces, point_arrays, point_fields, version
@@ -261,11 +261,12 @@ def _volume_mesh(path, cells, vtk8, field_name):
         with np.errstate(over="ignore", invalid="ignore"):  # overflow is diagnosed below
             G = np.matmul(T, X)  # (n, K, 3)
             C = V @ T.T
-        flip = mirrored_cells(path, shape, group_modes, G, X, members)
+        flip = validity.orientation(shape, group_modes, G) < 0  # left-handed: read mirrored
         if flip.any():
             T_mirrored = conversion_matrix(shape, family, degrees, old_hex_order, True)
             G[flip] = np.matmul(T_mirrored, X[flip])
             C[flip] = V[flip] @ T_mirrored.T
+        validity.check_elements(shape, group_modes, G, members)
         for i, e in enumerate(members):
             coeffs[e], geometry_coeffs[e], modes[e] = C[i], G[i], group_modes
     shapes = [cell[0] for cell in cells]

@@ -1,12 +1,15 @@
-"""The first code a device's process runs (engine/multi_device.py starts it with runpy, so nothing
-of the package has to be importable before it): the package made importable under the name the
-parent imported it by, then the device's serving loop.
+"""The first code a process of the package runs, before the package is importable there: a
+render device's process (engine/multi_device.py starts this file with runpy, under the name
+__hovr_device_process__) and the reader process (io/isolation.py's BOOT runs this file with runpy
+and calls import_package). Nothing of the parent's `__main__` is re-run (a bpy script, guarded
+or not), and nothing of the package has to be on sys.path.
 
 Installed as a Blender extension the package is `bl_ext.<repo>.hovr_blender`, and `bl_ext` is a
 module Blender makes at run time, not a folder on sys.path: the package is loaded from its folder
 under the parent's name (its enclosing names as bare modules), so its modules and everything
 pickled with its classes (meshes, options, cameras) resolve as in the parent, from the same copy.
-Any failure is answered on the pipe, so the parent reports it instead of waiting.
+Only the standard library is imported here. A device's start-up failure is answered on its
+pipe, so the parent reports it instead of waiting.
 """
 import importlib
 import importlib.util
@@ -40,7 +43,8 @@ def import_package(package: str, folder: str):
     return module
 
 
-def start(conn, package: str, folder: str, payload: bytes):
+def start_device(conn, package: str, folder: str, payload: bytes):
+    """A device's process: the package imported, then multi_device.serve_spawned."""
     try:
         import_package(package, folder)
         serve = importlib.import_module(package + ".engine.multi_device").serve_spawned
@@ -51,4 +55,4 @@ def start(conn, package: str, folder: str, payload: bytes):
 
 
 if __name__ == "__hovr_device_process__":  # runpy.run_path(this file, START, that name)
-    start(**START)  # noqa: F821  (runpy's init_globals)
+    start_device(**START)  # noqa: F821  (runpy's init_globals)
