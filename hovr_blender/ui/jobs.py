@@ -256,10 +256,11 @@ class CompiledKernels:
         return True
 
 
-def kernel_key(device: str, precision: str, variant: tuple, surfaces: bool) -> tuple:
+def kernel_key(device: str, precision: str, variant: tuple, surfaces: bool, isosurfaces: bool = False) -> tuple:
     """What a set of compiled render kernels is for: the scene's Device and Precision, the
-    kernel variant of its volumes (engine.renderer.kernel_variant) and whether surfaces are cast."""
-    return (str(device), str(precision), tuple(variant), bool(surfaces))
+    kernel variant of its volumes (engine.renderer.kernel_variant), whether surfaces are cast and
+    whether the look has isosurfaces or cut planes (their own integrate and shade)."""
+    return (str(device), str(precision), tuple(variant), bool(surfaces), bool(isosurfaces))
 
 
 def compile_render_kernels(key: tuple) -> None:
@@ -268,8 +269,8 @@ def compile_render_kernels(key: tuple) -> None:
     load the kernels from the disk cache instead of compiling them."""
     from ..engine.renderer import expand_devices, load_kernels
 
-    device, precision, variant, surfaces = key
-    load_kernels(variant, expand_devices(device)[0], precision, surfaces=surfaces)
+    device, precision, variant, surfaces, isosurfaces = key
+    load_kernels(variant, expand_devices(device)[0], precision, surfaces=surfaces, isosurfaces=isosurfaces)
 
 
 def shipped_render_kernels(key: tuple) -> tuple[bool, bool]:
@@ -277,8 +278,9 @@ def shipped_render_kernels(key: tuple) -> tuple[bool, bool]:
     from ..engine import shipped_kernels
     from ..engine.renderer import expand_devices, session_kernels
 
-    device, precision, variant, surfaces = key
-    covered = shipped_kernels.covers(session_kernels(variant, precision, surfaces), expand_devices(device)[0])
+    device, precision, variant, surfaces, isosurfaces = key
+    covered = shipped_kernels.covers(session_kernels(variant, precision, surfaces, isosurfaces),
+                                     expand_devices(device)[0])
     return covered, shipped_kernels.store_dir().is_dir()
 
 

@@ -269,7 +269,7 @@ def renderer_variant(renderer) -> tuple:
 def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
     """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
     return kernel_key(inputs.options.device, inputs.options.precision, renderer_variant(renderer),
-                      inputs.surface_mode != "NONE")
+                      inputs.surface_mode != "NONE", bool(inputs.isosurfaces))
 
 
 def resolve_units(inputs: SceneInputs) -> SceneInputs:
@@ -668,7 +668,7 @@ def view_draw(engine, context, depsgraph):
     try:
         renderer, request = viewport_request(context, depsgraph)
         key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
-                         depsgraph.scene.hovr.surfaces != "NONE")
+                         depsgraph.scene.hovr.surfaces != "NONE", bool(request.isosurfaces))
         if not KERNELS.is_ready(key):
             engine.update_stats("", f"HOVR | {KERNELS.stage(key)[0]}\u2026")
             KERNELS.compile_now(key)

@@ -184,6 +184,20 @@ def test_the_compile_loads_what_the_render_launches():
         assert kernel.module.execs, f"{kernel.key} not loaded"  # Warp's loaded module binaries
 
 
+def test_a_look_with_isosurfaces_compiles_their_kernels_in_the_compile_stage():
+    """Isosurfaces and cut planes have their own integrate and shade: their key is another key,
+    and its compile loads those, so F12's first frame does not compile them inside the render."""
+    from hovr_blender.engine.renderer import render_kernels
+
+    variant = (False, 3, False)
+    plain, iso = jobs.kernel_key("cpu", "float32", variant, False), jobs.kernel_key("cpu", "float32", variant, False, True)
+    assert plain != iso
+    kernels = jobs.CompiledKernels(jobs.compile_render_kernels)
+    assert kernels.compile_now(iso) and not kernels.is_ready(plain)
+    for kernel in render_kernels(variant, "float32", isosurfaces=True):
+        assert kernel.module.execs, f"{kernel.key} not loaded"
+
+
 def test_progress_lines_are_a_few_a_frame():
     """Issue 30: Blender 4.2 printed ~900 progress lines for one frame; a background render's log
     gets a line each 10 %, or each 30 s of a slow render, the first and the last."""
