@@ -73,7 +73,7 @@ KERNEL_STORE = REPO / "build" / "kernels"
 KERNEL_FOLDER = "kernel_binaries"  # in the zip; engine/shipped_kernels.store_dir() reads it there
 # (curved, sample modes): the sample kernel's specialisations of the usual orders (element.STATIC_MODES)
 # and the generic one (0: tetrahedra and pyramids only, or mixed orders), affine and curved
-DEFAULT_KERNEL_VARIANTS = tuple((curved, modes) for curved in (False, True) for modes in (0, 2, 3, 4, 5, 6, 7))
+DEFAULT_KERNEL_VARIANTS = tuple((curved, modes, False) for curved in (False, True) for modes in (0, 2, 3, 4, 5, 6, 7))
 NO_CUDA_PLATFORMS = {"macos-arm64", "macos-x64"}
 
 BLENDER_PLATFORMS = {"windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64"}
@@ -135,14 +135,15 @@ def host_platform() -> str | None:
 
 
 def parse_variants(text: str) -> tuple:
-    """"affine:3,curved:0-7" -> ((False, 3), (True, 0), ..., (True, 7)) (modes as in kernel_variant)."""
+    """"affine:3,curved:0-7" -> ((False, 3, False), (True, 0, False), ..., (True, 7, False)): kernel_variant's
+    (curved, modes, derived) of fields read from a file (a derived field's kernels compile on first use)."""
     out = []
     for item in filter(None, (t.strip() for t in text.split(","))):
         kind, _, modes = item.partition(":")
         if kind not in ("affine", "curved") or not modes:
             raise SystemExit(f"--kernel-variants: {item!r} is not affine:N or curved:N (N, or N-M)")
         lo, _, hi = modes.partition("-")
-        out += [(kind == "curved", m) for m in range(int(lo), int(hi or lo) + 1) if m != 1]
+        out += [(kind == "curved", m, False) for m in range(int(lo), int(hi or lo) + 1) if m != 1]
     return tuple(out)
 
 
@@ -164,7 +165,7 @@ def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def _compile_kernels_here(job: dict) -> dict:
+def compile_kernels_here(job: dict) -> dict:
     """compile_kernels' child: the repository's engine builds its store (shipped_kernels.build_store)."""
     from hovr_blender.engine import renderer, shipped_kernels
 
@@ -174,8 +175,8 @@ def _compile_kernels_here(job: dict) -> dict:
     store = Path(job["store"]) / f"warp-{wp.config.version}"
     files = set()
     for precision in job["precisions"]:
-        for curved, modes in job["variants"]:
-            kernels = renderer.session_kernels((bool(curved), int(modes)), precision, surfaces=True)
+        for curved, modes, derived in job["variants"]:
+            kernels = renderer.session_kernels((bool(curved), int(modes), bool(derived)), precision, surfaces=True)
             files.update(shipped_kernels.build_store(kernels, store, cpu=job["cpu"],
                                                      ptx_archs=shipped_kernels.PTX_ARCHS if job["ptx"] else (),
                                                      cubin_archs=job["cubin_archs"]))
@@ -356,7 +357,7 @@ def validate(path: Path) -> list[str]:
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["compile-kernels"]:  # compile_kernels' child
-        print(json.dumps(_compile_kernels_here(json.loads(argv[1]))))
+        print(json.dumps(compile_kernels_here(json.loads(argv[1]))))
         return 0
     if argv[:1] == ["validate"]:
         p = argparse.ArgumentParser(prog="build_extension.py validate")

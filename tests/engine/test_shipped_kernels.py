@@ -14,7 +14,7 @@ import pytest
 
 from ..helpers import REPO, SPHERE
 
-SPHERE_VARIANT = (False, 3)  # the built-in sphere's kernel_variant
+SPHERE_VARIANT = (False, 3, False)  # the built-in sphere's kernel_variant (tested below)
 
 CHILD = textwrap.dedent("""
     import json, os, sys, time
@@ -37,17 +37,28 @@ CHILD = textwrap.dedent("""
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
-    """A store of the sphere's kernels on the CPU, built as scripts/build_extension.py builds one."""
-    from hovr_blender.engine import renderer, shipped_kernels
+    """A store of the sphere's kernels on the CPU, built by scripts/build_extension.py's build step
+    (CPU objects only: no PTX, to keep the test short)."""
+    from hovr_blender.engine.renderer import kernel_variant
+    from hovr_blender.io import builtin
+    from scripts import build_extension
 
-    renderer.resolve_device("cpu")
+    assert kernel_variant([builtin.sphere()]) == SPHERE_VARIANT
     root = tmp_path_factory.mktemp("kernel_binaries")
-    import warp as wp
-
-    files = shipped_kernels.build_store(renderer.session_kernels(SPHERE_VARIANT), root / f"warp-{wp.config.version}",
-                                        cpu=True, ptx_archs=())
-    assert files and all(f.exists() for f in files)
+    built = build_extension.compile_kernels_here({"store": str(root), "cpu": True, "ptx": False, "cubin_archs": [],
+                                                  "variants": [SPHERE_VARIANT], "precisions": ["float32"]})
+    assert built["files"] and all(os.path.exists(f) for f in built["files"])
     return root
+
+
+def test_the_build_steps_variants_are_kernel_variants():
+    """--kernel-variants names what kernel_variant returns for a file's field, so a store built from
+    them holds the kernels a render of such a file loads."""
+    from scripts import build_extension
+
+    assert build_extension.parse_variants("affine:3,curved:0-2") == ((False, 3, False), (True, 0, False),
+                                                                    (True, 2, False))
+    assert SPHERE_VARIANT in build_extension.DEFAULT_KERNEL_VARIANTS
 
 
 def _run_child(tmp_path, store_root):
