@@ -629,7 +629,7 @@ def report(paths, ours="ours-split"):
         gl = o.get("vtk_opengl") or ""
         renderer = next((x.split(":", 1)[1].strip() for x in gl.split(";") if "renderer string" in x), gl)
         window = gl.split("|")[0].strip()
-        out.append(f"- {o['size']}: {o['device_name']} ({o['device']}), {o['date'][:10]}, commit {o['git_commit']}"
+        out.append(f"- {o['size']}: {o['device_name']} ({o['device']}), {o['date'][:10]}, commit {(o['git_commit'] or '?')[:7]}"
                    + (" (with uncommitted changes)" if o.get("git_dirty") else "")
                    + f", Warp {o.get('warp')}, VTK {o['vtk']} ({window}, OpenGL renderer {renderer}); {_link(p)}")
     out += ["", table(runs, sizes=sizes), ""]
@@ -666,6 +666,9 @@ def report(paths, ours="ours-split"):
             "least mean error):", ""]
     for name, size, e in _entries(runs):
         cols, best, shown = figure_check(e)
+        if best is None:
+            out.append(f"- {name} ({size}): {', '.join(cols)}; no VTK image ({e.get('vtk_skipped', 'none measured')})")
+            continue
         out.append(f"- {name} ({size}): {', '.join(cols)}; VTK's best {best}: "
                    + ("shown" if shown else "**not shown**"))
     return "\n".join(out)
