@@ -20,10 +20,10 @@ bl_info = {
 
 def _modules():
     """bpy-side submodules in registration order (properties before their users)."""
-    from .ui import properties, operators, import_operators, panels, versioning, legend_overlay
+    from .ui import properties, operators, import_operators, panels, surface_panels, versioning, legend_overlay
     from .ui import engine as render_engine
 
-    return (properties, render_engine, operators, import_operators, panels, versioning, legend_overlay)
+    return (properties, render_engine, operators, import_operators, panels, surface_panels, versioning, legend_overlay)
 
 
 _registered = False

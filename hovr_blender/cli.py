@@ -77,6 +77,9 @@ def _parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="render a view file with the Warp kernels")
     common(r)
+    r.add_argument("--field", help="the data's field instead of the view's data.field: a name, |a,b,c| or a "
+                   "derived field such as Q(Velocity), vorticity(rhou,rhov,rhow/rho), |grad|(p) "
+                   "(docs/spec/render-contract.md §8)")
     r.add_argument("--method", choices=METHODS, help="quadrature (default: the view's, else classified)")
     r.add_argument("--h", type=float, help="fixed step in world units: Riemann and trapezoid need one; classified "
                    "without it chooses each piecewise-smooth segment's step from its error bound")
@@ -205,6 +208,8 @@ def _run(args) -> str:
         lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         view = View.load(args.view)
+        if getattr(args, "field", None):
+            view.data = {**view.data, "field": args.field}
         if args.command == "render":
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,

@@ -5,6 +5,7 @@ compile, and report each kernel's registers, stack frame and spills.
     python -m scripts.kernel_report --cache .gpu/kcache          # also fill a Warp kernel cache
     python -m scripts.kernel_report --precision float64 --arch 90
     python -m scripts.kernel_report --modes 0,2,3,4,5,6,7,8,9,10,11   # every sample specialisation
+    python -m scripts.kernel_report --only integrate,shade       # those kernels alone (both variants)
 
 --cache writes the compiled modules (PTX and CUBIN) where Warp looks for them when
 WARP_CACHE_PATH points there, so a GPU machine given that folder loads the kernels instead of
@@ -50,6 +51,8 @@ def main(argv=None):
     ap.add_argument("--cache", default=None, help="a Warp kernel cache folder to fill (WARP_CACHE_PATH)")
     ap.add_argument("--modes", default="0,7", type=lambda v: [int(x) for x in v.split(",")],
                     help="sample kernels to build: 0 generic, N unrolled for N modes (7: order 6, the paper's)")
+    ap.add_argument("--only", default=None, type=lambda v: v.split(","),
+                    help="report only kernels whose names start with one of these (e.g. integrate,shade)")
     args = ap.parse_args(argv)
     if args.cache:
         os.environ["WARP_CACHE_PATH"] = os.path.abspath(args.cache)
@@ -60,17 +63,24 @@ def main(argv=None):
     from hovr_blender.engine.kernels.precision import Precision
 
     raycast = Precision.named(args.precision).kernels
-    # every Warp module of the kernel table (kernels/raycast.kernel_table), once, named by its kernels
+    # every Warp module of the kernel table (kernels/raycast.kernel_table), once, named by its kernels:
+    # each walk variant, a derived field's sample kernel, integrate and shade with and without surfaces
     modules = {}
-    for kind in ("curved", "affine"):
-        for m in args.modes:
-            for name, kern in raycast.kernel_table(kind == "curved", m).items():
-                label = {"search": f"search ({kind})", "traverse": f"traverse ({kind})",
-                         "sample": f"sample ({kind}, modes {m or 'generic'})"}.get(name, name)
-                labels = modules.setdefault(id(kern.module), (kern, []))[1]
-                if label not in labels:
-                    labels.append(label)
+    variants = [(kind, m, False, iso) for kind in ("curved", "affine") for m in args.modes for iso in (False, True)]
+    variants += [(kind, 0, True, False) for kind in ("curved", "affine")]
+    for kind, m, derived, iso in variants:
+        with_iso = " with isosurfaces and planes" if iso else ""
+        sampled = "a derived field" if derived else f"modes {m or 'generic'}"
+        for name, kern in raycast.kernel_table(kind == "curved", m, derived, iso).items():
+            label = {"search": f"search ({kind})", "traverse": f"traverse ({kind})",
+                     "sample": f"sample ({kind}, {sampled})", "integrate": f"integrate{with_iso}",
+                     "shade": f"shade{with_iso}"}.get(name, name)
+            labels = modules.setdefault(id(kern.module), (kern, []))[1]
+            if label not in labels:
+                labels.append(label)
     kernels = [(", ".join(labels), kern) for kern, labels in modules.values()]
+    if args.only:
+        kernels = [(name, kern) for name, kern in kernels if name.startswith(tuple(args.only))]
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     for name, kern in kernels:

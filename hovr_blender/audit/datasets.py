@@ -31,6 +31,62 @@ DATASETS = {
 }
 
 
+# the velocity's Q-criterion of the CFD datasets (contract §8), and the level drawn of it
+Q_FIELDS = {"pyfr_tgv": "Q(Velocity)", "hump3D": "Q(rhou,rhov,rhow/rho)"}
+
+
+def load_field(name, field: str):
+    """The file dataset's `field` instead of its own (e.g. Q_FIELDS[name]): a VolumeMesh."""
+    from ..io.sources import VolumeSource, load_volume
+
+    return load_volume(VolumeSource.from_view_data({**_data(name), "field": field}))
+
+
+# the Q isosurface's level as a fraction of the 99th percentile of Q's fit at a lattice of points:
+# the Taylor-Green vortex's tubes fill the box (a fifth of it shows them whole); hump3D's Q is
+# small and positive over most of the channel, its rotation concentrated over the hump
+Q_LEVEL_FRACTION = {"pyfr_tgv": 0.2, "hump3D": 1.0}
+
+
+def q_level(mesh, name: str) -> float:
+    """The level of dataset `name`'s Q isosurface (Q_LEVEL_FRACTION)."""
+    return Q_LEVEL_FRACTION[name] * float(np.percentile(mesh.field_samples(4), 99))
+
+
+def q_view(mesh, level: float) -> dict:
+    """The oblique camera (views' direction and distance) framing the elements where Q's fit
+    exceeds `level` somewhere on a lattice of points: where the isosurface is."""
+    from ..engine import expansions as ex
+
+    g = np.linspace(-1.0, 1.0, 4)
+    lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    above = np.zeros(mesh.num_elements, bool)
+    keys = np.concatenate([mesh.shape[:, None], mesh.modes], axis=1)
+    for key in np.unique(keys, axis=0):
+        idx = np.nonzero((keys == key).all(axis=1))[0]
+        shape, modes = int(key[0]), tuple(int(v) for v in key[1:])
+        C = mesh.coeffs[mesh.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(shape, modes))[None, :]]
+        above[idx] = (C @ ex.basis_matrix(shape, modes, lattice[ex.inside(shape, lattice, tol=1e-12)]).T).max(1) > level
+    pts = mesh.vertices[above if above.any() else slice(None)].reshape(-1, 3)
+    lo, hi = pts.min(0), pts.max(0)
+    c, r = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    d = np.array([1.0, -0.8, 0.7]) / np.linalg.norm([1.0, -0.8, 0.7])
+    return {"projection": "perspective", "eye": (c + 2.6 * r * d).tolist(), "target": c.tolist(), "up": [0, 0, 1],
+            "fov_y_deg": 30.0}
+
+
+# the colour ramp of the Q isosurfaces' speed, over [0, the speed's 99th percentile]
+SPEED_STOPS = ((0.0, 0.05, 0.15, 0.6), (0.35, 0.1, 0.6, 0.8), (0.65, 0.85, 0.85, 0.3), (1.0, 0.9, 0.25, 0.1))
+
+
+def speed_ramp(mesh) -> tuple:
+    """The isosurfaces' colour_ramp of a velocity's derived mesh: SPEED_STOPS over its speed."""
+    from ..engine.derived_fields import lattice_values
+
+    top = float(np.percentile(lattice_values(mesh, "speed"), 99)) or 1.0
+    return tuple((p * top, r, g, b) for p, r, g, b in SPEED_STOPS)
+
+
 def load(name):
     """(VolumeMesh, data spec or None) of a dataset."""
     spec = DATASETS[name]
@@ -44,11 +100,17 @@ def load(name):
         return curved_cube(4), None  # the benchmark suite's curved mixed cube (full size)
     from ..io.sources import VolumeSource, load_volume
 
-    data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in spec.items()}
+    data = _data(name)
+    return load_volume(VolumeSource.from_view_data(data)), data
+
+
+def _data(name) -> dict:
+    """A file dataset's view-file `data` (absolute paths); FileNotFoundError where a file is missing."""
+    data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in DATASETS[name].items()}
     for k in ("path", "solution"):
         if k in data and not os.path.exists(data[k]):
             raise FileNotFoundError(data[k])
-    return load_volume(VolumeSource.from_view_data(data)), data
+    return data
 
 
 def framing(mesh):

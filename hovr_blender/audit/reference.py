@@ -308,6 +308,45 @@ class IndependentReference:
         rgba = np.concatenate([state[0] + T * bg, [1.0 - T]])
         return PixelResult(rgba, float(state[2]), state[3], self.evaluations, stretches, notes)
 
+    # ------------------------------------------------------------------ 4. surfaces (contract §7)
+    def first_crossing(self, o, d, level: float, t0=0.0, t1=np.inf) -> float:
+        """t where the ray first meets f = level (nan: nowhere), from VTK's interpolation: each
+        stretch sampled at CROSSING_SAMPLES + 1 points, the first sign change (or zero) bisected
+        to 1e-14 of its extent. A ray that only touches the level between two samples is not
+        seen here (the renderer's isolation finds it: tests/engine/test_isosurface.py)."""
+        o, d = np.asarray(o, float), np.asarray(d, float)
+        d = d / np.linalg.norm(d)
+        for a, b, c in self.stretches(o, d, t0, t1):
+            ts = np.linspace(a, b, CROSSING_SAMPLES + 1)
+            g = np.array([self._at(c, o + t * d)[1] for t in ts]) - level
+            hits = np.nonzero((g[:-1] == 0) | (g[:-1] * g[1:] < 0))[0]
+            if len(hits) == 0:
+                continue
+            i = hits[0]
+            lo, hi, glo = ts[i], ts[i + 1], g[i]
+            if glo == 0:
+                return float(lo)
+            eps = 1e-14 * max(abs(a), abs(b), b - a)
+            while hi - lo > eps:
+                m = 0.5 * (lo + hi)
+                gm = self._at(c, o + m * d)[1] - level
+                if (gm < 0) == (glo < 0):
+                    lo, glo = m, gm
+                else:
+                    hi = m
+            return float(0.5 * (lo + hi))
+        return float("nan")
+
+    def value_at(self, x) -> float:
+        """The field at world point x, in the first cell whose padded box holds x and that holds
+        it (nan where none does)."""
+        x = np.asarray(x, float)
+        for c in np.nonzero(np.all((self.lo <= x) & (x <= self.hi), axis=1))[0]:
+            inside, value = self._at(c, x)
+            if inside:
+                return value
+        return float("nan")
+
 
 def contract_ray(camera: dict, width: int, height: int, i: int, j: int):
     """(origin, unit direction) of pixel (i, j) (row 0 at the top), render contract §4,

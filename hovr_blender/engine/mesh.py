@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import expansions as ex
+from .derived_fields import concatenate_derived
 from .expansions import MODIFIED_A
 from .shapes import HEX, MAX_MODES, NAMES, VERTICES
 
@@ -92,6 +93,9 @@ class VolumeMesh:
     # (N,) which volume each element belongs to (0..V-1), for meshes that merge several volumes
     # (concatenate); None: all one volume
     volume: np.ndarray | None = None
+    # a derived field (engine/derived_fields.py): its components, which the renderer samples
+    # exactly; the field above is then its fit (ranges, frame, normals)
+    derived: object | None = None
 
     def __post_init__(self):
         n = self.shape.shape[0]
@@ -264,6 +268,7 @@ class VolumeMesh:
             for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume"):
                 if hasattr(self, attr):
                     setattr(out, attr, getattr(self, attr))
+            out.derived = None if self.derived is None else self.derived.transformed(A)
             return out
         verts = self.vertices @ M[:3, :3].T + M[:3, 3]
         out = VolumeMesh.from_affine_hexes(
@@ -272,6 +277,7 @@ class VolumeMesh:
         )
         out.basis = self.basis.copy()
         out.volume = self.volume
+        out.derived = None if self.derived is None else self.derived.transformed(M[:3, :3])
         return out
 
 
@@ -379,7 +385,7 @@ def with_geometry_expansion(mesh: "VolumeMesh") -> "VolumeMesh":
         geoms.append(g)
     out = VolumeMesh.from_elements(mesh.shape, mesh.modes, [mesh.element_coeffs(e) for e in range(mesh.num_elements)],
                                    (2, 2, 2), geoms, field_name=mesh.field_name, source=mesh.source)
-    for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume"):
+    for attr in ("warnings", "has_field", "element_ids", "field_range_hull", "volume", "derived"):
         if hasattr(mesh, attr):
             setattr(out, attr, getattr(mesh, attr))
     return out
@@ -419,6 +425,7 @@ def concatenate(meshes) -> "VolumeMesh":
         affine=np.concatenate([np.ones(m.num_elements, bool) if m.affine is None else m.affine for m in meshes]),
         field_range_hull=hull,
         volume=np.concatenate([np.full(m.num_elements, k, np.int32) for k, m in enumerate(meshes)]),
+        derived=concatenate_derived(meshes),
     )
 
 
@@ -445,6 +452,7 @@ def subset(mesh: "VolumeMesh", elements) -> "VolumeMesh":
         geom_modes=mesh.geom_modes[e] if curved else None, geom_offset=geom_offset, geom_coeffs=geom_coeffs,
         affine=None if mesh.affine is None else mesh.affine[e], field_range_hull=hull,
         volume=None if mesh.volume is None else mesh.volume[e],
+        derived=None if mesh.derived is None else mesh.derived.subset(e),
     )
 
 

@@ -433,6 +433,9 @@ def render_view(view, mesh) -> RenderResult:
     list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
     devices = expand_devices(view.options.device)
     if len(devices) > 1:
+        if view.surfaces:
+            raise RenderError("isosurfaces and planes render on one device; give one --device")
         with MultiDeviceRenderer(mesh, devices) as r:
             return r.render(view.camera, view.transfer_function, view.background, view.options)
-    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options)
+    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options,
+                                             surfaces=view.surfaces)

@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import field_frame, limits, shapes
+from .isosurfaces import Surfaces, reference_gradient
 from .adjacency import face_neighbours, vertex_affine_guess
 from .camera import RayCamera
 from .kernels import quadrature_tables
@@ -157,27 +158,33 @@ SUM_THREADS = 1 << 14  # threads summing a shade's per-ray counters on the devic
 INT32_MAX = 2**31 - 1
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
-def kernel_variant(meshes) -> tuple[bool, int]:
-    """(curved, modes): what the walk kernels of a render of `meshes` (one mesh, or several
-    merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
+def kernel_variant(meshes) -> tuple[bool, int, bool]:
+    """(curved, modes, derived): what the walk kernels of a render of `meshes` (one mesh, or
+    several merged by mesh.concatenate) are specialised to (kernels/raycast.walk_kernels)."""
     meshes = list(meshes)
     curved = any(m.affine is not None and not m.affine.all() for m in meshes)
-    modes = static_modes(np.concatenate([m.shape for m in meshes]), np.concatenate([m.modes for m in meshes]))
-    return bool(curved), int(modes)
+    derived = any(m.derived is not None for m in meshes)
+    modes = 0 if derived else static_modes(np.concatenate([m.shape for m in meshes]),
+                                           np.concatenate([m.modes for m in meshes]))
+    return bool(curved), int(modes), derived
 
 
-def render_kernels(variant: tuple[bool, int], precision: str = "float32") -> list:
-    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant`."""
+def render_kernels(variant: tuple[bool, int], precision: str = "float32", isosurfaces: bool = False) -> list:
+    """Every kernel Renderer.render launches for a mesh of kernel_variant `variant` (with
+    `isosurfaces`: a look with isosurfaces or planes, contract §7)."""
     kernels = Precision.named(precision).kernels
-    table = kernels.kernel_table(*variant)
+    table = kernels.kernel_table(*variant, isosurfaces=isosurfaces)
     return [table[name] for name in kernels.RENDER_KERNELS]
 
 
-def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfaces: bool = False) -> list:
+def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfaces: bool = False,
+                    isosurfaces: bool = False) -> list:
     """The kernels of render_kernels, the re-shade of a transfer-function edit, and the surface
     cast with `surfaces`: what an interactive session (Blender) loads before its first render, and
-    what the add-on ships compiled (scripts/build_extension.py)."""
-    kernels = render_kernels(variant, precision) + [Precision.named(precision).kernels.shade]
+    what the add-on ships compiled (scripts/build_extension.py); with `isosurfaces`, integrate and
+    shade in their variant for isosurfaces and planes."""
+    kernels = render_kernels(variant, precision, isosurfaces)
+    kernels.append(Precision.named(precision).kernels.kernel_table(*variant, isosurfaces=isosurfaces)["shade"])
     if surfaces:
         from .kernels import surfaces as surface_kernels
 
@@ -186,12 +193,12 @@ def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfa
 
 
 def load_kernels(variant: tuple[bool, int], device: str = "cpu", precision: str = "float32",
-                 surfaces: bool = False) -> LoadReport:
+                 surfaces: bool = False, isosurfaces: bool = False) -> LoadReport:
     """Load the session_kernels of `variant` in `precision` on `device`: from the add-on's
     shipped binaries where they were built from this source, else compiled on first use (tens of
     seconds on a CPU) or read from Warp's kernel cache on disk. The modules compile side by side
     in worker threads joined before it returns."""
-    return load_modules(session_kernels(variant, precision, surfaces), resolve_device(device))
+    return load_modules(session_kernels(variant, precision, surfaces, isosurfaces), resolve_device(device))
 
 
 def load_modules(kernels, device: str) -> LoadReport:
@@ -271,7 +278,8 @@ class Renderer:
         self._id = next(_RENDERER_IDS)
         self._field_version = 0  # replace_field counts up: segment caches of an older field are stale
         self.kernel_variant = kernel_variant([mesh])
-        self._curved = self.kernel_variant[0]
+        # curved segments and a derived field's are interpolants, refined where their tails say
+        self._interpolants = self.kernel_variant[0] or self.kernel_variant[2]
         self._uploads = {}  # precision name -> _Upload
         # the field's frame (engine/field_frame.py) follows the transfer functions: the float64
         # data stays here, the device holds it mapped into the last frame rendered
@@ -279,6 +287,7 @@ class Renderer:
         self.volumes = int(self._volume.max()) + 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
+        self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
@@ -319,7 +328,7 @@ class Renderer:
         def same(a, b):
             return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
 
-        return all(same(getattr(mesh, k), getattr(old, k)) for k in (
+        return kernel_variant([mesh]) == self.kernel_variant and all(same(getattr(mesh, k), getattr(old, k)) for k in (
             "shape", "modes", "basis", "coeff_offset", "geom_modes", "geom_offset", "geom_coeffs", "affine", "volume"))
 
     def replace_field(self, mesh: VolumeMesh):
@@ -332,9 +341,11 @@ class Renderer:
         self._field_version += 1
         self._field_lo, self._field_hi = element_field_ranges(mesh)
         self._coeff_scale = element_coefficient_scale(mesh)
+        self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
         for upload in self._uploads.values():
             upload.field_key = None  # _set_field maps and uploads the new coefficients
+            upload.gradient = None
 
     def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
@@ -424,13 +435,21 @@ class Renderer:
         classified without h never steps below the diagonal / that limit). The launch tile's
         buffers count where they are host memory (the CPU device); on a GPU the tile follows the
         device's free memory (_tile_limit). Returns the bytes counted."""
-        options.check_steps(self.data_diagonal)
+        self._check_steps(options)
         prec = self._upload(options.precision).precision
         rays = min(int(width) * int(height), tile if tile is not None else CPU_TILE_RAYS)
         if wp.get_device(self.device).is_cuda:
             rays = 0
         return limits.check_bytes(options.image_bytes(width, height, prec.kernels.NUM_STATS)
                                   + rays * self._ray_bytes(prec), f"a {width}x{height} image in {options.precision}")
+
+    def _check_steps(self, options: RenderOptions):
+        """A derived field only with a method that samples it, and a fixed step against the
+        samples-per-ray limit across the data (RenderOptions.check_steps)."""
+        if self.mesh.derived is not None and options.method not in _SAMPLING_METHODS:
+            raise RenderError(f"{self.mesh.field_name} is sampled exactly at each point and integrated on its "
+                              f"series: method classified or split, not {options.method}")
+        options.check_steps(self.data_diagonal)
 
     def mesh_args(self, precision: str = "float32"):
         """The uploaded MeshArgs struct with the field in its own units (for kernels that
@@ -486,6 +505,51 @@ class Renderer:
         self._uploads[name] = _Upload(prec, m, gk, gk_s, table)
         return self._uploads[name]
 
+    def _kernels(self, upload: _Upload, isosurfaces: bool) -> dict:
+        """The upload's kernel table, integrate and shade in their variant for isosurfaces and
+        planes where the look has them (kernels.kernel_table)."""
+        if not isosurfaces:
+            return upload.kernels
+        return upload.precision.kernels.kernel_table(*self.kernel_variant, isosurfaces=True)
+
+    def _surface_args(self, upload: _Upload, fr: field_frame.FieldFrame, surfaces: Surfaces | None,
+                      options: RenderOptions):
+        """The kernels' SurfaceArgs of `surfaces` with the field in frame `fr` (none: the default
+        struct, which changes nothing); the reference gradient is uploaded once per frame."""
+        prec = upload.precision
+        surf = prec.kernels.SurfaceArgs()
+        if not surfaces:
+            return surf
+        if options.method not in _SAMPLING_METHODS:
+            raise RenderError(f"isosurfaces and planes are found on the segments' series: method classified or "
+                              f"split, not {options.method}")
+        colour = surfaces.color_ramp(self.mesh.derived.spec if self.mesh.derived is not None else None)
+        surfaces.check(self.data_ranges, self._box_lo.min(axis=0), self._box_hi.max(axis=0))
+        lo, hi, _ = upload.field
+        arrays = surfaces.device_arrays(fr.scale, fr.shift, self._volume, lo, hi, self._box_lo, self._box_hi)
+        if upload.gradient is None or upload.gradient[0] != fr.key:
+            if self._gradient is None:
+                self._gradient = reference_gradient(self.mesh)
+            counts = np.diff(np.append(self.mesh.coeff_offset, self.mesh.coeffs.shape[0]))
+            scale = np.repeat(fr.scale[self._volume], counts)  # f' = a f + b: its gradient is a grad f
+            with wp.ScopedDevice(self.device):
+                upload.gradient = (fr.key, wp.array((self._gradient * scale).ravel().astype(prec.dtype), dtype=prec.scalar))
+        with wp.ScopedDevice(self.device):
+            surf.n_iso = len(arrays["iso_s"])
+            surf.n_planes = len(arrays["plane"])
+            surf.iso_s = wp.array(arrays["iso_s"].astype(prec.dtype), dtype=prec.scalar)
+            surf.iso_rgba = wp.array(arrays["iso_rgba"].astype(prec.dtype), dtype=prec.vec4)
+            surf.plane = wp.array(arrays["plane"].astype(prec.dtype), dtype=prec.vec4)
+            surf.plane_style = wp.array(arrays["plane_style"].astype(prec.dtype), dtype=prec.vec4)
+            surf.keep = wp.array(arrays["keep"], dtype=wp.int32)
+            surf.iso_color_by = wp.array(np.array([-1 if by is None else _derived_kernels(prec).OPERATION_IDS[by]
+                                                   for by in colour["by"]], np.int32), dtype=wp.int32)
+            surf.ramp_s = wp.array(colour["s"].astype(prec.dtype), dtype=prec.scalar)
+            surf.ramp_rgb = wp.array(colour["rgb"].astype(prec.dtype), dtype=prec.vec3)
+        surf.grad_stride = int(self.mesh.coeffs.shape[0])
+        surf.grad = upload.gradient[1]
+        return surf
+
     def identity_frame(self) -> field_frame.FieldFrame:
         return field_frame.FieldFrame(np.ones(self.volumes), np.zeros(self.volumes))
 
@@ -513,6 +577,8 @@ class Renderer:
         rounding = prec.eps * element_coefficient_scale(mesh, coeffs) + eps64 * (a * self._coeff_scale + 8 * np.abs(b))
         with wp.ScopedDevice(self.device):
             m.coeffs = wp.array(coeffs.astype(prec.dtype), dtype=prec.scalar)
+            if mesh.derived is not None:
+                m.derived = _derived_args(prec, mesh.derived, a, b)
             m.field_lo = wp.array(flo, dtype=prec.scalar)
             m.field_hi = wp.array(fhi, dtype=prec.scalar)
             m.field_err = wp.array((EVAL_ERROR_FACTOR * rounding).astype(prec.dtype), dtype=prec.scalar)
@@ -535,7 +601,7 @@ class Renderer:
     def render(self, camera: RayCamera, tf, background, options: RenderOptions,
                progress=None, tile_pixels: int | None = None, profile: bool = False,
                rows: tuple[int, int] | None = None, out: tuple[np.ndarray, np.ndarray] | None = None,
-               surface_t=None, ray_counts: bool = False) -> RenderResult:
+               surface_t=None, ray_counts: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """Render one image through `tf`, a TransferFunction or a list of one per volume
         (VolumeMesh.volume). stats["warnings"] says where the precision cannot resolve a
         transfer function. With `progress`, the image is launched in tiles of `tile_pixels`
@@ -552,7 +618,8 @@ class Renderer:
         integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
         surface: engine/surfaces.py; +inf where none); the depth output is then that t where the
         volume's opacity stays under 0.5. With `ray_counts`, the result's ray_counts holds every
-        ray's work counters (kernels/args.py STAT_*; work_counts summarises them)."""
+        ray's work counters (kernels/args.py STAT_*; work_counts summarises them). `surfaces`:
+        isosurfaces and cut planes (contract §7), composited with the volume in depth order."""
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -562,13 +629,14 @@ class Renderer:
         if not 0 <= row0 < row1 <= H:
             raise RenderError(f"rows {row0}..{row1} are not inside a {W}x{H} image")
         first, end = row0 * W, row1 * W
-        _, tf_frame, warnings = self.field_frame(tf, options.precision)
+        fr, tf_frame, warnings = self.field_frame(tf, options.precision)
         options, step_warnings = resolving_step(options, tf, self.data_ranges)
         warnings = warnings + step_warnings
         with wp.ScopedDevice(self.device):
             cam = camera_args(prec, camera)
             limit = _surface_limit(prec, surface_t, W, H)
             transfer = _transfer_args(prec, tf_frame)
+            transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             tile = self._launch_tile(prec, end - first, progress, tile_pixels)
             self.check_limits(W, H, options, tile)
@@ -579,9 +647,10 @@ class Renderer:
                 buffers = self._tile_buffers(prec, tile, stats)
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
-            load_kernels(self.kernel_variant, self.device, options.precision)  # compiled outside the timed region
+            load_kernels(self.kernel_variant, self.device, options.precision,  # compiled outside the timed region
+                         isosurfaces=bool(surfaces))
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile, upload.kernels)
+            launch = _Launcher(self.device, profile, self._kernels(upload, bool(surfaces)))
             t0 = time.perf_counter()
             cancelled = False
             rounds = 0
@@ -690,7 +759,7 @@ class Renderer:
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         launch("sample", listed * stride,
                [upload.mesh_args, cam, start, segs, segs.list, stride, 0, rays.stats])
-        if self._curved:
+        if self._interpolants:
             slots, count, n_slots = segs.list, segs.list_count, listed
             for p in range(2):
                 again_count[p].zero_()
@@ -812,7 +881,7 @@ class Renderer:
                             counts=store.used(), complete=complete, stats=info, warnings=warnings)
 
     def shade(self, cache: SegmentCache, tf, background, options: RenderOptions, progress=None,
-              tile_pixels: int | None = None, profile: bool = False) -> RenderResult:
+              tile_pixels: int | None = None, profile: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """The render of the cache's view through `tf` (a TransferFunction or one per volume), with
         this background and these options, from the cached segments alone: one kernel, a thread per
         ray, integrating as the render's integrate kernel does (kernels/cache.py shade), so the
@@ -832,7 +901,7 @@ class Renderer:
             raise SegmentCacheError("this transfer function maps the field into another frame than the cached "
                                     "segments' (engine/field_frame.py); trace again")
         options, step_warnings = resolving_step(options, tf, self.data_ranges)
-        options.check_steps(self.data_diagonal)
+        self._check_steps(options)
         upload = self._upload(options.precision)
         prec = upload.precision
         kernels = prec.kernels
@@ -840,7 +909,7 @@ class Renderer:
         W = int(camera.width)
         row0, row1 = cache.rows
         n = cache.rays
-        _, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
+        fr, tf_frame, warnings = self.field_frame(tf, options.precision)  # the cache's frame: no new upload
         warnings = warnings + step_warnings
         num_stats = kernels.NUM_STATS
         per_ray = (4 + 2) * prec.dtype.itemsize * 2 + 4 * num_stats
@@ -848,6 +917,7 @@ class Renderer:
         with wp.ScopedDevice(self.device):
             cam = camera_args(prec, camera)
             transfer = _transfer_args(prec, tf_frame)
+            transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = _quad_args(prec, options, background, upload, self.data_diagonal)
             try:
                 rgba = wp.zeros(n, dtype=prec.vec4)
@@ -857,9 +927,10 @@ class Renderer:
                 nonfinite = wp.zeros(1, dtype=wp.int32)
             except RuntimeError as exc:
                 raise RenderError(f"cannot allocate a {W}x{row1 - row0} image on {self.device}: {exc}") from exc
-            load_modules([upload.kernels[name] for name in kernels.SHADE_KERNELS], self.device)
+            table = self._kernels(upload, bool(surfaces))
+            load_modules([table[name] for name in kernels.SHADE_KERNELS], self.device)
             wp.synchronize_device(self.device)
-            launch = _Launcher(self.device, profile, upload.kernels)
+            launch = _Launcher(self.device, profile, table)
             args = cache.args(kernels)
             t0 = time.perf_counter()
             tile = n if progress is None else max(1, int(tile_pixels or 65536))
@@ -904,6 +975,7 @@ class _Upload:
     kernels: dict  # every kernel by name, the walk's specialised for the mesh (kernels.kernel_table)
     field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
     field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
+    gradient: tuple | None = None  # (field_key, the reference gradient on the device in that frame)
 
 
 @dataclass
@@ -1005,6 +1077,32 @@ def _surface_limit(prec: Precision, surface_t, width: int, height: int) -> tuple
     if np.isnan(t).any() or (t < 0).any():
         raise RenderError("surface_t must be >= 0 (+inf where no surface), without NaN")
     return wp.array(np.minimum(t, 1e30).astype(prec.dtype).ravel(), dtype=prec.scalar), 1
+
+
+def _derived_kernels(prec: Precision):
+    """kernels/derived.py of this precision (its operation ids)."""
+    return sys.modules[prec.kernels.__name__.rpartition(".")[0] + ".derived"]
+
+
+def _derived_args(prec: Precision, field, scale, shift):
+    """The kernels' DerivedArgs of a mesh's DerivedField (engine/derived_fields.py), its
+    samples mapped into the frame f' = scale f + shift (per element)."""
+    dk = _derived_kernels(prec)
+    kind = dk.OPERATION_IDS[field.spec.operation] + (dk.PER_DENSITY if field.components == 4 else 0)
+    if field.coeffs.size >= 2**31:
+        raise RenderError("derived field too large for 32-bit coefficient offsets")
+    if prec.name == "float32":
+        _check_float32_range("derived field components", field.coeffs, field.offset)
+    d = prec.kernels.DerivedArgs()
+    d.active = 1
+    d.kind = wp.array(np.where(field.derived, kind, dk.FIELD).astype(np.int32), dtype=wp.int32)
+    d.offset = wp.array(field.offset.astype(np.int32), dtype=wp.int32)
+    d.size = wp.array(field.size.astype(np.int32), dtype=wp.int32)
+    d.modes = wp.array(field.modes.astype(np.int32), dtype=wp.vec3i)
+    d.coeffs = wp.array(field.coeffs.astype(prec.dtype), dtype=prec.scalar)
+    d.axes = wp.array(field.axes.astype(prec.dtype), dtype=prec.mat33)
+    d.frame = wp.array(np.stack([scale, shift], axis=1).astype(prec.dtype), dtype=prec.vec2)
+    return d
 
 
 def _transfer_args(prec: Precision, tf: TransferFunction):
@@ -1197,7 +1295,7 @@ def _cache_struct(kernels, arrays: dict):
 def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions,
                   cache: SegmentCache | None = None, rows: tuple[int, int] | None = None, surface_t=None,
                   surface_key=None, held_bytes: int = 0, progress=None,
-                  tile_pixels: int | None = None) -> tuple[RenderResult, SegmentCache | None]:
+                  tile_pixels: int | None = None, surfaces: Surfaces | None = None) -> tuple[RenderResult, SegmentCache | None]:
     """(RenderResult, SegmentCache or None): the view shaded from `cache` where it holds this
     view's segments (Renderer.cache_fits), else traced anew (Renderer.trace) and shaded, the new
     cache returned for the next call; the image is renderer.render's either way. A renderer that
@@ -1205,18 +1303,19 @@ def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOp
     whose cache the memory limit or the device refuses (stats["segment_cache"] says why); None
     comes back then. A cancelled trace (progress returned False) gives a cancelled result."""
     if not isinstance(renderer, Renderer):
-        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t)) if v is not None}
+        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t), ("surfaces", surfaces)) if v is not None}
         return renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, **kw), None
     if surface_t is not None and surface_key is None:
         surface_key = surface_digest(surface_t)
     if renderer.cache_fits(cache, camera, tf, options, rows, surface_key):
-        return renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels), cache
+        return renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
+                              surfaces=surfaces), cache
     try:
         cache = renderer.trace(camera, tf, options, rows=rows, surface_t=surface_t, surface_key=surface_key,
                                progress=progress, tile_pixels=tile_pixels, held_bytes=held_bytes)
     except (limits.ResourceLimitError, SegmentCacheError) as exc:
         res = renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, rows=rows,
-                              surface_t=surface_t)
+                              surface_t=surface_t, surfaces=surfaces)
         res.stats["segment_cache"] = {"refused": str(exc)}
         return res, None
     if not cache.complete:
@@ -1226,7 +1325,7 @@ def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOp
         return RenderResult(rgba=np.zeros((r1 - r0, W, 4), dtype), stats={"segment_cache": cache.describe()},
                             depth=np.zeros((r1 - r0, W), dtype), error=np.zeros((r1 - r0, W), dtype),
                             cancelled=True), None
-    res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels)
+    res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels, surfaces=surfaces)
     res.stats["render_seconds"] += cache.stats["trace_seconds"]  # this call traced and shaded
     return res, cache
 

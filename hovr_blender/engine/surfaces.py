@@ -172,11 +172,14 @@ def composite(volume_rgba, hits: SurfaceHits, background, mode: str = "SHADED") 
 
 
 def render_with_surfaces(renderer, surfaces: SurfaceScene | None, camera: RayCamera, tf, background, options,
-                         mode: str = "SHADED", **kwargs):
+                         mode: str = "SHADED", isosurfaces=None, **kwargs):
     """Renderer.render (or MultiDeviceRenderer.render) with the surfaces: the volume up to each
     pixel's first hit, composited as the module's docstring says. Without surfaces (None or no
     triangles) it is renderer.render itself. kwargs go to render (progress, tile_pixels, rows:
-    a band's hits are cast with the whole camera and sliced)."""
+    a band's hits are cast with the whole camera and sliced); `isosurfaces`, the look's
+    isosurfaces and cut planes (engine/isosurfaces.Surfaces, contract §7), to its `surfaces`."""
+    if isosurfaces:
+        kwargs["surfaces"] = isosurfaces
     if surfaces is None or surfaces.empty:
         return renderer.render(camera, tf, background, options, **kwargs)
     hits = surfaces.cast(camera)
@@ -198,14 +201,16 @@ def _composited(res, hits: SurfaceHits, background, mode: str, rows):
 
 def render_with_surfaces_cached(renderer, surfaces: SurfaceScene | None, camera: RayCamera, tf, background, options,
                                 mode: str = "SHADED", cache=None, rows=None, held_bytes: int = 0, progress=None,
-                                tile_pixels: int | None = None):
+                                tile_pixels: int | None = None, isosurfaces=None):
     """render_with_surfaces through engine.renderer.render_cached: (result, segment cache or None).
     The cache keeps the surfaces' hits beside the segments (they stopped its rays), so an image
     shaded from it casts nothing; its key names this SurfaceScene (the same object, the same
-    triangles)."""
+    triangles). `isosurfaces` as in render_with_surfaces."""
     from .renderer import render_cached
 
     kw = dict(rows=rows, held_bytes=held_bytes, progress=progress, tile_pixels=tile_pixels)
+    if isosurfaces:
+        kw["surfaces"] = isosurfaces
     if surfaces is None or surfaces.empty:
         return render_cached(renderer, camera, tf, background, options, cache=cache, **kw)
     fits = (cache is not None and cache.surface_hits is not None

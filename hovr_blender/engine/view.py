@@ -9,6 +9,7 @@ import numpy as np
 
 from .camera import RayCamera
 from . import limits
+from .isosurfaces import Surfaces, surfaces_from_view
 from .limits import read_regular
 from .methods import METHODS
 from .strict_json import as_integer, as_object, as_string, as_vector3, loads
@@ -141,6 +142,7 @@ class View:
     data: dict
     options: RenderOptions = field(default_factory=RenderOptions)
     base_dir: str = "."
+    surfaces: Surfaces = field(default_factory=Surfaces)  # contract §7: isosurfaces and planes
 
     @classmethod
     def from_dict(cls, d: dict, base_dir: str = ".") -> "View":
@@ -166,6 +168,7 @@ class View:
             data=data_spec(d["data"]),
             options=options,
             base_dir=base_dir,
+            surfaces=surfaces_from_view(d, ViewError),
         )
 
     @classmethod

@@ -47,6 +47,7 @@ import sys
 import numpy as np
 
 from ..engine import expansions as ex
+from ..engine.derived_fields import DerivedFieldError, derived_mesh, not_a_velocity, parse_derived
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
 
@@ -223,6 +224,29 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         if hasattr(base, attr):
             setattr(out, attr, getattr(base, attr))
     return out
+
+
+def component_reads(spec, sizes: dict | None) -> list[tuple[str, int | None]]:
+    """The (field, component index or None) reads of derived field `spec` (engine/derived_fields.py):
+    a velocity's one name is a vector of three (sizes: {name: components} of the file's fields;
+    None: scalars only, the reader checks the names), the density last."""
+    names = spec.components
+    if sizes is not None:
+        for n in names + ((spec.density,) if spec.density else ()):
+            if n not in sizes:
+                raise DerivedFieldError(f"{spec.name}: no field {n!r} in the file (it has {', '.join(sizes)})")
+    sizes = sizes or {}
+    if spec.velocity and len(names) == 1:
+        if sizes.get(names[0], 1) != 3:
+            raise not_a_velocity(spec, names[0], sizes.get(names[0], 1))
+        reads = [(names[0], i) for i in range(3)]
+    else:
+        for n in names:
+            if sizes.get(n, 1) != 1:
+                raise DerivedFieldError(f"{spec.name}: {n!r} is a vector of {sizes[n]} components; "
+                                        f"name its components or the vector alone")
+        reads = [(n, None) for n in names]
+    return reads + ([(spec.density, None)] if spec.density else [])
 
 
 def main(argv=None) -> int:

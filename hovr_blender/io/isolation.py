@@ -111,9 +111,10 @@ def _write_all(fd: int, data):
 
 def encode(value, arrays: list):
     """A task's result as JSON, its arrays appended to `arrays`: numbers, strings, lists,
-    tuples, dicts with string keys, arrays and VolumeMesh."""
+    tuples, dicts with string keys, arrays, VolumeMesh and its DerivedField."""
     import numpy as np
 
+    from ..engine.derived_fields import DerivedField
     from ..engine.mesh import VolumeMesh
 
     if isinstance(value, np.ndarray):
@@ -128,6 +129,11 @@ def encode(value, arrays: list):
         extra = {k: v for k, v in vars(value).items() if k not in names}
         return {"$mesh": {k: encode(getattr(value, k), arrays) for k in names},
                 "extra": {k: encode(v, arrays) for k, v in extra.items()}}
+    if isinstance(value, DerivedField):  # a derived field's components (engine/derived_fields.py)
+        spec = value.spec
+        return {"$derived": {f.name: encode(getattr(value, f.name), arrays) for f in dataclass_fields(DerivedField)
+                             if f.name != "spec"},
+                "spec": [spec.operation, list(spec.components), spec.density]}
     if isinstance(value, tuple):
         return {"$tuple": [encode(v, arrays) for v in value]}
     if isinstance(value, list):
@@ -169,6 +175,14 @@ def decode(tree, arrays: list):
         return tuple(decode(v, arrays) for v in tree["$tuple"])
     if "$dict" in tree:
         return {k: decode(v, arrays) for k, v in tree["$dict"].items()}
+    if "$derived" in tree:
+        from ..engine.derived_fields import DerivedField, DerivedSpec
+
+        op, components, density = tree["spec"]
+        given = {f.name: decode(tree["$derived"][f.name], arrays) for f in dataclass_fields(DerivedField)
+                 if f.name != "spec"}
+        return DerivedField(spec=DerivedSpec(str(op), tuple(str(c) for c in components),
+                                             None if density is None else str(density)), **given)
     if "$mesh" in tree:
         names = {f.name for f in dataclass_fields(VolumeMesh)}
         given = {k: decode(v, arrays) for k, v in tree["$mesh"].items() if k in names}

@@ -76,6 +76,7 @@ class SceneInputs:
     # needs the volumes' sizes, i.e. their data)
     step_units: str = "WORLD"
     steps_across: int = 0
+    isosurfaces: object = None  # engine.isosurfaces.Surfaces of the volumes (ui/surface_panels.py)
 
     @property
     def data_key(self) -> tuple:
@@ -187,7 +188,17 @@ def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
 
     mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
     return render_with_surfaces(renderer, surface_scene(inputs), camera, inputs.transfer_function, inputs.background,
-                                inputs.options, mode=mode, **kwargs)
+                                inputs.options, mode=mode, isosurfaces=one_device_isosurfaces(renderer, inputs),
+                                **kwargs)
+
+
+def one_device_isosurfaces(renderer, inputs: SceneInputs):
+    """The scene's isosurfaces and planes, for a renderer of one device (SceneError for several)."""
+    from ..engine.renderer import Renderer
+
+    if inputs.isosurfaces and not isinstance(renderer, Renderer):
+        raise SceneError("isosurfaces and cut planes render on one device: set Render > Device to CPU or one GPU")
+    return inputs.isosurfaces
 
 
 @dataclass
@@ -234,7 +245,8 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
         old = None  # another field frame: freed before the new trace allocates
     result, FINAL.cache = render_with_surfaces_cached(renderer, surfaces, camera, inputs.transfer_function,
                                                       inputs.background, inputs.options, mode=mode, cache=old,
-                                                      progress=progress, tile_pixels=tile_pixels)
+                                                      progress=progress, tile_pixels=tile_pixels,
+                                                      isosurfaces=inputs.isosurfaces)
     FINAL.refused = "refused" in result.stats.get("segment_cache", {})
     return result
 
@@ -377,17 +389,24 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
                             min_transmittance=settings.min_transmittance, device=settings.device,
                             precision=settings.precision)
+    from .surface_panels import plane_object_names, scene_isosurfaces
+
+    try:
+        isosurfaces = scene_isosurfaces(objects)
+    except ValueError as exc:
+        raise SceneError(str(exc)) from exc
     mode = settings.surfaces
     surfaces, key = [], ""
     if mode != "NONE":
         from .surfaces import scene_surfaces, surfaces_key
 
-        surfaces = scene_surfaces(depsgraph)
+        planes = plane_object_names(objects)  # cut planes are no opaque surfaces
+        surfaces = [m for m in scene_surfaces(depsgraph) if m.name.rpartition("[")[0] not in planes]
         key = surfaces_key(surfaces)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
                        film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
                        surface_mode=mode, surfaces_key=key, step_units=settings.step_units,
-                       steps_across=int(settings.steps_across))
+                       steps_across=int(settings.steps_across), isosurfaces=isosurfaces)
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
@@ -482,7 +501,8 @@ def viewport_request(context, depsgraph):
                               background=inputs.background, options=inputs.options,
                               film_transparent=inputs.film_transparent, data_key=inputs.data_key,
                               surfaces=surface_scene(inputs),
-                              surface_mode=inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED")
+                              surface_mode=inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED",
+                              isosurfaces=one_device_isosurfaces(renderer, inputs))
     return renderer, request
 
 

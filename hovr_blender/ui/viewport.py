@@ -56,6 +56,7 @@ class ViewportRequest:
     data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device) and surfaces
     surfaces: object = None  # engine.surfaces.SurfaceScene that stops the rays, or None
     surface_mode: str = "SHADED"
+    isosurfaces: object = None  # engine.isosurfaces.Surfaces: the look's isosurfaces and cut planes
 
     def signature(self) -> tuple:
         c = self.camera
@@ -65,7 +66,8 @@ class ViewportRequest:
                     for tf in tf_list)
         return (cam, c.width, c.height, c.t_min, c.t_max, c.projection, tfs,
                 tuple(np.asarray(self.background, dtype=np.float64).tolist()),
-                tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key)
+                tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key,
+                self.isosurfaces)
 
     def cache_view(self) -> tuple:
         """What the bands' cached segments depend on besides the look: the camera, the data, the
@@ -181,7 +183,8 @@ class ProgressiveViewport:
 
         tile = max(camera.width, 256)
         res = render_with_surfaces(self._renderer, req.surfaces, camera, req.transfer_function, req.background,
-                                   options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
+                                   options, mode=req.surface_mode, isosurfaces=req.isosurfaces, progress=progress,
+                                   tile_pixels=tile)
         return res, self.clock() - t0
 
     def _render_band(self, y0, rows, deadline):
@@ -201,10 +204,12 @@ class ProgressiveViewport:
         tile = max(req.camera.width, 256)
         if self._cache_refused and cache is None:
             res = render_with_surfaces(self._renderer, req.surfaces, cam, req.transfer_function, req.background,
-                                       req.options, mode=req.surface_mode, progress=progress, tile_pixels=tile)
+                                       req.options, mode=req.surface_mode, isosurfaces=req.isosurfaces,
+                                       progress=progress, tile_pixels=tile)
             return res, self.clock() - t0, False
         res, kept = render_with_surfaces_cached(self._renderer, req.surfaces, cam, req.transfer_function,
-                                                req.background, req.options, mode=req.surface_mode, cache=cache,
+                                                req.background, req.options, mode=req.surface_mode,
+                                                isosurfaces=req.isosurfaces, cache=cache,
                                                 held_bytes=held, progress=progress, tile_pixels=tile)
         self._cache_refused |= "refused" in res.stats.get("segment_cache", {})
         if kept is not None:

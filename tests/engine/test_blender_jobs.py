@@ -174,7 +174,7 @@ def test_the_compile_loads_what_the_render_launches():
     from hovr_blender.io import builtin, synthetic
 
     sphere, curved = builtin.sphere(), synthetic.curved_cube(2, modes=3)
-    assert kernel_variant([sphere]) == Renderer(sphere, "cpu").kernel_variant == (False, 3)
+    assert kernel_variant([sphere]) == Renderer(sphere, "cpu").kernel_variant == (False, 3, False)
     variant = kernel_variant([sphere, curved])
     assert variant[0] and Renderer(concatenate([sphere, curved]), "cpu").kernel_variant == variant
     kernels = jobs.CompiledKernels(jobs.compile_render_kernels)

@@ -46,6 +46,24 @@ NUM_STATS = 13
 # segment flags
 SEG_CURVED = 1  # samples of a Chebyshev interpolant (not exact): classify by the element's range
 SEG_EVALUATE = 2  # no samples: riemann/trapezoid evaluate the element itself (affine baselines)
+SEG_INTERPOLANT = 4  # samples of a derived field (kernels/derived.py): an interpolant, as curved
+
+
+@wp.struct
+class DerivedArgs:
+    """A derived field's components (kernels/derived.py; engine/derived_fields.py). active 0: the
+    mesh's field is its own expansion (a default struct changes nothing)."""
+
+    active: wp.int32
+    kind: wp.array(dtype=wp.int32)  # per element: derived.GRADIENT ... (+ PER_DENSITY), FIELD
+    # per element: component c's value expansion at offset + 4 c size, its reference derivatives
+    # d/dxi_k at offset + (4 c + 1 + k) size, each of `size` coefficients in `modes`
+    offset: wp.array(dtype=wp.int32)
+    size: wp.array(dtype=wp.int32)
+    modes: wp.array(dtype=wp.vec3i)
+    coeffs: wp.array(dtype=wp.float32)
+    axes: wp.array(dtype=wp.mat33)  # per element: dx/dx_data, the object transform's linear part
+    frame: wp.array(dtype=wp.vec2)  # per element: (a, b) of the field's frame f' = a f + b
 
 
 @wp.struct
@@ -78,6 +96,7 @@ class MeshArgs:
     geo_err: wp.array(dtype=wp.float32)
     box_lo: wp.array(dtype=wp.vec3)
     box_hi: wp.array(dtype=wp.vec3)
+    derived: DerivedArgs  # a derived field's components (none: active 0)
 
 
 @wp.struct
@@ -100,11 +119,38 @@ class CameraArgs:
 
 
 @wp.struct
+class SurfaceArgs:
+    """The look's surfaces (render contract §7; kernels/isosurface.py): isosurfaces, cut planes
+    and the clipping they do. A default struct (no isosurface, no plane) changes nothing."""
+
+    n_iso: wp.int32
+    iso_s: wp.array(dtype=wp.float32)  # the levels, in the field's frame (engine/field_frame.py)
+    iso_rgba: wp.array(dtype=wp.vec4)  # each level's linear colour and opacity
+    n_planes: wp.int32
+    plane: wp.array(dtype=wp.vec4)  # (n, c): the plane n . x = c, |n| = 1, world units
+    # (opacity, clip, 0, 0): clip +1 removes the volume where n . x > c, -1 where n . x < c, 0 none
+    plane_style: wp.array(dtype=wp.vec4)
+    # per element: 1 where a level lies in its certified range or a plane crosses its box, so
+    # the walk samples it even where the density is 0 (walk.element_transparent)
+    keep: wp.array(dtype=wp.int32)
+    # the reference gradient of the field, component k of element e's expansion at
+    # k * grad_stride + MeshArgs.coeff_offset[e] (engine/isosurfaces.reference_gradient); 0: none
+    grad_stride: wp.int32
+    grad: wp.array(dtype=wp.float32)
+    # per level: -1, or the derived field (kernels/derived.py: SPEED, ...) of the mesh's velocity
+    # that colours it through the ramp (ramp_s in that field's own units, ramp_rgb)
+    iso_color_by: wp.array(dtype=wp.int32)
+    ramp_s: wp.array(dtype=wp.float32)
+    ramp_rgb: wp.array(dtype=wp.vec3)
+
+
+@wp.struct
 class TransferArgs:
     color_s: wp.array(dtype=wp.float32)
     color_rgb: wp.array(dtype=wp.vec3)
     density_s: wp.array(dtype=wp.float32)
     density_tau: wp.array(dtype=wp.float32)
+    surf: SurfaceArgs  # isosurfaces and planes: part of the look, as the transfer function is
 
 
 @wp.struct

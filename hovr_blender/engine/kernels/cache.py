@@ -1,7 +1,8 @@
 """The segment cache's kernels (engine/renderer.py Renderer.trace / shade): a trace's rounds keep
 every segment of every ray with its series (trace_reserve, trace_write and trace_ends in
 integrate's place), and shade integrates a ray's cached segments through any transfer function as
-integrate would have, then writes its pixel; sum_counts adds up a shade's per-ray counters."""
+integrate would have, then writes its pixel (make_shade_kernel: with or without the look's
+isosurfaces and planes, as integrate); sum_counts adds up a shade's per-ray counters."""
 from __future__ import annotations
 
 import warp as wp
@@ -10,10 +11,10 @@ from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDAT
                    STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK, STAT_PIECEWISE,
                    STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, SegmentCache, Segments, TransferArgs)
-from .integrate import integrate_counted, no_tally, pixel_values, segment_step_terms
+from .integrate import integrate_counted, integrate_counted_surfaces, no_tally, pixel_values, segment_step_terms
 from .quadrature import METHOD_CLASSIFIED, RayIntegral
 from .rays import MAX_REGISTERS, camera_ray
-from .walk import element_transparent
+from .walk import density_transparent, element_transparent
 
 wp.set_module_options({"enable_backward": False})
 
@@ -95,73 +96,80 @@ def trace_ends(rays: RayState, cache: SegmentCache, ray_offset: wp.int32):
     cache.t_end[i + ray_offset] = rays.t_end[i]
 
 
-@wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
-def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
-          ray_offset: wp.int32, cache: SegmentCache, rgba: wp.array(dtype=wp.vec4), aux: wp.array(dtype=wp.vec2),
-          stats: wp.array2d(dtype=wp.int32), nonfinite: wp.array(dtype=wp.int32)):
-    """One thread per ray of a trace (ray i is pixel i + pixel_offset): its cached segments front
-    to back through integrate_counted, as the integrate kernel takes them round by round, then
-    its pixel (pixel_values) into rgba[i], aux[i]. Classified and split skip the elements the
-    traverse kernel would not have sampled under tf (element_transparent), and the ray stops
-    where integrate stops it (transmittance below q.min_transmittance), so the pixel is a fresh
-    render's. Its counters go to stats[i] (segments: those walked up to the stop), and a pixel
-    that is not finite counts in nonfinite[0]."""
-    i = wp.tid() + ray_offset
-    o, d = camera_ray(cam, i + pixel_offset)
-    state = RayIntegral()
-    state.color = wp.vec3(0.0, 0.0, 0.0)
-    state.transmittance = 1.0
-    state.restriction_evals = 0.0
-    state.depth = -1.0
-    state.error = 0.0
-    tally = no_tally()
-    skip_transparent = int(0)
-    if q.method >= METHOD_CLASSIFIED:
-        skip_transparent = 1
-    n_seg = int(0)
-    n_skipped = int(0)
-    going = int(1)
-    c = cache.head[i]
-    while c >= 0 and going == 1:
-        s = cache.chunk_start[c]
-        s_end = s + cache.chunk_count[c]
-        while s < s_end:
-            e = cache.element[s]
-            if skip_transparent == 1 and element_transparent(mesh, tf, e) == 1:
-                n_skipped += 1
-            else:
-                if state.transmittance < q.min_transmittance:
-                    going = 0
-                    break
-                terms = wp.vec3(0.0, 0.0, 0.0)
-                if q.method == METHOD_CLASSIFIED and q.h <= 0.0:  # its own steps: step_terms' work, here
-                    terms = segment_step_terms(mesh, tf, q, e, cache.flags[s], cache.coeffs, cache.coeff_offset[s],
-                                               cache.degree[s], cache.t0[s], cache.t1[s])
-                state, tally = integrate_counted(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
-                                                 cache.flags[s], cache.tail[s], cache.coeffs, cache.coeff_offset[s],
-                                                 terms, state, tally)
-            n_seg += 1
-            s += 1
-        c = cache.chunk_next[c]
-    px, ax = pixel_values(q, wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance),
-                          wp.vec2(state.depth, state.error), cache.t_end[i])
-    rgba[i] = px
-    aux[i] = ax
-    if not (wp.isfinite(px) and wp.isfinite(ax)):
-        wp.atomic_add(nonfinite, 0, 1)
-    stats[i, STAT_FIELD_EVALS] = tally.field_evals
-    stats[i, STAT_RESTRICTION_EVALS] = int(tally.restriction_evals + state.restriction_evals)
-    stats[i, STAT_SEGMENTS] = n_seg
-    stats[i, STAT_EMPTY] = n_skipped + tally.empty
-    stats[i, STAT_SMOOTH] = tally.smooth
-    stats[i, STAT_PIECEWISE] = tally.piecewise
-    stats[i, STAT_LOCATES] = 0
-    stats[i, STAT_WALKS] = 0
-    stats[i, STAT_BVH_CANDIDATES] = 0
-    stats[i, STAT_NEWTON_SEARCH] = 0
-    stats[i, STAT_NEWTON_WALK] = 0
-    stats[i, STAT_NEWTON_SAMPLE] = 0
-    stats[i, STAT_ROUNDS] = 0
+def make_shade_kernel(ISOSURFACES: bool):
+    # ISOSURFACES as in integrate.make_integrate_kernel; without surfaces no element is kept for them
+    counted = integrate_counted_surfaces if ISOSURFACES else integrate_counted
+    transparent = element_transparent if ISOSURFACES else density_transparent
+
+    @wp.kernel(enable_backward=False, module="unique", module_options={"max_unroll": 1}, cuda_max_registers=MAX_REGISTERS)
+    def shade(mesh: MeshArgs, cam: CameraArgs, tf: TransferArgs, q: QuadArgs, pixel_offset: wp.int32,
+              ray_offset: wp.int32, cache: SegmentCache, rgba: wp.array(dtype=wp.vec4), aux: wp.array(dtype=wp.vec2),
+              stats: wp.array2d(dtype=wp.int32), nonfinite: wp.array(dtype=wp.int32)):
+        """One thread per ray of a trace (ray i is pixel i + pixel_offset): its cached segments front
+        to back through integrate_counted (or _surfaces), as the integrate kernel takes them, then
+        its pixel (pixel_values) into rgba[i], aux[i]. Classified and split skip the elements the
+        traverse kernel would not have sampled under tf (element_transparent), and the ray stops
+        where integrate stops it (transmittance below q.min_transmittance), so the pixel is a fresh
+        render's. Its counters go to stats[i] (segments: those walked up to the stop), and a pixel
+        that is not finite counts in nonfinite[0]."""
+        i = wp.tid() + ray_offset
+        o, d = camera_ray(cam, i + pixel_offset)
+        state = RayIntegral()
+        state.color = wp.vec3(0.0, 0.0, 0.0)
+        state.transmittance = 1.0
+        state.restriction_evals = 0.0
+        state.depth = -1.0
+        state.error = 0.0
+        tally = no_tally()
+        skip_transparent = int(0)
+        if q.method >= METHOD_CLASSIFIED:
+            skip_transparent = 1
+        n_seg = int(0)
+        n_skipped = int(0)
+        going = int(1)
+        c = cache.head[i]
+        while c >= 0 and going == 1:
+            s = cache.chunk_start[c]
+            s_end = s + cache.chunk_count[c]
+            while s < s_end:
+                e = cache.element[s]
+                if skip_transparent == 1 and wp.static(transparent)(mesh, tf, e) == 1:
+                    n_skipped += 1
+                else:
+                    if state.transmittance < q.min_transmittance:
+                        going = 0
+                        break
+                    terms = wp.vec3(0.0, 0.0, 0.0)
+                    if q.method == METHOD_CLASSIFIED and q.h <= 0.0:  # its own steps: step_terms' work, here
+                        terms = segment_step_terms(mesh, tf, q, e, cache.flags[s], cache.coeffs, cache.coeff_offset[s],
+                                                   cache.degree[s], cache.t0[s], cache.t1[s])
+                    state, tally = wp.static(counted)(mesh, tf, q, e, o, d, cache.t0[s], cache.t1[s], cache.degree[s],
+                                                      cache.flags[s], cache.tail[s], cache.coeffs,
+                                                      cache.coeff_offset[s], terms, state, tally)
+                n_seg += 1
+                s += 1
+            c = cache.chunk_next[c]
+        px, ax = pixel_values(q, wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance),
+                              wp.vec2(state.depth, state.error), cache.t_end[i])
+        rgba[i] = px
+        aux[i] = ax
+        if not (wp.isfinite(px) and wp.isfinite(ax)):
+            wp.atomic_add(nonfinite, 0, 1)
+        stats[i, STAT_FIELD_EVALS] = tally.field_evals
+        stats[i, STAT_RESTRICTION_EVALS] = int(tally.restriction_evals + state.restriction_evals)
+        stats[i, STAT_SEGMENTS] = n_seg
+        stats[i, STAT_EMPTY] = n_skipped + tally.empty
+        stats[i, STAT_SMOOTH] = tally.smooth
+        stats[i, STAT_PIECEWISE] = tally.piecewise
+        stats[i, STAT_LOCATES] = 0
+        stats[i, STAT_WALKS] = 0
+        stats[i, STAT_BVH_CANDIDATES] = 0
+        stats[i, STAT_NEWTON_SEARCH] = 0
+        stats[i, STAT_NEWTON_WALK] = 0
+        stats[i, STAT_NEWTON_SAMPLE] = 0
+        stats[i, STAT_ROUNDS] = 0
+
+    return shade
 
 
 @wp.kernel(enable_backward=False)

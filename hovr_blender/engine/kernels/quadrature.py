@@ -164,14 +164,15 @@ def depth_update(depth: float, t0: float, t1: float, T0: float, T1: float) -> fl
 
 @wp.func
 def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int, xo: wp.vec3, xd: wp.vec3,
-          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, n: int,
-          state_in: RayIntegral):
-    """[a, b] in n equal steps (fixed_steps or auto_steps): left Riemann sum (trapezoid = 0, samples
-    t_0..t_n-1) or the trapezoid rule for both integrals (trapezoid = 1, samples t_0..t_n).
-    Samples evaluate the element (evaluate = 1; xi = xo + t xd) or the restriction coeffs.
-    Returns the new state and (element evaluations, restriction evaluations)."""
+          evaluate: int, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float,
+          hi: float, n: int, state_in: RayIntegral):
+    """[lo, hi] (inside segment [a, b], the series' span) in n equal steps (fixed_steps or
+    auto_steps): left Riemann sum (trapezoid = 0, samples t_0..t_n-1) or the trapezoid rule for
+    both integrals (trapezoid = 1, samples t_0..t_n). Samples evaluate the element (evaluate = 1;
+    xi = xo + t xd) or the restriction coeffs. Returns the new state and (element evaluations,
+    restriction evaluations)."""
     state = state_in
-    w = (b - a) / float(n)
+    w = (hi - lo) / float(n)
     col = state.color
     T = state.transmittance
     depth = state.depth
@@ -181,7 +182,7 @@ def march(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, trapezoid: int, e: int,
     hint_d = int(-1)
     hint_c = int(-1)
     for i in range(n + trapezoid):
-        t = a + float(i) * w
+        t = lo + float(i) * w
         s = float(0.0)
         if evaluate == 1:
             s = eval_field(mesh, e, xo + t * xd)

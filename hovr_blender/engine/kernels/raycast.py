@@ -22,6 +22,10 @@ integrate (kernels/cache.py): every segment of every ray, with its series, goes 
 SegmentCache, and the shade kernel later integrates a ray's cached segments through any transfer
 function as integrate would have, then writes its pixel.
 
+A look with isosurfaces or cut planes (contract §7) takes integrate and shade in their variant
+for them (integrate_kernels; kernels/isosurface.py); a mesh whose field is derived (contract §8)
+takes the sample kernel's variant that samples it (kernels/derived.py).
+
 docs/traversal.md: the traversal's invariant and its work counts (kernels/args.py STAT_*).
 """
 from __future__ import annotations
@@ -29,11 +33,11 @@ from __future__ import annotations
 # what the host reads of the kernels besides the table: the structs, counters and sizes
 from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDATES, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK, STAT_PIECEWISE,
-                   STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs,
-                   QuadArgs, RayState, SegmentCache, Segments, TransferArgs)
-from .cache import shade, sum_counts, trace_ends, trace_reserve, trace_write
+                   STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, DerivedArgs,
+                   MeshArgs, QuadArgs, RayState, SegmentCache, Segments, SurfaceArgs, TransferArgs)
+from .cache import make_shade_kernel, sum_counts, trace_ends, trace_reserve, trace_write
 from .entry import make_search_kernel
-from .integrate import finalize, integrate, step_terms
+from .integrate import finalize, make_integrate_kernel, step_terms
 from .rays import camera_ray, init_rays, regroup_keys
 from .walk import coefficients, make_sample_kernel, make_traverse_kernel, pyramid_piece_end, refine
 
@@ -47,26 +51,39 @@ SHADE_KERNELS = ("shade", "sum_counts")
 
 _WALK = {}
 _SAMPLE = {}
+_INTEGRATE = {}
 
 
-def walk_kernels(curved: bool, modes: int = 0):
+def walk_kernels(curved: bool, modes: int = 0, derived: bool = False):
     """(search, traverse, sample), specialised at compile time: with `curved` False the Newton
     location and curved sampling are compiled out (affine meshes pay only for what they use);
     with `modes` N > 0 (element.static_modes of the mesh) the sample kernel evaluates
-    hexahedra and prisms of N modes unrolled."""
+    hexahedra and prisms of N modes unrolled; with `derived` it samples the mesh's derived
+    field (MeshArgs.derived) instead of its own."""
     key = bool(curved)
     if key not in _WALK:
         _WALK[key] = (make_search_kernel(key), make_traverse_kernel(key))
-    skey = (key, int(modes))
+    skey = (key, int(modes), bool(derived))
     if skey not in _SAMPLE:
         _SAMPLE[skey] = make_sample_kernel(*skey)
     return _WALK[key] + (_SAMPLE[skey],)
 
 
-def kernel_table(curved: bool, modes: int = 0) -> dict:
+def integrate_kernels(isosurfaces: bool = False):
+    """(integrate, shade), specialised at compile time: with `isosurfaces` False (a look without
+    isosurfaces or planes) the root finding and the surface points are compiled out."""
+    key = bool(isosurfaces)
+    if key not in _INTEGRATE:
+        _INTEGRATE[key] = (make_integrate_kernel(key), make_shade_kernel(key))
+    return _INTEGRATE[key]
+
+
+def kernel_table(curved: bool, modes: int = 0, derived: bool = False, isosurfaces: bool = False) -> dict:
     """Every kernel of RENDER_KERNELS, TRACE_KERNELS and SHADE_KERNELS by name, the walk's
-    specialised as walk_kernels(curved, modes)."""
-    search, traverse, sample = walk_kernels(curved, modes)
+    specialised as walk_kernels(curved, modes, derived) (the renderer's kernel_variant), integrate
+    and shade as integrate_kernels(isosurfaces)."""
+    search, traverse, sample = walk_kernels(curved, modes, derived)
+    integrate, shade = integrate_kernels(isosurfaces)
     table = {"init_rays": init_rays, "search": search, "traverse": traverse, "sample": sample, "refine": refine,
              "coefficients": coefficients, "step_terms": step_terms, "integrate": integrate, "finalize": finalize,
              "trace_reserve": trace_reserve, "trace_write": trace_write, "trace_ends": trace_ends, "shade": shade,

@@ -253,7 +253,7 @@ def hermite_start(segs: Segments, slot: int, t: float) -> wp.vec3:
 def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
                  curved: int):
     """Where the slot's sample j of deg + 1 (Chebyshev-Lobatto point t_j of [t0, t1]) lies in its
-    element: (xi, w, Newton's iterations); the sample is f(xi) w^2.
+    element: (xi, w, dxi/dx there, Newton's iterations); the sample is f(xi) w^2.
 
     Affine element: xi = A o + b + t A d (w = 1 but for pyramids): deg + 1 samples are exact for
     the element's polynomial along the ray (restriction_degree).
@@ -263,6 +263,7 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
     t = lobatto_t(segs.t0[slot], segs.t1[slot], j, deg)
     w = float(1.0)
     xi = wp.vec3(0.0, 0.0, 0.0)
+    A = wp.mat33()
     newton = int(0)
     if curved == 1:
         p = o + t * d
@@ -271,6 +272,7 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
             r, Jinv, its = geometry.invert_point(mesh, e, p, start)
             newton += its
             xi = wp.vec3(r[0], r[1], r[2])
+            A = Jinv
             if r[3] > 0.0:
                 break
             start = geometry.start_guess(mesh, e, p)
@@ -278,14 +280,14 @@ def sample_point(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: i
         A = mesh.ref_a[e]
         xi = A * (o + t * d) + mesh.ref_b[e]
         w = element.restriction_weight(mesh.shape[e], xi)
-    return xi, w, newton
+    return xi, w, A, newton
 
 
 @wp.func
 def sample_at(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, segs: Segments, slot: int, j: int, deg: int,
               curved: int) -> float:
     """The slot's sample j (sample_point) through the generic evaluator."""
-    xi, w, newton = sample_point(mesh, o, d, segs, slot, j, deg, curved)
+    xi, w, A, newton = sample_point(mesh, o, d, segs, slot, j, deg, curved)
     return eval_field(mesh, segs.element[slot], xi) * w * w
 
 

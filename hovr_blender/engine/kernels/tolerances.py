@@ -28,3 +28,6 @@ STRETCH_RTOL_FLOAT64 = 1.0e-11
 # restriction: a curved interpolant's tail against its samples' size (refine_degree)
 CURVED_TAIL_RTOL = 1.0e-6
 CURVED_TAIL_RTOL_FLOAT64 = 1.0e-12
+# isosurface: the arithmetic's epsilon (rounding of a series' value, Newton's stop in the root finder)
+ROOT_EPS = 1.2e-7
+ROOT_EPS_FLOAT64 = 2.3e-16

@@ -14,11 +14,12 @@ from __future__ import annotations
 import warp as wp
 
 from ..shapes import MAX_FACES
+from . import derived
 from . import element
 from . import geometry
 from . import quadrature
 from . import restriction
-from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
+from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_NEWTON_SAMPLE, STAT_NEWTON_WALK, STAT_ROUNDS, STAT_SEGMENTS, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, Segments, TransferArgs)
 from .quadrature import METHOD_CLASSIFIED
@@ -146,18 +147,28 @@ def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b
     else:
         deg = restriction.restriction_degree(mesh, e)
     segs.degree[slot] = deg
-    segs.flags[slot] = curved * SEG_CURVED
+    segs.flags[slot] = curved * SEG_CURVED + mesh.derived.active * SEG_INTERPOLANT
     segs.list[wp.atomic_add(segs.list_count, 0, 1)] = slot
     return deg + 1
 
 
 @wp.func
-def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
-    """1 where the density is 0 over element e's whole certified range: classified and split
-    take no samples there (traverse) and integrate nothing (shade)."""
+def density_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
+    """1 where the density is 0 over element e's whole certified range."""
     if quadrature.density_max_on(tf, mesh.field_lo[e], mesh.field_hi[e]) <= 0.0:
         return 1
     return 0
+
+
+@wp.func
+def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
+    """1 where the density is 0 over element e's whole certified range and no surface needs
+    the element (SurfaceArgs.keep): classified and split take no samples there (traverse) and
+    integrate nothing (shade)."""
+    if tf.surf.n_iso + tf.surf.n_planes > 0:
+        if tf.surf.keep[e] == 1:
+            return 0
+    return density_transparent(mesh, tf, e)
 
 
 @wp.func
@@ -272,9 +283,10 @@ def make_traverse_kernel(CURVED: bool):
     return traverse
 
 
-def make_sample_kernel(CURVED: bool, MODES: int):
+def make_sample_kernel(CURVED: bool, MODES: int, DERIVED: bool):
     # MODES > 0: hexahedra and prisms of (MODES,) * 3 modes evaluate through the unrolled
-    # element.static_evaluator (its loops need max_unroll >= MODES)
+    # element.static_evaluator (its loops need max_unroll >= MODES); DERIVED: samples of the
+    # mesh's derived field (kernels/derived.py) from its components, exact at each point
     opts = {"max_unroll": max(4, MODES)} if CURVED or MODES else {}
     evaluate = element.static_evaluator(MODES) if MODES else element.eval_element
 
@@ -298,12 +310,16 @@ def make_sample_kernel(CURVED: bool, MODES: int):
         if wp.static(CURVED):
             if (segs.flags[slot] & SEG_CURVED) != 0:
                 curved = 1
-        xi, w, newton = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
+        xi, w, dxi_dx, newton = restriction.sample_point(mesh, o, d, segs, slot, j, deg, curved)
         if wp.static(CURVED):
             if newton > 0:
                 wp.atomic_add(stats, slot // SEGMENTS_PER_ROUND + pixel_offset, STAT_NEWTON_SAMPLE, newton)
         e = segs.element[slot]
-        f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
+        f = float(0.0)
+        if wp.static(DERIVED):
+            f = derived.sample_value(mesh, e, xi, dxi_dx)
+        else:
+            f = wp.static(evaluate)(mesh.shape[e], mesh.coeffs, mesh.coeff_offset[e], mesh.modes[e], xi)
         segs.samples[slot * MAX_SAMPLES + j] = f * w * w
         if j == 0:
             ends = restriction.end_weights(mesh, o, d, segs, slot, curved)
@@ -337,14 +353,14 @@ def coefficients(segs: Segments, slots: wp.array(dtype=wp.int32), stride: wp.int
 def refine(pixel_offset: wp.int32, rays: RayState, segs: Segments, slots: wp.array(dtype=wp.int32),
            count: wp.array(dtype=wp.int32), again: wp.array(dtype=wp.int32), again_count: wp.array(dtype=wp.int32),
            allow: wp.int32):
-    """One thread per sampled slot: a curved slot's tail is its error estimate; if it is too
-    large (and allow is 1) the degree is doubled and the slot goes on the `again` list for the
-    sample kernel's odd points."""
+    """One thread per sampled slot: an interpolant's (a curved slot's or a derived field's) tail
+    is its error estimate; if it is too large (and allow is 1) the degree is doubled and the slot
+    goes on the `again` list for the sample kernel's odd points."""
     idx = wp.tid()
     if idx >= count[0]:
         return
     slot = slots[idx]
-    if (segs.flags[slot] & SEG_CURVED) == 0:
+    if (segs.flags[slot] & (SEG_CURVED | SEG_INTERPOLANT)) == 0:
         return
     if restriction.refine_degree(segs, slot, allow) == 1:
         again[wp.atomic_add(again_count, 0, 1)] = slot

@@ -7,8 +7,9 @@ import dataclasses
 
 import numpy as np
 
+from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
-from ..derived import magnitude_mesh, parse_magnitude
+from ..derived import component_reads, magnitude_mesh, parse_magnitude
 from ..format import XML_PACKAGE, Format
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
@@ -32,14 +33,18 @@ def _nektar_component(first: VolumeMesh, field_file: FieldFile, name: str) -> Vo
 
 
 def read_nektar_field(mesh_path, solution_path=None, field=None) -> VolumeMesh:
-    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c."""
-    names = parse_magnitude(field)
+    """nektar.read_nektar, plus field "|a,b,c|": the magnitude of fields a, b, c, and the derived
+    fields of engine/derived_fields.py (Q(u,v,w), vorticity(rhou,rhov,rhow/rho), |grad|(p), ...)."""
+    spec = parse_derived(field)
+    names = [n for n, _ in component_reads(spec, None)] if spec is not None else parse_magnitude(field)
     if names is None:
         return read_nektar(mesh_path, solution_path, field)
     first = read_nektar(mesh_path, solution_path, names[0])
     solution = solution_path if solution_path is not None else find_solution(mesh_path)
     field_file = read_field_file(solution, first.num_elements)
     components = [first] + [_nektar_component(first, field_file, n) for n in names[1:]]
+    if spec is not None:
+        return derived_mesh(spec, components)
     return magnitude_mesh(components, "|" + ",".join(names) + "|")
 
 
@@ -50,7 +55,8 @@ FORMAT = Format(
     list_fields=list_fields, error=NektarError,
     description="Import a Nektar++ mesh (.xml) and its solution (.fld/.chk/.rst) as a HOVR volume",
     packages=(XML_PACKAGE, ("h5py", "h5py", "Nektar++ HDF5 solution files (.fld/.chk in HDF5)")),
-    field_help='Field to render; "|u,v,w|" is the magnitude of u, v, w. Empty: the file\'s first field',
+    field_help='Field to render; "|u,v,w|" is the magnitude of u, v, w; Q(u,v,w), vorticity(rhou,rhov,rhow/rho), '
+               '|grad|(p): derived fields. Empty: the file\'s first field',
     find_solution=find_solution, pick_solution=pick_solution,
     solution_help=("Field file (.fld/.chk/.rst or a .fld/ folder), relative to the mesh's folder; empty: the "
                    "likeliest field file in the mesh's folder (its name like the mesh's, the latest of a numbered "

@@ -3,8 +3,9 @@ Lagrange or Bezier cells whose point-data arrays are the fields; a vector array 
 component or its magnitude, derived from the exact component polynomials (io/derived.py)."""
 from __future__ import annotations
 
+from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
-from ..derived import magnitude_mesh
+from ..derived import component_reads, magnitude_mesh
 from ..format import XML_PACKAGE, Format
 from .errors import VtuError
 from .reader import list_fields, read_vtu
@@ -13,7 +14,12 @@ from .reader import list_fields, read_vtu
 def read_vtu_field(path, field=None, component=None) -> VolumeMesh:
     """vtu.read_vtu, except that a vector array's magnitude (component None or "magnitude")
     is derived here from its exact component polynomials (read_vtu interpolates the nodal
-    magnitudes instead, as VTK does)."""
+    magnitudes instead, as VTK does); field Q(Velocity) and the other derived fields of
+    engine/derived_fields.py from its arrays' exact polynomials."""
+    spec = parse_derived(field)
+    if spec is not None:
+        reads = component_reads(spec, list_fields(path))
+        return derived_mesh(spec, [read_vtu(path, name, index) for name, index in reads])
     if component in (None, "magnitude"):
         available = list_fields(path)
         name = field if field is not None else next(iter(available), None)
@@ -30,7 +36,8 @@ FORMAT = Format(
     read=lambda path, solution=None, field=None, component=None: read_vtu_field(path, field, component),
     list_fields=list_fields, error=VtuError,
     description="Import a VTK unstructured grid (.vtu, Lagrange or Bezier cells) as a HOVR volume",
-    field_help="Point-data array to render; empty: the file's first one",
+    field_help="Point-data array to render; Q(Velocity), vorticity(Velocity), |grad|(Pressure): derived fields; "
+               "empty: the file's first one",
     components=True,
     packages=(XML_PACKAGE,),
 )
