@@ -92,3 +92,44 @@ def test_report_keeps_each_datasets_sizes_together(tmp_path):
     assert sizes == ["1920x1080", "512x512", "1920x1080"]  # X at both sizes, then Y
     assert "OpenGL renderer Card" in md
     assert "| X | 512x512 | 100.0 ms, 2.0e-04 | vtk-resample64-smart (64x32x16)" in md
+
+
+class _Independent:
+    """A stand-in for audit's IndependentReference: an empty pixel, with the given stretches."""
+
+    def __init__(self, stretches):
+        self._stretches = stretches
+
+    def pixel(self, o, d, background):
+        class R:
+            rgba = np.zeros(4)
+            error = 0.0
+
+        return R()
+
+    def stretches(self, o, d, t0, t1):
+        return self._stretches
+
+
+def _decide(stretches, exact):
+    cam = {"eye": [3.0, 0.0, 0.0], "target": [0.0, 0.0, 0.0], "up": [0, 0, 1], "fov_y_deg": 30.0}
+    ref = np.zeros((1, 2, 4))
+    ref[0, 1] = [0.0, 0.004, 0.0, 0.005]  # our float64: a faint pixel
+    other = ref.copy()
+    other[0, 1, 1] = 0.006  # our float32, 2e-3 off it: the pixel goes to the independent reference
+    info = peers.decide(None, cam, 2, 1, None, ref, other, 10, lambda *a: None,
+                        chord=lambda o, d: exact, independent=_Independent(stretches))
+    return info, ref
+
+
+def test_decide_keeps_float64_where_the_independent_reference_misses_the_exact_chord():
+    info, ref = _decide([], 1.6e-3)  # it found no stretch; the ray clips the mesh over 1.6e-3
+    assert info["independent_missed"] == 1 and info["float64_wrong"] == 0
+    assert ref[0, 1, 1] == 0.004  # not replaced
+    assert info["pixels"][0][4] == [0, 1.6e-3]
+
+
+def test_decide_replaces_where_the_independent_reference_covers_the_chord():
+    info, ref = _decide([(2.0, 2.0016, 0)], 1.6e-3)
+    assert info["independent_missed"] == 0 and info["float64_wrong"] == 1
+    assert ref[0, 1, 1] == 0.0  # the independent value
