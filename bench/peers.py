@@ -42,7 +42,10 @@ difference between the two there and every method's error on those pixels agains
 our float32 (split) and float64 images differ by more than 1e-3, the independent reference
 decides the pixel and replaces the float64 value (up to --fix-gaps pixels, largest gaps
 first); so it does at the --fix-disputed pixels where VTK's closest method (least mean error)
-is more than 0.05 off, in case both our precisions share a fault there. On Hex_Mushroom the
+is more than 0.05 off, in case both our precisions share a fault there. On hexahedral meshes a
+pixel is not replaced where the independent reference's stretches inside the cells fall short
+of the ray's exact chord (audit/chords.py): it misses short chords where a ray clips a curved
+boundary (the JSON counts those as independent_missed). On Hex_Mushroom the
 float64 preset returned empty pixels where float32 and the independent reference agree to 1e-4.
 VTK's pixels come from its 8-bit framebuffer: 0.5/255 = 2.0e-3 of rounding is in every VTK
 error (its floor).
@@ -69,6 +72,7 @@ from bench import vtk_peer as vp
 from hovr_blender.audit import datasets  # the audit's datasets, views, transfer functions
 
 EMPTY = 1.0 / 255  # alpha below this: an empty pixel (for the mean error)
+CHORD_TOL = 1e-6  # the independent reference's inside length may miss the exact chord by this (world units)
 DEFAULT_DATASETS = ["Hex_CurvedFace", "Hex_Mushroom", "ngsolve_ball", "mfem_fichera", "hump3D", "paper_scale",
                     "ngsolve_post", "pyfr_tgv", "RotPerBcs3D_Annulus", "curved_mixed_cube", "Pyr_channel_m6", "scaleHO"]
 
@@ -325,21 +329,47 @@ def independent_sample(grid, camera_dict, W, H, tf, ref, k, seed, log):
     return pixels, np.array(values), est
 
 
-def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, label="float32", seconds=60.0):
+def exact_chords(mesh):
+    """chord(o, d): the exact length of the ray inside the mesh (audit/chords.py, from the
+    boundary patches alone), or None where the mesh is not all hexahedra. The boundary is fitted
+    on the first call."""
+    from hovr_blender.audit import chords
+    from hovr_blender.engine import shapes
+
+    if not np.all(mesh.shape == shapes.HEX):
+        return None
+    boundary = []
+
+    def chord(o, d):
+        if not boundary:
+            boundary.append(chords.Boundary(mesh))
+        return float(chords.chords_numpy(boundary[0], np.asarray(o)[None], np.asarray(d)[None])[0])
+
+    return chord
+
+
+def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, label="float32", seconds=60.0,
+           chord=None, independent=None):
     """Where `other` (an image) and `ref` differ by more than `threshold`, the independent
     reference decides: it is computed at the `limit` largest such pixels and replaces `ref`
     there (in place), for at most `seconds`. Returns the counts: pixels over the threshold, checked, where the float64
-    value was wrong (> 1e-3 off the independent one) and where `other` was."""
+    value was wrong (> 1e-3 off the independent one) and where `other` was. With `chord`
+    (exact_chords), a pixel where the independent reference's stretches inside the cells do not
+    add up to the exact chord is not replaced: it misses short chords where a ray clips a curved
+    boundary (benchmarks.md, "Our two pixels over 1e-3"); those are counted as independent_missed."""
     from hovr_blender.audit import reference as R
 
     e = np.abs(other[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
     jj, ii = np.nonzero(e > threshold)
     info = {"against": label, "threshold": threshold, "pixels_over": int(len(ii)), "checked": 0,
-            "float64_wrong": 0, "other_wrong": 0, "largest_float64_error": 0.0}
+            "float64_wrong": 0, "other_wrong": 0, "largest_float64_error": 0.0, "independent_missed": 0,
+            # [i, j, |float64 - independent|, |other - independent|, independent inside / exact chord or None]
+            "pixels": []}
     if len(ii) == 0:
         return info
     order = np.argsort(-e[jj, ii])[:limit]
-    ind = R.IndependentReference(grid, tf.color_s, tf.color_rgb, tf.density_s, tf.density_tau, tol=1e-10)
+    ind = independent if independent is not None else R.IndependentReference(
+        grid, tf.color_s, tf.color_rgb, tf.density_s, tf.density_tau, tol=1e-10)
     t0 = time.perf_counter()
     for k in order:
         if time.perf_counter() - t0 > seconds:  # a time cap: the rest are counted, not checked
@@ -349,14 +379,27 @@ def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, 
         o, d = R.contract_ray(camera_dict, W, H, i, j)
         v = ind.pixel(o, d, np.zeros(3)).rgba
         e64 = float(np.abs(ref[j, i, :3] - v[:3]).max())
+        e_other = float(np.abs(other[j, i, :3] - v[:3]).max())
+        cover = None
+        if chord is not None:
+            exact = chord(o, d)
+            inside = sum(b - a for a, b, _ in ind.stretches(o, d, 0.0, np.inf))
+            cover = [inside, exact]
+            if np.isfinite(exact) and abs(inside - exact) > CHORD_TOL * max(1.0, exact):
+                info["independent_missed"] += 1
+                info["pixels"].append([i, j, e64, e_other, cover])
+                info["checked"] += 1
+                continue
         info["float64_wrong"] += int(e64 > 1e-3)
-        info["other_wrong"] += int(float(np.abs(other[j, i, :3] - v[:3]).max()) > 1e-3)
+        info["other_wrong"] += int(e_other > 1e-3)
         info["largest_float64_error"] = max(info["largest_float64_error"], e64)
+        info["pixels"].append([i, j, e64, e_other, cover])
         ref[j, i] = v
         info["checked"] += 1
     log(f"  reference vs {label}: {len(ii)} pixels differ by > {threshold:g}; {info['checked']} checked independently "
         f"in {time.perf_counter() - t0:.1f} s: float64 wrong at {info['float64_wrong']} "
-        f"(up to {info['largest_float64_error']:.2g}), {label} at {info['other_wrong']}")
+        f"(up to {info['largest_float64_error']:.2g}), {label} at {info['other_wrong']}; "
+        f"the independent reference short of the exact chord at {info['independent_missed']} (kept float64)")
     return info
 
 
@@ -390,10 +433,12 @@ def run_dataset(name, args, deadline, log):
         entry["rows"] += vrows
         images.update(vimages)
     # where our float32 and float64 images differ by more than 1e-3 (the audit's rule), the
-    # independent reference decides the pixel: it replaces the float64 value there
+    # independent reference decides the pixel: it replaces the float64 value there, unless its
+    # stretches miss the exact chord (hexahedral meshes)
+    chord = exact_chords(mesh) if grid is not None else None
     if grid is not None and "ours-split" in images and args.fix_gaps > 0:
         entry["reference_checked"] = [decide(grid, cam, W, H, tf, ref, images["ours-split"], args.fix_gaps, log,
-                                             seconds=args.check_seconds)]
+                                             seconds=args.check_seconds, chord=chord)]
     # and where VTK's closest method (least mean error) is far off (> 0.05), in case both our
     # precisions share a fault there
     vt = [r for r in entry["rows"] if r["family"] == "vtk" and r["method"] in images]
@@ -401,7 +446,7 @@ def run_dataset(name, args, deadline, log):
         best = min(vt, key=lambda r: errors(images[r["method"]], ref)[1])["method"]
         entry.setdefault("reference_checked", []).append(
             decide(grid, cam, W, H, tf, ref, images[best], args.fix_disputed, log, threshold=0.05, label=best,
-                   seconds=args.check_seconds))
+                   seconds=args.check_seconds, chord=chord))
     for row in entry["rows"]:
         if row["method"] in images:
             row["max_error"], row["mean_error"] = errors(images[row["method"]], ref)
@@ -434,18 +479,20 @@ def _srgb(x):
 
 def figure_columns(entry, images):
     """The figure's methods: ours (split), VTK's ParaView default (lattice, ray cast), its finest
-    tessellation, its finest grid."""
+    tessellation, its finest grid, and VTK's best (least mean error) where it is none of those."""
     done = [r for r in entry["rows"] if r["method"] in images]
 
     def pick(pred, key):
         c = [r for r in done if pred(r["method"])]
         return max(c, key=key)["method"] if c else None
 
-    return [m for m in (
+    cols = [m for m in (
         "ours-split" if "ours-split" in images else pick(lambda m: m.startswith("ours"), lambda r: 0),
         pick(lambda m: m.startswith("vtk-lattice"), lambda r: r["method"].endswith("raycast")),
         pick(lambda m: m.startswith("vtk-tess"), lambda r: (int(r["method"].split("-")[1][4:]), r["method"].endswith("raycast"))),
         pick(lambda m: m.startswith("vtk-resample"), lambda r: int(r["method"].split("-")[1][8:]))) if m]
+    best = pick(lambda m: m.startswith("vtk-"), lambda r: -r.get("mean_error", np.inf))
+    return cols + ([best] if best and best not in cols else [])
 
 
 def save_figure_images(entry, images, ref, folder, max_width=480):
@@ -508,24 +555,173 @@ def plot(json_path, folder):
     return written
 
 
-def table(out):
-    """Markdown rows: dataset | method | frame | prepare | host memory | GPU memory | max | mean error."""
-    gpu = any(r.get("gpu_bytes") is not None for e in out["datasets"].values() for r in e["rows"])
-    head = "| dataset | method | time per frame | preparation | data | host peak | " + ("GPU held | " if gpu else "") + \
-           "max error | mean error |"
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
-    for name, e in out["datasets"].items():
+def table(out, sizes=False):
+    """Markdown rows: dataset | [size |] method | frame | prepare | data | host memory | [GPU memory |]
+    max | mean error. `out` is one run's JSON, or a list of them (several sizes or groups: the
+    rows of a dataset stay together, in the runs' order; `sizes` adds the image size column)."""
+    runs = out if isinstance(out, list) else [out]
+    gpu = any(r.get("gpu_bytes") is not None for o in runs for e in o["datasets"].values() for r in e["rows"])
+    head = "| dataset | " + ("size | " if sizes else "") + "method | time per frame | preparation | data | host peak | " + \
+           ("GPU held | " if gpu else "") + "max error | mean error |"
+    ncol = head.count("|") - 1
+    lines = [head, "|" + "---|" * ncol]
+    for name, size, e in _entries(runs):
+        lead = [name] + ([size] if sizes else [])
         for r in e["rows"]:
             if "skipped" in r:
-                lines.append(f"| {name} | {r['method']} | skipped: {r['skipped']} |" + " |" * (head.count("|") - 4))
+                lines.append("| " + " | ".join(lead + [r["method"], f"not run: {r['skipped']}"]) + " |"
+                             + " |" * (ncol - len(lead) - 2))
                 continue
-            cells = [name, r["method"], _ms(r["frame_seconds"]), _s(r["prepare_seconds"]),
-                     _mb(r.get("data_bytes", r.get("mesh_bytes"))), _mb(r["host_peak_bytes"])]
+            cells = lead + [r["method"], _ms(r["frame_seconds"]), _s(r["prepare_seconds"]),
+                            _mb(r.get("data_bytes", r.get("mesh_bytes"))), _mb(r["host_peak_bytes"])]
             if gpu:
                 cells.append(_mb(r.get("gpu_bytes")))
             cells += [f"{r['max_error']:.1e}", f"{r['mean_error']:.1e}"]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _entries(runs):
+    """(dataset, size, entry) over runs: each dataset's sizes together, datasets and sizes in
+    the order the runs give them."""
+    order = []
+    for o in runs:
+        for name in o["datasets"]:
+            if name not in order:
+                order.append(name)
+    return [(name, o["size"], o["datasets"][name]) for name in order for o in runs if name in o["datasets"]]
+
+
+def _grid_n(row):
+    """N of a vtk-resampleN row, else None."""
+    prep = row.get("preparation") or ""
+    return int(prep[8:]) if prep.startswith("resample") else None
+
+
+def grid_points_about(dims, n0, n):
+    """Points of the N = n grid, from the dimensions `dims` measured at N = n0 (the box's
+    proportions recovered from them, so about: within a point a side)."""
+    return int(np.prod([np.ceil((d - 1) * (n - 1) / (n0 - 1) - 1e-9) + 1 for d in dims]))
+
+
+def equal_time(entry, ours="ours-split"):
+    """What VTK renders in our frame time on one dataset and size: our frame (`ours`, the
+    tolerance-bounded method), the largest measured grid and VTK's least-error method whose frame
+    takes no longer, and why the next grid has no row (its skip reason, or its frame was slower).
+    None when `ours` or every VTK method is missing."""
+    rows = {r["method"]: r for r in entry["rows"]}
+    mine = rows.get(ours)
+    done = [r for r in entry["rows"] if r["family"] == "vtk" and "skipped" not in r]
+    if mine is None or "skipped" in mine or not done:
+        return None
+    t = mine["frame_seconds"]
+    within = [r for r in done if r["frame_seconds"] <= t]
+    grids = sorted((r for r in entry["rows"] if _grid_n(r)), key=_grid_n)
+    fit = [r for r in grids if r in within]
+    largest = fit[-1] if fit else None
+    after = [r for r in grids if largest is None or _grid_n(r) > _grid_n(largest)]
+    if not after:
+        stop = "no larger grid was asked for"
+    elif "skipped" in after[0]:
+        stop = f"{after[0]['method']}: {after[0]['skipped']}"
+    else:
+        stop = f"{after[0]['method']}: its frame takes {_ms(after[0]['frame_seconds'])}"
+    best = min(within, key=lambda r: r["max_error"]) if within else None
+    return {"ours": mine, "largest_grid": largest, "next_grid": stop, "best_within": best}
+
+
+def resampling_rates(entry, sizes=(128, 256, 512)):
+    """VTK's measured resampling rate on one dataset (grid points a second, of its largest
+    measured grid: vtkResampleToImage's probing dominates) and the preparation that rate gives
+    the N-point grids of `sizes`, with their points. None where no grid was measured."""
+    grids = [r for r in entry["rows"] if _grid_n(r) and "skipped" not in r]
+    if not grids:
+        return None
+    r = max(grids, key=_grid_n)
+    n0, dims = _grid_n(r), r["grid_dimensions"]
+    rate = float(np.prod(dims)) / r["prepare_seconds"]
+    est = {n: (grid_points_about(dims, n0, n), grid_points_about(dims, n0, n) / rate) for n in sizes}
+    return {"from": r["method"], "n": n0, "points": int(np.prod(dims)), "seconds": r["prepare_seconds"], "rate": rate,
+            "estimates": est}
+
+
+def figure_check(entry):
+    """(the figure's columns, VTK's best by mean error, whether the figure shows it)."""
+    cols = figure_columns(entry, {r["method"] for r in entry["rows"] if "skipped" not in r})
+    vt = [r for r in entry["rows"] if r["family"] == "vtk" and "skipped" not in r]
+    best = min(vt, key=lambda r: r["mean_error"])["method"] if vt else None
+    return cols, best, best in cols
+
+
+def _link(path):
+    """A path as a link from docs/ (where the report is pasted)."""
+    rel = os.path.relpath(os.path.abspath(path), common.REPO / "docs")
+    return f"[{Path(path).parent.name}/{Path(path).name}]({rel})"
+
+
+def report(paths, ours="ours-split"):
+    """The peers' report from runs' peers.json files: which run (device, date, commit, size,
+    VTK's OpenGL), the table, the rows at equal time, the grids not measured with VTK's measured
+    resampling rate, and whether each figure shows VTK's best. What docs/benchmarks.md's peers
+    tables are: `python -m bench.peers --table A.json,B.json,...`."""
+    runs = [json.loads(Path(p).read_text()) for p in paths]
+    sizes = len({o["size"] for o in runs}) > 1
+    out = []
+    for p, o in zip(paths, runs):
+        gl = o.get("vtk_opengl") or ""
+        renderer = next((x.split(":", 1)[1].strip() for x in gl.split(";") if "renderer string" in x), gl)
+        window = gl.split("|")[0].strip()
+        out.append(f"- {o['size']}: {o['device_name']} ({o['device']}), {o['date'][:10]}, commit {(o['git_commit'] or '?')[:7]}"
+                   + (" (with uncommitted changes)" if o.get("git_dirty") else "")
+                   + f", Warp {o.get('warp')}, VTK {o['vtk']} ({window}, OpenGL renderer {renderer}); {_link(p)}")
+    out += ["", table(runs, sizes=sizes), ""]
+    out += [f"**At equal time** (VTK's methods whose frame takes no longer than ours, `{ours}`; "
+            "preparation is not counted, it is paid once):", "",
+            "| dataset | " + ("size | " if sizes else "") + "ours: frame, max error | largest grid within it: "
+            "frame, preparation, max / mean error | the next grid | VTK's least max error within it |",
+            "|---|" + ("---|" if sizes else "") + "---|---|---|---|"]
+    for name, size, e in _entries(runs):
+        q = equal_time(e, ours)
+        if q is None:
+            continue
+        g, b = q["largest_grid"], q["best_within"]
+        gcell = (f"{g['method']} ({'x'.join(map(str, g['grid_dimensions']))}): {_ms(g['frame_seconds'])}, "
+                 f"{_s(g['prepare_seconds'])}, {g['max_error']:.1e} / {g['mean_error']:.1e}") if g else "none"
+        bcell = f"{b['method']}: {b['max_error']:.1e} ({_ms(b['frame_seconds'])})" if b else "none"
+        out.append("| " + " | ".join([name] + ([size] if sizes else []) + [
+            f"{_ms(q['ours']['frame_seconds'])}, {q['ours']['max_error']:.1e}", gcell, q["next_grid"], bcell]) + " |")
+    out += ["", "**Grids not measured**: settings " + "; ".join(
+        sorted({f"N = {o['settings']['resample']}, --budget {o['settings']['budget']:g} s, --max-points "
+                f"{o['settings']['max_points']:.3g}" for o in runs})) + ". VTK's resampling rate measured on its "
+            "largest grid, and the preparation it gives larger grids:", "",
+            "| dataset | " + ("size | " if sizes else "") + "measured | 128 | 256 | 512 |",
+            "|---|" + ("---|" if sizes else "") + "---|---|---|---|"]
+    for name, size, e in _entries(runs):
+        q = resampling_rates(e)
+        if q is None:
+            continue
+        est = ["measured" if n == q["n"] else f"{_count(pts)} points, {_duration(sec)}"
+               for n, (pts, sec) in q["estimates"].items()]
+        out.append("| " + " | ".join([name] + ([size] if sizes else []) + [
+            f"{q['from']}: {_count(q['points'])} points in {_s(q['seconds'])} ({_count(q['rate'])}/s)"] + est) + " |")
+    out += ["", "**Figures** (ours, VTK's ParaView default, its finest tessellation and grid; VTK's best is the "
+            "least mean error):", ""]
+    for name, size, e in _entries(runs):
+        cols, best, shown = figure_check(e)
+        if best is None:
+            out.append(f"- {name} ({size}): {', '.join(cols)}; no VTK image ({e.get('vtk_skipped', 'none measured')})")
+            continue
+        out.append(f"- {name} ({size}): {', '.join(cols)}; VTK's best {best}: "
+                   + ("shown" if shown else "**not shown**"))
+    return "\n".join(out)
+
+
+def _duration(s):
+    return _s(s) if s < 120 else f"{s / 60:.0f} min" if s < 7200 else f"{s / 3600:.0f} h"
+
+
+def _count(x):
+    return f"{x / 1e6:.3g} M" if x >= 1e6 else f"{x / 1e3:.3g} k" if x >= 1e3 else f"{x:.3g}"
 
 
 def _ms(s):
@@ -567,17 +763,11 @@ def main(argv=None):
     ap.add_argument("--figures", default=None, help="folder for peers_<dataset>.png (default: --out)")
     ap.add_argument("--save-images", action="store_true", help="also keep every image (npz) under OUT/images")
     ap.add_argument("--plot", metavar="PEERS_JSON", help="only draw the figures of an earlier run (into --figures)")
-    ap.add_argument("--table", metavar="JSON[,JSON...]", help="only print the table of earlier runs, merged")
+    ap.add_argument("--table", metavar="JSON[,JSON...]",
+                    help="only print the report of earlier runs (table, equal time, grids not measured, figures)")
     args = ap.parse_args(argv)
     if args.table:
-        merged = None
-        for path in args.table.split(","):
-            d = json.loads(Path(path).read_text())
-            if merged is None:
-                merged = d
-            else:
-                merged["datasets"].update(d["datasets"])
-        print(table(merged))
+        print(report(args.table.split(",")))
         return
     if args.plot:
         for p in plot(args.plot, args.figures or Path(args.plot).parent):
