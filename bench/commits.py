@@ -4,6 +4,7 @@ beside the change, on one machine, in one run (issue 28's rule for quoting a spe
     python -m bench.commits views --size 1920x1080 --out .gpu/bench/views      (here: the view files)
     python -m bench.commits time --views DIR --tree NAME=PATH [--tree ...] --device cuda:0 \\
         --methods split,classified --repeats 5 --out $OUT/commits.json          (there: the timings)
+    python -m bench.commits table RUN.json [RUN.json ...]                   (the docs' table)
 
 `views` writes one view file per dataset: the audit's oblique camera and three-tent transfer
 function (hovr_blender/audit/datasets.py), the data path relative to the view file as
@@ -162,6 +163,27 @@ def time_trees(trees: list[tuple[str, str]], views: list[str], device: str, meth
     return out
 
 
+def table(runs: list[dict], labels: list[str]) -> str:
+    """A markdown table, one row per dataset and method, one column per (run, tree) in milliseconds
+    per frame (the best of the run's repeats); a tree missing a frame shows why in a footnote."""
+    columns, cells, notes = [], {}, []
+    for run, label in zip(runs, labels):
+        for tree, res in run["results"].items():
+            col = f"{tree} ({label})"
+            columns.append(col)
+            if "error" in res:
+                notes.append(f"{col}: {res['error'].strip().splitlines()[-1][:160]}")
+            for row in res.get("rows", []):
+                if "seconds" in row:
+                    cells[(row["dataset"], row["method"]), col] = f"{1000 * row['seconds']:.0f}"
+                else:  # the dataset failed to load at that commit: no frame of either method
+                    notes.append(f"{col}, {row['dataset']}: {row.get('error', '?')[:160]}")
+    keys = sorted({k for k, _ in cells})
+    lines = ["| data | method | " + " | ".join(columns) + " |", "|---|---|" + "---|" * len(columns)]
+    lines += [f"| {d} | {m} | " + " | ".join(cells.get(((d, m), c), "") for c in columns) + " |" for d, m in keys]
+    return "\n".join(lines + [""] + [f"- {n}" for n in notes])
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m bench.commits", description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -177,7 +199,16 @@ def main(argv=None):
     t.add_argument("--repeats", type=int, default=5)
     t.add_argument("--images", default=os.path.join(tempfile.gettempdir(), "hovr-commits"))
     t.add_argument("--out", required=True)
+    r = sub.add_parser("table", help="print the markdown table of one or more runs' JSON")
+    r.add_argument("runs", nargs="+")
     args = ap.parse_args(argv)
+    if args.command == "table":
+        runs = []
+        for path in args.runs:
+            with open(path) as f:
+                runs.append(json.load(f))
+        print(table(runs, [os.path.splitext(os.path.basename(p))[0] for p in args.runs]))
+        return 0
     if args.command == "views":
         write_views(args.size, args.out)
         return 0
