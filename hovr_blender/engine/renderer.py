@@ -17,6 +17,7 @@ import warp as wp
 from . import field_frame, limits, shapes
 from .isosurfaces import Surfaces, reference_gradient
 from .adjacency import face_neighbours, vertex_affine_guess
+from .faces import element_faces, face_mesh
 from .camera import RayCamera
 from .kernels import quadrature_tables
 from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
@@ -143,11 +144,12 @@ MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
 WARP_SIZE = 32  # the rays a GPU warp runs together: the work counts' divergence blocks, lane occupancy
 # a ray's work in the units of one field evaluation, from its counters (kernels/args.py STAT_*):
-# each element segment and each curved location costs about a Newton solve's evaluations, and a
-# ray a few for its search and finalize. A load-balancing estimate, not a timing model.
+# each element segment costs about a Newton solve's evaluations, each face crossing the search
+# polishes a few (2-4 map evaluations), and a ray a few for its search and finalize. A
+# load-balancing estimate, not a timing model.
 RAY_COST_BASE = 8.0
 RAY_COST_SEGMENT = 16.0
-RAY_COST_LOCATE = 16.0
+RAY_COST_LOCATE = 4.0
 # threads compiling kernel modules at once on first use (Warp's NVRTC / LLVM compile one module
 # per thread); HOVR_COMPILE_WORKERS=1 compiles them one after another
 COMPILE_WORKERS = max(1, int(os.environ.get("HOVR_COMPILE_WORKERS", "0") or 0) or min(8, os.cpu_count() or 1))
@@ -295,10 +297,16 @@ class Renderer:
             self._box_lo, self._box_hi = padded_element_boxes(mesh)
             # no ray is longer inside the data than this (the fixed-step methods' samples per ray)
             self.data_diagonal = boxes_diagonal(self._box_lo, self._box_hi)
-            # Warp's BVH is float32 in both precisions (padded boxes: conservative either way)
-            self._lowers = wp.array(self._box_lo.astype(np.float32), dtype=wp.vec3)
-            self._uppers = wp.array(self._box_hi.astype(np.float32), dtype=wp.vec3)
-            self._bvh = wp.Bvh(self._lowers, self._uppers)
+            # every element's faces as triangles, their boxes grown by the bound in a BVH grouped by
+            # element (kernels/crossing.py); Warp's BVH is float32 in both precisions (padded boxes:
+            # conservative either way)
+            self.faces = face_mesh(mesh, element_faces(mesh))
+            scale = float(np.abs(self.faces.points).max(initial=1.0))
+            t_lo, t_hi = self.faces.boxes(1e-5 * scale)
+            self._lowers = wp.array(t_lo.astype(np.float32), dtype=wp.vec3)
+            self._uppers = wp.array(t_hi.astype(np.float32), dtype=wp.vec3)
+            self._groups = wp.array((self.faces.owner // shapes.MAX_FACES).astype(np.int32), dtype=wp.int32)
+            self._bvh = wp.Bvh(self._lowers, self._uppers, groups=self._groups)
             self._neighbour = wp.array(face_neighbours(mesh), dtype=wp.int32)
             self._affine_guess = vertex_affine_guess(mesh)
         try:
@@ -363,6 +371,7 @@ class Renderer:
         rays.depth_err = zeros(tile, prec.vec2)
         rays.t_cur = zeros(tile, prec.scalar)
         rays.t_end = zeros(tile, prec.scalar)
+        rays.t_search = zeros(tile, prec.scalar)
         rays.next_element = zeros(tile, wp.int32)
         rays.left_element = zeros(tile, wp.int32)
         rays.entry_r = zeros(tile, prec.vec4)
@@ -471,6 +480,13 @@ class Renderer:
         with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
             m.bvh = self._bvh.id
+            faces = self.faces
+            m.face_points = wp.array(faces.points.astype(fdt), dtype=v3)
+            m.face_xi = wp.array(faces.xi.astype(fdt), dtype=v3)
+            m.face_tris = wp.array(faces.triangles.astype(np.int32), dtype=wp.vec3i)
+            m.face_owner = wp.array(faces.owner.astype(np.int32), dtype=wp.int32)
+            m.face_bound = float(faces.bound)
+            m.has_affine = int(mesh.affine is None or bool(mesh.affine.any()))
             m.shape = wp.array(mesh.shape.astype(np.int32), dtype=wp.int32)
             # affine elements: the exact map; curved ones: Newton's straight-sided start
             guess = self._affine_guess

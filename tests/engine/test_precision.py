@@ -18,6 +18,9 @@ from ..helpers import BACKGROUND, UNIT_CUBE_CAM, box_chord, curved_mixed_scene, 
 F32_NAMES = {"float32", "vec2", "vec3", "vec4", "mat33", "vec2f", "vec3f", "vec4f", "mat33f"}
 
 
+BVH_QUERIES = {"entry": 1, "crossing": 1}  # the float64 twins' BVH ray queries per module
+
+
 def test_generated_source_has_no_float32_arithmetic():
     """Every float literal, float() cast and float32 type inside Warp code is rewritten; the only
     float32 left is the BVH query's ray and its max_dist (Warp's BVH is float32)."""
@@ -39,9 +42,11 @@ def test_generated_source_has_no_float32_arithmetic():
                         and call.func.attr == "float64", f"{name}.{fn.name}: float literal {node.value} left float32"
                 if isinstance(node, ast.Name):
                     assert node.id != "float", f"{name}.{fn.name}: float() left"
-        # the entry search's BVH query: its ray (origin, direction) and its max_dist
-        assert src.count("vec3f(") == (2 if name == "entry" else 0)
-        assert src.count("float32(") == (1 if name == "entry" else 0)
+        # the BVH queries (the affine entry's, the face crossings'): each one's ray (origin,
+        # direction) and its max_dist
+        queries = BVH_QUERIES.get(name, 0)
+        assert src.count("vec3f(") == 2 * queries
+        assert src.count("float32(") == queries
 
 
 def test_generated_source_keeps_module_constants_float64_and_uncast():

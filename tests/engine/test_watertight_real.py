@@ -148,7 +148,7 @@ BALL_CASES = {
     "thin_stretch_cycle": ([455], [3.170559384880784, -2.536447507905304, 2.2193915694182023],
                            [-0.7032702207633706, 0.5530913006441861, -0.446655359017624]),
     # a corner of 455 clipped where Newton fails at every step outside it: the search found the
-    # next cell, 391, entered through the face it shares with 455 (walk_back recovers 455)
+    # next cell, 391, entered through the face it shares with 455 (455 must be found before it)
     "missed_corner": ([391, 455], [3.170559384880784, -2.536447507905304, 2.2193915694182023],
                       [-0.7352563723897302, 0.5216633514281788, -0.43274174126956466]),
     # entry next to a degenerate edge: Newton converges linearly there and failed inside the
@@ -159,7 +159,7 @@ BALL_CASES = {
     # stopped and the search went on STRETCH_RTOL |t| further (5.5e-5 lost)
     # grazing clips across an edge on the sphere (chords 0.016, 0.041, 0.013): Newton fails all
     # round the cell beyond the fold, the entry search's blind steps went over the clip and the
-    # ray showed nothing; the faces' own crossings (geometry.face_crossing) find it
+    # ray showed nothing; the crossings of the cell's faces find it
     "graze_fold_447": ([447], [3.0856323110509813, -2.468505848840728, 2.159942617735698],
                        [-0.6137608653764538, 0.7106515699703781, -0.343906885989483]),
     "graze_fold_63": ([63], [1.2709135449247513, 4.236378483082403, -0.847275696616437],

@@ -32,10 +32,10 @@ STAT_SEGMENTS = 2  # element segments met
 STAT_EMPTY = 3  # segments skipped as empty (classified/split)
 STAT_SMOOTH = 4  # segments integrated as smooth
 STAT_PIECEWISE = 5  # segments integrated as piecewise-smooth
-STAT_LOCATES = 6  # curved elements searched for along the ray (entry search, no neighbour to walk to)
+STAT_LOCATES = 6  # face crossings polished (and curved elements located) by the entry search
 STAT_WALKS = 7  # element entries through a shared face (no search)
 # the work counts (tests/perf): deterministic on the CPU, what a change of the traversal costs
-STAT_BVH_CANDIDATES = 8  # candidates the search's BVH queries returned (Warp exposes no node count)
+STAT_BVH_CANDIDATES = 8  # triangles the search's BVH queries returned (Warp exposes no node count)
 # Newton iterations (each a map evaluation with its Jacobian) in the search, the walk and the samples
 STAT_NEWTON_SEARCH = 9
 STAT_NEWTON_WALK = 10
@@ -68,7 +68,15 @@ class DerivedArgs:
 
 @wp.struct
 class MeshArgs:
+    # the BVH over the boxes of every element face's triangles grown by face_bound, grouped by
+    # element (kernels/crossing.py; engine/faces.py)
     bvh: wp.uint64
+    face_points: wp.array(dtype=wp.vec3)  # triangle vertices, world
+    face_xi: wp.array(dtype=wp.vec3)  # ... the same in their element's reference coordinates
+    face_tris: wp.array(dtype=wp.vec3i)  # per triangle its vertices, wound outward from its element
+    face_owner: wp.array(dtype=wp.int32)  # per triangle: element * MAX_FACES + local face
+    face_bound: wp.float32  # every triangle lies within this (world units) of its curved face
+    has_affine: wp.int32  # 1: some element is affine (the search offers their exact clips)
     shape: wp.array(dtype=wp.int32)  # element.HEX / PRISM / TET / PYR
     ref_a: wp.array(dtype=wp.mat33)  # xi = ref_a x + ref_b (affine elements)
     ref_b: wp.array(dtype=wp.vec3)
@@ -212,6 +220,7 @@ class RayState:
     depth_err: wp.array(dtype=wp.vec2)
     t_cur: wp.array(dtype=wp.float32)  # how far the traversal got
     t_end: wp.array(dtype=wp.float32)  # the ray's far end (camera t_max, clip far, an opaque surface)
+    t_search: wp.array(dtype=wp.float32)  # where its last search started (kernels/entry.py: stalled walks)
     next_element: wp.array(dtype=wp.int32)  # the element the ray enters at t_cur (-1: search the BVH)
     left_element: wp.array(dtype=wp.int32)  # the element the ray has just left (-1: none)
     # the search's solution in a curved next_element at t_cur (entry_r[3] > 0: valid)

@@ -1,52 +1,41 @@
-"""The entry search (the search kernel): where a ray that is not inside a known element enters
-the next one, from the BVH over element boxes.
+"""The entry (the search kernel): where a ray that is not inside a known element enters the next
+one, by face crossing (kernels/crossing.py; docs/traversal.md).
 
-Each BVH pass takes the smallest exact entry among affine candidates and gathers the WINDOW
-curved candidates with the smallest box entries, then locates those in order while they can
-still come first (geometry.curved_entry); a ray already inside a curved candidate (a walk that
-stopped at a face without a neighbour) is found by one Newton solve each (inside_window). An
-element entered through a face that has a neighbour was entered from that neighbour, so the
-search's entry is walked back to where the ray really comes in (walk_back). Meshes of affine
-elements get a search with the curved machinery compiled out.
+The first crossing beyond t that enters an element is the entry: a ray query against the
+triangles of every element face, the candidates polished by Newton on their curved face. The
+element just left (the walk stopped at a face without a neighbour) is not entered again at its
+own exit. A ray's first search also looks behind its start (the reversed ray's first exit, that
+is the last entry before it): a camera inside the domain, or a clip plane through it, starts
+inside that element. Affine elements are entered at their exact clip (rays.affine_stretch), as
+every BVH candidate of theirs offers. Meshes of affine elements get a search with the curved
+machinery compiled out.
 """
 from __future__ import annotations
 
 import warp as wp
 
 from ..shapes import MAX_FACES
+from . import crossing
+from . import element
 from . import geometry
 from .args import STAT_BVH_CANDIDATES, STAT_LOCATES, STAT_NEWTON_SEARCH, CameraArgs, MeshArgs, RayState
 from .rays import MAX_REGISTERS, affine_stretch, camera_ray, walk_options
-from .tolerances import SHARED_FACE_TOL, STRETCH_RTOL
+from .tolerances import INSIDE_TOL, STRETCH_RTOL
 
 wp.set_module_options({"enable_backward": False})
 
-WINDOW = 8  # curved candidates gathered per BVH pass of the entry search
-LOCATED = 32  # curved candidates an entry search remembers having located
-SEARCH_PASSES = 4
-BACK_STEPS = 16  # elements walk_back may step back through before it keeps what it has
-
-WindowKeys = wp.types.vector(length=WINDOW, dtype=wp.float32)
-WindowElements = wp.types.vector(length=WINDOW, dtype=wp.int32)
-LocatedElements = wp.types.vector(length=LOCATED, dtype=wp.int32)
-
-
-@wp.func
-def in_list(ids: wp.ref[LocatedElements], n: int, e: int) -> int:
-    for k in range(n):
-        if ids[k] == e:
-            return 1
-    return 0
+BACK_STEPS = 4  # elements an entry may be moved back through (shared faces) to one the triangles missed
+SEARCH_ATTEMPTS = 3  # crossing queries of one search (an exit or an entry before t_from found first: on past it)
 
 
 @wp.struct
 class Entry:
-    """Where a ray enters an element (the entry search's best candidate so far)."""
+    """Where a ray enters an element."""
 
     element: wp.int32  # -1: none
-    span: wp.vec3  # (t0, t1, exit face); a curved element's t1 and face are curved_exit's to find
-    r: wp.vec4  # curved: the solution at t0 (r[3] > 0: valid)
-    dv: wp.vec4  # ... and the velocity there
+    t: wp.float32
+    r: wp.vec4  # curved: the solution at t (xi, margin + INSIDE_TOL; r[3] > 0: valid)
+    dv: wp.vec4  # ... and the velocity there (dxi/dt, dmargin/dt)
 
 
 @wp.func
@@ -54,223 +43,245 @@ def no_entry(t_end: float) -> Entry:
     """No element before t_end."""
     entry = Entry()
     entry.element = -1
-    entry.span = wp.vec3(t_end, t_end, -1.0)
+    entry.t = t_end
     entry.r = wp.vec4(0.0, 0.0, 0.0, -1.0)
     entry.dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
     return entry
 
 
 @wp.func
-def affine_candidate(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, eps: float,
-                     best: Entry) -> Entry:
-    """best, or affine element e where its stretch starts first beyond t_from and reaches past
-    t_from + eps."""
-    entry = best
-    cl = affine_stretch(mesh, e, o, d)
-    a0 = wp.max(cl[1], t_from)
-    b0 = wp.min(cl[2], t_end)
-    if cl[0] > 0.0 and b0 > t_from + eps and a0 < entry.span[0]:
-        entry.element = e
-        entry.span = wp.vec3(a0, b0, cl[3])
-        entry.r = wp.vec4(0.0, 0.0, 0.0, -1.0)
-    return entry
+def affine_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, eps: float, skip: int,
+                 work_in: wp.vec3i):
+    """The affine element whose exact stretch starts first beyond t_from and reaches past t_from + eps,
+    among the owners of the triangles whose boxes the ray crosses (every element the ray meets has
+    one on its way out), none starting at or before t_from + eps if skip is crossing.STALLED, as
+    an Entry; work counted on (candidates)."""
+    # the element holding t_from may have all its faces beyond t_end: the query is not bounded by it
+    best = no_entry(1.0e30)
+    work = work_in
+    q0 = t_from - eps
+    query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d, -1)
+    tri = int(0)
+    while wp.bvh_query_next(query, tri, best.t - q0):
+        work[2] += 1
+        e = mesh.face_owner[tri] // MAX_FACES
+        if mesh.affine[e] == 1:
+            cl = affine_stretch(mesh, e, o, d)
+            a0 = wp.max(cl[1], t_from)
+            b0 = wp.min(cl[2], t_end)
+            if cl[0] > 0.0 and b0 > t_from + eps and a0 < best.t and crossing.allowed(e, a0, skip, t_from, eps) == 1:
+                best.element = e
+                best.t = a0
+    if best.t >= t_end:
+        best = no_entry(t_end)
+    return best, work
 
 
 @wp.func
-def window_offer(keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], count: int, thresh: float, key: float,
-                 e: int):
-    """Curved candidate e with box entry `key` into the window of the WINDOW smallest keys, kept
-    in order: returns the window's new count and thresh, the smallest key left out of it."""
-    if count == WINDOW and key >= keys[WINDOW - 1]:
-        return count, wp.min(thresh, key)
-    left_out = thresh
-    if count == WINDOW:
-        left_out = wp.min(thresh, keys[WINDOW - 1])
-    k = wp.min(count, WINDOW - 1)
-    while k > 0 and keys[k - 1] > key:
-        keys[k] = keys[k - 1]
-        elements[k] = elements[k - 1]
-        k -= 1
-    keys[k] = key
-    elements[k] = e
-    return wp.min(count + 1, WINDOW), left_out
+def curved_start(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: float, work_in: wp.vec3i):
+    """The curved element holding the ray's start t_from, if any (Entry, element -1: none): the
+    last entry behind it (the reversed ray's first exit), checked by Newton at t_from (the last
+    crossing behind may be the domain's exit, and an entry behind it one of an element left since)."""
+    found = no_entry(t_from)
+    work = work_in
+    back, w = crossing.next_crossing(mesh, -1, o, -d, -t_from, 1.0e30, eps, crossing.WANT_EXIT, -1)
+    work += w
+    if back.element < 0:
+        return found, work
+    e = back.element
+    t_back = -back.t
+    r = crossing.solution_at(mesh, back)
+    dv = crossing.velocity_at(mesh, back)
+    dv = -dv  # the reversed ray's velocity: the forward one
+    if t_back < t_from - eps:
+        y = wp.vec3(back.xi[0], back.xi[1], back.xi[2]) + (t_from - t_back) * wp.vec3(dv[0], dv[1], dv[2])
+        for k in range(3):
+            y[k] = wp.clamp(y[k], -1.5, 1.5)
+        r_in, dv_in, its = geometry.curved_inside(mesh, e, o, d, t_from, y)
+        work[0] += 1
+        work[1] += its
+        if r_in[3] <= 0.0:
+            return found, work
+        r = r_in
+        dv = dv_in
+    found.element = e
+    found.t = t_from
+    found.r = r
+    found.dv = dv
+    return found, work
 
 
 @wp.func
-def inside_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_near: float, left: int, keys: wp.ref[WindowKeys],
-                  elements: wp.ref[WindowElements], count: int, nloc: int, newton: int):
-    """Is the ray just past t_from (at t_near) inside one of the window's candidates (but `left`)?
-    Where a walk stopped at a face without a neighbour, e.g. a hexahedron's face against two
-    tetrahedra, the element beyond holds the ray there. One Newton solve each; elements do not
-    overlap, so that element's stretch comes first. Returns it as an Entry (element -1: none),
-    nloc counting the solves and newton their iterations."""
-    found = Entry()
-    found.element = -1
-    for w in range(count):
-        e = elements[w]
-        if e != left and keys[w] <= t_near:
-            nloc += 1
-            r, dv, its = geometry.curved_inside(mesh, e, o, d, t_near, geometry.start_guess(mesh, e, o + t_near * d))
+def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: crossing.Crossing):
+    """Where the ray entered the element it leaves at `exit`, as a Crossing (element -1: none), and
+    the work: the later of the reversed ray's first exit from the element beyond the exit, among
+    the element's own triangles (its group in the BVH; a grazing ray's entry through the face it
+    leaves by too), and the last entry among the crossings of the element's other faces, each
+    polished from the exit's point (a thin re-entry after a dip outside, whose triangles'
+    starts polish to the crossing before the dip). It may lie before the search's start: a
+    walk's exit is a bracket on the margin, so the face it crossed and the next element's entry
+    differ by its rounding, and more where the ray passes by an edge."""
+    e = exit.element
+    back, work = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, e), o, -d, -exit.t, 1.0e30, eps,
+                                        crossing.WANT_EXIT, -1)
+    found = crossing.no_crossing(-1.0e30)
+    if back.element == e and -back.t <= exit.t + eps:
+        found.element = e
+        found.face = back.face
+        found.t = -back.t
+        found.xi = back.xi
+        found.v = -back.v
+        found.enters = 1
+    polishes = work[0]
+    newton = work[1]
+    for g in range(element.num_faces(mesh.shape[e])):
+        if g != exit.face:
+            xi, t, ok, vel, its = crossing.polish(mesh, e, g, o, d, exit.xi, exit.t)
+            polishes += 1
             newton += its
-            if r[3] > 0.0:
+            if ok == 1 and t > found.t and t <= exit.t and crossing.entering(mesh, e, g, vel) == 1:
                 found.element = e
-                found.span = wp.vec3(t_near, t_near, -1.0)
-                found.r = r
-                found.dv = dv
-                return found, nloc, newton
-    return found, nloc, newton
+                found.face = g
+                found.t = t
+                found.xi = xi
+                found.v = vel
+                found.enters = 1
+    return found, wp.vec3i(polishes, newton, work[2])
 
 
 @wp.func
-def locate_window(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: float, left: int,
-                  keys: wp.ref[WindowKeys], elements: wp.ref[WindowElements], count: int,
-                  located: wp.ref[LocatedElements], n_listed: int, best: Entry, nloc: int, newton: int):
-    """The window's candidates located in order (curved_entry) while they can still come first:
-    returns best updated, n_listed (each is remembered in `located`), nloc and newton counting. The
-    element just left must be entered again, not found in the band its exit counted as inside
-    (a thin re-entry: the annulus' inner wall, Hex_Mushroom's cap)."""
-    entry = best
-    for w in range(count):
-        if keys[w] < entry.span[0]:
-            e = elements[w]
-            nloc += 1
-            if n_listed < LOCATED:
-                located[n_listed] = e
-                n_listed += 1
-            again = int(0)
-            if e == left:
-                again = 1
-            ent, r, dv, its = geometry.curved_entry(mesh, e, o, d, t_from + eps, again)
-            newton += its
-            if ent[0] > 0.0 and ent[1] < entry.span[0]:
-                entry.element = e
-                entry.span = wp.vec3(ent[1], ent[1], -1.0)  # the exit is the caller's to find
-                entry.r = r
-                entry.dv = dv
-    return entry, n_listed, nloc, newton
+def shared_exit(mesh: MeshArgs, n: int, c: crossing.Crossing, o: wp.vec3, d: wp.vec3):
+    """Curved element n's exit where the ray enters c.element from it at c.t (the face they share),
+    polished on n's side from n's straight-sided guess (a Crossing, element -1: not found), and the
+    Newton iterations."""
+    found = crossing.no_crossing(c.t)
+    g = int(-1)
+    for f in range(element.num_faces(mesh.shape[n])):
+        if mesh.neighbour[n * MAX_FACES + f] == c.element:
+            g = f
+    if g < 0:
+        return found, 0
+    xi, t, ok, vel, its = crossing.polish(mesh, n, g, o, d, geometry.start_guess(mesh, n, o + c.t * d), c.t)
+    # the two sides' t differ by the fit of each element's map to the face
+    if ok == 1 and wp.abs(t - c.t) <= crossing.SLACK_BOUNDS * mesh.face_bound and crossing.entering(mesh, n, g, vel) == 0:
+        found.element = n
+        found.face = g
+        found.t = c.t
+        found.xi = xi
+        found.v = vel
+    return found, its
+
+
+@wp.func
+def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: float, t_query: float, eps: float,
+                skip_in: int):
+    """The first entry into a curved element beyond t_from (before t_to; none of element skip_in's at
+    t_from, crossing.allowed) as a Crossing (element -1: none), the solution and velocity there (at
+    t_from where it entered before), and the work. The first crossing may be an exit, or an entry
+    through a shared face: the ray was inside that element, or the one beyond, before it (a grazing
+    clip the triangles did not show), and the entry is moved back to where it came in. Crossings
+    are looked for up to t_query, beyond t_to: a ray inside an element at t_from whose entry the
+    triangles put just before t_from (by an edge) is found by its exit, which can lie beyond t_to
+    (a clip plane, an opaque surface)."""
+    t_q = t_from
+    skip = skip_in
+    c = crossing.no_crossing(t_to)
+    r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    work = wp.vec3i(0, 0, 0)
+    for attempt in range(SEARCH_ATTEMPTS):
+        c, w = crossing.next_crossing(mesh, -1, o, d, t_q, t_query, eps, crossing.WANT_ANY, skip)
+        work += w
+        if c.element < 0 or (c.enters == 1 and c.t >= t_to):
+            return crossing.no_crossing(t_to), r, dv, work
+        exit_first = int(0)
+        if c.enters == 0:
+            # an exit first: where did the ray come into that element?
+            exit_first = 1
+            e_out = c.element
+            t_out = c.t
+            c, w = missed_entry(mesh, o, d, eps, c)
+            work += w
+            if c.element >= 0 and c.t >= t_to:
+                return crossing.no_crossing(t_to), r, dv, work
+            # (a stalled search takes it: the ray is inside it beyond t_from, up to its exit)
+            if c.element < 0 or (skip != crossing.STALLED and crossing.allowed(c.element, c.t, skip, t_q, eps) == 0):
+                t_q = t_out  # not found: on from that exit
+                skip = e_out
+                c = crossing.no_crossing(t_to)
+                continue
+        # an entry through a shared face was an exit from the element beyond it first
+        for k in range(BACK_STEPS):
+            if c.t <= t_q + eps:
+                break
+            n = mesh.neighbour[c.element * MAX_FACES + c.face]
+            if n < 0 or mesh.affine[n] == 1:
+                break
+            out, its = shared_exit(mesh, n, c, o, d)
+            work[0] += 1
+            work[1] += its
+            if out.element < 0:
+                break
+            prev, w2 = missed_entry(mesh, o, d, eps, out)
+            work += w2
+            if prev.element < 0 or crossing.allowed(n, prev.t, skip, t_q, eps) == 0:
+                break
+            c = prev
+        r = crossing.solution_at(mesh, c)
+        dv = crossing.velocity_at(mesh, c)
+        if c.t >= t_from - eps:
+            return c, r, dv, work
+        # entered before t_from: inside at t_from? Where its exit beyond t_from was the first
+        # crossing the ray meets it is, between the two; Newton then only refines the point
+        y = c.xi + (t_from - c.t) * wp.vec3(dv[0], dv[1], dv[2])
+        r_in, dv_in, its = geometry.curved_inside(mesh, c.element, o, d, t_from, y)
+        work[0] += 1
+        work[1] += its
+        if r_in[3] > 0.0:
+            return c, r_in, dv_in, work
+        if exit_first == 1:
+            r = wp.vec4(y[0], y[1], y[2], 0.5 * INSIDE_TOL)
+            return c, r, dv, work
+        skip = c.element  # its stretch ended before t_from: on without it
+        c = crossing.no_crossing(t_to)
+    return c, r, dv, work
 
 
 def make_search_entry(CURVED: bool):
     @wp.func
-    def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int):
-        """The element whose stretch of the ray starts first beyond t_from (and reaches past
-        t_from + eps), as an Entry, and the work: (curved candidates located, Newton iterations,
-        BVH candidates returned). Each BVH pass
-        takes the smallest exact entry among affine candidates and gathers the WINDOW curved
-        candidates with the smallest box entries, then locates those in order while they can
-        still come first; another pass follows only if a curved candidate left out of the
-        window could. `left`: the element the ray has just left (or -1)."""
+    def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int, stalled: int):
+        """The element the ray is in or enters first beyond t_from (an Entry, element -1: none before
+        t_end) and the work: (polishes and locations, Newton iterations, BVH candidates). `left`:
+        the element the ray has just left (-1: the ray's first search, which looks behind its start),
+        not entered again at t_from; `stalled` 1: the ray searches again where its last search was
+        (its walk made no progress), so no element is entered at t_from."""
         eps = STRETCH_RTOL * wp.abs(t_from)
-        q0 = t_from - eps
+        work = wp.vec3i(0, 0, 0)
         best = no_entry(t_end)
-        located = LocatedElements()  # the curved candidates already located (curved_entry), n_listed of them
-        n_listed = int(0)
-        nloc = int(0)  # Newton locations of any kind (the statistics' count)
-        newton = int(0)
-        n_cand = int(0)
-        for p in range(SEARCH_PASSES):
-            win_key = WindowKeys()
-            win_e = WindowElements()
-            nwin = int(0)
-            thresh = float(1.0e30)
-            # the query starts at t_from (less eps): boxes wholly behind it are culled in the tree
-            # (from the camera, a ray leaving the mesh walked every box along its way again)
-            query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d)
-            cand = int(0)
-            while wp.bvh_query_next(query, cand, best.span[0] - q0):
-                n_cand += 1
-                if mesh.affine[cand] == 1:
-                    if p == 0:
-                        best = affine_candidate(mesh, cand, o, d, t_from, t_end, eps, best)
-                elif wp.static(CURVED):
-                    bx = geometry.box_interval(mesh, cand, o, d)
-                    key = wp.max(bx[0], t_from)
-                    if bx[1] > t_from + eps and key < best.span[0] and in_list(located, n_listed, cand) == 0:
-                        nwin, thresh = window_offer(win_key, win_e, nwin, thresh, key, cand)
-            if wp.static(CURVED):
-                t_near = t_from + eps
-                if p == 0 and best.span[0] > t_near:
-                    inside, nloc, newton = inside_window(mesh, o, d, t_near, left, win_key, win_e, nwin, nloc, newton)
-                    if inside.element >= 0:
-                        return inside, wp.vec3i(nloc, newton, n_cand)
-                best, n_listed, nloc, newton = locate_window(mesh, o, d, t_from, eps, left, win_key, win_e, nwin,
-                                                             located, n_listed, best, nloc, newton)
-            if thresh >= best.span[0]:
-                break
-        return best, wp.vec3i(nloc, newton, n_cand)
+        skip = left
+        if stalled == 1:
+            skip = crossing.STALLED
+        if mesh.has_affine == 1:
+            best, work = affine_entry(mesh, o, d, t_from, t_end, eps, skip, work)
+        if wp.static(CURVED):
+            if left < 0 and stalled == 0 and best.t > t_from:
+                start, work = curved_start(mesh, o, d, t_from, eps, work)
+                if start.element >= 0:
+                    return start, work
+            # beyond an affine entry no curved element can hold the ray
+            t_query = float(1.0e30)
+            if best.element >= 0:
+                t_query = best.t
+            c, r, dv, w = first_entry(mesh, o, d, t_from, best.t, t_query, eps, skip)
+            work += w
+            if c.element >= 0:
+                best.element = c.element
+                best.t = wp.max(c.t, t_from)
+                best.r = r
+                best.dv = dv
+        return best, work
 
     return search_entry
-
-
-@wp.func
-def entry_face(mesh: MeshArgs, entry: Entry, o: wp.vec3, d: wp.vec3) -> int:
-    """The face of entry.element the ray comes in through: the reference face nearest the entry
-    point (curved: the search's solution there; affine: the exact map)."""
-    e = entry.element
-    xi = wp.vec3(entry.r[0], entry.r[1], entry.r[2])
-    if mesh.affine[e] == 1:
-        xi = mesh.ref_a[e] * (o + entry.span[0] * d) + mesh.ref_b[e]
-    return int(geometry.margin_and_face(mesh.shape[e], xi)[1])
-
-
-@wp.func
-def walk_back(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, left: int, found: Entry, work_in: wp.vec3i):
-    """The search's entry, moved back to where the ray really comes in. An element entered
-    through a face that has a neighbour was entered from that neighbour: the ray was inside it
-    just before, so the search missed it (a curved element's entry search can step over a
-    stretch thinner than its steps where Newton has nothing to predict with outside the element,
-    e.g. a corner clipped on a ball's surface). Walked backwards from the shared face (the
-    reversed ray, inside the neighbour, to its exit, as the forward walk finds exits), element
-    by element, until a face without a neighbour or t_from. It does not step back into `left`,
-    the element the ray has just left, at t_from: where the forward walk left it through a face
-    it took for the boundary (next to an edge), the search would find it there again, and the
-    walk would leave it again, without end. work: the search's (locations, Newton iterations, BVH
-    candidates), counted on."""
-    entry = found
-    work = work_in
-    eps = STRETCH_RTOL * wp.abs(t_from)
-    for k in range(BACK_STEPS):
-        if entry.element < 0 or entry.span[0] <= t_from + eps:
-            break
-        if mesh.affine[entry.element] == 0 and entry.r[3] <= 0.0:
-            break  # no solution at the entry to name its face
-        n = mesh.neighbour[entry.element * MAX_FACES + entry_face(mesh, entry, o, d)]
-        if n < 0:
-            break
-        t_e = entry.span[0]
-        back = -d
-        t_in = t_from  # where the ray enters n (forward), unless it does so after t_from
-        r = wp.vec4(0.0, 0.0, 0.0, -1.0)
-        dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        if mesh.affine[n] == 1:
-            cl = affine_stretch(mesh, n, o, back)
-            if cl[0] <= 0.0:
-                break
-            t_in = wp.max(-cl[2], t_from)
-            if n == left and t_in <= t_from + eps:
-                break  # the element the ray has just left, back to where it left: walked already
-        else:
-            work[0] += 1
-            r_b, dv_b, its = geometry.curved_inside(mesh, n, o, back, -t_e, geometry.start_guess(mesh, n, o + t_e * d))
-            work[1] += its
-            # on the shared face n's margin is 0 up to Newton's rounding either way
-            if r_b[3] <= -SHARED_FACE_TOL:
-                break  # not on n's face after all: keep the search's entry
-            r_b[3] = wp.max(r_b[3], 0.5 * geometry.INSIDE_TOL)
-            bx = geometry.box_interval(mesh, n, o, back)
-            ex, r_x, dv_x, its_x = geometry.curved_exit(mesh, n, o, back, -t_e, r_b, dv_b, wp.min(bx[1], -t_from))
-            work[1] += its_x
-            t_in = wp.max(-ex[0], t_from)
-            if n == left and t_in <= t_from + eps:
-                break  # the element the ray has just left, back to where it left: walked already
-            # the forward solution where the ray enters n, for the walk (and this loop's face)
-            r, dv, its_in = geometry.curved_inside(mesh, n, o, d, t_in, wp.vec3(r_x[0], r_x[1], r_x[2]))
-            work[1] += its_in
-        entry.element = n
-        entry.span = wp.vec3(t_in, t_in, -1.0)
-        entry.r = r
-        entry.dv = dv
-    return entry, work
 
 
 def make_search_kernel(CURVED: bool):
@@ -284,9 +295,12 @@ def make_search_kernel(CURVED: bool):
             return
         pixel = i + pixel_offset
         o, d = camera_ray(cam, pixel)
-        entry, work = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i])
-        if wp.static(CURVED):
-            entry, work = walk_back(mesh, o, d, rays.t_cur[i], rays.left_element[i], entry, work)
+        # a search again where the last one was: the walk from its entry made no progress
+        stalled = int(0)
+        if rays.t_cur[i] <= rays.t_search[i]:
+            stalled = 1
+        rays.t_search[i] = rays.t_cur[i]
+        entry, work = search_entry(mesh, o, d, rays.t_cur[i], rays.t_end[i], rays.left_element[i], stalled)
         rays.stats[pixel, STAT_LOCATES] += work[0]
         rays.stats[pixel, STAT_NEWTON_SEARCH] += work[1]
         rays.stats[pixel, STAT_BVH_CANDIDATES] += work[2]
@@ -294,7 +308,7 @@ def make_search_kernel(CURVED: bool):
             rays.phase[i] = 1
         else:
             rays.next_element[i] = entry.element
-            rays.t_cur[i] = wp.max(rays.t_cur[i], entry.span[0])
+            rays.t_cur[i] = wp.max(rays.t_cur[i], entry.t)
             rays.entry_r[i] = entry.r
             rays.entry_dv[i] = entry.dv
 

@@ -1,5 +1,5 @@
 """Curved (non-affine) elements on the device: the map x(xi), its inversion, and where a ray
-enters and leaves an element.
+leaves an element.
 
 The map comes as a tensor Legendre polynomial of (x - centre) w^2 (engine/tensor_geometry.py),
 so x and its exact Jacobian cost one pass over the coefficients with no collapse to avoid.
@@ -7,19 +7,15 @@ Inversion is Newton with the exact Jacobian, started from the element's vertex-a
 (or a neighbour's solution), steps held inside an enlarged reference box. Inside/outside is
 the margin to the nearest reference face (element.face_plane), a plane in xi.
 
-Two ways to find a ray's stretch in a curved element:
-- curved_exit: the ray is already inside (it came through a shared face): march along the
-  ray by predictor-corrector steps, each predicted to the first face the tangent in
-  reference space reaches, until a step lands outside; then the crossing is found by
-  Newton on the margin (regula falsi where that fails). A few solves per element.
-- curved_entry: the ray comes from outside (the BVH entry search): samples of the box
-  interval, then the same crossing search. Used where there is no neighbour to walk from.
+Where a ray leaves a curved element it is inside of (curved_exit): march along the ray by
+predictor-corrector steps, each predicted to the first face the tangent in reference space
+reaches, until a step lands outside; then the crossing is found by Newton on the margin (regula
+falsi where that fails). A few solves per element. Where a ray enters one: kernels/crossing.py.
 """
 from __future__ import annotations
 
 import warp as wp
 
-from ..shapes import MAX_FACES
 from . import element
 from .args import MeshArgs
 # the precision's tolerances (kernels/tolerances.py): INSIDE_TOL, the reference-space margin still
@@ -33,10 +29,8 @@ NEWTON_NOISE_MAX = 1.0e-3  # ... or below its rounding floor, where that is larg
 # the element's Jacobian vanishes (NGSolve's ball) it converges linearly, about a bit a step
 NEWTON_ITERATIONS = 40
 NEWTON_FAILED = -1.0e30  # curved_inside's margin where Newton did not converge
-ENTRY_STEPS = 16  # the entry search's step where the tangent predicts no entry: the box interval / this
 EXIT_OVERSHOOT = 0.05  # a predicted exit step goes this fraction beyond the tangent's face hit
 MAX_EXIT_STEPS = 32
-FACE_ITERATIONS = 24  # Newton on (u, v, t) for a ray's crossing of one face (curved_entry's fallback)
 
 
 @wp.func
@@ -476,201 +470,3 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
         return wp.vec3(t, -1.0, 0.0), r, dv, newton
     mf = margin_and_face(shape, wp.vec3(br.rb[0], br.rb[1], br.rb[2]))
     return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb, newton
-
-
-@wp.func
-def tangent_clip(shape: int, xi: wp.vec3, v: wp.vec3) -> wp.vec2:
-    """(s_in, s_out): where the tangent line xi + s v (s in t units) enters and leaves the
-    reference element (element.reference_clip, the affine elements' clip); s_in > s_out where
-    it misses."""
-    cl = element.reference_clip(shape, xi, v)
-    if cl[0] <= 0.0:
-        return wp.vec2(1.0e30, -1.0e30)
-    return wp.vec2(cl[1], cl[2])
-
-
-@wp.func
-def face_crossing(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, f: int, ta: float, tb: float):
-    """(xi, t) where the ray crosses reference face f of curved element e within [ta, tb]
-    (t = 1e30: none found), and the Newton iterations taken (each a map evaluation with its
-    Jacobian): Newton on (u, v, t) for x(xi(u, v)) = o + t d, xi(u, v) in the
-    face's plane, from its centre. Beyond an edge where the map folds no point outside the
-    element has a preimage, but the face itself is a regular patch."""
-    shape = mesh.shape[e]
-    pl = element.face_plane(shape, f)
-    n = wp.vec3(pl[0], pl[1], pl[2])
-    axis = wp.vec3(1.0, 0.0, 0.0)
-    if wp.abs(n[0]) > 0.5 * wp.length(n):
-        axis = wp.vec3(0.0, 1.0, 0.0)
-    a = wp.normalize(wp.cross(n, axis))
-    b = wp.normalize(wp.cross(n, a))
-    c = reference_centre(shape)
-    xc = c + ((pl[3] - wp.dot(n, c)) / wp.dot(n, n)) * n
-    x0, J0 = geometry_with_jacobian(mesh, e, xc)
-    t = wp.clamp(wp.dot(x0 - o, d) / wp.dot(d, d), ta, tb)
-    u = float(0.0)
-    v = float(0.0)
-    newton = int(1)
-    for it in range(FACE_ITERATIONS):
-        newton += 1
-        xi = xc + u * a + v * b
-        x, J = geometry_with_jacobian(mesh, e, xi)
-        ca = J * a
-        cb = J * b
-        M = wp.mat33(ca[0], cb[0], -d[0], ca[1], cb[1], -d[1], ca[2], cb[2], -d[2])
-        if wp.abs(wp.determinant(M)) < 1.0e-30:
-            break
-        s = wp.inverse(M) * (x - o - t * d)
-        u = wp.clamp(u - s[0], -2.0, 2.0)
-        v = wp.clamp(v - s[1], -2.0, 2.0)
-        t = t - s[2]
-        if t < ta - (tb - ta) or t > tb + (tb - ta):
-            break  # heading for another crossing of the face's extension, or none
-        if wp.length(s) < NEWTON_STEP_TOL:
-            xi = xc + u * a + v * b
-            if t < ta or t > tb:
-                break
-            # within the face: inside every other face's plane
-            for g in range(element.num_faces(shape)):
-                q = element.face_plane(shape, g)
-                if g != f and q[3] - (q[0] * xi[0] + q[1] * xi[1] + q[2] * xi[2]) < -INSIDE_TOL:
-                    t = 1.0e30
-            return wp.vec4(xi[0], xi[1], xi[2], t), newton
-    return wp.vec4(0.0, 0.0, 0.0, 1.0e30), newton
-
-
-@wp.func
-def back_to_face(t: float, r: wp.vec4, dv: wp.vec4, shift: float, t_min: float):
-    """An entry found with `shift` taken off the margin (curved_entry's `again`): its margin
-    given back, and the entry moved back along the ray to the face (margin INSIDE_TOL: the
-    true margin 0), to first order, but not before t_min."""
-    r_out = r
-    r_out[3] = r[3] + shift
-    t_out = t
-    if shift > 0.0 and dv[3] > 0.0:
-        dt = wp.max((INSIDE_TOL - r_out[3]) / dv[3], t_min - t)
-        if dt < 0.0:
-            r_out = r_out + dt * dv
-            t_out = t + dt
-    return t_out, r_out
-
-
-@wp.func
-def curved_entry(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_from: float, again: int):
-    """Where the ray first is inside curved element e beyond t_from: (found, t, 0), the
-    solution and velocity there (for curved_exit) and Newton's iterations. With `again` = 1 (e is the element the ray
-    has just left at t_from) it must come INSIDE_TOL inside, not INSIDE_TOL short of the face:
-    right after the exit the ray is still within the band the exit counted as inside, and
-    Newton's rounding there can reach INSIDE_TOL, but not 2 INSIDE_TOL.
-
-    Predictor-corrector from the start of the box interval: at each point, Newton's solution
-    (the polynomial map extends beyond the element) and the tangent line in reference space
-    predict the stretch where the ray is inside the reference element; the next point is just
-    past its entry (at most its middle, so that a thin clip is landed in), or back to its middle
-    where the stretch lies behind (the last step overshot a clip thinner than the prediction's
-    error), at most halfway back to the last point before the element. Where the tangent misses
-    (or Newton fails far outside), the step is 1/ENTRY_STEPS of the box interval, so a curved
-    ray that clips the element near its tangent's miss is still met by a later tangent. The
-    first point inside closes a bracket with the last point known to lie before the element,
-    located to ROOT_RTOL relative. A clip thinner than the steps can be missed; the traversal
-    asks again beyond its t, so a later re-entry is still found. Where a step was taken blind
-    (Newton failed: next to an edge where the map folds it fails all round the element) and
-    the search reaches the box's end, it goes on once from just past the first crossing of
-    the element's boundary faces (face_crossing) that it finds."""
-    none = wp.vec4(0.0, 0.0, 0.0, -1.0)
-    bi = box_interval(mesh, e, o, d)
-    ta = wp.max(bi[0], t_from)
-    tb = bi[1]
-    if tb <= ta:
-        return wp.vec3(0.0, 0.0, 0.0), none, none, 0
-    shape = mesh.shape[e]
-    span = tb - ta
-    xi = start_guess(mesh, e, o + ta * d)
-    tq = ta
-    start = xi
-    t_lo = ta  # the last point known to lie before the element, and its margin
-    m_lo = float(NEWTON_FAILED)
-    bracketing = int(0)
-    br = Bracket()
-    n_steps = int(ENTRY_STEPS)  # a local int: Warp retypes a global cast in place (float64 twin)
-    blind = int(0)  # 1: a step was taken where Newton failed; 2: the faces were searched
-    shift = float(0.0)  # taken off the margin, and given back with the solution returned
-    if again == 1:
-        shift = 2.0 * INSIDE_TOL
-    newton = int(0)
-    for it in range(2 * n_steps + 48):
-        if bracketing == 1:
-            tq, start = bracket_query(br)
-        rq, dvq, its = curved_inside(mesh, e, o, d, tq, start)
-        newton += its
-        if rq[3] > NEWTON_FAILED:
-            rq[3] = rq[3] - shift
-        if bracketing == 1:
-            br = bracket_update(br, tq, rq, dvq)
-            if br.done == 1:
-                t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
-                return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb, newton
-            continue
-        if rq[3] > 0.0:
-            if tq <= ta:
-                rq[3] = rq[3] + shift
-                return wp.vec3(1.0, tq, 0.0), rq, dvq, newton
-            bracketing = 1
-            br = bracket_start(t_lo, m_lo, tq, rq, dvq)
-            continue
-        # outside: where does the tangent line meet the reference element?
-        step = span / float(n_steps)
-        behind = int(0)
-        if rq[3] > NEWTON_FAILED:
-            clip = tangent_clip(shape, wp.vec3(rq[0], rq[1], rq[2]), wp.vec3(dvq[0], dvq[1], dvq[2]))
-            if clip[0] <= clip[1]:
-                if clip[1] <= 0.0 and tq + 0.5 * (clip[0] + clip[1]) > t_lo:
-                    # back to the stretch's predicted middle, but at most halfway to the last
-                    # point before the element: going back to that point itself repeats the
-                    # same forward step, a cycle when the stretch is thinner than the step
-                    behind = 1
-                    step = wp.max(0.5 * (clip[0] + clip[1]), 0.5 * (t_lo - tq))
-                elif clip[1] <= 0.0:
-                    # the stretch lies behind the last point before the element too: the element
-                    # just left, seen from the band past its exit (`again`); stepping back there
-                    # stalled the search, so it goes on, its steps doubling from its start
-                    step = wp.min(wp.max(tq - ta, 1.0e-4 * span), step)
-                else:
-                    s_in = wp.max(clip[0], 0.0)
-                    step = wp.min(s_in + wp.min(EXIT_OVERSHOOT * s_in + 1.0e-4 * span, 0.5 * (clip[1] - s_in)),
-                                  4.0 * step)
-        if behind == 0:
-            if tq >= tb:
-                if blind != 1:
-                    break
-                blind = 2
-                best = wp.vec4(0.0, 0.0, 0.0, 1.0e30)
-                for f in range(element.num_faces(shape)):
-                    # a clip through a shared face is walk_back's to recover (kernels/entry.py)
-                    if mesh.neighbour[e * MAX_FACES + f] < 0:
-                        fc, fits = face_crossing(mesh, e, o, d, f, ta, tb)
-                        newton += fits
-                        if fc[3] < best[3]:
-                            best = fc
-                if best[3] >= tb:
-                    break
-                # just past the crossing; it may be an exit, so the box's start is what is known
-                # to lie before the element
-                t_lo = ta
-                m_lo = float(NEWTON_FAILED)
-                tq = wp.min(best[3] + 1.0e-3 * span, tb)
-                start = wp.vec3(best[0], best[1], best[2])
-                continue
-            t_lo = tq
-            m_lo = rq[3]
-        if rq[3] <= NEWTON_FAILED and blind == 0:
-            blind = 1
-        t_new = wp.min(tq + step, tb)
-        start = ahead(rq, dvq, t_new - tq)
-        tq = t_new
-    if bracketing == 1:
-        # out of steps before the bracket met ROOT_RTOL (float64's 1e-13 after a long search):
-        # its inside end is inside the element, the nearest point known so
-        t_hit, r_hit = back_to_face(br.b, br.rb, br.dvb, shift, ta)
-        return wp.vec3(1.0, t_hit, 0.0), r_hit, br.dvb, newton
-    return wp.vec3(0.0, 0.0, 0.0), none, none, newton

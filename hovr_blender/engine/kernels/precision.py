@@ -163,9 +163,10 @@ class _ToFloat64(ast.NodeTransformer):
             node.args[2] = ast.Call(func=ast.Attribute(value=ast.Name("wp", ast.Load()), attr="float32", ctx=ast.Load()),
                                     args=[node.args[2]], keywords=[])
         if isinstance(f, ast.Attribute) and f.attr == "bvh_query_ray":
+            # start and direction float32; a root (a group's subtree) stays an int
             node.args = [node.args[0]] + [ast.Call(func=ast.Attribute(value=ast.Name("wp", ast.Load()), attr="vec3f",
                                                                       ctx=ast.Load()), args=[a], keywords=[])
-                                          for a in node.args[1:]]
+                                          for a in node.args[1:3]] + node.args[3:]
         return node
 
     def visit_Assign(self, node):

@@ -3,8 +3,9 @@ what the host (engine/renderer.py) takes of them: the kernels by name (kernel_ta
 the walk's kernels specialised per mesh (walk_kernels), and the structs and counters they share.
 
 A render of a tile runs init_rays once (kernels/rays.py), then rounds of
-1. search (kernels/entry.py): rays that are not inside a known element find, in the BVH over
-   element boxes, the element they enter next;
+1. search (kernels/entry.py): rays that are not inside a known element find the element they
+   enter next: the first face crossing beyond their t that enters one (kernels/crossing.py: the
+   BVH over the boxes of every element face's triangles, Newton on the curved face);
 2. traverse (kernels/walk.py): each ray walks front to back through shared faces and writes up to
    SEGMENTS_PER_ROUND element segments, until it needs a search again; sample, refine and
    coefficients fill in each segment's samples and Chebyshev series;
@@ -14,7 +15,7 @@ A render of a tile runs init_rays once (kernels/rays.py), then rounds of
 until no ray is left, then finalize writes the pixels. Rounds run over the list of rays still
 going (no thread is spent on a finished ray), regrouped between rounds (regroup_keys: the rays
 that search side by side, then the rays of one element). Separate kernels keep each small: the search (BVH,
-locating curved candidates), the walk (Newton, element evaluation) and the quadrature never hold
+polishing face crossings), the walk (Newton, element evaluation) and the quadrature never hold
 their registers at the same time, and each compiles quickly.
 
 A trace (Renderer.trace) runs the same rounds with trace_reserve and trace_write in place of

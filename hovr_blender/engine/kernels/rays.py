@@ -60,6 +60,7 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState, t_limit: 
     rays.depth_err[i] = wp.vec2(-1.0, 0.0)
     rays.t_cur[i] = t_lo
     rays.t_end[i] = t_hi
+    rays.t_search[i] = -1.0e30
     rays.next_element[i] = -1
     rays.left_element[i] = -1
     rays.entry_r[i] = wp.vec4(0.0, 0.0, 0.0, -1.0)
