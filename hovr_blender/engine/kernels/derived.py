@@ -38,7 +38,9 @@ PER_DENSITY = 8
 OPERATION_IDS = {"|grad|": GRADIENT, "vorticity": VORTICITY, "Q": Q_CRITERION, "speed": SPEED}
 
 
-@wp.func
+# out of line: derived_of evaluates 20 expansions, each eval_element with all four shapes, and
+# an isosurface's composite_event inlines derived_of twice (NVRTC spent minutes on the copies)
+@wp.func(inline=False)
 def component_expansion(dv: DerivedArgs, shape: int, e: int, c: int, k: int, xi: wp.vec3) -> float:
     """Component c of element e at xi: its value (k = 0) or its reference derivative d/dxi_(k-1)."""
     return element.eval_element(shape, dv.coeffs, dv.offset[e] + (4 * c + k) * dv.size[e], dv.modes[e], xi)
