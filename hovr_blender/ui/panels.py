@@ -147,16 +147,21 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
         row.operator("hovr.add_walls", icon='MESH_GRID')
 
 
-class HOVR_OBJECT_PT_look(HovrButtonsPanel, bpy.types.Panel):
-    """The volume's own transfer function, value range and density: each volume has its own."""
+class VolumeSubPanel(HovrButtonsPanel):
+    """A panel under the object's HOVR Volume panel, shown where there is an object."""
 
-    bl_label = "Look"
     bl_context = "object"
     bl_parent_id = "HOVR_OBJECT_PT_volume"
 
     @classmethod
     def poll(cls, context):
         return super().poll(context) and context.object is not None
+
+
+class HOVR_OBJECT_PT_look(VolumeSubPanel, bpy.types.Panel):
+    """The volume's own transfer function, value range and density: each volume has its own."""
+
+    bl_label = "Look"
 
     def draw(self, context):
         from .versioning import volume_look

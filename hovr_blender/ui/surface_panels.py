@@ -13,7 +13,7 @@ from bpy.props import (CollectionProperty, EnumProperty, FloatProperty, FloatVec
                        PointerProperty)
 
 from ..engine.isosurfaces import CLIP_SIDES, MAX_ISOSURFACES, MAX_PLANES
-from .panels import HovrButtonsPanel
+from .panels import VolumeSubPanel
 
 CLIP_ITEMS = (
     ("none", "None", "The plane only shows the field where it cuts the volume", 0),
@@ -205,16 +205,10 @@ class HOVR_OT_choose_field(bpy.types.Operator):
         return {'FINISHED'}
 
 
-class HOVR_OBJECT_PT_surfaces(HovrButtonsPanel, bpy.types.Panel):
+class HOVR_OBJECT_PT_surfaces(VolumeSubPanel, bpy.types.Panel):
     """The volume's isosurfaces and cut planes (contract §7)."""
 
     bl_label = "Isosurfaces and Planes"
-    bl_context = "object"
-    bl_parent_id = "HOVR_OBJECT_PT_volume"
-
-    @classmethod
-    def poll(cls, context):
-        return super().poll(context) and context.object is not None
 
     def draw(self, context):
         layout = self.layout
