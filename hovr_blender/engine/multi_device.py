@@ -202,7 +202,9 @@ def serve_spawned(conn, payload: bytes):
     """A device's process once bootstrap.py has imported the package: its mesh, device
     and tile limit unpickled (the package's classes resolve now), then _serve."""
     try:
-        mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)  # the parent's own objects
+        # the parent's own objects (a mesh its readers already parsed into arrays), handed over by
+        # the anonymous pipe only parent and child hold: no file or network bytes are unpickled
+        mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return

@@ -237,6 +237,10 @@ def _imported_constants(tree: ast.Module, twinned) -> dict:
     return out
 
 
+_ARITHMETIC_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Constant, ast.Name, ast.Load, ast.operator,
+                     ast.unaryop)
+
+
 def _unconvertible_floats(tree: ast.Module, twinned, imported: dict) -> dict:
     """{NAME: value} of the module-level names bound to a float the rewrite cannot make float64: a
     computed constant (`TWICE = 2 * TOL`, evaluated from the number constants before it) or a float
@@ -249,6 +253,10 @@ def _unconvertible_floats(tree: ast.Module, twinned, imported: dict) -> dict:
         if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
             name = node.targets[0].id
             if name in known:
+                continue
+            # the package's own kernel source (never a file or view a user gives), and only
+            # arithmetic on names and numbers is evaluated: no call, attribute or subscript
+            if not all(isinstance(n, _ARITHMETIC_NODES) for n in ast.walk(node.value)):
                 continue
             try:
                 value = eval(compile(ast.Expression(node.value), "<constant>", "eval"), {"__builtins__": {}}, dict(known))
