@@ -243,15 +243,7 @@ class IndependentReference:
         for lvl in self.levels:
             g = f - lvl
             for i in np.nonzero(g[:-1] * g[1:] < 0)[0]:
-                lo, hi, glo = ts[i], ts[i + 1], g[i]
-                while hi - lo > eps:
-                    m = 0.5 * (lo + hi)
-                    gm = self._at(c, o + m * d)[1] - lvl
-                    if (gm < 0) == (glo < 0):
-                        lo, glo = m, gm
-                    else:
-                        hi = m
-                cuts.append(0.5 * (lo + hi))
+                cuts.append(self._bisect_level(c, o, d, ts[i], ts[i + 1], g[i], lvl, eps))
         return sorted(set(cuts))
 
     # ------------------------------------------------------------------ 3. the integrals
@@ -326,16 +318,20 @@ class IndependentReference:
             lo, hi, glo = ts[i], ts[i + 1], g[i]
             if glo == 0:
                 return float(lo)
-            eps = 1e-14 * max(abs(a), abs(b), b - a)
-            while hi - lo > eps:
-                m = 0.5 * (lo + hi)
-                gm = self._at(c, o + m * d)[1] - level
-                if (gm < 0) == (glo < 0):
-                    lo, glo = m, gm
-                else:
-                    hi = m
-            return float(0.5 * (lo + hi))
+            return float(self._bisect_level(c, o, d, lo, hi, glo, level, 1e-14 * max(abs(a), abs(b), b - a)))
         return float("nan")
+
+    def _bisect_level(self, c, o, d, lo, hi, glo, level, eps) -> float:
+        """The t in [lo, hi] where cell c's field along o + t d crosses `level` (glo: the field
+        less the level at lo, of the other sign than at hi), bisected to eps."""
+        while hi - lo > eps:
+            m = 0.5 * (lo + hi)
+            gm = self._at(c, o + m * d)[1] - level
+            if (gm < 0) == (glo < 0):
+                lo, glo = m, gm
+            else:
+                hi = m
+        return 0.5 * (lo + hi)
 
     def value_at(self, x) -> float:
         """The field at world point x, in the first cell whose padded box holds x and that holds
