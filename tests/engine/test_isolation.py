@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine import limits
-from hovr_blender.io import isolation, nektar, vtu
+from hovr_blender.io import isolation, nektar, reader_protocol, vtu
 from hovr_blender.io.sources import SourceError, VolumeSource, load_volume, read_volume
 from tests.helpers import REPO, data_file, stopped_warm_reader
 
@@ -149,15 +149,15 @@ def test_the_reader_address_space_grows_by_the_memory_limit_only_and_a_header_re
 
 def test_only_plain_data_leaves_the_reader():
     with pytest.raises(TypeError):
-        isolation.encode(np.array([object()]), [])
+        reader_protocol.encode(np.array([object()]), [])
     with pytest.raises(TypeError):
-        isolation.encode({"f": len}, [])
+        reader_protocol.encode({"f": len}, [])
     arrays = []
-    tree = isolation.encode({"a": (np.arange(3), "x", 1.5)}, arrays)
+    tree = reader_protocol.encode({"a": (np.arange(3), "x", 1.5)}, arrays)
     json.dumps(tree)  # JSON only
-    assert isolation.decode(tree, arrays)["a"][1:] == ("x", 1.5)
+    assert reader_protocol.decode(tree, arrays)["a"][1:] == ("x", 1.5)
     with pytest.raises(isolation.ReaderFailure):
-        isolation.decode({"$pickle": "..."}, [])
+        reader_protocol.decode({"$pickle": "..."}, [])
 
 
 def test_the_switch_reads_here(monkeypatch):
