@@ -229,9 +229,10 @@ def _error_class(kind: str):
     """The class a reader's error of that name is raised as here: a registered format's own
     error, or one of the loader's and the policy's."""
     from ..engine.mesh import MeshError
-    from . import derived, formats, sources
+    from . import derived, formats
+    from .volume_source import SourceError
 
-    known = {"SourceError": sources.SourceError, "DerivedError": derived.DerivedError, "MeshError": MeshError,
+    known = {"SourceError": SourceError, "DerivedError": derived.DerivedError, "MeshError": MeshError,
              "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
              "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
              "ModuleNotFoundError": ModuleNotFoundError}

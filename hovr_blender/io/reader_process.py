@@ -15,7 +15,7 @@ import signal
 import sys
 
 from ..engine import limits
-from . import formats, sources
+from . import formats, volume_source
 from .reader_protocol import HEADER, encode, send
 
 
@@ -40,7 +40,7 @@ def _known(extra_formats):
 
 def _read_volume(path, solution, field, component, extra_formats=()):
     _known(extra_formats)
-    return sources.read_volume(sources.VolumeSource(path, solution, field, (), component))
+    return volume_source.read_volume(volume_source.VolumeSource(path, solution, field, (), component))
 
 
 def _list_fields(format_name, path, extra_formats=()):
