@@ -188,9 +188,9 @@ def session_kernels(variant: tuple[bool, int], precision: str = "float32", surfa
     kernels = render_kernels(variant, precision, isosurfaces)
     kernels.append(Precision.named(precision).kernels.kernel_table(*variant, isosurfaces=isosurfaces)["shade"])
     if surfaces:
-        from .kernels import surfaces as surface_kernels
+        from .kernels import opaque_cast
 
-        kernels.append(surface_kernels.cast_surfaces)
+        kernels.append(opaque_cast.cast_opaque)
     return kernels
 
 
@@ -632,7 +632,7 @@ class Renderer:
         (engine/multi_device.py: the devices' processes write into one shared image). With
         `surface_t`, an (H, W) array of the whole image (rows from the top), each pixel's ray
         integrates the volume only up to t = surface_t[j, i] along its unit ray (the first opaque
-        surface: engine/surfaces.py; +inf where none); the depth output is then that t where the
+        surface: engine/opaque.py; +inf where none); the depth output is then that t where the
         volume's opacity stays under 0.5. With `ray_counts`, the result's ray_counts holds every
         ray's work counters (kernels/args.py STAT_*; work_counts summarises them). `surfaces`:
         isosurfaces and cut planes (contract §7), composited with the volume in depth order."""
@@ -1198,7 +1198,7 @@ class SegmentCache:
     complete: bool  # False: the trace was cancelled part way
     stats: dict  # the trace's own: trace_seconds, rounds, its counters
     warnings: list = field(default_factory=list)
-    surface_hits: object = None  # engine/surfaces.py keeps the hits that stopped the rays here
+    surface_hits: object = None  # engine/opaque.py keeps the hits that stopped the rays here
 
     @property
     def rays(self) -> int:

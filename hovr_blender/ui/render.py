@@ -69,9 +69,9 @@ class SceneInputs:
     options: object  # RenderOptions
     warnings: list = field(default_factory=list)
     transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
-    surfaces: list = field(default_factory=list)  # [engine.surfaces.SurfaceMesh] (ui/surfaces.py)
+    surfaces: list = field(default_factory=list)  # [engine.opaque.OpaqueMesh] (ui/opaque_meshes.py)
     surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
-    surfaces_key: str = ""  # digest of the surfaces (blender/surfaces.surfaces_key)
+    opaque_key: str = ""  # digest of the surfaces (blender/surfaces.opaque_key)
     # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
     # needs the volumes' sizes, i.e. their data)
     step_units: str = "WORLD"
@@ -80,7 +80,7 @@ class SceneInputs:
 
     @property
     def data_key(self) -> tuple:
-        return (tuple(v.data_key for v in self.volumes), self.options.device, self.surface_mode, self.surfaces_key)
+        return (tuple(v.data_key for v in self.volumes), self.options.device, self.surface_mode, self.opaque_key)
 
     @property
     def transfer_function(self):
@@ -123,7 +123,7 @@ class RenderJob:
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
-# The scene's surfaces uploaded for the ray cast (engine.surfaces.SurfaceScene), by geometry digest and device.
+# The scene's surfaces uploaded for the ray cast (engine.opaque.OpaqueScene), by geometry digest and device.
 SURFACES = LRUCache(2)
 # Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
 EXTENTS = LRUCache(16)
@@ -171,20 +171,20 @@ def _renderer(volumes, device: str):
 
 
 def surface_scene(inputs: SceneInputs):
-    """The uploaded SurfaceScene of the scene's surfaces (cached), or None: surfaces off, or none there."""
+    """The uploaded OpaqueScene of the scene's surfaces (cached), or None: surfaces off, or none there."""
     if inputs.surface_mode == "NONE" or not inputs.surfaces:
         return None
     from ..engine.multi_device import expand_devices
-    from ..engine.surfaces import SurfaceScene
+    from ..engine.opaque import OpaqueScene
 
     device = expand_devices(inputs.options.device)[0]  # the ray cast runs on one device (the first)
-    return SURFACES.get((inputs.surfaces_key, device), lambda: SurfaceScene(inputs.surfaces, device))
+    return SURFACES.get((inputs.opaque_key, device), lambda: OpaqueScene(inputs.surfaces, device))
 
 
 def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
     """The core render of the scene's volumes through `camera`, its surfaces stopping the rays
-    (engine.surfaces.render_with_surfaces; plain Renderer.render without surfaces)."""
-    from ..engine.surfaces import render_with_surfaces
+    (engine.opaque.render_with_surfaces; plain Renderer.render without surfaces)."""
+    from ..engine.opaque import render_with_surfaces
 
     mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
     return render_with_surfaces(renderer, surface_scene(inputs), camera, inputs.transfer_function, inputs.background,
@@ -224,7 +224,7 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
     """F12's render_volume through FINAL: shaded from the last F12's segments where they hold this
     view, traced (and kept) where the last F12 had the same view, else a plain render."""
     from ..engine.renderer import Renderer
-    from ..engine.surfaces import render_with_surfaces_cached
+    from ..engine.opaque import render_with_surfaces_cached
 
     if not isinstance(renderer, Renderer):  # several devices keep no segments
         FINAL.clear()
@@ -398,14 +398,14 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
     mode = settings.surfaces
     surfaces, key = [], ""
     if mode != "NONE":
-        from .surfaces import scene_surfaces, surfaces_key
+        from .opaque_meshes import opaque_key, scene_opaque_meshes
 
         planes = plane_object_names(objects)  # cut planes are no opaque surfaces
-        surfaces = [m for m in scene_surfaces(depsgraph) if m.name.rpartition("[")[0] not in planes]
-        key = surfaces_key(surfaces)
+        surfaces = [m for m in scene_opaque_meshes(depsgraph) if m.name.rpartition("[")[0] not in planes]
+        key = opaque_key(surfaces)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
                        film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
-                       surface_mode=mode, surfaces_key=key, step_units=settings.step_units,
+                       surface_mode=mode, opaque_key=key, step_units=settings.step_units,
                        steps_across=int(settings.steps_across), isosurfaces=isosurfaces)
 
 

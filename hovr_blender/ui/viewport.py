@@ -35,7 +35,7 @@ import numpy as np
 
 from .camera import sub_camera
 from ..engine.camera import RayCamera
-from ..engine.surfaces import render_with_surfaces, render_with_surfaces_cached
+from ..engine.opaque import render_with_surfaces, render_with_surfaces_cached
 from ..engine.transfer_function import TransferFunction
 from ..engine.view import RenderOptions
 
@@ -54,7 +54,7 @@ class ViewportRequest:
     options: RenderOptions
     film_transparent: bool
     data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device) and surfaces
-    surfaces: object = None  # engine.surfaces.SurfaceScene that stops the rays, or None
+    surfaces: object = None  # engine.opaque.OpaqueScene that stops the rays, or None
     surface_mode: str = "SHADED"
     isosurfaces: object = None  # engine.isosurfaces.Surfaces: the look's isosurfaces and cut planes
 

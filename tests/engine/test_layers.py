@@ -300,7 +300,7 @@ def _private_imports(tree, package):
 
 
 # the one left, in the traversal's code (issue 27's kernel-side part removes it with the renderer's split)
-PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/surfaces.py", ".renderer._camera_args")}
+PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/opaque.py", ".renderer._camera_args")}
 
 
 def test_no_module_imports_another_modules_private_names():

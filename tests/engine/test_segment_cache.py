@@ -284,17 +284,17 @@ def test_surfaces_keep_their_hits_with_the_cache(monkeypatch):
     """render_with_surfaces_cached: the surfaces' hits are cast once and kept with the cache; a
     look change composites the shaded volume over them exactly as render_with_surfaces does, in
     both modes and for a band of rows."""
-    from hovr_blender.engine.surfaces import SurfaceMesh, SurfaceScene, render_with_surfaces, render_with_surfaces_cached
+    from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene, render_with_surfaces, render_with_surfaces_cached
 
     r, cam, tf = scene("curved", "cpu")
-    plane = SurfaceMesh(np.array([[-1.0, -1.0, 0.45], [2.0, -1.0, 0.55], [2.0, 2.0, 0.6], [-1.0, 2.0, 0.5]]),
+    plane = OpaqueMesh(np.array([[-1.0, -1.0, 0.45], [2.0, -1.0, 0.55], [2.0, 2.0, 0.6], [-1.0, 2.0, 0.5]]),
                         [[0, 1, 2], [0, 2, 3]], (0.75, 0.5, 0.25))
-    surfaces = SurfaceScene([plane])
+    surfaces = OpaqueScene([plane])
     opts = RenderOptions(method="split")
     res, cache = render_with_surfaces_cached(r, surfaces, cam, tf, BACKGROUND, opts)
     assert cache is not None and cache.surface_hits is not None and 0 < res.stats["surface_pixels"] < W * H
-    cast, casts = SurfaceScene.cast, []
-    monkeypatch.setattr(SurfaceScene, "cast", lambda self, camera: casts.append(camera) or cast(self, camera))
+    cast, casts = OpaqueScene.cast, []
+    monkeypatch.setattr(OpaqueScene, "cast", lambda self, camera: casts.append(camera) or cast(self, camera))
     for mode in ("SHADED", "HOLDOUT"):
         for edit in (edits(tf)["colours"], edits(tf)["opaque"]):
             shaded, again = render_with_surfaces_cached(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode,
@@ -305,7 +305,7 @@ def test_surfaces_keep_their_hits_with_the_cache(monkeypatch):
             np.testing.assert_array_equal(shaded.depth, fresh.depth)
     assert len(casts) == 4  # the fresh renders' casts only
     # other surfaces (another scene object): traced again
-    other = SurfaceScene([plane])
+    other = OpaqueScene([plane])
     _, new = render_with_surfaces_cached(r, other, cam, tf, BACKGROUND, opts, cache=cache)
     assert new is not cache
     # a band of rows

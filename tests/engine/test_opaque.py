@@ -1,4 +1,4 @@
-"""Opaque surfaces stop the rays (engine/surfaces.py, Renderer.render(surface_t=...)): the paper's
+"""Opaque surfaces stop the rays (engine/opaque.py, Renderer.render(surface_t=...)): the paper's
 sphere volume cut by an opaque plane, every pixel against an independent float64 reference
 (the exact integral from the eye to the plane, composited over the plane's shaded colour)."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.surfaces import (SurfaceError, SurfaceMesh, SurfaceScene, composite, render_with_surfaces,
+from hovr_blender.engine.opaque import (OpaqueError, OpaqueMesh, OpaqueScene, composite, render_with_surfaces,
                                         shade)
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
@@ -39,10 +39,10 @@ def plane_frame():
     return a, b
 
 
-def plane_mesh(color=PLANE_COLOR, holdout=False) -> SurfaceMesh:
+def plane_mesh(color=PLANE_COLOR, holdout=False) -> OpaqueMesh:
     a, b = plane_frame()
     corners = [PLANE_POINT + PLANE_HALF * (sa * a + sb * b) for sa, sb in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    return SurfaceMesh(np.array(corners), [[0, 1, 2], [0, 2, 3]], color, holdout, "plane")
+    return OpaqueMesh(np.array(corners), [[0, 1, 2], [0, 2, 3]], color, holdout, "plane")
 
 
 def plane_t(o, d):
@@ -99,7 +99,7 @@ def exact_integral(o, d, t_stop, nodes=24):
 
 
 def reference_image(camera: RayCamera, holdout=False):
-    """The expected pixels, independent of the renderer and of engine/surfaces.py."""
+    """The expected pixels, independent of the renderer and of engine/opaque.py."""
     o, d = camera.rays()
     t_s = plane_t(o, d)
     img = np.zeros((camera.height, camera.width, 4))
@@ -129,7 +129,7 @@ def test_plane_cuts_sphere_exact(renderer, projection):
     expected, t_s = reference_image(camera)
     hit = np.isfinite(t_s)
     assert 0.3 * hit.size < hit.sum() < hit.size  # the plane covers part of the image, not all
-    res = render_with_surfaces(renderer, SurfaceScene([plane_mesh()]), camera, TF, BACKGROUND,
+    res = render_with_surfaces(renderer, OpaqueScene([plane_mesh()]), camera, TF, BACKGROUND,
                                RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0, device="cpu"))
     assert res.stats["surface_pixels"] == hit.sum()
     np.testing.assert_array_equal(res.surface_hits.hit, hit)
@@ -147,7 +147,7 @@ def test_plane_holdout_float64_and_depth(renderer):
     the plane's t where the volume's opacity stays under 0.5."""
     camera = RayCamera.from_contract(CAMERAS["perspective"], W, H)
     expected, t_s = reference_image(camera, holdout=True)
-    res = render_with_surfaces(renderer, SurfaceScene([plane_mesh()]), camera, TF, BACKGROUND,
+    res = render_with_surfaces(renderer, OpaqueScene([plane_mesh()]), camera, TF, BACKGROUND,
                                RenderOptions.pixel_exact(), mode="HOLDOUT")
     assert res.rgba.dtype == np.float64
     assert np.abs(res.rgba - expected).max() <= 1e-6
@@ -155,7 +155,7 @@ def test_plane_holdout_float64_and_depth(renderer):
     assert thin.any()
     np.testing.assert_allclose(res.depth[thin], t_s[thin], rtol=1e-5)
     # a holdout object gives the same in the SHADED mode
-    res2 = render_with_surfaces(renderer, SurfaceScene([plane_mesh(holdout=True)]), camera, TF, BACKGROUND,
+    res2 = render_with_surfaces(renderer, OpaqueScene([plane_mesh(holdout=True)]), camera, TF, BACKGROUND,
                                 RenderOptions.pixel_exact())
     np.testing.assert_array_equal(res2.rgba, res.rgba)
 
@@ -166,12 +166,12 @@ def test_no_surface_is_the_plain_render(renderer):
     camera = RayCamera.from_contract(CAMERAS["perspective"], 16, 12)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
     plain = renderer.render(camera, TF, BACKGROUND, opts)
-    none = render_with_surfaces(renderer, SurfaceScene([]), camera, TF, BACKGROUND, opts)
+    none = render_with_surfaces(renderer, OpaqueScene([]), camera, TF, BACKGROUND, opts)
     np.testing.assert_array_equal(none.rgba, plain.rgba)
     inf = renderer.render(camera, TF, BACKGROUND, opts, surface_t=np.full((12, 16), np.inf))
     np.testing.assert_array_equal(inf.rgba, plain.rgba)
-    far = SurfaceMesh([[50, 50, 50], [51, 50, 50], [50, 51, 50]], [[0, 1, 2]])
-    missed = render_with_surfaces(renderer, SurfaceScene([far]), camera, TF, BACKGROUND, opts)
+    far = OpaqueMesh([[50, 50, 50], [51, 50, 50], [50, 51, 50]], [[0, 1, 2]])
+    missed = render_with_surfaces(renderer, OpaqueScene([far]), camera, TF, BACKGROUND, opts)
     assert missed.stats["surface_pixels"] == 0
     np.testing.assert_allclose(missed.rgba, plain.rgba, atol=1e-6)
 
@@ -181,23 +181,23 @@ def test_rows_and_behind_camera(renderer):
     near clip plane stops nothing."""
     camera = RayCamera.from_contract(CAMERAS["perspective"], 16, 12)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
-    scene = SurfaceScene([plane_mesh()])
+    scene = OpaqueScene([plane_mesh()])
     whole = render_with_surfaces(renderer, scene, camera, TF, BACKGROUND, opts)
     band = render_with_surfaces(renderer, scene, camera, TF, BACKGROUND, opts, rows=(5, 9))
     np.testing.assert_array_equal(band.rgba, whole.rgba[5:9])
-    behind = SurfaceMesh([[-9, -9, 10], [30, -9, 10], [-9, 30, 10]], [[0, 1, 2]])  # above the eye (z 3.5)
-    assert SurfaceScene([behind]).cast(camera).hit.sum() == 0
+    behind = OpaqueMesh([[-9, -9, 10], [30, -9, 10], [-9, 30, 10]], [[0, 1, 2]])  # above the eye (z 3.5)
+    assert OpaqueScene([behind]).cast(camera).hit.sum() == 0
     from dataclasses import replace
 
     near = replace(camera, t_min=10.0)  # the plane lies within 10 of the eye: clipped away
-    assert SurfaceScene([plane_mesh()]).cast(near).hit.sum() == 0
+    assert OpaqueScene([plane_mesh()]).cast(near).hit.sum() == 0
 
 
 def test_composite_and_shade_formulas():
     hits_t = np.array([[1.0, np.inf]])
-    from hovr_blender.engine.surfaces import SurfaceHits
+    from hovr_blender.engine.opaque import OpaqueHits
 
-    hits = SurfaceHits(t=hits_t, surface=np.array([[0, -1]]), normal=np.array([[[0, 0, 1.0], [0, 0, 0]]]),
+    hits = OpaqueHits(t=hits_t, surface=np.array([[0, -1]]), normal=np.array([[[0, 0, 1.0], [0, 0, 0]]]),
                        shaded=np.array([[[0.5, 0.25, 1.0], [0, 0, 0]]]), holdout=np.array([[False, False]]))
     vol = np.array([[[0.1, 0.2, 0.3, 0.25], [0.1, 0.2, 0.3, 0.25]]])
     out = composite(vol, hits, [1.0, 1.0, 1.0])
@@ -206,10 +206,10 @@ def test_composite_and_shade_formulas():
     held = composite(vol, hits, [1.0, 1.0, 1.0], mode="HOLDOUT")
     np.testing.assert_allclose(held[0, 0], vol[0, 0])
     np.testing.assert_allclose(shade([1.0, 0.5, 0.25], [0, 0, -1.0], [0, 0.6, 0.8]), [0.8, 0.4, 0.2])
-    with pytest.raises(SurfaceError):
+    with pytest.raises(OpaqueError):
         composite(vol, hits, [0, 0, 0], mode="GLOSSY")
-    with pytest.raises(SurfaceError):
-        SurfaceMesh([[0, 0, 0]], [[0, 1, 2]])
+    with pytest.raises(OpaqueError):
+        OpaqueMesh([[0, 0, 0]], [[0, 1, 2]])
 
 
 def test_viewport_ends_at_the_f12_picture(renderer):
@@ -219,7 +219,7 @@ def test_viewport_ends_at_the_f12_picture(renderer):
 
     camera = RayCamera.from_contract(CAMERAS["perspective"], W, H)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
-    scene = SurfaceScene([plane_mesh()])
+    scene = OpaqueScene([plane_mesh()])
     req = ViewportRequest(camera, TF, BACKGROUND, opts, False, ("sphere", "plane"), surfaces=scene)
     vp = ProgressiveViewport(first_frame_seconds=0.05)
     vp.sync(renderer, req)

@@ -17,7 +17,7 @@ mode) stops the rays but leaves the film transparent there: the image is then th
 front of the surfaces, premultiplied, for compositing over another renderer's picture of them
 (alpha over: result = HOVR + (1 - alpha_HOVR) other).
 
-Warp is imported only when a SurfaceScene is uploaded and cast (as engine/reference.py imports
+Warp is imported only when a OpaqueScene is uploaded and cast (as engine/reference.py imports
 the renderer), so the module itself imports without it.
 """
 from __future__ import annotations
@@ -31,12 +31,12 @@ from .camera import RayCamera
 MODES = ("SHADED", "HOLDOUT")
 
 
-class SurfaceError(ValueError):
+class OpaqueError(ValueError):
     """Triangles the surface cast cannot take (wrong shapes, non-finite vertices, bad indices)."""
 
 
 @dataclass
-class SurfaceMesh:
+class OpaqueMesh:
     """One object's triangles in world space, its base colour (linear RGB) and whether it is a
     holdout."""
 
@@ -50,19 +50,19 @@ class SurfaceMesh:
         v = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)
         t = np.asarray(self.triangles, dtype=np.int64).reshape(-1, 3)
         if not np.all(np.isfinite(v)):
-            raise SurfaceError(f"surface {self.name!r}: vertices are not finite")
+            raise OpaqueError(f"surface {self.name!r}: vertices are not finite")
         if t.size and (t.min() < 0 or t.max() >= len(v)):
-            raise SurfaceError(f"surface {self.name!r}: a triangle indexes outside its {len(v)} vertices")
+            raise OpaqueError(f"surface {self.name!r}: a triangle indexes outside its {len(v)} vertices")
         c = np.asarray(self.color, dtype=np.float64).reshape(-1)[:3]
         if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise SurfaceError(f"surface {self.name!r}: colour must be three finite numbers")
+            raise OpaqueError(f"surface {self.name!r}: colour must be three finite numbers")
         self.vertices, self.triangles, self.color = v, t, tuple(float(x) for x in c)
 
 
 @dataclass
-class SurfaceHits:
+class OpaqueHits:
     """Per pixel (H, W, rows from the top) of one camera: the first hit's t (+inf where none),
-    its surface (index into SurfaceScene.meshes, -1 where none), the triangle's unit normal and
+    its surface (index into OpaqueScene.meshes, -1 where none), the triangle's unit normal and
     the shaded colour S (zero where none)."""
 
     t: np.ndarray
@@ -83,7 +83,7 @@ def shade(color, normal, direction) -> np.ndarray:
 
 
 @dataclass
-class SurfaceScene:
+class OpaqueScene:
     """Triangle meshes merged into one and uploaded once to a Warp device (a wp.Mesh and its
     BVH); cast(camera) for any number of cameras."""
 
@@ -123,8 +123,8 @@ class SurfaceScene:
                 self._upload = (points, indices, wp.Mesh(points=points, indices=indices))
         return self._upload[2]
 
-    def cast(self, camera: RayCamera) -> SurfaceHits:
-        """The camera's rays against the triangles (kernels/surfaces.py), shaded here in float64."""
+    def cast(self, camera: RayCamera) -> OpaqueHits:
+        """The camera's rays against the triangles (kernels/opaque_cast.py), shaded here in float64."""
         W, H = int(camera.width), int(camera.height)
         if self.empty:
             t = np.full((H, W), np.inf)
@@ -132,7 +132,7 @@ class SurfaceScene:
         else:
             import warp as wp
 
-            from .kernels import surfaces as kernels
+            from .kernels import opaque_cast
             from .kernels.precision import Precision
             from .renderer import camera_args
 
@@ -140,8 +140,8 @@ class SurfaceScene:
             with wp.ScopedDevice(self.device):
                 t_out = wp.zeros(W * H, dtype=wp.float32)
                 face_out = wp.zeros(W * H, dtype=wp.int32)
-                wp.launch(kernels.cast_surfaces, dim=W * H, inputs=[mesh.id, camera_args(Precision.named("float32"), camera), t_out,
-                                                                    face_out])
+                wp.launch(opaque_cast.cast_opaque, dim=W * H,
+                          inputs=[mesh.id, camera_args(Precision.named("float32"), camera), t_out, face_out])
                 t = t_out.numpy().astype(np.float64).reshape(H, W)
                 face = face_out.numpy().astype(np.int64).reshape(H, W)
         hit = face >= 0
@@ -151,15 +151,15 @@ class SurfaceScene:
         color = self.colors[np.where(hit, surface, 0)] if hit.any() else np.zeros((H, W, 3))
         shaded = np.where(hit[..., None], shade(color, normal, d), 0.0)
         holdout = hit & (self.holdouts[np.where(hit, surface, 0)] if hit.any() else False)
-        return SurfaceHits(t=np.where(hit, t, np.inf), surface=surface, normal=normal, shaded=shaded,
+        return OpaqueHits(t=np.where(hit, t, np.inf), surface=surface, normal=normal, shaded=shaded,
                            holdout=np.asarray(holdout, dtype=bool))
 
 
-def composite(volume_rgba, hits: SurfaceHits, background, mode: str = "SHADED") -> np.ndarray:
+def composite(volume_rgba, hits: OpaqueHits, background, mode: str = "SHADED") -> np.ndarray:
     """The pixels of the module's docstring from the volume rendered up to the hits over a black
     background (RGB = C, alpha = 1 - T): (H, W, 4) float64."""
     if mode not in MODES:
-        raise SurfaceError(f"surface mode must be one of {MODES}, got {mode!r}")
+        raise OpaqueError(f"surface mode must be one of {MODES}, got {mode!r}")
     v = np.asarray(volume_rgba, dtype=np.float64)
     T = 1.0 - v[..., 3:4]
     bg = np.asarray(background, dtype=np.float64).reshape(3)
@@ -171,7 +171,7 @@ def composite(volume_rgba, hits: SurfaceHits, background, mode: str = "SHADED") 
     return out
 
 
-def render_with_surfaces(renderer, surfaces: SurfaceScene | None, camera: RayCamera, tf, background, options,
+def render_with_surfaces(renderer, surfaces: OpaqueScene | None, camera: RayCamera, tf, background, options,
                          mode: str = "SHADED", isosurfaces=None, **kwargs):
     """Renderer.render (or MultiDeviceRenderer.render) with the surfaces: the volume up to each
     pixel's first hit, composited as the module's docstring says. Without surfaces (None or no
@@ -187,24 +187,24 @@ def render_with_surfaces(renderer, surfaces: SurfaceScene | None, camera: RayCam
     return _composited(res, hits, background, mode, kwargs.get("rows"))
 
 
-def _composited(res, hits: SurfaceHits, background, mode: str, rows):
+def _composited(res, hits: OpaqueHits, background, mode: str, rows):
     """The volume's result (rendered up to the hits over black) with the surfaces composited in;
     a band of `rows` takes its rows of the whole camera's hits."""
     if rows is not None:
         r0, r1 = int(rows[0]), int(rows[1])
-        hits = SurfaceHits(*(a[r0:r1] for a in (hits.t, hits.surface, hits.normal, hits.shaded, hits.holdout)))
+        hits = OpaqueHits(*(a[r0:r1] for a in (hits.t, hits.surface, hits.normal, hits.shaded, hits.holdout)))
     res.rgba = composite(res.rgba, hits, background, mode).astype(res.rgba.dtype)
     res.stats["surface_pixels"] = int(hits.hit.sum())
     res.surface_hits = hits
     return res
 
 
-def render_with_surfaces_cached(renderer, surfaces: SurfaceScene | None, camera: RayCamera, tf, background, options,
+def render_with_surfaces_cached(renderer, surfaces: OpaqueScene | None, camera: RayCamera, tf, background, options,
                                 mode: str = "SHADED", cache=None, rows=None, held_bytes: int = 0, progress=None,
                                 tile_pixels: int | None = None, isosurfaces=None):
     """render_with_surfaces through engine.renderer.render_cached: (result, segment cache or None).
     The cache keeps the surfaces' hits beside the segments (they stopped its rays), so an image
-    shaded from it casts nothing; its key names this SurfaceScene (the same object, the same
+    shaded from it casts nothing; its key names this OpaqueScene (the same object, the same
     triangles). `isosurfaces` as in render_with_surfaces."""
     from .renderer import render_cached
 

@@ -1,4 +1,4 @@
-"""The scene's opaque surfaces for HOVR (engine/surfaces.py): the visible mesh-like objects of an
+"""The scene's opaque surfaces for HOVR (engine/opaque.py): the visible mesh-like objects of an
 evaluated depsgraph as world-space triangles, one record per (object instance, material slot)
 with the material's base colour.
 
@@ -22,7 +22,7 @@ import hashlib
 
 import numpy as np
 
-from ..engine.surfaces import SurfaceMesh
+from ..engine.opaque import OpaqueMesh
 from . import compat
 
 GEOMETRY_TYPES = {'MESH', 'CURVE', 'SURFACE', 'FONT', 'META', 'CURVES'}
@@ -73,8 +73,8 @@ def _is_volume(obj) -> bool:
     return bool(hovr is not None and hovr.is_volume)
 
 
-def scene_surfaces(depsgraph) -> list:
-    """[SurfaceMesh] of the depsgraph's visible geometry (module docstring), in the depsgraph's order."""
+def scene_opaque_meshes(depsgraph) -> list:
+    """[OpaqueMesh] of the depsgraph's visible geometry (module docstring), in the depsgraph's order."""
     out = []
     geometry = {}  # object name -> its geometry (instances share it)
     for inst in depsgraph.object_instances:
@@ -99,11 +99,11 @@ def scene_surfaces(depsgraph) -> list:
         for k in np.unique(mat):
             material = slots[int(k)].material if 0 <= k < len(slots) else None
             color = material_color(material, tuple(obj.color))
-            out.append(SurfaceMesh(world, tris[mat == k], color, holdout, f"{obj.name}[{int(k)}]"))
+            out.append(OpaqueMesh(world, tris[mat == k], color, holdout, f"{obj.name}[{int(k)}]"))
     return out
 
 
-def surfaces_key(surfaces) -> str:
+def opaque_key(surfaces) -> str:
     """A digest of the surfaces' geometry, colours and flags (what the cast depends on)."""
     h = hashlib.blake2b(digest_size=16)
     for s in surfaces:

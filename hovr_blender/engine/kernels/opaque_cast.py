@@ -2,7 +2,7 @@
 
 The same rays as the volume's (rays.camera_ray: the contract's unit direction, so t is in
 world units), between the camera's near limit (t_min, the near clip plane) and its far one:
-the first triangle hit there is where the ray's volume integral ends (engine/surfaces.py).
+the first triangle hit there is where the ray's volume integral ends (engine/opaque.py).
 float32 only: Warp's mesh is float32 in both precisions, as its BVH is.
 """
 from __future__ import annotations
@@ -18,8 +18,8 @@ NO_HIT = -1
 
 
 @wp.kernel(enable_backward=False)
-def cast_surfaces(mesh: wp.uint64, cam: CameraArgs, t_out: wp.array(dtype=wp.float32),
-                  face_out: wp.array(dtype=wp.int32)):
+def cast_opaque(mesh: wp.uint64, cam: CameraArgs, t_out: wp.array(dtype=wp.float32),
+                face_out: wp.array(dtype=wp.int32)):
     """t_out[pixel]: the first hit's t along the pixel's unit ray (+inf where none);
     face_out[pixel]: its triangle (NO_HIT where none)."""
     pixel = wp.tid()

@@ -1,7 +1,7 @@
 """Opaque surfaces in F12 (issue 17): a plane object cutting the sphere volume renders as the
-core test's independent reference (tests/engine/test_surfaces.py): the exact integral from the
+core test's independent reference (tests/engine/test_opaque.py): the exact integral from the
 eye to the plane composited over the plane's shaded material colour; which objects count
-(ui/surfaces.py): modifiers, instances, hidden, camera-invisible and holdout objects."""
+(ui/opaque_meshes.py): modifiers, instances, hidden, camera-invisible and holdout objects."""
 import numpy as np
 import pytest
 
@@ -9,10 +9,10 @@ bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not
 pytestmark = pytest.mark.blender
 
 from hovr_blender.ui import render  # noqa: E402
-from hovr_blender.ui.surfaces import scene_surfaces  # noqa: E402
+from hovr_blender.ui.opaque_meshes import scene_opaque_meshes  # noqa: E402
 from hovr_blender.engine.camera import RayCamera  # noqa: E402
 
-from ..engine import test_surfaces as ref  # noqa: E402
+from ..engine import test_opaque as ref  # noqa: E402
 from .blender_helpers import add_camera, material, render_to_exr, set_contract_camera, set_look, z_combine  # noqa: E402
 
 
@@ -70,7 +70,7 @@ def test_which_objects_are_surfaces(scene):
     sphere_scene(scene)
     plane = add_plane(scene)
     dg = bpy.context.evaluated_depsgraph_get()
-    (only,) = scene_surfaces(dg)  # the volume's outline object is not a surface
+    (only,) = scene_opaque_meshes(dg)  # the volume's outline object is not a surface
     assert only.color == pytest.approx(ref.PLANE_COLOR) and not only.holdout
     np.testing.assert_allclose(only.vertices, ref.plane_mesh().vertices, atol=1e-6)
     assert len(only.triangles) == 2
@@ -80,7 +80,7 @@ def test_which_objects_are_surfaces(scene):
     mod = plane.modifiers.new("Array", 'ARRAY')
     mod.count = 3
     dg = bpy.context.evaluated_depsgraph_get()
-    (only,) = scene_surfaces(dg)
+    (only,) = scene_opaque_meshes(dg)
     assert len(only.triangles) == 6
     assert only.vertices[:, 2].min() > ref.plane_mesh().vertices[:, 2].min() + 0.99
 
@@ -100,7 +100,7 @@ def test_which_objects_are_surfaces(scene):
         empty.location = (10.0 * (k + 1), 0.0, 0.0)
         scene.collection.objects.link(empty)
     dg = bpy.context.evaluated_depsgraph_get()
-    quads = [s for s in scene_surfaces(dg) if s.name.startswith("Quad")]
+    quads = [s for s in scene_opaque_meshes(dg) if s.name.startswith("Quad")]
     xs = sorted(float(q.vertices[:, 0].min()) for q in quads)
     assert xs == pytest.approx([0.0, 10.0, 20.0])  # the collection's own object and its two instances
     assert all(q.color == pytest.approx((0.25, 0.5, 0.75)) for q in quads)  # no material: object colour
@@ -109,9 +109,9 @@ def test_which_objects_are_surfaces(scene):
     cube.visible_camera = False
     plane.is_holdout = True
     dg = bpy.context.evaluated_depsgraph_get()
-    names = [s.name for s in scene_surfaces(dg)]
+    names = [s.name for s in scene_opaque_meshes(dg)]
     assert not any(n.startswith("Quad") for n in names)
-    assert [s.holdout for s in scene_surfaces(dg) if s.name.startswith("Plane")] == [True]
+    assert [s.holdout for s in scene_opaque_meshes(dg) if s.name.startswith("Plane")] == [True]
 
 
 def test_hidden_in_renders_is_no_surface(scene, tmp_path):
