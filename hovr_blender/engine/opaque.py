@@ -3,7 +3,8 @@ its volume integral ends, and what lies behind is the surface instead of the bac
 
 For the pixel's ray x(t) = o + t d (contract §4, |d| = 1), let t_s be the first hit of an
 opaque triangle with t in the camera's range (+inf where none). The volume is integrated over
-[0, t_s] only (Renderer.render(surface_t=...): kernels/rays.py init_rays), which gives
+[0, t_s] only (Renderer.render(surface_t=...): kernels/rays.py init_rays; a Frame's opaque
+meshes, engine/frame.py), which gives
 C and T of contract §3 with the upper limit t_s, and the pixel is
 
     no hit:                 RGB = C + T background,   alpha = 1 - T   (contract §3, unchanged)
@@ -17,7 +18,7 @@ mode) stops the rays but leaves the film transparent there: the image is then th
 front of the surfaces, premultiplied, for compositing over another renderer's picture of them
 (alpha over: result = HOVR + (1 - alpha_HOVR) other).
 
-Warp is imported only when a OpaqueScene is uploaded and cast (as engine/reference.py imports
+Warp is imported only when an OpaqueScene is uploaded and cast (as engine/reference.py imports
 the renderer), so the module itself imports without it.
 """
 from __future__ import annotations
@@ -171,55 +172,13 @@ def composite(volume_rgba, hits: OpaqueHits, background, mode: str = "SHADED") -
     return out
 
 
-def render_with_surfaces(renderer, surfaces: OpaqueScene | None, camera: RayCamera, tf, background, options,
-                         mode: str = "SHADED", isosurfaces=None, **kwargs):
-    """Renderer.render (or MultiDeviceRenderer.render) with the surfaces: the volume up to each
-    pixel's first hit, composited as the module's docstring says. Without surfaces (None or no
-    triangles) it is renderer.render itself. kwargs go to render (progress, tile_pixels, rows:
-    a band's hits are cast with the whole camera and sliced); `isosurfaces`, the look's
-    isosurfaces and cut planes (engine/isosurfaces.Surfaces, contract §7), to its `surfaces`."""
-    if isosurfaces:
-        kwargs["surfaces"] = isosurfaces
-    if surfaces is None or surfaces.empty:
-        return renderer.render(camera, tf, background, options, **kwargs)
-    hits = surfaces.cast(camera)
-    res = renderer.render(camera, tf, np.zeros(3), options, surface_t=hits.t, **kwargs)
-    return _composited(res, hits, background, mode, kwargs.get("rows"))
-
-
-def _composited(res, hits: OpaqueHits, background, mode: str, rows):
-    """The volume's result (rendered up to the hits over black) with the surfaces composited in;
-    a band of `rows` takes its rows of the whole camera's hits."""
+def composite_hits(res, hits: OpaqueHits, background, mode: str, rows=None):
+    """The volume's result (rendered up to the hits over black) with the opaque meshes composited in
+    (composite); a band of `rows` takes its rows of the whole camera's hits."""
     if rows is not None:
         r0, r1 = int(rows[0]), int(rows[1])
         hits = OpaqueHits(*(a[r0:r1] for a in (hits.t, hits.surface, hits.normal, hits.shaded, hits.holdout)))
     res.rgba = composite(res.rgba, hits, background, mode).astype(res.rgba.dtype)
     res.stats["surface_pixels"] = int(hits.hit.sum())
-    res.surface_hits = hits
+    res.opaque_hits = hits
     return res
-
-
-def render_with_surfaces_cached(renderer, surfaces: OpaqueScene | None, camera: RayCamera, tf, background, options,
-                                mode: str = "SHADED", cache=None, rows=None, held_bytes: int = 0, progress=None,
-                                tile_pixels: int | None = None, isosurfaces=None):
-    """render_with_surfaces through engine.renderer.render_cached: (result, segment cache or None).
-    The cache keeps the surfaces' hits beside the segments (they stopped its rays), so an image
-    shaded from it casts nothing; its key names this OpaqueScene (the same object, the same
-    triangles). `isosurfaces` as in render_with_surfaces."""
-    from .renderer import render_cached
-
-    kw = dict(rows=rows, held_bytes=held_bytes, progress=progress, tile_pixels=tile_pixels)
-    if isosurfaces:
-        kw["surfaces"] = isosurfaces
-    if surfaces is None or surfaces.empty:
-        return render_cached(renderer, camera, tf, background, options, cache=cache, **kw)
-    fits = (cache is not None and cache.surface_hits is not None
-            and renderer.cache_fits(cache, camera, tf, options, rows, surface_key=surfaces))
-    hits = cache.surface_hits if fits else surfaces.cast(camera)
-    res, cache = render_cached(renderer, camera, tf, np.zeros(3), options, cache=cache if fits else None,
-                               surface_t=hits.t, surface_key=surfaces, **kw)
-    if cache is not None:
-        cache.surface_hits = hits
-    if res.cancelled:
-        return res, cache
-    return _composited(res, hits, background, mode, rows), cache

@@ -18,6 +18,7 @@ from . import field_frame, limits, shapes
 from .isosurfaces import Surfaces, reference_gradient
 from .adjacency import face_neighbours, vertex_affine_guess
 from .faces import element_faces, face_mesh
+from .frame import Capability
 from .camera import RayCamera
 from .kernels import quadrature_tables
 from .kernels.args import MAX_SAMPLES, SEGMENTS_PER_ROUND
@@ -27,35 +28,13 @@ from .limits import cpu_cores
 from .mesh import (MeshError, VolumeMesh, boxes_diagonal, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients, padded_element_boxes)
 from .methods import METHOD_IDS
+from .render_result import RenderError, RenderResult, SegmentCacheError, check_float32_range
 from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
 from .transfer_function import TransferFunction
 from .view import AUTO_STEP_ERROR, RenderOptions, resolving_step
 
 _INNER_IDS = {"spectral": 0, "trapezoid": 1}
-
-
-class RenderError(RuntimeError):
-    """A render that could not run (device unavailable, out of memory); the message says why."""
-
-
-class SegmentCacheError(RenderError):
-    """A segment cache that cannot be built (out of device memory, beyond 32-bit offsets) or
-    that does not hold this view's segments (traced for another camera, field or frame)."""
-
-
-@dataclass
-class RenderResult:
-    rgba: np.ndarray  # (H, W, 4) float32, RGB = C + T*background, A = 1 - T; row 0 at the top
-    stats: dict
-    depth: np.ndarray | None = None  # (H, W) t where 1 - T first reaches 0.5, else the far value
-    error: np.ndarray | None = None  # (H, W) sum of the Gauss-Kronrod panel error estimates
-    cancelled: bool = False
-    # (H,) the work each row took (ray_cost of its pixels' counters): what a render split over
-    # several devices balances its rows by (engine/multi_device.py)
-    row_cost: np.ndarray | None = None
-    # (rows, W, NUM_STATS) int32: every ray's counters, with render(ray_counts=True) (work_counts)
-    ray_counts: np.ndarray | None = None
 
 
 _WARP_READY = False
@@ -130,7 +109,6 @@ def expand_devices(devices) -> list[str]:
     return out
 
 
-FLOAT32_LIMIT = 1.0e30  # beyond this, products in the kernel overflow float32 (max 3.4e38)
 MAX_ROUNDS_PER_TILE = 100000  # every round takes each ray a step further; far more than any mesh needs
 EVAL_ERROR_FACTOR = 64.0  # mesh field_err: eps * sum |c_m| max|phi_m| times this (see _upload)
 GEO_ERROR_FACTOR = 64.0  # the same for the geometry's x(xi) (geometry_rounding)
@@ -214,17 +192,6 @@ def load_modules(kernels, device: str) -> LoadReport:
     return report
 
 
-def _check_float32_range(what: str, values, offsets):
-    """float32 kernels need data well inside float32's range: name the first element that is not."""
-    if values is None or values.size == 0:
-        return
-    big = np.abs(values.reshape(len(values), -1)).max(axis=1) > FLOAT32_LIMIT
-    if big.any():
-        e = int(np.searchsorted(offsets, int(np.argmax(big)), side="right") - 1)
-        raise RenderError(f"element {e}: {what} exceed the float32 kernels' range (|value| > {FLOAT32_LIMIT:.0e}); "
-                          f"render with precision float64 or rescale the data")
-
-
 def _outward(lo, hi, dtype):
     """lo, hi cast to dtype, rounded outward (a certified range stays one)."""
     lo_c, hi_c = lo.astype(dtype), hi.astype(dtype)
@@ -267,7 +234,11 @@ def sample_stride(mesh: VolumeMesh, geo_degree) -> int:
 
 
 class Renderer:
-    """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it."""
+    """Holds one mesh uploaded to one Warp device (BVH included); render() many views with it
+    (engine/frame.render_frame: everything a Frame can hold)."""
+
+    capabilities = frozenset(Capability)
+    kind = "on one device"
 
     def __init__(self, mesh: VolumeMesh, device: str = "cpu", max_tile_rays: int | None = None,
                  regroup: bool = True):
@@ -354,6 +325,16 @@ class Renderer:
         for upload in self._uploads.values():
             upload.field_key = None  # _set_field maps and uploads the new coefficients
             upload.gradient = None
+
+    def close(self):
+        """Release the device arrays of the uploads (the renderer uploads again if used after)."""
+        self._uploads.clear()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def _tile_buffers(self, prec, tile, stats):
         """Per-ray state and the round's segment buffer for `tile` rays (allocated per render:
@@ -475,7 +456,7 @@ class Renderer:
         raycast = prec.kernels
         mesh = self.mesh
         if name == "float32":
-            _check_float32_range("geometry", mesh.geom_coeffs, mesh.geom_offset)
+            check_float32_range("geometry", mesh.geom_coeffs, mesh.geom_offset)
         fdt, v3, m33, scalar = prec.dtype, prec.vec3, prec.mat33, prec.scalar
         with wp.ScopedDevice(self.device):
             m = raycast.MeshArgs()
@@ -581,7 +562,7 @@ class Renderer:
         except MeshError as exc:
             raise RenderError(str(exc)) from exc
         if prec.name == "float32":
-            _check_float32_range("field coefficients", coeffs, mesh.coeff_offset)
+            check_float32_range("field coefficients", coeffs, mesh.coeff_offset)
         # the map of a certified range, widened by the map's rounding, then cast outward
         eps64 = float(np.finfo(np.float64).eps)
         lo, hi = a * self._field_lo + b, a * self._field_hi + b
@@ -1108,7 +1089,7 @@ def _derived_args(prec: Precision, field, scale, shift):
     if field.coeffs.size >= 2**31:
         raise RenderError("derived field too large for 32-bit coefficient offsets")
     if prec.name == "float32":
-        _check_float32_range("derived field components", field.coeffs, field.offset)
+        check_float32_range("derived field components", field.coeffs, field.offset)
     d = prec.kernels.DerivedArgs()
     d.active = 1
     d.kind = wp.array(np.where(field.derived, kind, dk.FIELD).astype(np.int32), dtype=wp.int32)
@@ -1198,7 +1179,7 @@ class SegmentCache:
     complete: bool  # False: the trace was cancelled part way
     stats: dict  # the trace's own: trace_seconds, rounds, its counters
     warnings: list = field(default_factory=list)
-    surface_hits: object = None  # engine/opaque.py keeps the hits that stopped the rays here
+    opaque_hits: object = None  # engine/frame.py keeps the opaque meshes' hits that stopped the rays here
 
     @property
     def rays(self) -> int:
@@ -1306,44 +1287,6 @@ def _cache_struct(kernels, arrays: dict):
     for name, a in arrays.items():
         setattr(s, name, a)
     return s
-
-
-def render_cached(renderer, camera: RayCamera, tf, background, options: RenderOptions,
-                  cache: SegmentCache | None = None, rows: tuple[int, int] | None = None, surface_t=None,
-                  surface_key=None, held_bytes: int = 0, progress=None,
-                  tile_pixels: int | None = None, surfaces: Surfaces | None = None) -> tuple[RenderResult, SegmentCache | None]:
-    """(RenderResult, SegmentCache or None): the view shaded from `cache` where it holds this
-    view's segments (Renderer.cache_fits), else traced anew (Renderer.trace) and shaded, the new
-    cache returned for the next call; the image is renderer.render's either way. A renderer that
-    keeps no segments (several devices: engine/multi_device.py) renders plainly, and so does a view
-    whose cache the memory limit or the device refuses (stats["segment_cache"] says why); None
-    comes back then. A cancelled trace (progress returned False) gives a cancelled result."""
-    if not isinstance(renderer, Renderer):
-        kw = {k: v for k, v in (("rows", rows), ("surface_t", surface_t), ("surfaces", surfaces)) if v is not None}
-        return renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, **kw), None
-    if surface_t is not None and surface_key is None:
-        surface_key = surface_digest(surface_t)
-    if renderer.cache_fits(cache, camera, tf, options, rows, surface_key):
-        return renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
-                              surfaces=surfaces), cache
-    try:
-        cache = renderer.trace(camera, tf, options, rows=rows, surface_t=surface_t, surface_key=surface_key,
-                               progress=progress, tile_pixels=tile_pixels, held_bytes=held_bytes)
-    except (limits.ResourceLimitError, SegmentCacheError) as exc:
-        res = renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels, rows=rows,
-                              surface_t=surface_t, surfaces=surfaces)
-        res.stats["segment_cache"] = {"refused": str(exc)}
-        return res, None
-    if not cache.complete:
-        W = int(camera.width)
-        r0, r1 = (0, int(camera.height)) if rows is None else rows
-        dtype = Precision.named(options.precision).dtype
-        return RenderResult(rgba=np.zeros((r1 - r0, W, 4), dtype), stats={"segment_cache": cache.describe()},
-                            depth=np.zeros((r1 - r0, W), dtype), error=np.zeros((r1 - r0, W), dtype),
-                            cancelled=True), None
-    res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels, surfaces=surfaces)
-    res.stats["render_seconds"] += cache.stats["trace_seconds"]  # this call traced and shaded
-    return res, cache
 
 
 def ray_cost(kernels, counts: np.ndarray, rays: int | np.ndarray = 1) -> np.ndarray:

@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from .mesh import element_boxes, subset
-from .renderer import Renderer, RenderError, RenderResult, expand_devices
+from .renderer import Renderer, RenderError, RenderResult, expand_devices, kernel_variant
 
 FAR = 1.0e30  # the open ends of the first and last slab (the kernel's float32 infinity stand-in)
 
@@ -112,10 +112,15 @@ def composite(partials, background) -> np.ndarray:
 class SortLastRenderer:
     """Renderer.render() with the mesh's elements split over `devices` in slabs, one part a
     device; with `processes` (the default) each part lives in its own process (engine/multi_device.py),
-    rendered at once, else one after the other in this process (tests; a single device)."""
+    rendered at once, else one after the other in this process (tests; a single device). Of a
+    Frame it draws the volume alone (engine/frame.py)."""
+
+    capabilities = frozenset()
+    kind = "sort-last over several devices"
 
     def __init__(self, mesh, devices, processes: bool = True, max_tile_rays: int | None = None):
         self.mesh = mesh
+        self.kernel_variant = kernel_variant([mesh])  # every part's kernels (a part's may need fewer)
         self.devices = expand_devices(devices)
         self.processes = processes
         self.max_tile_rays = max_tile_rays

@@ -69,18 +69,18 @@ class SceneInputs:
     options: object  # RenderOptions
     warnings: list = field(default_factory=list)
     transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
-    surfaces: list = field(default_factory=list)  # [engine.opaque.OpaqueMesh] (ui/opaque_meshes.py)
-    surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
-    opaque_key: str = ""  # digest of the surfaces (blender/surfaces.opaque_key)
+    opaque_meshes: list = field(default_factory=list)  # [engine.opaque.OpaqueMesh] (ui/opaque_meshes.py)
+    opaque_mode: str = "NONE"  # Scene.hovr.surfaces (its saved name): NONE, SHADED or HOLDOUT
+    opaque_key: str = ""  # digest of the opaque meshes (ui/opaque_meshes.opaque_key)
     # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
     # needs the volumes' sizes, i.e. their data)
     step_units: str = "WORLD"
     steps_across: int = 0
-    isosurfaces: object = None  # engine.isosurfaces.Surfaces of the volumes (ui/surface_panels.py)
+    surfaces: object = None  # engine.isosurfaces.Surfaces: the volumes' isosurfaces and planes (ui/surface_panels.py)
 
     @property
     def data_key(self) -> tuple:
-        return (tuple(v.data_key for v in self.volumes), self.options.device, self.surface_mode, self.opaque_key)
+        return (tuple(v.data_key for v in self.volumes), self.options.device, self.opaque_mode, self.opaque_key)
 
     @property
     def transfer_function(self):
@@ -123,8 +123,8 @@ class RenderJob:
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
-# The scene's surfaces uploaded for the ray cast (engine.opaque.OpaqueScene), by geometry digest and device.
-SURFACES = LRUCache(2)
+# The scene's opaque meshes uploaded for the ray cast (engine.opaque.OpaqueScene), by geometry digest and device.
+OPAQUE = LRUCache(2)
 # Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
 EXTENTS = LRUCache(16)
 
@@ -170,84 +170,70 @@ def _renderer(volumes, device: str):
     return RENDERERS.get((tuple(v.data_key for v in volumes), device), upload)
 
 
-def surface_scene(inputs: SceneInputs):
-    """The uploaded OpaqueScene of the scene's surfaces (cached), or None: surfaces off, or none there."""
-    if inputs.surface_mode == "NONE" or not inputs.surfaces:
+def opaque_scene(inputs: SceneInputs):
+    """The uploaded OpaqueScene of the scene's opaque meshes (cached), or None: off, or none there."""
+    if inputs.opaque_mode == "NONE" or not inputs.opaque_meshes:
         return None
     from ..engine.multi_device import expand_devices
     from ..engine.opaque import OpaqueScene
 
     device = expand_devices(inputs.options.device)[0]  # the ray cast runs on one device (the first)
-    return SURFACES.get((inputs.opaque_key, device), lambda: OpaqueScene(inputs.surfaces, device))
+    return OPAQUE.get((inputs.opaque_key, device), lambda: OpaqueScene(inputs.opaque_meshes, device))
 
 
-def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
-    """The core render of the scene's volumes through `camera`, its surfaces stopping the rays
-    (engine.opaque.render_with_surfaces; plain Renderer.render without surfaces)."""
-    from ..engine.opaque import render_with_surfaces
+def scene_frame(inputs: SceneInputs, cache=None):
+    """The engine's Frame of the scene (resolve_units first): its looks, background, settings,
+    opaque meshes, isosurfaces and planes; `cache`, a SegmentSlot."""
+    from ..engine.frame import Frame
 
-    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
-    return render_with_surfaces(renderer, surface_scene(inputs), camera, inputs.transfer_function, inputs.background,
-                                inputs.options, mode=mode, isosurfaces=one_device_isosurfaces(renderer, inputs),
-                                **kwargs)
-
-
-def one_device_isosurfaces(renderer, inputs: SceneInputs):
-    """The scene's isosurfaces and planes, for a renderer of one device (SceneError for several)."""
-    from ..engine.renderer import Renderer
-
-    if inputs.isosurfaces and not isinstance(renderer, Renderer):
-        raise SceneError("isosurfaces and cut planes render on one device: set Render > Device to CPU or one GPU")
-    return inputs.isosurfaces
+    mode = inputs.opaque_mode if inputs.opaque_mode != "NONE" else "SHADED"
+    return Frame(inputs.transfer_function, inputs.background, inputs.options, opaque=opaque_scene(inputs),
+                 opaque_mode=mode, surfaces=inputs.surfaces or None, cache=cache)
 
 
 @dataclass
 class FinalCache:
-    """F12's element segments, kept on the device for the next F12 (engine.renderer.render_cached).
-    A view's segments are traced at its second F12 (the first renders plainly and only remembers
-    the view): a one-off render, or an animation whose frames change the data or the camera,
-    never pays for a trace it would not reuse; from then on, F12 after an edit of the look alone
-    (transfer function, density, colours, background, tolerance) shades from the cache."""
+    """F12's element segments, kept on the device for the next F12 (a Frame's SegmentSlot,
+    engine/frame.py). A view's segments are traced at its second F12 (the first renders plainly
+    and only remembers the view): a one-off render, or an animation whose frames change the data
+    or the camera, never pays for a trace it would not reuse; from then on, F12 after an edit of the
+    look alone (transfer function, density, colours, background, tolerance) shades from the cache."""
 
     view: tuple | None = None  # the last F12's view (Renderer.trace_key)
-    cache: object = None  # its core SegmentCache, or None
+    slot: object = None  # its SegmentSlot, once the view came twice
     refused: bool = False  # the view's cache did not fit the memory limit: not tried again
 
+    @property
+    def cache(self):
+        """The core SegmentCache kept, or None."""
+        return None if self.slot is None else self.slot.cache
+
     def clear(self):
-        self.view, self.cache, self.refused = None, None, False
+        self.view, self.slot, self.refused = None, None, False
 
 
 FINAL = FinalCache()
 
 
 def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixels=None):
-    """F12's render_volume through FINAL: shaded from the last F12's segments where they hold this
-    view, traced (and kept) where the last F12 had the same view, else a plain render."""
-    from ..engine.renderer import Renderer
-    from ..engine.opaque import render_with_surfaces_cached
+    """F12's frame (scene_frame) through FINAL: shaded from the last F12's segments where they hold
+    this view, traced (and kept) where the last F12 had the same view, else a plain render."""
+    from ..engine.frame import Capability, SegmentSlot, render_frame
 
-    if not isinstance(renderer, Renderer):  # several devices keep no segments
+    frame = scene_frame(inputs)
+    if Capability.SEGMENT_CACHE not in renderer.capabilities:  # several devices keep no segments
         FINAL.clear()
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    surfaces = surface_scene(inputs)
-    surface_key = surfaces if surfaces is not None and not surfaces.empty else None
-    view = renderer.trace_key(camera, inputs.options, surface_key=surface_key)
+        return render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
+    view = renderer.trace_key(camera, inputs.options, surface_key=frame.opaque_meshes)
     if view != FINAL.view:
         FINAL.clear()
         FINAL.view = view  # a new view: its segments only if it comes again
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    if FINAL.refused:
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
-    old, FINAL.cache = FINAL.cache, None
-    if old is not None and not renderer.cache_fits(old, camera, inputs.transfer_function, inputs.options,
-                                                   surface_key=surface_key):
-        old = None  # another field frame: freed before the new trace allocates
-    result, FINAL.cache = render_with_surfaces_cached(renderer, surfaces, camera, inputs.transfer_function,
-                                                      inputs.background, inputs.options, mode=mode, cache=old,
-                                                      progress=progress, tile_pixels=tile_pixels,
-                                                      isosurfaces=inputs.isosurfaces)
-    FINAL.refused = "refused" in result.stats.get("segment_cache", {})
+    elif not FINAL.refused:
+        FINAL.slot = FINAL.slot or SegmentSlot()
+        frame = frame.with_(cache=FINAL.slot)
+    result = render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
+    if frame.cache is not None:
+        FINAL.refused = "refused" in result.stats.get("segment_cache", {})
     return result
 
 
@@ -259,17 +245,10 @@ def world_diagonal(v: VolumeInputs) -> float:
     return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
 
 
-def renderer_variant(renderer) -> tuple:
-    """The kernel variant (engine.renderer.kernel_variant) of a Renderer or MultiDeviceRenderer."""
-    from ..engine.renderer import kernel_variant
-
-    return getattr(renderer, "kernel_variant", None) or kernel_variant([renderer.mesh])
-
-
 def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
     """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
-    return kernel_key(inputs.options.device, inputs.options.precision, renderer_variant(renderer),
-                      inputs.surface_mode != "NONE", bool(inputs.isosurfaces))
+    return kernel_key(inputs.options.device, inputs.options.precision, renderer.kernel_variant,
+                      inputs.opaque_mode != "NONE", bool(inputs.surfaces))
 
 
 def resolve_units(inputs: SceneInputs) -> SceneInputs:
@@ -303,7 +282,7 @@ def resolve_units(inputs: SceneInputs) -> SceneInputs:
 def clear_cache():
     RENDERERS.clear()
     FINAL.clear()
-    SURFACES.clear()
+    OPAQUE.clear()
     EXTENTS.clear()
     POINTS.clear()
     clear_mesh_cache()
@@ -395,18 +374,18 @@ def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
         isosurfaces = scene_isosurfaces(objects)
     except ValueError as exc:
         raise SceneError(str(exc)) from exc
-    mode = settings.surfaces
-    surfaces, key = [], ""
+    mode = settings.surfaces  # the opaque meshes' mode (its saved name)
+    opaque, key = [], ""
     if mode != "NONE":
         from .opaque_meshes import opaque_key, scene_opaque_meshes
 
-        planes = plane_object_names(objects)  # cut planes are no opaque surfaces
-        surfaces = [m for m in scene_opaque_meshes(depsgraph) if m.name.rpartition("[")[0] not in planes]
-        key = opaque_key(surfaces)
+        planes = plane_object_names(objects)  # cut planes are no opaque meshes
+        opaque = [m for m in scene_opaque_meshes(depsgraph) if m.name.rpartition("[")[0] not in planes]
+        key = opaque_key(opaque)
     return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
-                       film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
-                       surface_mode=mode, opaque_key=key, step_units=settings.step_units,
-                       steps_across=int(settings.steps_across), isosurfaces=isosurfaces)
+                       film_transparent=bool(render.film_transparent), options=options, opaque_meshes=opaque,
+                       opaque_mode=mode, opaque_key=key, step_units=settings.step_units,
+                       steps_across=int(settings.steps_across), surfaces=isosurfaces)
 
 
 def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
@@ -497,13 +476,12 @@ def viewport_request(context, depsgraph):
     inputs = scene_inputs(depsgraph, original=True)
     renderer, _n = _renderer(inputs.volumes, inputs.options.device)
     resolve_units(inputs)
-    request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
-                              background=inputs.background, options=inputs.options,
-                              film_transparent=inputs.film_transparent, data_key=inputs.data_key,
-                              surfaces=surface_scene(inputs),
-                              surface_mode=inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED",
-                              isosurfaces=one_device_isosurfaces(renderer, inputs))
-    return renderer, request
+    from ..engine.frame import check_frame
+
+    frame = scene_frame(inputs)
+    check_frame(renderer, frame)  # what this renderer cannot draw, said before any work
+    return renderer, ViewportRequest(camera=camera, frame=frame, film_transparent=inputs.film_transparent,
+                                     data_key=inputs.data_key)
 
 
 def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
@@ -667,12 +645,13 @@ def view_draw(engine, context, depsgraph):
     kernels' first use compiles them here (the status line says so first)."""
     try:
         renderer, request = viewport_request(context, depsgraph)
-        key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
-                         depsgraph.scene.hovr.surfaces != "NONE", bool(request.isosurfaces))
+        options = request.frame.options
+        key = kernel_key(options.device, options.precision, renderer.kernel_variant,
+                         depsgraph.scene.hovr.surfaces != "NONE", bool(request.frame.surfaces))
         if not KERNELS.is_ready(key):
             engine.update_stats("", f"HOVR | {KERNELS.stage(key)[0]}\u2026")
             KERNELS.compile_now(key)
-        frame = advance_viewport(engine.viewport, renderer, request)
+        shown = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
     except Exception as exc:
         message = f"HOVR: {failure_text(exc)}"
@@ -681,10 +660,10 @@ def view_draw(engine, context, depsgraph):
             engine.report({'WARNING'}, message)
         draw_message(message)
         return
-    if not frame.converged:
+    if not shown.converged:
         engine.tag_redraw()  # keep view_draw coming until the final image is drawn
-    if frame.pixels is not None:
-        draw_pixels(engine, depsgraph.scene, context.region, frame)
+    if shown.pixels is not None:
+        draw_pixels(engine, depsgraph.scene, context.region, shown)
     text = engine.viewport.status_text()
     if text != getattr(engine, "viewport_status", None):
         engine.viewport_status = text

@@ -82,6 +82,11 @@ def render_to_exr(scene, path) -> np.ndarray:
     scene.view_settings.look = 'None'
     scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
     bpy.ops.render.render(write_still=True, scene=scene.name)  # this scene, whichever is the context's
+    return read_image(path)
+
+
+def read_image(path) -> np.ndarray:
+    """An image file's pixels as Blender reads them: (H, W, 4) float32 with row 0 at the top."""
     img = bpy.data.images.load(str(path), check_existing=False)
     try:
         w, h = img.size

@@ -123,7 +123,7 @@ def test_hidden_in_renders_is_no_surface(scene, tmp_path):
     scene.hovr.surfaces = "NONE"
     plain = render_to_exr(scene, tmp_path / "plain.exr")
     np.testing.assert_array_equal(got, plain)
-    assert render.SURFACES is not None
+    assert render.OPAQUE is not None
 
 
 def test_compositing_over_cycles_is_the_alpha_over(scene, tmp_path):

@@ -181,20 +181,20 @@ def test_bad_surfaces_get_one_line_messages(ball_mesh):
 def test_shaded_from_the_segment_cache_equals_the_render(ball_mesh):
     """Surfaces are part of the look: a cached trace shaded with them is the fresh render (bitwise
     on the CPU), and changing the levels needs no new trace."""
-    from hovr_blender.engine.renderer import render_cached
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
 
     r = Renderer(ball_mesh, "cpu")
     cam = framing(ball_mesh, 12, 9)
     tf = TransferFunction(np.array([0.0, 0.5]), np.array([[0.1, 0.3, 0.9], [0.9, 0.3, 0.1]]), np.array([0.0, 0.5]),
                           np.array([0.5, 0.0]))
     opts = RenderOptions(precision="float64")
-    cache = None
+    slot, cache = SegmentSlot(), None
     for level, plane in ((0.09, None), (0.05, CutPlane.through((0.5, 0.5, 0.5), (0, 1, 0), 0.7, clip=-1))):
         surfaces = Surfaces((Isosurface(level, (1.0, 0.9, 0.2), 0.6),), () if plane is None else (plane,))
         fresh = r.render(cam, tf, np.zeros(3), opts, surfaces=surfaces)
-        shaded, new_cache = render_cached(r, cam, tf, np.zeros(3), opts, cache=cache, surfaces=surfaces)
-        assert cache is None or new_cache is cache  # the second look: no new trace
-        cache = new_cache
+        shaded = render_frame(r, Frame(tf, np.zeros(3), opts, surfaces=surfaces, cache=slot), cam)
+        assert cache is None or slot.cache is cache  # the second look: no new trace
+        cache = slot.cache
         assert np.array_equal(shaded.rgba, fresh.rgba)
         assert np.array_equal(shaded.depth, fresh.depth)
 

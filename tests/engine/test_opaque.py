@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.camera import RayCamera
-from hovr_blender.engine.opaque import (OpaqueError, OpaqueMesh, OpaqueScene, composite, render_with_surfaces,
-                                        shade)
+from hovr_blender.engine.frame import Frame, render_frame
+from hovr_blender.engine.opaque import OpaqueError, OpaqueMesh, OpaqueScene, composite, shade
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io import builtin
@@ -98,6 +98,11 @@ def exact_integral(o, d, t_stop, nodes=24):
     return C, np.exp(-tau_sum)
 
 
+def opaque_render(renderer, scene, camera, options, mode="SHADED", rows=None):
+    """The frame of TF over BACKGROUND with the opaque meshes `scene`, through the door."""
+    return render_frame(renderer, Frame(TF, BACKGROUND, options, opaque=scene, opaque_mode=mode), camera, rows=rows)
+
+
 def reference_image(camera: RayCamera, holdout=False):
     """The expected pixels, independent of the renderer and of engine/opaque.py."""
     o, d = camera.rays()
@@ -129,11 +134,11 @@ def test_plane_cuts_sphere_exact(renderer, projection):
     expected, t_s = reference_image(camera)
     hit = np.isfinite(t_s)
     assert 0.3 * hit.size < hit.sum() < hit.size  # the plane covers part of the image, not all
-    res = render_with_surfaces(renderer, OpaqueScene([plane_mesh()]), camera, TF, BACKGROUND,
-                               RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0, device="cpu"))
+    res = opaque_render(renderer, OpaqueScene([plane_mesh()]), camera,
+                        RenderOptions(method="split", tolerance=1e-7, min_transmittance=0.0, device="cpu"))
     assert res.stats["surface_pixels"] == hit.sum()
-    np.testing.assert_array_equal(res.surface_hits.hit, hit)
-    assert np.max(np.abs(res.surface_hits.t[hit] - t_s[hit])) < 1e-5 * np.max(t_s[hit])
+    np.testing.assert_array_equal(res.opaque_hits.hit, hit)
+    assert np.max(np.abs(res.opaque_hits.t[hit] - t_s[hit])) < 1e-5 * np.max(t_s[hit])
     err = np.abs(res.rgba.astype(np.float64) - expected)
     assert err.max() <= 1e-4, (err.max(), np.unravel_index(err.argmax(), err.shape))
     # the volume does show in front of the plane (the test is not passing on the plane alone)
@@ -147,31 +152,29 @@ def test_plane_holdout_float64_and_depth(renderer):
     the plane's t where the volume's opacity stays under 0.5."""
     camera = RayCamera.from_contract(CAMERAS["perspective"], W, H)
     expected, t_s = reference_image(camera, holdout=True)
-    res = render_with_surfaces(renderer, OpaqueScene([plane_mesh()]), camera, TF, BACKGROUND,
-                               RenderOptions.pixel_exact(), mode="HOLDOUT")
+    res = opaque_render(renderer, OpaqueScene([plane_mesh()]), camera, RenderOptions.pixel_exact(), mode="HOLDOUT")
     assert res.rgba.dtype == np.float64
     assert np.abs(res.rgba - expected).max() <= 1e-6
     thin = np.isfinite(t_s) & (expected[..., 3] < 0.45)
     assert thin.any()
     np.testing.assert_allclose(res.depth[thin], t_s[thin], rtol=1e-5)
     # a holdout object gives the same in the SHADED mode
-    res2 = render_with_surfaces(renderer, OpaqueScene([plane_mesh(holdout=True)]), camera, TF, BACKGROUND,
-                                RenderOptions.pixel_exact())
+    res2 = opaque_render(renderer, OpaqueScene([plane_mesh(holdout=True)]), camera, RenderOptions.pixel_exact())
     np.testing.assert_array_equal(res2.rgba, res.rgba)
 
 
 def test_no_surface_is_the_plain_render(renderer):
-    """No triangles: render_with_surfaces is Renderer.render itself; an all-+inf limit and an
+    """No triangles: the door renders as Renderer.render itself; an all-+inf limit and an
     all-missing surface leave the volume's integral as it was."""
     camera = RayCamera.from_contract(CAMERAS["perspective"], 16, 12)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
     plain = renderer.render(camera, TF, BACKGROUND, opts)
-    none = render_with_surfaces(renderer, OpaqueScene([]), camera, TF, BACKGROUND, opts)
+    none = opaque_render(renderer, OpaqueScene([]), camera, opts)
     np.testing.assert_array_equal(none.rgba, plain.rgba)
     inf = renderer.render(camera, TF, BACKGROUND, opts, surface_t=np.full((12, 16), np.inf))
     np.testing.assert_array_equal(inf.rgba, plain.rgba)
     far = OpaqueMesh([[50, 50, 50], [51, 50, 50], [50, 51, 50]], [[0, 1, 2]])
-    missed = render_with_surfaces(renderer, OpaqueScene([far]), camera, TF, BACKGROUND, opts)
+    missed = opaque_render(renderer, OpaqueScene([far]), camera, opts)
     assert missed.stats["surface_pixels"] == 0
     np.testing.assert_allclose(missed.rgba, plain.rgba, atol=1e-6)
 
@@ -182,8 +185,8 @@ def test_rows_and_behind_camera(renderer):
     camera = RayCamera.from_contract(CAMERAS["perspective"], 16, 12)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
     scene = OpaqueScene([plane_mesh()])
-    whole = render_with_surfaces(renderer, scene, camera, TF, BACKGROUND, opts)
-    band = render_with_surfaces(renderer, scene, camera, TF, BACKGROUND, opts, rows=(5, 9))
+    whole = opaque_render(renderer, scene, camera, opts)
+    band = opaque_render(renderer, scene, camera, opts, rows=(5, 9))
     np.testing.assert_array_equal(band.rgba, whole.rgba[5:9])
     behind = OpaqueMesh([[-9, -9, 10], [30, -9, 10], [-9, 30, 10]], [[0, 1, 2]])  # above the eye (z 3.5)
     assert OpaqueScene([behind]).cast(camera).hit.sum() == 0
@@ -214,13 +217,13 @@ def test_composite_and_shade_formulas():
 
 def test_viewport_ends_at_the_f12_picture(renderer):
     """The progressive viewport (previews, then bands of rows: sub-cameras, each cast against the
-    surfaces itself) ends at render_with_surfaces' whole image, as F12 shows it."""
+    surfaces itself) ends at the door's whole image, as F12 shows it."""
     from hovr_blender.ui.viewport import ProgressiveViewport, ViewportRequest
 
     camera = RayCamera.from_contract(CAMERAS["perspective"], W, H)
     opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
     scene = OpaqueScene([plane_mesh()])
-    req = ViewportRequest(camera, TF, BACKGROUND, opts, False, ("sphere", "plane"), surfaces=scene)
+    req = ViewportRequest(camera, Frame(TF, BACKGROUND, opts, opaque=scene), False, ("sphere", "plane"))
     vp = ProgressiveViewport(first_frame_seconds=0.05)
     vp.sync(renderer, req)
     for _ in range(500):
@@ -228,6 +231,6 @@ def test_viewport_ends_at_the_f12_picture(renderer):
             break
         vp.step(0.05)
     assert vp.converged
-    want = render_with_surfaces(renderer, scene, camera, TF, BACKGROUND, opts).rgba[::-1]
+    want = opaque_render(renderer, scene, camera, opts).rgba[::-1]
     np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
     np.testing.assert_array_equal(vp.display[..., 3], 1.0)  # an opaque film, as F12

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.frame import Frame
 from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
@@ -25,7 +26,8 @@ BG = np.array([0.0625, 0.03125, 0.125])
 
 def request(w=96, h=64, tf=TF, method="split", film_transparent=False):
     cam = RayCamera.from_contract(CONTRACT, w, h)
-    return ViewportRequest(cam, tf, BG, RenderOptions(method=method, h=0.01, tolerance=1e-6), film_transparent, ("sphere",))
+    return ViewportRequest(cam, Frame(tf, BG, RenderOptions(method=method, h=0.01, tolerance=1e-6)), film_transparent,
+                           ("sphere",))
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +118,9 @@ def test_restarts_on_change_and_learns_the_preview_scale(renderer):
 class FakeRenderer:
     """Costs `cost` fake seconds per pixel, checks progress per tile like Renderer.render."""
 
+    capabilities = frozenset()  # a plain image (engine/frame.py)
+    kind = "as a fake"
+
     def __init__(self, clock, cost):
         self.clock, self.cost, self.calls = clock, cost, []
 
@@ -199,14 +204,15 @@ def test_a_look_change_is_shaded_from_the_bands_caches(renderer):
     looks = [TransferFunction(TF.color_s, TF.color_rgb[::-1], TF.density_s, TF.density_tau * 3.0),
              TransferFunction(TF.color_s, TF.color_rgb, TF.density_s, TF.density_tau * 0.25)]
     for tf in looks:
-        req = replace(request(tf=tf), background=np.array([0.5, 0.25, 0.0]),
-                      options=RenderOptions(method="split", tolerance=1e-5))
+        base = request(tf=tf)
+        req = replace(base, frame=base.frame.with_(background=np.array([0.5, 0.25, 0.0]),
+                                                   options=RenderOptions(method="split", tolerance=1e-5)))
         assert vp.sync(renderer, req) is True
         n = len(vp.log)
         assert vp.step(0.05) is True and vp.converged
         assert [r.kind for r in vp.log[n:]] == ["reshade"]
         assert all(vp._caches[y][1] is c for y, (_, c) in caches.items())  # shaded, not traced again
-        want = renderer.render(req.camera, tf, req.background, req.options).rgba[::-1]
+        want = renderer.render(req.camera, tf, req.frame.background, req.options).rgba[::-1]
         np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
     vp.sync(renderer, request(w=97))
     assert vp._caches == {}
