@@ -25,7 +25,7 @@ import tempfile
 import time
 import traceback
 
-from .engine.view import METHODS
+from .engine.methods import METHODS
 
 EXIT_ERROR = 2
 

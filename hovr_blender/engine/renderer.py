@@ -27,7 +27,7 @@ from .kernels.precision import Precision
 from .limits import cpu_cores
 from .mesh import (MeshError, VolumeMesh, boxes_diagonal, element_coefficient_scale, element_field_ranges,
                    element_volumes, mapped_coefficients, padded_element_boxes)
-from .methods import METHOD_IDS
+from .methods import METHOD_IDS, chooses_own_step, samples_segments
 from .render_result import RenderError, RenderResult, SegmentCacheError, check_float32_range
 from .shipped_kernels import CPU_COMPILER_FLAGS, LoadReport, load_shipped
 from .tensor_geometry import mesh_tensor_geometry
@@ -436,7 +436,7 @@ class Renderer:
     def _check_steps(self, options: RenderOptions):
         """A derived field only with a method that samples it, and a fixed step against the
         samples-per-ray limit across the data (RenderOptions.check_steps)."""
-        if self.mesh.derived is not None and options.method not in _SAMPLING_METHODS:
+        if self.mesh.derived is not None and not samples_segments(options.method):
             raise RenderError(f"{self.mesh.field_name} is sampled exactly at each point and integrated on its "
                               f"series: method classified or split, not {options.method}")
         options.check_steps(self.data_diagonal)
@@ -517,7 +517,7 @@ class Renderer:
         surf = prec.kernels.SurfaceArgs()
         if not surfaces:
             return surf
-        if options.method not in _SAMPLING_METHODS:
+        if not samples_segments(options.method):
             raise RenderError(f"isosurfaces and planes are found on the segments' series: method classified or "
                               f"split, not {options.method}")
         colour = surfaces.color_ramp(self.mesh.derived.spec if self.mesh.derived is not None else None)
@@ -652,9 +652,11 @@ class Renderer:
             cancelled = False
             rounds = 0
             lanes = _LaneCounts(kernels) if ray_counts else None
+            own_step = chooses_own_step(options.method, options.h)
             for start in range(first, end, tile):
                 n = min(tile, end - start)
-                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes)
+                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes,
+                                           own_step=own_step)
                 launch("finalize", n, [quad, start, buffers.rays, rgba, aux])
                 if progress is not None:
                     wp.synchronize_device(self.device)
@@ -691,11 +693,12 @@ class Renderer:
                             stats=info, row_cost=row_cost, ray_counts=per_ray)
 
     def _trace_tile(self, launch: _Launcher, upload: _Upload, cam, transfer, quad, buffers: _TileBuffers, start: int,
-                    n: int, limit: tuple, record=None, lanes: _LaneCounts | None = None) -> int:
+                    n: int, limit: tuple, record=None, lanes: _LaneCounts | None = None, own_step: bool = False) -> int:
         """Rays start .. start + n of the image, in rounds until none is left: search, traverse,
         sample, integrate (or record(active rays): a trace keeps the segments instead), the next
         round's rays regrouped (_regroup). With `lanes`, the lanes of each search and traverse
-        launch that have work are counted. Returns the rounds."""
+        launch that have work are counted; `own_step` (methods.chooses_own_step): step_terms
+        before integrate. Returns the rounds."""
         rays, segs = buffers.rays, buffers.segs
         launch("init_rays", n, [cam, start, rays, *limit])
         active = n  # rounds run over the rays still going (rays.active, compacted by integrate)
@@ -715,7 +718,7 @@ class Renderer:
                 lanes.walked(rays)
             listed = self._sample_segments(launch, upload, cam, start, buffers)
             if record is None:
-                if listed and quad.method == METHOD_IDS["classified"] and quad.h == 0.0:  # its own steps
+                if listed and own_step:
                     launch("step_terms", listed,
                            [upload.mesh_args, transfer, quad, segs, segs.list])
                 launch("integrate", active,
@@ -781,7 +784,7 @@ class Renderer:
         min_transmittance are not in it: the shade kernel takes those."""
         H = int(camera.height)
         row0, row1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
-        return TraceKey(self._id, self._field_version, options.precision, options.method in _SAMPLING_METHODS,
+        return TraceKey(self._id, self._field_version, options.precision, samples_segments(options.method),
                         _camera_key(camera), (row0, row1), surface_key)
 
     def frame_key(self, tf) -> tuple:
@@ -1128,7 +1131,6 @@ def _quad_args(prec: Precision, options: RenderOptions, background, upload: _Upl
     return quad
 
 
-_SAMPLING_METHODS = ("classified", "split")  # their segments carry series; riemann and trapezoid evaluate
 # what a trace traverses with: density 1 at every value, so no element is skipped as transparent
 _DENSE_EVERYWHERE = TransferFunction(np.zeros(1), np.zeros((1, 3)), np.zeros(1), np.ones(1))
 

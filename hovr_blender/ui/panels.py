@@ -1,6 +1,7 @@
 """Properties-editor panels for the HOVR engine, and the stock panels it reuses."""
 import bpy
 
+from ..engine.methods import takes_step
 from ..io import formats
 
 
@@ -74,7 +75,7 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         settings = context.scene.hovr
         layout.prop(settings, "method")
         col = layout.column(align=True)
-        col.active = settings.method != "split"  # Split needs no step
+        col.active = takes_step(settings.method)  # Split needs no step
         if settings.step_units == "WORLD":
             col.prop(settings, "h")
         else:

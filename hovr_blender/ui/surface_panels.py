@@ -13,6 +13,7 @@ from bpy.props import (CollectionProperty, EnumProperty, FloatProperty, FloatVec
                        PointerProperty)
 
 from ..engine.isosurfaces import CLIP_SIDES, MAX_ISOSURFACES, MAX_PLANES
+from ..engine.methods import samples_segments
 from .panels import VolumeSubPanel
 
 CLIP_ITEMS = (
@@ -236,7 +237,7 @@ class HOVR_OBJECT_PT_surfaces(VolumeSubPanel, bpy.types.Panel):
             row.prop(item, "opacity", slider=True)
             row.prop(item, "clip", text="")
         layout.operator("hovr.plane_add", icon='MESH_PLANE')
-        if (settings.isosurfaces or settings.planes) and context.scene.hovr.method not in ("classified", "split"):
+        if (settings.isosurfaces or settings.planes) and not samples_segments(context.scene.hovr.method):
             layout.label(text="Needs the Classified or Split method", icon='ERROR')
 
 
