@@ -91,7 +91,7 @@ def options(renderer, method, classified_div):
 
 
 def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_div=None):
-    from hovr_blender.engine.renderer import work_counts
+    from hovr_blender.engine.work_counts import work_counts
 
     cam = _camera(mesh, W, H)
     opts = options(renderer, method, classified_div)
@@ -118,7 +118,6 @@ def tf_edit(renderer, mesh, tf, W, H, method, edits, repeats, classified_div=Non
     """The view traced once, then `edits` transfer functions (tf_edit.edits: the field's frame kept)
     shaded from its segments: the best of `repeats` shades each (after a warm-up shade)."""
     from bench import tf_edit as edit_bench
-
     from hovr_blender.engine.limits import ResourceLimitError
 
     cam = _camera(mesh, W, H)
@@ -147,7 +146,8 @@ def reference_image(renderer, mesh, tf, W, H):
 
 
 def run_datasets(args, out):
-    from hovr_blender.engine.renderer import Renderer, load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
+    from hovr_blender.engine.renderer import Renderer
 
     W, H = map(int, args.size.split("x"))
     for name in args.datasets.split(","):
@@ -211,7 +211,8 @@ def million_mesh(target: int):
 
 
 def run_million(args, out):
-    from hovr_blender.engine.renderer import Renderer, load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
+    from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.transfer_function import TransferFunction
 
     W, H = map(int, args.size.split("x"))
@@ -257,8 +258,7 @@ def cold_child(args):
     t_start = float(os.environ["HOVR_COLD_T0"])
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
-
-    from hovr_blender.engine.renderer import load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
 
     mesh = _cold_mesh(args.cold_child)
     tf = datasets.transfer_function(mesh)
@@ -282,7 +282,7 @@ def _cold_mesh(name):
 
 
 def run_cold(args, out):
-    from hovr_blender.engine.renderer import kernel_variant
+    from hovr_blender.engine.kernel_loading import kernel_variant
     from scripts import build_extension  # the extension's kernel build step
 
     rows = []
@@ -353,7 +353,7 @@ def main(argv=None):
         return cold_child(args)
     import warp as wp
 
-    from hovr_blender.engine.renderer import resolve_device
+    from hovr_blender.engine.devices import resolve_device
 
     resolve_device(args.device)
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,

@@ -164,7 +164,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.engine.renderer import expand_devices
+    from hovr_blender.engine.devices import expand_devices
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.paper_scale import paper_scale_mesh
 

@@ -158,7 +158,7 @@ def worker_device(requested: str = "auto") -> str:
     cuda:0), or cpu where there is none."""
     if requested != "auto":
         return requested
-    from ..engine.renderer import cuda_devices
+    from ..engine.devices import cuda_devices
 
     cuda = cuda_devices()
     if not cuda:
@@ -394,7 +394,7 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
 
     if workers is None:
         workers = 1
-        from ..engine.renderer import cuda_devices
+        from ..engine.devices import cuda_devices
 
         if device in ("auto", "cuda:all"):
             workers = len(cuda_devices())

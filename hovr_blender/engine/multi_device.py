@@ -36,7 +36,10 @@ import numpy as np
 from . import limits
 from .frame import Capability, Frame, check_frame
 from .processes import sigint_blocked, watch_parent
-from .renderer import Renderer, RenderError, RenderResult, expand_devices, kernel_variant
+from .devices import expand_devices
+from .kernel_loading import kernel_variant
+from .render_result import RenderError, RenderResult
+from .renderer import Renderer
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
                 "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",

@@ -115,7 +115,7 @@ class OpaqueScene:
         if self._upload is None:
             import warp as wp
 
-            from .renderer import resolve_device
+            from .devices import resolve_device
 
             self.device = resolve_device(self.device)
             with wp.ScopedDevice(self.device):
@@ -135,7 +135,7 @@ class OpaqueScene:
 
             from .kernels import opaque_cast
             from .kernels.precision import Precision
-            from .renderer import camera_args
+            from .launch_args import camera_args
 
             mesh = self._device_mesh()
             with wp.ScopedDevice(self.device):

@@ -35,7 +35,10 @@ import time
 import numpy as np
 
 from .mesh import element_boxes, subset
-from .renderer import Renderer, RenderError, RenderResult, expand_devices, kernel_variant
+from .devices import expand_devices
+from .kernel_loading import kernel_variant
+from .render_result import RenderResult
+from .renderer import Renderer
 
 FAR = 1.0e30  # the open ends of the first and last slab (the kernel's float32 infinity stand-in)
 

@@ -381,13 +381,13 @@ def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_
     """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
     picture) and does not try to keep its segments again."""
     from hovr_blender.engine import limits
-    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine import segment_cache
     from hovr_blender.engine.renderer import Renderer
 
     SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
     first = render_to_exr(scene, tmp_path / "1.exr")
-    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
+    monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
     traces, trace = [], Renderer.trace
     monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
     with limits.using(limits.ResourceLimits(max_memory=1 << 30)):

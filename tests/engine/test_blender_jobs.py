@@ -6,6 +6,7 @@ import os
 import numpy as np
 import pytest
 
+from hovr_blender.engine.kernel_loading import KernelVariant
 from hovr_blender.io import isolation
 from hovr_blender.ui import jobs
 
@@ -159,10 +160,10 @@ def test_listings_never_wait_and_one_of_a_kind_runs_at_a_time(tmp_path):
 def test_kernels_compile_once_per_key():
     compiled = []
     kernels = jobs.CompiledKernels(compiled.append)
-    key = jobs.kernel_key("cpu", "float32", (True, 3), False)
+    key = jobs.kernel_key("cpu", "float32", KernelVariant(True, 3), False)
     assert kernels.compile_now(key) and not kernels.compile_now(key)
     assert kernels.is_ready(key) and compiled == [key]
-    other = jobs.kernel_key("cpu", "float64", (True, 3), False)
+    other = jobs.kernel_key("cpu", "float64", KernelVariant(True, 3), False)
     assert not kernels.is_ready(other) and kernels.compile_now(other) and compiled == [key, other]
 
 
@@ -170,13 +171,15 @@ def test_the_compile_loads_what_the_render_launches():
     """The real compile (the core's load_kernels): afterwards every module the render launches is
     loaded on the device, and the kernel variant of two volumes is the merged renderer's."""
     from hovr_blender.engine.mesh import concatenate
-    from hovr_blender.engine.renderer import Renderer, kernel_variant, render_kernels
+    from hovr_blender.engine.kernel_loading import KernelVariant, kernel_variant, render_kernels
+    from hovr_blender.engine.renderer import Renderer
     from hovr_blender.io import builtin, synthetic
 
     sphere, curved = builtin.sphere(), synthetic.curved_cube(2, modes=3)
-    assert kernel_variant([sphere]) == Renderer(sphere, "cpu").kernel_variant == (False, 3, False)
+    assert kernel_variant([sphere]) == Renderer(sphere, "cpu").kernel_variant == KernelVariant(False, 3, False)
+    assert kernel_variant([sphere]).key == "affine:3"
     variant = kernel_variant([sphere, curved])
-    assert variant[0] and Renderer(concatenate([sphere, curved]), "cpu").kernel_variant == variant
+    assert variant.curved and Renderer(concatenate([sphere, curved]), "cpu").kernel_variant == variant
     kernels = jobs.CompiledKernels(jobs.compile_render_kernels)
     key = jobs.kernel_key("cpu", "float32", variant, False)
     assert kernels.compile_now(key) and kernels.is_ready(key)
@@ -187,9 +190,9 @@ def test_the_compile_loads_what_the_render_launches():
 def test_a_look_with_isosurfaces_compiles_their_kernels_in_the_compile_stage():
     """Isosurfaces and cut planes have their own integrate and shade: their key is another key,
     and its compile loads those, so F12's first frame does not compile them inside the render."""
-    from hovr_blender.engine.renderer import render_kernels
+    from hovr_blender.engine.kernel_loading import KernelVariant, render_kernels
 
-    variant = (False, 3, False)
+    variant = KernelVariant(False, 3, False)
     plain, iso = jobs.kernel_key("cpu", "float32", variant, False), jobs.kernel_key("cpu", "float32", variant, False, True)
     assert plain != iso
     kernels = jobs.CompiledKernels(jobs.compile_render_kernels)

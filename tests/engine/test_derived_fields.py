@@ -10,7 +10,8 @@ import pytest
 from hovr_blender.engine import expansions as ex
 from hovr_blender.engine.derived_fields import (DerivedFieldError, derived_mesh, derived_values, parse_derived)
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, Surfaces
-from hovr_blender.engine.renderer import RenderError, Renderer
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import curved_cube, with_field
@@ -275,8 +276,8 @@ def test_cli_field_option(tmp_path, capsys):
 
 
 def test_derived_mesh_leaves_the_reader_process(q_mesh):
-    """The reader process's encoding carries the components (io/isolation.py encode / decode)."""
-    from hovr_blender.io.isolation import decode, encode
+    """The reader process's encoding carries the components (io/reader_protocol.py encode / decode)."""
+    from hovr_blender.io.reader_protocol import decode, encode
 
     arrays = []
     back = decode(encode(q_mesh, arrays), arrays)

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, SurfaceError, Surfaces
-from hovr_blender.engine.renderer import RenderError, Renderer
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import curved_cube, with_field

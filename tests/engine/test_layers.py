@@ -196,20 +196,26 @@ def test_each_layer_is_imported_only_by_the_rows_that_may():
     assert bad == [], "\n".join(bad)
 
 
+# the renderer's modules, split by job (engine/renderer.py's docstring): the CLI and the add-on
+# import them only when they render
+RENDERER_MODULES = tuple(f"hovr_blender.engine.{m}" for m in ("renderer", "devices", "kernel_loading", "launch_args",
+                                                              "segment_cache", "shipped_kernels"))
+
+
 def test_warp_is_imported_at_module_level_only_by_the_renderer_and_the_kernels():
     """Elsewhere in the engine Warp is imported inside the functions that launch, so that the view,
     the readers and the Blender layer's bpy-free parts load without it (the shipped kernels' loader
-    is the renderer's: it is imported at module level by the renderer alone)."""
+    is the renderer's: it is imported at module level by the devices and the kernel loading alone)."""
     top = sorted(str(path.relative_to(REPO)) for path, name, _, tree in _modules(ENGINE)
                  for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
                  and any(n.split(".")[0] == "warp" for n in ([a.name for a in node.names] if isinstance(node, ast.Import)
                                                              else [node.module or ""]))
                  and not name.startswith("hovr_blender.engine.kernels")
-                 and name not in ("hovr_blender.engine.renderer", "hovr_blender.engine.shipped_kernels"))
+                 and name not in RENDERER_MODULES)
     assert top == []
     importers = sorted(name for path, name, _, tree in _modules(PACKAGE) for node in tree.body
                        if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("shipped_kernels"))
-    assert importers == ["hovr_blender.engine.renderer"]
+    assert importers == ["hovr_blender.engine.devices", "hovr_blender.engine.kernel_loading"]
 
 
 def test_only_compat_asks_which_blender_this_is():
@@ -299,15 +305,10 @@ def _private_imports(tree, package):
                     yield node.lineno, f"{'.' * node.level}{node.module or ''}.{alias.name}"
 
 
-# the one left, in the traversal's code (issue 27's kernel-side part removes it with the renderer's split)
-PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/opaque.py", ".renderer._camera_args")}
-
-
 def test_no_module_imports_another_modules_private_names():
     found = [f"{path.relative_to(REPO)}:{line}: {name}"
              for root in (PACKAGE, REPO / "bench", REPO / "scripts")
-             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)
-             if (str(path.relative_to(REPO)), name) not in PRIVATE_IMPORTS_LEFT]
+             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)]
     assert found == [], "private names used across modules (make them public with a name that says what they " \
                         "are, or move them):\n" + "\n".join(found)
 

@@ -11,7 +11,10 @@ import pytest
 
 from hovr_blender.engine.mesh import subset
 from hovr_blender.engine.multi_device import MultiDeviceRenderer, balanced_rows
-from hovr_blender.engine.renderer import Renderer, RenderError, cpu_cores, expand_devices
+from hovr_blender.engine.devices import expand_devices
+from hovr_blender.engine.limits import cpu_cores
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.sort_last import SortLastRenderer, serves, slab_partition
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io import synthetic

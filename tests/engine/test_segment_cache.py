@@ -20,9 +20,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hovr_blender.engine import limits
-from hovr_blender.engine import renderer as renderer_module
+from hovr_blender.engine import segment_cache
 from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
-from hovr_blender.engine.renderer import Renderer, SegmentCacheError
+from hovr_blender.engine.render_result import SegmentCacheError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import cube_field, curved_cube, mixed_cube
@@ -186,7 +187,7 @@ def test_rows_tiles_growth_and_surfaces(monkeypatch):
     """A trace of some rows, in several launch tiles, with a per-pixel far limit (an opaque
     surface's t), and with the cache's arrays starting tiny so they grow (and are copied) many
     times, is still the render of the same rows and limit."""
-    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 8)
+    monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", 8)
     r, cam, tf = scene("curved", "cpu")
     opts = RenderOptions(method="split")
     o, d = cam.rays()
@@ -197,8 +198,8 @@ def test_rows_tiles_growth_and_surfaces(monkeypatch):
     cache = r.trace(cam, tf, opts, rows=rows, surface_t=surface_t, progress=lambda f: fractions.append(f) or True,
                     tile_pixels=50)
     assert len(fractions) > 3 and fractions[-1] == 1.0 and cache.rays == 9 * W
-    assert r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=renderer_module.surface_digest(surface_t))
-    assert not r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=renderer_module.surface_digest(surface_t + 1))
+    assert r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=segment_cache.surface_digest(surface_t))
+    assert not r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=segment_cache.surface_digest(surface_t + 1))
     for edit in (tf, edits(tf)["opaque"]):
         fresh = r.render(cam, edit, BACKGROUND, opts, rows=rows, surface_t=surface_t)
         shaded = r.shade(cache, edit, BACKGROUND, opts, progress=lambda f: True, tile_pixels=37)
@@ -240,7 +241,7 @@ def test_cache_size_is_reported(monkeypatch):
     cache = r.trace(cam, tf, opts)
     info = cache.describe()
     segments, chunks, coefficients = cache.counts
-    assert info["segments"] == segments > 0 and chunks >= segments / renderer_module.SEGMENTS_PER_ROUND
+    assert info["segments"] == segments > 0 and chunks >= segments / segment_cache.SEGMENTS_PER_ROUND
     assert info["bytes"] == cache.nbytes and info["bytes_per_ray"] == pytest.approx(cache.nbytes / (W * H))
     # shrunk to fit: each segment its 28-byte record, its series (degree + 3 floats) and a chunk's share
     series = 4 * coefficients / segments
@@ -248,7 +249,7 @@ def test_cache_size_is_reported(monkeypatch):
     res = r.shade(cache, tf, BACKGROUND, opts)
     assert res.stats["segment_cache"] == info
     # the counters summed on the device, many rows a thread, as one row a thread
-    monkeypatch.setattr(renderer_module, "SUM_THREADS", 7)
+    monkeypatch.setattr(segment_cache, "SUM_THREADS", 7)
     few = r.shade(cache, tf, BACKGROUND, opts).stats
     assert {k: few[k] for k in COUNTERS} == {k: res.stats[k] for k in COUNTERS}
     assert res.stats["segments"] == segments and res.stats["restriction_evaluations"] > 0

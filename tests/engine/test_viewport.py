@@ -247,11 +247,11 @@ def test_caches_the_memory_limit_refuses_are_not_kept(renderer, monkeypatch):
     larger than the limit): the first band's trace is refused, the view's later bands do not try
     again; they render plainly, keep nothing, and the image is the same."""
     from hovr_blender.engine import limits
-    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine import segment_cache
 
     vp = ProgressiveViewport(first_frame_seconds=0.05)
     image = renderer.check_limits(96, 64, RenderOptions(method="split"), 96 * 64)
-    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", image // 8)
+    monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", image // 8)
     traces, trace = [], Renderer.trace
     monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
     with limits.using(limits.ResourceLimits(max_memory=image)):
