@@ -229,10 +229,10 @@ def _error_class(kind: str):
     """The class a reader's error of that name is raised as here: a registered format's own
     error, or one of the loader's and the policy's."""
     from ..engine.mesh import MeshError
-    from . import derived, formats
+    from . import formats, magnitude
     from .volume_source import SourceError
 
-    known = {"SourceError": SourceError, "DerivedError": derived.DerivedError, "MeshError": MeshError,
+    known = {"SourceError": SourceError, "DerivedError": magnitude.DerivedError, "MeshError": MeshError,
              "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
              "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
              "ModuleNotFoundError": ModuleNotFoundError}

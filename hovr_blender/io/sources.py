@@ -16,7 +16,7 @@ def load_volume(source: VolumeSource, **progress) -> VolumeMesh:
     """The mesh (object space) of a resolved source, read by its format (io/formats.py) in a
     reader process (io/isolation.py; `progress`: its on_stage and cancelled). Nektar++ field
     "|u,v,w|" and a VTU vector (the default for vector arrays) are magnitudes derived from the
-    exact components (io/derived.py); `component` picks one component of a vector instead."""
+    exact components (io/magnitude.py); `component` picks one component of a vector instead."""
     return isolation.wait(volume_request(source), **progress)
 
 

@@ -211,7 +211,7 @@ def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 2
         samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
     values = mesh.field_samples(samples_per_axis)
     values = values[np.isfinite(values)]
-    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/derived.py)
+    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/magnitude.py)
     return values if true_range is None else np.clip(values, *true_range)
 
 

@@ -1,4 +1,4 @@
-"""Derived magnitude field (io/derived.py): fit accuracy, conservative element ranges, readers."""
+"""Derived magnitude field (io/magnitude.py): fit accuracy, conservative element ranges, readers."""
 import dataclasses
 import re
 
@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from hovr_blender.engine import expansions as ex
 from hovr_blender.engine import shapes
 from hovr_blender.engine.mesh import element_field_ranges
-from hovr_blender.io import derived, nektar, synthetic
-from hovr_blender.io.derived import DerivedError, magnitude_mesh, parse_magnitude
+from hovr_blender.io import magnitude, nektar, synthetic
+from hovr_blender.io.magnitude import DerivedError, magnitude_mesh, parse_magnitude
 from hovr_blender.io.nektar.format import read_nektar_field
 from hovr_blender.io.vtu.format import read_vtu_field
 from tests.helpers import data_file as shared_file
@@ -41,7 +41,7 @@ def _eval(mesh, e, xi):
 
 
 def _random_xi(shape, rng, n):
-    return derived._random_inside(shape, n, rng)
+    return magnitude._random_inside(shape, n, rng)
 
 
 def test_parse_magnitude():
@@ -58,7 +58,7 @@ def test_orders_and_shapes(kinked):
     assert mag.field_name == "|a,b,c|" and mag.num_elements == comps[0].num_elements
     assert set(np.unique(mag.shape)) == {shapes.HEX, shapes.PRISM, shapes.TET, shapes.PYR}
     assert (mag.modes == 7).all()  # 2 * 3 + 1
-    np.testing.assert_array_equal(derived.magnitude_modes([np.full((2, 3), 8), np.array([[2, 2, 2], [9, 9, 9]])]),
+    np.testing.assert_array_equal(magnitude.magnitude_modes([np.full((2, 3), 8), np.array([[2, 2, 2], [9, 9, 9]])]),
                                   [15, 15])  # capped at 15 modes
     np.testing.assert_array_equal(mag.vertices, comps[0].vertices)
     info = mag.derived_error
@@ -76,7 +76,7 @@ def test_fit_within_bound_and_ranges_conservative(kinked, data):
     e = data.draw(st.integers(0, mag.num_elements - 1))
     rng = np.random.default_rng(data.draw(st.integers(0, 2**31)))
     xi = _random_xi(int(mag.shape[e]), rng, 16)
-    truth = derived.true_magnitude(comps, e, xi)
+    truth = magnitude.true_magnitude(comps, e, xi)
     fit = _eval(mag, e, xi)
     np.testing.assert_allclose(truth, np.sqrt(sum(_eval(c, e, xi) ** 2 for c in comps)), rtol=1e-14)
     assert np.all(truth >= lo[e] - 1e-12) and np.all(truth <= hi[e] + 1e-12)
@@ -94,7 +94,7 @@ def test_dense_check_of_the_bound_and_the_kink(kinked):
     assert np.all(near >= 0) and np.all(far >= near)
     for e in range(mag.num_elements):
         xi = _random_xi(int(mag.shape[e]), rng, 400)
-        truth = derived.true_magnitude(comps, e, xi)
+        truth = magnitude.true_magnitude(comps, e, xi)
         worst = max(worst, np.abs(_eval(mag, e, xi) - truth).max())
         assert near[e] <= truth.min() + 1e-12 and truth.max() <= far[e] + 1e-12
     assert worst <= mag.derived_error["bound"]
@@ -175,7 +175,7 @@ def test_components_on_other_geometry_are_refused():
 def _check_against_components(mag, comps, rng, per=50):
     for e in range(mag.num_elements):
         xi = _random_xi(int(mag.shape[e]), rng, per)
-        assert np.abs(_eval(mag, e, xi) - derived.true_magnitude(comps, e, xi)).max() <= mag.derived_error["bound"]
+        assert np.abs(_eval(mag, e, xi) - magnitude.true_magnitude(comps, e, xi)).max() <= mag.derived_error["bound"]
 
 
 def test_nektar_velocity_magnitude():
@@ -200,7 +200,7 @@ def test_nektar_momentum_magnitude_hump3d():
     rng = np.random.default_rng(4)
     for e in sample:
         xi = _random_xi(shapes.HEX, rng, 40)
-        truth = derived.true_magnitude(comps, e, xi)
+        truth = magnitude.true_magnitude(comps, e, xi)
         fit = _eval(mag, e, xi)
         assert np.abs(fit - truth).max() <= info["bound"]
         assert lo[e] <= truth.min() and truth.max() <= hi[e] and lo[e] <= fit.min() and fit.max() <= hi[e]
@@ -246,9 +246,11 @@ def test_vtu_vector_magnitude_goes_through_the_derived_fit(tmp_path):
     assert read_vtu_field(path).field_name == "s"  # no name: the first array, as read_vtu
 
 
-def test_main_prints_the_error_line(capsys):
+def test_the_bench_prints_the_error_line(capsys):
+    from bench.magnitude_error import main
+
     xml, fld = shared_file("nektar", "Tet_channel_m3.xml"), shared_file("nektar", "Tet_channel_m3.fld")
-    assert derived.main([str(xml), str(fld), "|u,v,w|"]) == 0
+    assert main([str(xml), str(fld), "|u,v,w|"]) == 0
     assert re.match(r"48 elements; \|u,v,w\|: magnitude fitted with 7 modes .* max error", capsys.readouterr().out)
 
 

@@ -113,7 +113,7 @@ def test_grammar_errors(text, message):
 
 def test_grammar():
     assert parse_derived("p") is None
-    assert parse_derived("|u,v,w|") is None  # the magnitude fit's syntax (io/derived.py), not this one
+    assert parse_derived("|u,v,w|") is None  # the magnitude fit's syntax (io/magnitude.py), not this one
     spec = parse_derived(" vorticity( rhou, rhov ,rhow / rho ) ")
     assert spec.components == ("rhou", "rhov", "rhow") and spec.density == "rho"
     assert spec.name == "vorticity(rhou,rhov,rhow/rho)"

@@ -20,7 +20,7 @@ largest |fit - |u|| measured at random points of every element (SAMPLES_PER_ELEM
 MAX_SAMPLE_POINTS in all, then DENSE_SAMPLES more in each of the DENSE_ELEMENTS worst elements),
 and the stated bound ``bound`` = ERROR_SAFETY x that maximum + 1e-12 x max |u| (a sample can
 miss the worst point, so this is an estimate, not a certificate; tests/engine/test_derived.py
-checks fresh random points against it). Measured with `python -m hovr_blender.io.derived MESH SOLUTION FIELD` (or FILE.vtu
+checks fresh random points against it). Measured with `python -m bench.magnitude_error MESH SOLUTION FIELD` (or FILE.vtu
 FIELD), seed 0, 2026-11-22:
 - Tet_channel_m3 |u,v,w| (48 tets, 3 -> 7 modes): 9.7e-16 (u, v vanish and w >= 0 there, so
   |u| = w is a polynomial and the fit is exact);
@@ -42,12 +42,11 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import sys
 
 import numpy as np
 
 from ..engine import expansions as ex
-from ..engine.derived_fields import DerivedFieldError, derived_mesh, not_a_velocity, parse_derived
+from ..engine.derived_fields import DerivedFieldError, not_a_velocity
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
 
@@ -247,21 +246,3 @@ def component_reads(spec, sizes: dict | None) -> list[tuple[str, int | None]]:
                                         f"name its components or the vector alone")
         reads = [(n, None) for n in names]
     return reads + ([(spec.density, None)] if spec.density else [])
-
-
-def main(argv=None) -> int:
-    """python -m hovr_blender.io.derived MESH.xml SOLUTION "|u,v,w|"  or  FILE.vtu FIELD: the error line."""
-    from .formats import format_of
-
-    argv = sys.argv[1:] if argv is None else argv
-    data = format_of(argv[0])
-    if data.takes_solution:
-        mesh = data.read(argv[0], argv[1], argv[2])
-    else:
-        mesh = data.read(argv[0], None, argv[1] if len(argv) > 1 else None)
-    print(f"{mesh.num_elements} elements; {mesh.warnings[-1]}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
