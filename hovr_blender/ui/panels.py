@@ -34,8 +34,7 @@ def known_world_step(scene):
     """The world step a relative Step gives the scene's volumes, if all their sizes are known
     already (panels never load data: a volume not yet read or rendered leaves it unknown)."""
     from .framing import step_world_length, volume_diagonal
-    from .operators import volume_source
-    from .render import EXTENTS
+    from .snapshot import EXTENTS, volume_source
 
     diagonals = []
     for obj in scene.objects:

@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from .camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
+from .camera import ray_camera_from_view
 from ..engine.cache import LRUCache
-from ..io.sources import VolumeSource, cached_volume
+from ..io.sources import cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from . import compat
 from .compat import write_pass_pixels
 from .jobs import KERNELS, ProgressLines, kernel_key
-from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
+from .scene import combined_pass, depth_pass, flip_rows
+from .snapshot import (EXTENTS, POINTS, RenderJob, SceneInputs, render_job, resolve_units, scene_inputs,
+                       volume_extent)
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
 # thread: 256 pixels cost ~5 ms on the sphere and stay well under the 0.5 s cancel target
@@ -38,119 +40,12 @@ VIEW_BUDGET_SECONDS = 0.05
 VIEWPORTS = weakref.WeakSet()
 
 
-class SceneError(ValueError):
-    """The scene cannot be rendered by HOVR; the message tells the user what to fix."""
-
-
-@dataclass
-class VolumeInputs:
-    """One HOVR volume: its data, where it is, and its look as the contract's transfer function
-    still to be scaled: `density` in `density_units` (framing.density_per_world_unit)."""
-
-    name: str
-    source: VolumeSource
-    object_matrix: tuple
-    transfer_function: object  # TransferFunction with density scale 1 (ramp alpha)
-    density: float
-    density_units: str
-
-    @property
-    def data_key(self) -> tuple:
-        return (self.source.key, self.object_matrix)
-
-
-@dataclass
-class SceneInputs:
-    """What a final render and the viewport share: the volumes, settings, background."""
-
-    volumes: list  # [VolumeInputs], sorted by object name
-    background: np.ndarray
-    film_transparent: bool
-    options: object  # RenderOptions
-    warnings: list = field(default_factory=list)
-    transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
-    opaque_meshes: list = field(default_factory=list)  # [engine.opaque.OpaqueMesh] (ui/opaque_meshes.py)
-    opaque_mode: str = "NONE"  # Scene.hovr.surfaces (its saved name): NONE, SHADED or HOLDOUT
-    opaque_key: str = ""  # digest of the opaque meshes (ui/opaque_meshes.opaque_key)
-    # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
-    # needs the volumes' sizes, i.e. their data)
-    step_units: str = "WORLD"
-    steps_across: int = 0
-    surfaces: object = None  # engine.isosurfaces.Surfaces: the volumes' isosurfaces and planes (ui/surface_panels.py)
-
-    @property
-    def data_key(self) -> tuple:
-        return (tuple(v.data_key for v in self.volumes), self.options.device, self.opaque_mode, self.opaque_key)
-
-    @property
-    def transfer_function(self):
-        """The core's argument: one TransferFunction per volume (resolve_units first)."""
-        if self.transfer_functions is None:
-            raise RuntimeError("resolve_units() has not run")
-        return self.transfer_functions
-
-
-@dataclass
-class RenderJob:
-    width: int  # of the rendered region (the border's size under a render border)
-    height: int
-    camera: object  # RayCamera of the region
-    inputs: SceneInputs
-    region: tuple = (0, 0, 0, 0)  # (x0, y0 from the bottom, w, h) in the full frame
-
-    @property
-    def transfer_function(self):
-        return self.inputs.transfer_function
-
-    @property
-    def background(self):
-        return self.inputs.background
-
-    @property
-    def film_transparent(self):
-        return self.inputs.film_transparent
-
-    @property
-    def options(self):
-        return self.inputs.options
-
-    @property
-    def warnings(self):
-        return self.inputs.warnings
-
-
 # A new engine instance is created for every render, so uploaded meshes live here, keyed by
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
 # The scene's opaque meshes uploaded for the ray cast (engine.opaque.OpaqueScene), by geometry digest and device.
 OPAQUE = LRUCache(2)
-# Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
-EXTENTS = LRUCache(16)
-
-
-def volume_extent(source: VolumeSource) -> tuple:
-    """(lo, hi) object-space bounding box of a volume's elements (their corner vertices)."""
-    def measure():
-        v = cached_volume(source).vertices.reshape(-1, 3)
-        return v.min(axis=0), v.max(axis=0)
-
-    return EXTENTS.get(source.key, measure)
-
-
-POINTS = LRUCache(8)
-MAX_FRAMING_POINTS = 50_000
-
-
-def volume_points(source: VolumeSource) -> np.ndarray:
-    """(n, 3) object-space element corners of a volume (at most ~MAX_FRAMING_POINTS, evenly
-    strided): what framing fits, tighter than the bounding box for round domains."""
-    def collect():
-        v = np.unique(cached_volume(source).vertices.reshape(-1, 3), axis=0)
-        step = max(1, len(v) // MAX_FRAMING_POINTS)
-        return v[::step]
-
-    return POINTS.get(source.key, collect)
 
 
 def _renderer(volumes, device: str):
@@ -237,46 +132,10 @@ def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixe
     return result
 
 
-def world_diagonal(v: VolumeInputs) -> float:
-    """The volume's bounding-box diagonal in world units (its data read once and cached)."""
-    from .framing import volume_diagonal
-
-    lo, hi = volume_extent(v.source)
-    return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
-
-
 def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
     """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
     return kernel_key(inputs.options.device, inputs.options.precision, renderer.kernel_variant,
                       inputs.opaque_mode != "NONE", bool(inputs.surfaces))
-
-
-def resolve_units(inputs: SceneInputs) -> SceneInputs:
-    """What is given relative to the volumes' sizes, in the render contract's absolute units:
-    each volume's transfer function per world unit (a relative density becomes density / the
-    volume's diagonal; inputs.transfer_functions) and the step h in world units (a relative
-    step: the smallest volume's diagonal / Steps Across; inputs.options.h). A view file means
-    what it always meant: only these numbers reach the core."""
-    from dataclasses import replace
-
-    from .framing import density_per_world_unit, step_world_length
-
-    tfs = []
-    for v in inputs.volumes:
-        diag = world_diagonal(v) if v.density_units != "WORLD" else 0.0
-        scale = density_per_world_unit(v.density, v.density_units, diag)
-        tf = v.transfer_function
-        tfs.append(replace(tf, density_tau=np.asarray(tf.density_tau, dtype=np.float64) * scale))
-    inputs.transfer_functions = tfs
-    if inputs.step_units != "WORLD":
-        try:
-            h = step_world_length(inputs.options.h, inputs.steps_across, inputs.step_units,
-                                  [world_diagonal(v) for v in inputs.volumes])
-        except ValueError as exc:
-            raise SceneError(str(exc)) from exc
-        inputs.options = replace(inputs.options, h=h)
-        inputs.step_units = "WORLD"  # resolved: options.h is the world step now
-    return inputs
 
 
 def clear_cache():
@@ -286,124 +145,6 @@ def clear_cache():
     EXTENTS.clear()
     POINTS.clear()
     clear_mesh_cache()
-
-
-def _matrix_tuple(m) -> tuple:
-    return tuple(float(x) for row in m for x in row)
-
-
-def volume_objects(depsgraph, original: bool = False) -> list:
-    """The HOVR volumes the depsgraph shows, by name (a stable order: volume k of the merged mesh)."""
-    def hovr_of(o):
-        return o.original.hovr if original else o.hovr
-
-    return sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
-
-
-def volume_inputs(obj, hovr, scene) -> VolumeInputs:
-    """One volume's record: its data source at the scene's frame and its look."""
-    from .versioning import volume_look
-
-    library = obj.original.library if obj.original is not None else None
-    if not hovr.source.strip():
-        raise SceneError(f"the HOVR volume {obj.name!r} has no source: set Object > HOVR Volume > Source")
-    source = VolumeSource.resolve(hovr.source, hovr.solution, hovr.field, scene.frame_current,
-                                  abspath=lambda p: bpy.path.abspath(p, library=library), component=hovr.component)
-    look = volume_look(hovr, scene)
-    texture = look.texture
-    if texture is None:
-        raise SceneError(f"the HOVR volume {obj.name!r} has no transfer function: create one in "
-                         "Object > HOVR Volume > Look")
-    if not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"transfer function texture {texture.name!r} of {obj.name!r} has no colour ramp enabled")
-    ramp = texture.color_ramp
-    try:
-        tf = transfer_function_from_ramp(
-            ramp.interpolation, ramp.color_mode,
-            [e.position for e in ramp.elements], [tuple(e.color) for e in ramp.elements],
-            1.0, look.value_min, look.value_max,
-        )
-    except ValueError as exc:
-        raise SceneError(f"{obj.name!r}: {exc}") from exc
-    if not (np.isfinite(look.density) and look.density >= 0):
-        raise SceneError(f"{obj.name!r}: density must be >= 0, got {look.density:.6g}")
-    return VolumeInputs(name=obj.name, source=source, object_matrix=_matrix_tuple(obj.matrix_world),
-                        transfer_function=tf, density=float(look.density), density_units=look.density_units)
-
-
-def legend_volume_inputs(obj, scene):
-    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
-    (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
-    from .versioning import volume_look
-
-    look = volume_look(obj.hovr, scene)
-    texture = look.texture
-    if texture is None or not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"{obj.name!r} has no transfer function ramp")
-    ramp = texture.color_ramp
-    tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
-                                     [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
-    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
-
-
-def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
-    """The volumes, their looks and the settings of the scene, as plain records.
-
-    F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
-    depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
-    it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects. Call resolve_units() before using the transfer functions or
-    the step (options.h)."""
-    from ..engine.view import RenderOptions
-
-    scene = depsgraph.scene if original else depsgraph.scene_eval
-    render = scene.render
-    settings = scene.hovr
-    objects = volume_objects(depsgraph, original)
-    if not objects:
-        raise SceneError("no HOVR volume in the scene: import one (File > Import > HOVR ...) or add one with "
-                         "Add > HOVR Sphere Volume")
-    volumes = [volume_inputs(o, o.original.hovr if original else o.hovr, scene) for o in objects]
-    world_color = tuple(scene.world.color) if scene.world is not None else None
-    options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
-                            min_transmittance=settings.min_transmittance, device=settings.device,
-                            precision=settings.precision)
-    from .surface_panels import plane_object_names, scene_isosurfaces
-
-    try:
-        isosurfaces = scene_isosurfaces(objects)
-    except ValueError as exc:
-        raise SceneError(str(exc)) from exc
-    mode = settings.surfaces  # the opaque meshes' mode (its saved name)
-    opaque, key = [], ""
-    if mode != "NONE":
-        from .opaque_meshes import opaque_key, scene_opaque_meshes
-
-        planes = plane_object_names(objects)  # cut planes are no opaque meshes
-        opaque = [m for m in scene_opaque_meshes(depsgraph) if m.name.rpartition("[")[0] not in planes]
-        key = opaque_key(opaque)
-    return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
-                       film_transparent=bool(render.film_transparent), options=options, opaque_meshes=opaque,
-                       opaque_mode=mode, opaque_key=key, step_units=settings.step_units,
-                       steps_across=int(settings.steps_across), surfaces=isosurfaces)
-
-
-def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
-    """Everything render() needs, as plain data, read from the evaluated depsgraph. Adds
-    a warning for each volume the camera's clip planes hide in whole or in part."""
-    scene = depsgraph.scene_eval
-    render = scene.render
-    cam = engine.camera_override or scene.camera
-    if cam is None:
-        raise SceneError("no camera: set the scene's active camera (or use Frame Volume, which makes one)")
-    camera = ray_camera_from_blender(cam, depsgraph, render)
-    inputs = scene_inputs(depsgraph)
-    width, height = render_size(render)
-    x0, y0, w, h = border_region(width, height, render.use_border, render.border_min_x, render.border_max_x,
-                                 render.border_min_y, render.border_max_y)
-    if (w, h) != (width, height):
-        camera = sub_camera(camera, x0, height - y0 - h, w, h)  # sub_camera counts rows from the top
-    return RenderJob(width=w, height=h, camera=camera, inputs=inputs, region=(x0, y0, w, h))
 
 
 def clip_warnings(job: RenderJob, camera_name: str) -> list:
@@ -537,7 +278,7 @@ def final_render(engine, api, depsgraph):
     status = stage_reporter(api, bpy.app.background, compat.update_stats_printed_in_background())
     status("HOVR | reading scene")
     try:
-        job = snapshot(engine, depsgraph)
+        job = render_job(engine, depsgraph)
     except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
         fail(api, str(exc))
         return
@@ -668,7 +409,6 @@ def view_draw(engine, context, depsgraph):
     if text != getattr(engine, "viewport_status", None):
         engine.viewport_status = text
         engine.update_stats("", text)  # Blender shows it in the viewport's corner, as Cycles' samples
-
 
 
 def draw_pixels(engine, scene, region, frame):

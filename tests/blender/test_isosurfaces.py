@@ -12,7 +12,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui import render, snapshot  # noqa: E402
 from hovr_blender.ui.viewport import ProgressiveViewport  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
@@ -129,7 +129,7 @@ def test_settings_survive_save_and_reload(scene, tmp_path):
     iso, item = vol.hovr_surfaces.isosurfaces[0], vol.hovr_surfaces.planes[0]
     assert (iso.value, tuple(iso.color), iso.opacity) == (ISO["value"], tuple(ISO["color"]), ISO["opacity"])
     assert item.object is not None and item.object.name == "Cut" and (item.opacity, item.clip) == (0.5, "front")
-    surfaces = render.scene_inputs(bpy.context.evaluated_depsgraph_get()).surfaces
+    surfaces = snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get()).surfaces
     assert len(surfaces.isosurfaces) == 1 and len(surfaces.planes) == 1
     normal = np.array([0.0, -math.sin(PLANE_TILT), math.cos(PLANE_TILT)])
     np.testing.assert_allclose(surfaces.planes[0].normal, normal, atol=1e-6)

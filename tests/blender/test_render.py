@@ -6,7 +6,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui import render, snapshot  # noqa: E402
 from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
@@ -266,7 +266,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.hovr.step_units, scene.hovr.steps_across = 'RELATIVE', 50
     h = _sphere_diagonal() / 50  # 0.133: coarse enough to show in the image
-    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    inputs = snapshot.resolve_units(snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
     assert inputs.options.h == pytest.approx(h, rel=1e-6)
     got = render_to_exr(scene, tmp_path / "relative.exr")
     want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False, h=h)
@@ -276,7 +276,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     _shrink_sphere_scene(scene, obj, s)
     obj.hovr.density *= 1 / s  # the look in world units follows the size by hand; the step by itself
     bpy.context.view_layer.update()
-    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    inputs = snapshot.resolve_units(snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
     assert inputs.options.h == pytest.approx(s * h, rel=1e-5)
     small = render_to_exr(scene, tmp_path / "small.exr")
     np.testing.assert_allclose(small, got, atol=2e-4)

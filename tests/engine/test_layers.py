@@ -1,6 +1,7 @@
 """The layers hold: LAYERS below is who may import whom, for every folder of the package, and
 docs/architecture.md's table is made from it (test_the_architecture_doc_states_the_layers); the
-sources' imports are checked against it row by row; hovr_blender.engine imports no reader and no
+sources' imports are checked against it row by row, and no layer's modules import one another in
+a loop; hovr_blender.engine imports no reader and no
 Blender module even at run time, the add-on package imports without bpy, and no module of the
 package edits sys.path.
 
@@ -194,6 +195,84 @@ def test_each_layer_is_imported_only_by_the_rows_that_may():
             bad.append(f"{path.relative_to(REPO)}:{line}: {row[0]} imports {mod} ({target[0]} is imported by "
                        f"{', '.join(target[4]) or 'nothing in the package'} only)")
     assert bad == [], "\n".join(bad)
+
+
+def _imported_modules(tree, package, modules):
+    """The modules of `modules` an import statement names (those inside functions too): `from . import
+    x` names the module x where there is one, else the package."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name in modules:
+                    yield alias.name
+        elif isinstance(node, ast.ImportFrom):
+            base = package.split(".")[: len(package.split(".")) - (node.level - 1)] if node.level else []
+            mod = ".".join(base + ([node.module] if node.module else [])) if node.level else node.module
+            for alias in node.names:
+                name = f"{mod}.{alias.name}" if f"{mod}.{alias.name}" in modules else mod
+                if name in modules:
+                    yield name
+
+
+def _layer_graph() -> dict:
+    """{module: the modules of its own layer (LAYERS' row) it imports}."""
+    modules = {name: (package, tree) for _, name, package, tree in _modules(PACKAGE)}
+    return {name: {m for m in _imported_modules(tree, package, modules) if m != name and _layer_of(m) is _layer_of(name)}
+            for name, (package, tree) in modules.items()}
+
+
+def circles(graph: dict) -> list:
+    """The import circles of `graph` ({module: modules it imports}): each set of modules that reach
+    one another (a strongly connected component of more than one), sorted (Tarjan's algorithm)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def test_no_layer_imports_itself_in_a_circle():
+    """Within a layer, no modules import one another in a loop (imports inside functions count: a
+    circle hidden behind a function-level import is still one). What two modules both need goes
+    to a module below them (engine/mesh_base.py, io/reader_protocol.py, io/volume_source.py,
+    ui/snapshot.py)."""
+    found = circles(_layer_graph())
+    assert found == [], "modules of one layer that import one another in a loop (move what they share below " \
+                        "them):\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_the_circle_check_sees_a_circle():
+    assert circles({"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"a"}}) == [["a", "b", "c"]]
+    assert circles({"a": {"b"}, "b": set()}) == []
+    # the package's own graph with one import inside a function added (mesh_base's of mesh)
+    graph = _layer_graph()
+    graph["hovr_blender.engine.mesh_base"] = graph["hovr_blender.engine.mesh_base"] | {"hovr_blender.engine.mesh"}
+    assert ["hovr_blender.engine.mesh", "hovr_blender.engine.mesh_base"] in circles(graph)
+    tree = ast.parse("def f():\n    from .mesh import VolumeMesh\n")
+    assert list(_imported_modules(tree, "hovr_blender.engine", {"hovr_blender.engine.mesh"})) == \
+        ["hovr_blender.engine.mesh"]
 
 
 # the renderer's modules, split by job (engine/renderer.py's docstring): the CLI and the add-on
