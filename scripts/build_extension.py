@@ -54,7 +54,7 @@ SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
-# enable time, tests/engine/test_blender_framing.py that they agree): Warp renders, h5py reads
+# enable time, tests/ui/test_framing.py that they agree): Warp renders, h5py reads
 # HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
 # io/safe_xml.py). pip resolves their dependencies; numpy is left out: Blender ships its own,
 # and a second copy in the extension's site-packages would shadow it.

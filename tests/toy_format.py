@@ -1,7 +1,7 @@
 """A toy data format, all in this one module, to show what adding a format takes: this module
 and one registry line (hovr_blender.io.formats.register(FORMAT)). The tests that register it
 import and render a .toy file through the loader, the `hovr` command and Blender's File > Import
-(tests/engine/test_formats.py, tests/blender/test_formats.py).
+(tests/io/test_formats.py, tests/blender/test_formats.py).
 
 A .toy file is text: the word TOY, then the box and its cells,
 

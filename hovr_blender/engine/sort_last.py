@@ -19,7 +19,7 @@ slabs compute the cut t = w / (d . a) from the same numbers, so the pieces meet 
 an overlap; inside a slab the kernel integrates the elements' segments clipped at the planes,
 each exactly as in one device's render, so the composite differs from the single-device image
 only by the quadrature's splitting of the two segments at a cut (within the method's tolerance:
-<= 1e-6 for the pixel-exact settings, tests/engine/test_sort_last.py) and by rounding.
+<= 1e-6 for the pixel-exact settings, tests/engine/test_multi_device.py) and by rounding.
 
 The axis is the camera's forward direction when the partition is made, and a partition serves
 every later camera whose rays all have d . a > 0 (a perspective camera's four corner rays say so)

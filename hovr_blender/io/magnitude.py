@@ -19,7 +19,7 @@ Error: every magnitude mesh carries ``derived_error`` (dict) and a line in ``war
 largest |fit - |u|| measured at random points of every element (SAMPLES_PER_ELEMENT each, up to
 MAX_SAMPLE_POINTS in all, then DENSE_SAMPLES more in each of the DENSE_ELEMENTS worst elements),
 and the stated bound ``bound`` = ERROR_SAFETY x that maximum + 1e-12 x max |u| (a sample can
-miss the worst point, so this is an estimate, not a certificate; tests/engine/test_derived.py
+miss the worst point, so this is an estimate, not a certificate; tests/io/test_magnitude.py
 checks fresh random points against it). Measured with `python -m bench.magnitude_error MESH SOLUTION FIELD` (or FILE.vtu
 FIELD), seed 0, 2026-11-22:
 - Tet_channel_m3 |u,v,w| (48 tets, 3 -> 7 modes): 9.7e-16 (u, v vanish and w >= 0 there, so

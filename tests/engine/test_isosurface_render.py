@@ -198,27 +198,3 @@ def test_shaded_from_the_segment_cache_equals_the_render(ball_mesh):
         cache = slot.cache
         assert np.array_equal(shaded.rgba, fresh.rgba)
         assert np.array_equal(shaded.depth, fresh.depth)
-
-
-def test_cli_renders_the_example_view_and_refuses_bad_surfaces(tmp_path, capsys):
-    """hovr render takes isosurfaces and planes from the view file (examples/sphere_isosurface.json);
-    a level outside the field's range is one line and exit code 2."""
-    import json
-
-    from hovr_blender import cli
-    from tests.helpers import REPO
-
-    view = json.loads((REPO / "examples" / "sphere_isosurface.json").read_text())
-    view["image"] = {"width": 24, "height": 18}
-    p = tmp_path / "v.json"
-    p.write_text(json.dumps(view))
-    out = tmp_path / "o.npy"
-    assert cli.main(["render", str(p), "-o", str(out)]) == 0
-    img = np.load(out)
-    assert (img[..., 3] == 1.0).any()  # the opaque level and the plane cover pixels
-    view["isosurfaces"][0]["value"] = 99.0  # f = x^2 + y^2 + z^2 <= 18 in the sphere's box
-    p.write_text(json.dumps(view))
-    capsys.readouterr()
-    assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "isosurface 0: value 99 is outside the field's range" in err[0], err

@@ -213,24 +213,3 @@ def test_composite_and_shade_formulas():
         composite(vol, hits, [0, 0, 0], mode="GLOSSY")
     with pytest.raises(OpaqueError):
         OpaqueMesh([[0, 0, 0]], [[0, 1, 2]])
-
-
-def test_viewport_ends_at_the_f12_picture(renderer):
-    """The progressive viewport (previews, then bands of rows: sub-cameras, each cast against the
-    surfaces itself) ends at the door's whole image, as F12 shows it."""
-    from hovr_blender.ui.viewport import ProgressiveViewport, ViewportRequest
-
-    camera = RayCamera.from_contract(CAMERAS["perspective"], W, H)
-    opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
-    scene = OpaqueScene([plane_mesh()])
-    req = ViewportRequest(camera, Frame(TF, BACKGROUND, opts, opaque=scene), False, ("sphere", "plane"))
-    vp = ProgressiveViewport(first_frame_seconds=0.05)
-    vp.sync(renderer, req)
-    for _ in range(500):
-        if vp.converged:
-            break
-        vp.step(0.05)
-    assert vp.converged
-    want = opaque_render(renderer, scene, camera, opts).rgba[::-1]
-    np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
-    np.testing.assert_array_equal(vp.display[..., 3], 1.0)  # an opaque film, as F12

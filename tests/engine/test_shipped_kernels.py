@@ -139,14 +139,3 @@ def test_the_hash_does_not_depend_on_where_the_package_lives(tmp_path):
     resolve_device("cpu")
     here = sorted(shipped_kernels._key(k.module, wp.get_device("cpu")) for k in session_kernels(SPHERE_VARIANT))
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == here
-
-
-def test_blenders_first_f12_knows_whether_the_store_holds_its_kernels(store, tmp_path, monkeypatch):
-    from hovr_blender.engine import shipped_kernels
-    from hovr_blender.ui import jobs
-
-    key = jobs.kernel_key("cpu", "float32", SPHERE_VARIANT, False)
-    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(store))
-    assert jobs.shipped_render_kernels(key) == (True, True)
-    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(tmp_path))  # no store for this Warp
-    assert jobs.shipped_render_kernels(key)[1] is False

@@ -261,3 +261,26 @@ def test_caches_the_memory_limit_refuses_are_not_kept(renderer, monkeypatch):
     assert len([r for r in vp.log if r.kind == "band"]) > 1
     want = renderer.render(vp._request.camera, TF, BG, vp._request.options).rgba[::-1]
     np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
+
+
+def test_viewport_with_opaque_meshes_ends_at_the_f12_picture(renderer):
+    """The progressive viewport (previews, then bands of rows: sub-cameras, each cast against the
+    surfaces itself) ends at the door's whole image, as F12 shows it."""
+    from hovr_blender.engine.opaque import OpaqueScene
+
+    from ..engine import test_opaque as op
+
+    camera = RayCamera.from_contract(op.CAMERAS["perspective"], op.W, op.H)
+    opts = RenderOptions(method="split", tolerance=1e-6, device="cpu")
+    scene = OpaqueScene([op.plane_mesh()])
+    req = ViewportRequest(camera, Frame(op.TF, op.BACKGROUND, opts, opaque=scene), False, ("sphere", "plane"))
+    vp = ProgressiveViewport(first_frame_seconds=0.05)
+    vp.sync(renderer, req)
+    for _ in range(500):
+        if vp.converged:
+            break
+        vp.step(0.05)
+    assert vp.converged
+    want = op.opaque_render(renderer, scene, camera, opts).rgba[::-1]
+    np.testing.assert_allclose(vp.display[..., :3], want[..., :3], atol=1e-5)
+    np.testing.assert_array_equal(vp.display[..., 3], 1.0)  # an opaque film, as F12

@@ -1,5 +1,7 @@
 """The bpy-free steps of the Blender render path (that they and the core import without bpy:
 test_layers.py)."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -7,6 +9,10 @@ from hovr_blender.ui.scene import combined_pass, render_background, transfer_fun
 from hovr_blender.io.sources import SourceError, VolumeSource, frame_path, load_volume
 from hovr_blender.engine.transfer_function import TransferFunctionError
 from hovr_blender.io import builtin
+from hovr_blender.io.vtu.format import read_vtu_field
+from tests.helpers import data_file as shared_file
+
+from ..io.test_magnitude import kinked  # noqa: F401  (a fixture)
 
 POS = [0.0, 0.25, 1.0]
 RGBA = [(0.0, 0.0, 0.0, 0.0), (1.0, 0.5, 0.25, 1.0), (0.0, 1.0, 0.0, 0.5)]
@@ -197,3 +203,33 @@ def test_every_first_look_is_a_valid_ramp_for_any_field(values, look):
 def test_the_import_look_is_one_of_the_first_looks_and_today_stays_a_preset():
     assert FIRST_LOOK in FIRST_LOOKS and "SMOOTH" in TF_PRESETS
     np.testing.assert_allclose(ramp_positions([0, 1, 2, 3, 4], 0.0, 8.0, [0.5]), [0.25])
+
+
+def test_value_range_comes_from_the_true_magnitudes(kinked):
+    """Issue 30: what Fit Value Range and the histogram read (ui/scene.field_samples) lies within
+    the range of the exact magnitudes sampled while fitting, never at the fit's own dips."""
+    from hovr_blender.ui.scene import field_samples
+
+    _, mag = kinked
+    true_min, true_max = mag.true_range
+    assert 0 <= true_min == mag.derived_error["true_min"] < 0.05 and true_max >= mag.derived_error["max_value"]
+    fitted = mag.field_samples(9)
+    narrowed = dataclasses.replace(mag)
+    narrowed.true_range = (float(np.percentile(fitted, 10)), float(np.percentile(fitted, 90)))
+    samples = field_samples(narrowed, 9)
+    assert samples.min() == narrowed.true_range[0] and samples.max() == narrowed.true_range[1]
+    np.testing.assert_array_equal(field_samples(mag, 9), np.clip(fitted, true_min, true_max))
+
+
+@pytest.mark.slow
+def test_pyfr_velocity_magnitude_has_no_negative_value_min():
+    """Issue 30's PyFR |Velocity|: the fit dips below zero near the velocity's zeros (Value Min
+    was -0.0058); the range now comes from the true magnitudes, and the report says where the
+    fit's error is."""
+    from hovr_blender.ui.scene import field_samples, value_range
+
+    mag = read_vtu_field(shared_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu"), "Velocity")
+    assert mag.field_samples(9).min() < 0  # the fit's dip
+    lo, hi, warning = value_range(field_samples(mag))
+    assert 0 <= lo < 0.01 and hi > 1.0 and warning is None
+    assert "the fit dips to" in mag.warnings[-1] and "the value range comes from the true magnitudes" in mag.warnings[-1]

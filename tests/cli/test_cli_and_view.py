@@ -373,3 +373,54 @@ def test_legend_layout_labels_the_range_and_units():
     assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)
     moved = legend_layout(tf, -0.5, 2.5, "p", 640, 480, top=26)  # below a viewport's tool header
     assert moved.bar[1] == y0 + 26 and moved.texts[-1].y == layout.texts[-1].y + 26 and moved.bar[3] <= 480
+
+
+def test_cli_renders_the_example_view_and_refuses_bad_surfaces(tmp_path, capsys):
+    """hovr render takes isosurfaces and planes from the view file (examples/sphere_isosurface.json);
+    a level outside the field's range is one line and exit code 2."""
+    import json
+
+    from hovr_blender import cli
+    from tests.helpers import REPO
+
+    view = json.loads((REPO / "examples" / "sphere_isosurface.json").read_text())
+    view["image"] = {"width": 24, "height": 18}
+    p = tmp_path / "v.json"
+    p.write_text(json.dumps(view))
+    out = tmp_path / "o.npy"
+    assert cli.main(["render", str(p), "-o", str(out)]) == 0
+    img = np.load(out)
+    assert (img[..., 3] == 1.0).any()  # the opaque level and the plane cover pixels
+    view["isosurfaces"][0]["value"] = 99.0  # f = x^2 + y^2 + z^2 <= 18 in the sphere's box
+    p.write_text(json.dumps(view))
+    capsys.readouterr()
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "isosurface 0: value 99 is outside the field's range" in err[0], err
+
+
+def test_cli_field_option(tmp_path, capsys):
+    """hovr render --field takes a derived field instead of the view's; Nektar++'s channel's
+    vorticity |1 - 2y| is at most 1; Q(p) (one scalar) is one line and exit code 2."""
+    import json
+
+    from hovr_blender import cli
+    from tests.helpers import data_file
+
+    mesh = data_file("nektar", "Tet_channel_m3.xml")
+    view = {"data": {"path": str(mesh), "solution": str(data_file("nektar", "Tet_channel_m3.fld")), "field": "w"},
+            "camera": {"projection": "perspective", "eye": [3.0, 2.5, 2.0], "target": [0.5, 0.5, 1.0],
+                       "up": [0, 0, 1], "fov_y_deg": 40},
+            "image": {"width": 12, "height": 9},
+            "transfer_function": {"color": [[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 0.0, 0.0]],
+                                  "density": [[0.0, 0.0], [1.0, 2.0]]},
+            "background": [0, 0, 0]}
+    p = tmp_path / "v.json"
+    p.write_text(json.dumps(view))
+    out = tmp_path / "o.npy"
+    assert cli.main(["render", str(p), "-o", str(out), "--field", "vorticity(u,v,w)"]) == 0
+    assert np.load(out)[..., 3].max() > 0.0
+    capsys.readouterr()
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy"), "--field", "Q(p)"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a velocity" in err[0], err

@@ -10,6 +10,8 @@ from hovr_blender.engine.kernel_loading import KernelVariant
 from hovr_blender.io import isolation
 from hovr_blender.ui import jobs
 
+from ..engine.test_shipped_kernels import SPHERE_VARIANT, store  # noqa: F401  (the store fixture)
+
 
 def test_job_runs_in_steps_and_keeps_its_result():
     seen = []
@@ -242,3 +244,14 @@ def test_the_status_says_loading_shipped_kernels_or_compiling():
                                                                               jobs.CompiledKernels.NOT_SHIPPED)
     assert jobs.CompiledKernels(print, lambda k: (False, False)).stage(key) == (jobs.CompiledKernels.COMPILING, "")
     assert jobs.CompiledKernels(print).stage(key) == (jobs.CompiledKernels.COMPILING, "")
+
+
+def test_blenders_first_f12_knows_whether_the_store_holds_its_kernels(store, tmp_path, monkeypatch):
+    from hovr_blender.engine import shipped_kernels
+    from hovr_blender.ui import jobs
+
+    key = jobs.kernel_key("cpu", "float32", SPHERE_VARIANT, False)
+    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(store))
+    assert jobs.shipped_render_kernels(key) == (True, True)
+    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(tmp_path))  # no store for this Warp
+    assert jobs.shipped_render_kernels(key)[1] is False

@@ -101,36 +101,6 @@ def test_dense_check_of_the_bound_and_the_kink(kinked):
     assert 0 < worst < 0.05  # a fit, not a copy: |u| is not a polynomial here
 
 
-def test_value_range_comes_from_the_true_magnitudes(kinked):
-    """Issue 30: what Fit Value Range and the histogram read (ui/scene.field_samples) lies within
-    the range of the exact magnitudes sampled while fitting, never at the fit's own dips."""
-    from hovr_blender.ui.scene import field_samples
-
-    _, mag = kinked
-    true_min, true_max = mag.true_range
-    assert 0 <= true_min == mag.derived_error["true_min"] < 0.05 and true_max >= mag.derived_error["max_value"]
-    fitted = mag.field_samples(9)
-    narrowed = dataclasses.replace(mag)
-    narrowed.true_range = (float(np.percentile(fitted, 10)), float(np.percentile(fitted, 90)))
-    samples = field_samples(narrowed, 9)
-    assert samples.min() == narrowed.true_range[0] and samples.max() == narrowed.true_range[1]
-    np.testing.assert_array_equal(field_samples(mag, 9), np.clip(fitted, true_min, true_max))
-
-
-@pytest.mark.slow
-def test_pyfr_velocity_magnitude_has_no_negative_value_min():
-    """Issue 30's PyFR |Velocity|: the fit dips below zero near the velocity's zeros (Value Min
-    was -0.0058); the range now comes from the true magnitudes, and the report says where the
-    fit's error is."""
-    from hovr_blender.ui.scene import field_samples, value_range
-
-    mag = read_vtu_field(shared_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu"), "Velocity")
-    assert mag.field_samples(9).min() < 0  # the fit's dip
-    lo, hi, warning = value_range(field_samples(mag))
-    assert 0 <= lo < 0.01 and hi > 1.0 and warning is None
-    assert "the fit dips to" in mag.warnings[-1] and "the value range comes from the true magnitudes" in mag.warnings[-1]
-
-
 def test_magnitude_of_a_positive_polynomial_is_exact():
     comps = _components(funcs=(lambda x, y, z: x + 2.0, lambda x, y, z: 0.0 * x, lambda x, y, z: 0.0 * y))
     mag = magnitude_mesh(comps)

@@ -17,6 +17,8 @@ from hovr_blender.io import isolation, nektar, reader_protocol, vtu
 from hovr_blender.io.sources import SourceError, VolumeSource, load_volume, read_volume
 from tests.helpers import REPO, data_file, stopped_warm_reader
 
+from ..engine.test_derived_fields import geometry, q_mesh, velocity_components  # noqa: F401  (fixtures)
+
 
 def _tet():
     return VolumeSource.resolve(str(data_file("nektar", "Tet_channel_m3.xml")), field="w")
@@ -266,3 +268,14 @@ def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):
     assert summary["outcomes"].get("reader crashed", 0) >= 1, summary  # the SIGSEGV mutant, contained
     assert summary["outcomes"].get("reader stopped (time limit)", 0) >= 1, summary  # the heap loop, stopped
     assert summary["outcomes"].get("refused", 0) >= 1, summary  # the 4 GiB string: a header's allocations are capped
+
+
+def test_derived_mesh_leaves_the_reader_process(q_mesh):
+    """The reader process's encoding carries the components (io/reader_protocol.py encode / decode)."""
+    from hovr_blender.io.reader_protocol import decode, encode
+
+    arrays = []
+    back = decode(encode(q_mesh, arrays), arrays)
+    assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
+    for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
+        np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
