@@ -22,7 +22,7 @@ from . import restriction
 from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_NEWTON_SAMPLE, STAT_NEWTON_WALK, STAT_ROUNDS, STAT_SEGMENTS, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, Segments, TransferArgs)
-from .quadrature import METHOD_CLASSIFIED
+from .quadrature import samples_segments
 from .rays import MAX_REGISTERS, SAMPLE_MAX_REGISTERS, affine_stretch, camera_ray, walk_options
 from .tolerances import SHARED_FACE_TOL, STRETCH_RTOL
 
@@ -208,7 +208,7 @@ def make_traverse_kernel(CURVED: bool):
         r_entry = rays.entry_r[i]  # the search's solution in a curved e at t (margin > 0: valid)
         dv_entry = rays.entry_dv[i]
         uses_restriction = int(0)  # classified and split integrate the restriction; skip empty elements
-        if q.method >= METHOD_CLASSIFIED:
+        if samples_segments(q.method) != 0:
             uses_restriction = 1
         n_field = int(0)
         n_seg = int(0)
