@@ -53,6 +53,7 @@ import numpy as np
 
 from bench import common
 from hovr_blender.audit import datasets  # the audit's datasets, views, transfer functions
+from hovr_blender.engine.kernels.precision import Precision
 
 DATASETS = ["paper_scale", "hump3D", "scaleHO", "ngsolve_ball", "ngsolve_post", "mfem_fichera", "pyfr_tgv"]
 SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
@@ -69,16 +70,7 @@ def _camera(mesh, W, H):
 
 def device_bytes_per_element(renderer, precision="float32") -> float:
     """The mesh's arrays on the device (MeshArgs, BVH boxes, neighbours) over its elements."""
-    import warp as wp
-
-    upload = renderer._upload(precision)
-    total = 0
-    for name in dir(upload.mesh_args):
-        a = getattr(upload.mesh_args, name, None)
-        if isinstance(a, wp.array):
-            total += a.capacity
-    total += renderer._lowers.capacity + renderer._uppers.capacity
-    return total / renderer.mesh.num_elements
+    return renderer.device_bytes(precision) / renderer.mesh.num_elements
 
 
 def options(renderer, method, classified_div):
@@ -107,7 +99,7 @@ def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_
            "samples_per_ray": s["samples_per_ray"], "segments_per_ray": s["segments"] / (W * H),
            "curved_locates_per_ray": s["curved_locates"] / (W * H), "walks": s["walks"],
            "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict(),
-           "work_counts": work_counts(renderer._upload(opts.precision).precision.kernels, prof.ray_counts),
+           "work_counts": work_counts(Precision.named(opts.precision).kernels, prof.ray_counts),
            "lane_occupancy": prof.stats["lane_occupancy"], "regroup": renderer.regroup}
     if reference is not None:
         row["max_error_vs_float64"] = float(np.abs(best.rgba.astype(np.float64) - reference).max())
@@ -166,7 +158,7 @@ def run_datasets(args, out):
         entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
                  "load_seconds": load, "renderer_seconds": setup,
                  "device_bytes_per_element": device_bytes_per_element(r),
-                 "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+                 "tile_bytes_per_ray": r.tile_bytes_per_ray(Precision.named("float32")), "frames": []}
         ref = reference_image(r, mesh, tf, W, H) if not args.no_reference else None
         for method in METHODS:
             row = frame(r, mesh, tf, W, H, method, args.repeats, ref, args.classified_div)
@@ -236,7 +228,7 @@ def run_million(args, out):
                                          "density": [[0.25, 0.0], [0.6, 0.0], [0.9, 3.0 / rad * 4], [1.2, 0.0]]})
     entry = {"elements": mesh.num_elements, "copies": copies, "build_seconds": build, "renderer_seconds": setup,
              "device_bytes_per_element": device_bytes_per_element(r),
-             "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+             "tile_bytes_per_ray": r.tile_bytes_per_ray(Precision.named("float32")), "frames": []}
     for method in METHODS:
         opts = options(r, method, args.classified_div)
         r.render(cam, tf, np.zeros(3), opts)

@@ -167,12 +167,12 @@ class Renderer(SegmentCaching):
             return self.max_tile_rays
         dev = wp.get_device(self.device)
         if not dev.is_cuda:
-            policy = limits.current().max_memory * TILE_LIMIT_SHARE / self._ray_bytes(prec)
+            policy = limits.current().max_memory * TILE_LIMIT_SHARE / self.tile_bytes_per_ray(prec)
             return int(max(1024, min(CPU_TILE_RAYS, policy)))
-        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self._ray_bytes(prec), MIN_TILE_RAYS,
+        return int(np.clip(dev.free_memory * TILE_MEMORY_FRACTION / self.tile_bytes_per_ray(prec), MIN_TILE_RAYS,
                            MAX_TILE_RAYS))
 
-    def _ray_bytes(self, prec) -> float:
+    def tile_bytes_per_ray(self, prec) -> float:
         """Bytes of launch-tile buffers per ray, measured once per precision on a small tile."""
         if prec.name not in self._bytes_per_ray:
             probe = 1024
@@ -180,6 +180,12 @@ class Renderer(SegmentCaching):
                 stats = wp.zeros((1, prec.kernels.NUM_STATS), dtype=wp.int32)
                 self._bytes_per_ray[prec.name] = tile_buffers(prec, probe, stats).nbytes / probe
         return self._bytes_per_ray[prec.name]
+
+    def device_bytes(self, precision: str = "float32") -> int:
+        """Bytes of the mesh on the device in `precision`: its MeshArgs arrays and the BVH's boxes."""
+        m = self._upload(precision).mesh_args
+        arrays = [getattr(m, name, None) for name in dir(m)]
+        return sum(a.capacity for a in arrays if isinstance(a, wp.array)) + self._lowers.capacity + self._uppers.capacity
 
     def check_limits(self, width: int, height: int, options: RenderOptions, tile: int | None = None) -> int:
         """Refuse a render the resource policy does not allow (engine/limits.py), before
@@ -194,7 +200,7 @@ class Renderer(SegmentCaching):
         if wp.get_device(self.device).is_cuda:
             rays = 0
         return limits.check_bytes(options.image_bytes(width, height, prec.kernels.NUM_STATS)
-                                  + rays * self._ray_bytes(prec), f"a {width}x{height} image in {options.precision}")
+                                  + rays * self.tile_bytes_per_ray(prec), f"a {width}x{height} image in {options.precision}")
 
     def _check_steps(self, options: RenderOptions):
         """A derived field only with a method that samples it, and a fixed step against the
