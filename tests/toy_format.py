@@ -15,7 +15,7 @@ and offers two fields on that brick of hexahedra: r2 = x^2 + y^2 + z^2 (the defa
 from __future__ import annotations
 
 from hovr_blender.engine import limits
-from hovr_blender.io.format import Format
+from hovr_blender.io.format_base import Format
 from hovr_blender.io.synthetic import brick
 
 FIELDS = {"r2": lambda x, y, z: x * x + y * y + z * z, "x": lambda x, y, z: x + 0.0 * y}

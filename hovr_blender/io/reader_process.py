@@ -24,7 +24,7 @@ def _known(extra_formats):
     reader) from their modules' files: the reader process knows the package's own already."""
     import importlib.util
 
-    from .format import Format
+    from .format_base import Format
 
     for name, module_file in extra_formats:
         if any(f.name == name for f in formats.FORMATS):

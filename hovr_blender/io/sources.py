@@ -5,7 +5,7 @@ kept in a small cache by its key.
 """
 from __future__ import annotations
 
-from ..engine.cache import LRUCache
+from ..engine.lru_cache import LRUCache
 from ..engine.mesh import VolumeMesh
 from . import isolation
 # the loader's callers name the source and its errors through this module too

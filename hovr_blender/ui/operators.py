@@ -5,7 +5,7 @@ on another volume's."""
 import bpy
 import numpy as np
 
-from ..engine.cache import LRUCache
+from ..engine.lru_cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
 from .scene import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_histogram, value_range
@@ -194,7 +194,7 @@ def frame_volumes(context, objects, margin: float = 1.1):
     views' clip range and view follow. Returns the camera object."""
     from mathutils import Matrix
 
-    from .camera import ray_camera_from_blender
+    from .blender_camera import ray_camera_from_blender
     from .framing import DEFAULT_VIEW, clip_planes, fit_view, look_at_matrix
 
     scene = context.scene

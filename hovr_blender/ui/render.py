@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from .camera import ray_camera_from_view
-from ..engine.cache import LRUCache
+from .blender_camera import ray_camera_from_view
+from ..engine.lru_cache import LRUCache
 from ..io.sources import cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from . import compat

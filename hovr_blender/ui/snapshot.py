@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from ..engine.cache import LRUCache
+from ..engine.lru_cache import LRUCache
 from ..engine.isosurfaces import CLIP_SIDES
 from ..io.sources import VolumeSource, cached_volume
-from .camera import border_region, ray_camera_from_blender, render_size, sub_camera
+from .blender_camera import border_region, ray_camera_from_blender, render_size, sub_camera
 from .scene import render_background, transfer_function_from_ramp
 
 

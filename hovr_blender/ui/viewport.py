@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .camera import sub_camera
+from .blender_camera import sub_camera
 from ..engine.camera import RayCamera
 from ..engine.frame import Capability, Frame, SegmentSlot, render_frame
 from ..engine.view import RenderOptions

@@ -8,7 +8,7 @@ import pytest
 
 vtk = pytest.importorskip("vtk", reason="the vtk package (the independent reference's engine) is not installed")
 
-from hovr_blender.audit import reference as R  # noqa: E402
+from hovr_blender.audit import vtk_reference as R  # noqa: E402
 from hovr_blender.audit import vtk_volume  # noqa: E402
 from hovr_blender.engine import expansions as ex  # noqa: E402
 from hovr_blender.engine.camera import RayCamera  # noqa: E402

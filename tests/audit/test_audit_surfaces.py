@@ -1,4 +1,4 @@
-"""Isosurface depth and plane values against the independent reference (audit/reference.py:
+"""Isosurface depth and plane values against the independent reference (audit/vtk_reference.py:
 VTK's own cells and interpolation, no code shared with the kernels or engine/expansions.py), on
 sampled pixels of two third-party curved high-order files: NGSolve's ball (512 curved order-6
 hexahedra) and MFEM's Fichera corner (curved order-4 tetrahedra, hexahedra and prisms). float64
@@ -8,7 +8,7 @@ import pytest
 
 vtk = pytest.importorskip("vtk", reason="the vtk package (the independent reference's engine) is not installed")
 
-from hovr_blender.audit import reference as R  # noqa: E402
+from hovr_blender.audit import vtk_reference as R  # noqa: E402
 from hovr_blender.audit import vtk_volume  # noqa: E402
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, Surfaces  # noqa: E402
 from hovr_blender.engine.renderer import Renderer  # noqa: E402

@@ -133,7 +133,7 @@ def f12_and_engine(scene, obj, mesh, contract, width, height, density, folder, b
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.ui import scene as blender_scene
-    from hovr_blender.ui.camera import ray_camera_from_blender
+    from hovr_blender.ui.blender_camera import ray_camera_from_blender
 
     add_camera(scene)
     set_contract_camera(scene, contract, width, height)

@@ -7,7 +7,7 @@ bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not
 pytestmark = pytest.mark.blender
 
 from hovr_blender.ui import render, snapshot  # noqa: E402
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import render_to_exr, volume  # noqa: E402

@@ -12,7 +12,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.engine import image_io  # noqa: E402
 from hovr_blender.engine import walls as core_walls  # noqa: E402
 from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene  # noqa: E402

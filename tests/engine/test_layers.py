@@ -85,7 +85,7 @@ def test_addon_package_and_its_bpy_free_modules_import_without_bpy():
     """The add-on's package imports bpy only inside register(): the package, the Blender layer's
     bpy-free helpers (camera and scene conversions), the renderer and a reader load without it."""
     code = (
-        "import sys, hovr_blender, hovr_blender.ui.camera, hovr_blender.ui.scene, "
+        "import sys, hovr_blender, hovr_blender.ui.blender_camera, hovr_blender.ui.scene, "
         "hovr_blender.ui.framing, hovr_blender.ui.viewport, hovr_blender.ui.dependencies, "
         "hovr_blender.ui.jobs, "
         "hovr_blender.engine.renderer, hovr_blender.io.builtin, hovr_blender.ui; "

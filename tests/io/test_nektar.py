@@ -17,7 +17,7 @@ import pytest
 from hovr_blender.engine import expansions as ex
 from hovr_blender.engine import shapes
 from hovr_blender.io import nektar as nk
-from hovr_blender.io.nektar import geometry, mesh as nektar_mesh, points, topology
+from hovr_blender.io.nektar import element_geometry, mesh_file as nektar_mesh, points, topology
 from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
 
 from ..helpers import data_dir
@@ -210,8 +210,8 @@ def test_curved_edges_and_faces_pass_through_their_points():
                 worst = max(worst, np.abs(ex.eval_modal(shape, m.geom_modes[k], geom(m, k), xi) - pts).max())
         for f, fverts in topo.faces:
             if f in mesh.curved_faces:
-                uv, n = geometry.face_frame_points(mesh, f, [])
-                xi = geometry.face_to_element(shape, topo, fverts, uv, "Q")
+                uv, n = element_geometry.face_frame_points(mesh, f, [])
+                xi = element_geometry.face_to_element(shape, topo, fverts, uv, "Q")
                 pts = mesh.curved_faces[f][1]
                 worst = max(worst, np.abs(ex.eval_modal(shape, m.geom_modes[k], geom(m, k), xi) - pts).max())
     assert len(mesh.curved_faces) == 236 and worst < 1e-9

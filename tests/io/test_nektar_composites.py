@@ -11,7 +11,7 @@ import pytest
 
 from hovr_blender.engine import shapes, walls
 from hovr_blender.io.nektar import NektarError, mesh_boundaries, read_nektar
-from hovr_blender.io.nektar.mesh import read_mesh
+from hovr_blender.io.nektar.mesh_file import read_mesh
 from hovr_blender.io.nektar.ranges import expand_ranges, parse_ranges
 from hovr_blender.io.nektar.topology import face_vertices
 

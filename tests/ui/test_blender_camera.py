@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hovr_blender.ui.camera import is_orthographic, ray_camera_from_matrices
+from hovr_blender.ui.blender_camera import is_orthographic, ray_camera_from_matrices
 from hovr_blender.engine.camera import CameraError, RayCamera
 
 
@@ -155,7 +155,7 @@ def test_points_on_pixel_rays_project_to_pixel_centres(q, pos, window, size, per
 
 # --- clipping, sub-images (render border, viewport bands), depth, viewport cameras ---------
 
-from hovr_blender.ui.camera import (  # noqa: E402
+from hovr_blender.ui.blender_camera import (  # noqa: E402
     border_region, clip_range, clipped, ray_camera_from_view, sub_camera, view_depth,
 )
 

@@ -103,7 +103,7 @@ def test_volume_source_key_follows_the_frames_file(tmp_path):
 
 
 def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():
-    from hovr_blender.ui.camera import clipped
+    from hovr_blender.ui.blender_camera import clipped
 
     cam = clipped(RayCamera.from_contract({"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0],
                                            "fov_y_deg": 60}, 4, 3, ), 0.1, 20.0)

@@ -10,7 +10,7 @@ import numpy as np
 from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
 from ..magnitude import component_reads, magnitude_mesh, parse_magnitude
-from ..format import XML_PACKAGE, Format
+from ..format_base import XML_PACKAGE, Format
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
 from .reader import find_solution, list_fields, mesh_boundaries, pick_solution, read_nektar

@@ -6,7 +6,7 @@ from __future__ import annotations
 from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
 from ..magnitude import component_reads, magnitude_mesh
-from ..format import XML_PACKAGE, Format
+from ..format_base import XML_PACKAGE, Format
 from .errors import VtuError
 from .reader import list_fields, read_vtu
 

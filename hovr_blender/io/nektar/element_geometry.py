@@ -15,7 +15,7 @@ from ...engine.expansions import gll_points
 from ...engine.mesh import MeshError
 from ...engine.shapes import EDGES, FACES, NAMES, VERTICES
 from .errors import NektarError
-from .mesh import NektarMesh
+from .mesh_file import NektarMesh
 from .points import lagrange_matrix, points_1d, tri_evenly_spaced
 from .topology import ElementTopology, element_topology
 
