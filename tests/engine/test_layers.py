@@ -392,6 +392,21 @@ def test_no_module_imports_another_modules_private_names():
                         "are, or move them):\n" + "\n".join(found)
 
 
+# file names more than one module of the package has, each for the same job in parallel places:
+# every data format's own error, reader and declaration (io/nektar/, io/vtu/)
+SHARED_FILE_NAMES = {"__init__.py", "errors.py", "reader.py", "format.py"}
+
+
+def test_no_two_modules_share_a_file_name_for_different_jobs():
+    """A file name names one job (engine/opaque.py's meshes are not engine/isosurfaces.py's
+    surfaces): no two modules of the package share one, but for SHARED_FILE_NAMES."""
+    by_name = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        by_name.setdefault(path.name, []).append(str(path.relative_to(REPO)))
+    shared = {name: paths for name, paths in by_name.items() if len(paths) > 1 and name not in SHARED_FILE_NAMES}
+    assert shared == {}, f"modules sharing a file name: {shared}"
+
+
 # Another library's private names the package reads, each in one place and with why (no public
 # name does what it needs): {(file, expression): why}
 PRIVATE_USES = {
