@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -126,11 +124,7 @@ def main(argv=None):
                 f"{row[p]['samples_per_ray']:.0f} samples/ray, {row[p]['seconds']:.2f} s" for p in ("float32", "float64"))
                 + f"  f32-f64 {row['float32_vs_float64']:.2e}", flush=True)
         report["cases"][name] = case
-    text = json.dumps(report, indent=1) + "\n"
-    if args.out:
-        Path(args.out).write_text(text)
-    else:
-        print(text)
+    common.write_report(report, args.out)
 
 
 if __name__ == "__main__":
