@@ -26,7 +26,7 @@ user's wait), then runs the child with an empty kernel cache and that store (HOV
 the first image as the installed extension gives it (target 5 s); `compiled` lists any module that
 still compiled. --cold-dataset sphere is the built-in sphere.
 
-Each frame records its work counts (engine/renderer.work_counts: per ray, Newton iterations by
+Each frame records its work counts (engine/work_counts.work_counts: per ray, Newton iterations by
 phase, BVH candidates, segments, samples, and each one's divergence over 32-ray blocks; the
 counts tests/perf guards on the CPU), and per dataset and method a transfer-function edit: the
 view traced once (Renderer.trace) and --tf-edits edits shaded from its segments (bench/tf_edit.py's

@@ -61,7 +61,7 @@ class FrameRenderer(Protocol):
     kind: ClassVar[str]  # how it renders, in words ("over several devices")
     device: str
     mesh: object  # engine/mesh.VolumeMesh
-    kernel_variant: object  # what its kernels are specialised to (engine/renderer.kernel_variant)
+    kernel_variant: object  # what its kernels are specialised to (engine/kernel_loading.KernelVariant)
 
     def render(self, camera, tf, background, options, progress=None, tile_pixels=None, **how) -> RenderResult: ...
 
@@ -75,7 +75,7 @@ class SegmentSlot:
     where it was refused or the renderer keeps none). `held_bytes`: what the caller holds in other
     caches of the same view, counted against the memory limit with this one's."""
 
-    cache: object = None  # engine/renderer.SegmentCache
+    cache: object = None  # engine/segment_cache.SegmentCache
     held_bytes: int = 0
 
 
