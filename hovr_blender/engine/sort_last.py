@@ -125,6 +125,7 @@ class SortLastRenderer:
         self.mesh = mesh
         self.kernel_variant = kernel_variant([mesh])  # every part's kernels (a part's may need fewer)
         self.devices = expand_devices(devices)
+        self.device = ",".join(self.devices)
         self.processes = processes
         self.max_tile_rays = max_tile_rays
         self.axis = None
@@ -171,7 +172,7 @@ class SortLastRenderer:
         stats = dict(results[0].stats)
         for k in ("field_evaluations", "restriction_evaluations", "segments", "curved_locates"):
             stats[k] = int(sum(r.stats[k] for r in results))
-        stats.update(render_seconds=seconds, device=",".join(self.devices), elements=self.mesh.num_elements,
+        stats.update(render_seconds=seconds, device=self.device, elements=self.mesh.num_elements,
                      sort_last=[{"device": d, "elements": n, "render_seconds": r.stats["render_seconds"]}
                                 for d, n, r in zip(self.devices, self.part_elements, results)])
         if progress is not None:
