@@ -1,6 +1,6 @@
 """What the HOVR render engine does, as plain functions (engine.py's RenderEngine only calls
-these): snapshot the depsgraph into plain records, call the core, write pixels; the viewport's
-step and drawing.
+these): read the scene into plain records (snapshot.py), render the scene's Frame through the
+engine's one door (engine/frame.render_frame), write pixels; the viewport's step and drawing.
 
 No bpy.context and no operators during a final render, and nothing in the user's data is
 written. The core's renderer is imported lazily so that registering the add-on does not
