@@ -206,13 +206,31 @@ def allowed(e: int, t: float, skip: int, t_from: float, eps: float) -> int:
     return 1
 
 
+PASSED_MAX = 8  # elements a search may set aside at its start (the elements that meet at a vertex)
+PassedSet = wp.types.vector(length=PASSED_MAX, dtype=wp.int32)
+
+
+@wp.func
+def passed_at(e: int, t: float, passed: PassedSet, t_from: float, eps: float) -> int:
+    """1 for a crossing at or before t_from + eps of an element in `passed` (-1: an empty place):
+    elements the search has set aside there (left again by t_from: a sliver by an edge; touched
+    at a vertex or an edge only)."""
+    if t > t_from + eps:
+        return 0
+    for k in range(PASSED_MAX):
+        if passed[k] == e:
+            return 1
+    return 0
+
+
 @wp.func
 def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: float, t_to: float, eps: float,
-                  want: int, skip: int):
+                  want: int, skip: int, passed: PassedSet):
     """The first crossing beyond t_from (less eps; an entry less the bound) and before t_to of a curved element's face
     among the triangles under `root` (-1: all; a group root: one element's faces): entries (want
     WANT_ENTRY), exits (WANT_EXIT) or either (WANT_ANY: at one t an entry comes before an exit),
-    none of element `skip`'s crossings at or before t_from + eps (allowed); and the work: (polishes, Newton
+    none of element `skip`'s crossings at or before t_from + eps (allowed), nor those of the
+    elements in `passed` (passed_at; -1: none); and the work: (polishes, Newton
     iterations, candidates). Affine elements are left out (their crossings are their clips: the
     callers')."""
     slack = SLACK_BOUNDS * mesh.face_bound
@@ -223,7 +241,10 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
     n_cand = int(0)
     query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d, root)
     tri = int(0)
-    while wp.bvh_query_next(query, tri, best.t + slack - q0):
+    # the query's reach may only shrink (Warp never revisits a subtree it has cut)
+    reach = float(1.0e30)
+    while wp.bvh_query_next(query, tri, reach):
+        reach = wp.min(reach, best.t + slack - q0)
         n_cand += 1
         owner = mesh.face_owner[tri]
         e = owner // MAX_FACES
@@ -262,8 +283,13 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
             # one crossing: within eps, or a shared face's two sides (each element's map fits the
             # face on its own: their t differ by that fit, 1e-8 of the chord on the curved cube)
             tie = int(0)
-            if best.element >= 0 and (wp.abs(t - best.t) <= eps or (across == best.element and wp.abs(t - best.t) <= slack)):
-                tie = 1
+            if best.element >= 0:
+                if wp.abs(t - best.t) <= eps:
+                    tie = 1
+                elif across == best.element and wp.abs(t - best.t) <= slack:
+                    # only the face they share: best's face must lead back to e
+                    if mesh.neighbour[best.element * MAX_FACES + best.face] == e:
+                        tie = 1
             # at one crossing: at the start the ray goes on into the element entered there;
             # beyond it, it was inside the element that it leaves there
             first = int(0)
@@ -288,7 +314,7 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
             lower = t_from - eps
             if enters == 1 and skip >= 0 and across == skip:
                 lower = t_from - slack
-            if first == 1 and t >= lower and allowed(e, t, skip, t_from, eps) == 1:
+            if first == 1 and t >= lower and allowed(e, t, skip, t_from, eps) == 1 and passed_at(e, t, passed, t_from, eps) == 0:
                 best.element = e
                 best.face = f
                 best.t = wp.max(t, wp.min(t_from, t + slack))

@@ -467,6 +467,9 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
             if br.done == 1:
                 break
     if stepping == 1:
-        return wp.vec3(t, -1.0, 0.0), r, dv, newton
+        # out of steps short of t_end (a ray grazing a face steps along it in the band): the walk
+        # goes on through the nearest face, where the neighbour's own Newton checks the ray is inside
+        mf_last = margin_and_face(shape, wp.vec3(r[0], r[1], r[2]))
+        return wp.vec3(t, mf_last[1], 0.0), r, dv, newton
     mf = margin_and_face(shape, wp.vec3(br.rb[0], br.rb[1], br.rb[2]))
     return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb, newton
