@@ -10,11 +10,13 @@ from __future__ import annotations
 from ..engine import limits
 from .format import SNIFF_BYTES, Format
 from .nektar.format import FORMAT as NEKTAR
+from .pyfr.format import FORMAT as PYFR
 from .vtu.format import FORMAT as VTU
 
 FORMATS: list[Format] = [
     NEKTAR,
     VTU,
+    PYFR,
 ]
 
 
