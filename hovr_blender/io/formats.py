@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ..engine import limits
 from .format import SNIFF_BYTES, Format
+from .mfem.format import FORMAT as MFEM
 from .nektar.format import FORMAT as NEKTAR
 from .pyfr.format import FORMAT as PYFR
 from .vtu.format import FORMAT as VTU
@@ -17,6 +18,7 @@ FORMATS: list[Format] = [
     NEKTAR,
     VTU,
     PYFR,
+    MFEM,
 ]
 
 
