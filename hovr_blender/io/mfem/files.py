@@ -137,11 +137,11 @@ def read_gridfunction(path, header_only: bool = False) -> GridFunction:
     if header_only:
         return gf
     if not text.at_end():
-        raise text.error(f"unexpected {shown(text.word())} after the GridFunction's values")
+        raise text.error(f"GridFunction values: {shown(text.word())} is not a number")
     return gf
 
 
-def _gridfunction(text: Text, header_only: bool = False) -> GridFunction:
+def _gridfunction(text: Text, header_only: bool = False, what: str = "GridFunction values") -> GridFunction:
     text.skip_comments()
     start = text.pos
     first = text.line().decode("ascii", "replace").strip()
@@ -162,7 +162,7 @@ def _gridfunction(text: Text, header_only: bool = False) -> GridFunction:
     text.keyword("Ordering:")
     ordering = text.integer("Ordering", 0, 1)
     text.skip_comments()
-    values = np.zeros(0) if header_only else text.numbers(np.float64, "GridFunction values")
+    values = np.zeros(0) if header_only else text.numbers(np.float64, what)
     return GridFunction(collection, vdim, ordering, values, text.line_number(start))
 
 
@@ -194,9 +194,9 @@ def read_mesh(path) -> MFEMMesh:
     text.keyword("vertices")
     count = text.integer("vertex count", 1, max(1, len(text.data)))
     used = np.zeros(count, dtype=bool)
-    for what, c in (("element", conn), ("boundary element", bconn)):
+    for what, c in (("the element", conn), ("the boundary", bconn)):
         if c.size and (c.min() < 0 or c.max() >= count):
-            raise text.error(f"an {what} names vertex {int(c.max() if c.max() >= count else c.min()):,}, "
+            raise text.error(f"{what} list names vertex {int(c.max() if c.max() >= count else c.min()):,}, "
                              f"outside the {count:,} vertices")
         used[c] = True
     text.skip_comments()
@@ -204,7 +204,7 @@ def read_mesh(path) -> MFEMMesh:
     token = text.word()
     coordinates, nodes = None, None
     if token == b"nodes":
-        nodes = _gridfunction(text)
+        nodes = _gridfunction(text, what="nodes")
     else:
         text.pos = start
         sdim = text.integer("space dimension", 1, 3)
@@ -358,6 +358,6 @@ def _nc_mesh(text: Text, version: str) -> MFEMMesh:
             raise text.error(f"{xyz.size:,} coordinates for {count:,} nodes (3 each)", start)
         coordinates = xyz.reshape(count, 3)[ids]
     else:
-        nodes = _gridfunction(text)
+        nodes = _gridfunction(text, what="nodes")
     _mesh_end(text, version)
     return MFEMMesh(text.path, version, geoms, offsets, renumbered.reshape(-1), int(ids.size), coordinates, nodes)
