@@ -233,7 +233,8 @@ def _elements(text: Text, what: str, allowed, nc: bool):
     """(geoms, offsets, connectivity) of an element list: `attr geom v...` each (NC meshes:
     `rank attr geom ref_type v...`); an element naming a vertex twice is refused."""
     start = text.pos
-    count = text.integer(f"{what} count", 0 if what == "boundary" else 1, max(1, len(text.data) // 8))
+    one = "element" if what == "elements" else "boundary element"
+    count = text.integer(f"{one} count", 0 if what == "boundary" else 1, max(1, len(text.data) // 8))
     flat = text.numbers(np.int64, what)
     head = 4 if nc else 2  # the numbers before the vertices
     geoms, offsets = np.empty(count, np.int64), np.empty(count + 1, np.int64)
@@ -248,7 +249,7 @@ def _elements(text: Text, what: str, allowed, nc: bool):
             if np.all(table[:, gcol] == g0) and (not nc or not np.any(table[:, 3])):
                 geoms[:] = g0
                 offsets[:] = np.arange(count + 1) * (stride - head)
-                return _distinct(text, start, what, geoms, offsets, table[:, head:].ravel())
+                return _distinct(text, start, one, geoms, offsets, table[:, head:].ravel())
     pos = 0
     off = 0
     for e in range(count):
@@ -256,32 +257,32 @@ def _elements(text: Text, what: str, allowed, nc: bool):
             raise text.error(f"{what}: {count:,} declared, the list ends after {e:,}", start)
         geom = int(flat[pos + gcol])
         if nc and geom < 0:
-            raise text.error(f"{what} {e}: an unused element slot (a derefined mesh); not read", start)
+            raise text.error(f"{one} {e}: an unused element slot (a derefined mesh); not read", start)
         if geom not in allowed:
-            raise text.error(f"{what} {e}: geometry {geom} ({el.NAMES.get(geom, 'unknown')}) is not one of "
+            raise text.error(f"{one} {e}: geometry {geom} ({el.NAMES.get(geom, 'unknown')}) is not one of "
                              f"{', '.join(f'{g} {el.NAMES[g]}' for g in allowed)}", start)
         if nc and flat[pos + 3] != 0:
             raise _refined(text, start, e)
         nv = el.NUM_VERTICES[geom]
         geoms[e], offsets[e] = geom, off
         if pos + head + nv > flat.size:
-            raise text.error(f"{what} {e}: the list ends inside it ({count:,} declared)", start)
+            raise text.error(f"{one} {e}: the list ends inside it ({count:,} declared)", start)
         keep[pos + head:pos + head + nv] = True
         pos += head + nv
         off += nv
     if pos != flat.size:
         raise text.error(f"{what}: {flat.size - pos:,} numbers after the {count:,} declared", start)
     offsets[count] = off
-    return _distinct(text, start, what, geoms, offsets, flat[keep])
+    return _distinct(text, start, one, geoms, offsets, flat[keep])
 
 
-def _distinct(text: Text, start: int, what: str, geoms, offsets, conn):
+def _distinct(text: Text, start: int, one: str, geoms, offsets, conn):
     for geom in np.unique(geoms):
         idx = np.flatnonzero(geoms == geom)
         rows = np.sort(conn[offsets[idx][:, None] + np.arange(el.NUM_VERTICES[int(geom)])[None, :]], axis=1)
         twice = np.any(rows[:, 1:] == rows[:, :-1], axis=1)
         if twice.any():
-            raise text.error(f"{what} {int(idx[np.argmax(twice)])} names a vertex twice", start)
+            raise text.error(f"{one} {int(idx[np.argmax(twice)])} names a vertex twice", start)
     return geoms, offsets, conn
 
 

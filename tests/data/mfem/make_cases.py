@@ -15,7 +15,8 @@ Cases:
 - fichera-part0: the first of two parts of the same mesh from MFEM's MeshPartitioner (MFEM mesh
   v1.2, a parallel rank's piece, curved) and u projected on it (fichera-part0-u.gf).
 - zoo: MFEM's tiny zoo (one hexahedron, prism, pyramid, tetrahedron) refined once, nodes of order
-  2 in Bergot's pyramid space (H1_3D_P2_Pyr0), bent; zoo-u.gf H1_3D_P2_Pyr0, zoo-w.gf L2_3D_P2_Pyr0.
+  2 in Bergot's pyramid space (H1_3D_P2_Pyr0), bent; zoo-u.gf H1_3D_P2_Pyr0, zoo-w.gf L2_3D_P2_Pyr0;
+  zoo-sets.mesh the same mesh with named attribute sets (MFEM mesh v1.3).
 - var: the Fichera corner as a nonconforming mesh (EnsureNCMesh: MFEM NC mesh v1.0) carrying an H1
   field of a different order per element (1..4, VAR_ORDERS), saved raised to order 4 (var.gf: MFEM's
   interpolation of the variable-order field at the order-4 nodes, as ProlongateToMaxOrder does);
@@ -179,6 +180,10 @@ def zoo(data):
     bergot = mfem.H1_FECollection(2, 3, mfem.BasisType.GaussLobatto, 0)
     bend(mesh, bergot)
     mesh.Print(str(HERE / "zoo.mesh"))
+    # the same mesh with named attribute sets: MFEM mesh v1.3
+    mesh.attribute_sets.SetAttributeSet("hot corner", mfem.intArray([1]))
+    mesh.bdr_attribute_sets.SetAttributeSet("walls", mfem.intArray([1]))
+    mesh.Print(str(HERE / "zoo-sets.mesh"))
     _, u = field(mesh, mfem.H1_FECollection(2, 3, mfem.BasisType.GaussLobatto, 0), U())
     _, w = field(mesh, mfem.L2_FECollection(2, 3, mfem.BasisType.GaussLegendre, 0, 0), W())
     u.Save(str(HERE / "zoo-u.gf"))
