@@ -1,7 +1,8 @@
-"""MFEM inside Blender: the registry gives File > Import > HOVR MFEM (.mesh); importing the
-vendored zoo (tests/data/mfem, with pyramids) finds its GridFunction beside the mesh, makes a
-volume, and F12 renders it as the engine renders the same read; a GridFunction cut short is
-reported in one line with the scene unchanged."""
+"""MFEM inside Blender: the registry gives File > Import > HOVR MFEM (.mesh); an import finds the
+GridFunction beside the mesh; each vendored mesh and GridFunction (tests/data/mfem: curved mixed
+meshes, v1.0, v1.2, v1.3, pyramids, a variable-order field) makes a volume that F12 renders as the
+engine renders the same read; a GridFunction cut short is reported in one line with the scene
+unchanged."""
 import numpy as np
 import pytest
 
@@ -12,28 +13,13 @@ from hovr_blender.io.mfem import read_mfem  # noqa: E402
 from hovr_blender.ui import import_operators  # noqa: E402
 
 from ..helpers import data_file  # noqa: E402
+from ..data.mfem import VENDORED, camera_for  # noqa: E402
 from .blender_helpers import f12_and_engine  # noqa: E402
 
 W, H = 24, 20
-CONTRACT = {"eye": [3.4, -2.6, 2.4], "target": [1.0, 0.5, 0.5], "up": [0.0, 0.0, 1.0], "fov_y_deg": 36.0}
 
 
-@pytest.fixture
-def scene():
-    import hovr_blender
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    hovr_blender.register()
-    try:
-        sc = bpy.context.scene
-        sc.render.engine = 'HOVR'
-        yield sc
-    finally:
-        hovr_blender.unregister()
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-
-
-def test_mfem_import_renders_like_the_engine(scene, tmp_path):
+def test_the_gridfunction_beside_the_mesh_is_imported(scene, tmp_path):
     mesh = tmp_path / "zoo.mesh"
     mesh.write_bytes(data_file("mfem", "zoo.mesh").read_bytes())
     (tmp_path / "zoo-u.gf").write_bytes(data_file("mfem", "zoo-u.gf").read_bytes())
@@ -42,7 +28,15 @@ def test_mfem_import_renders_like_the_engine(scene, tmp_path):
     obj = bpy.context.active_object
     assert obj.hovr.is_volume and obj.hovr.field == "zoo-u" and obj.hovr.solution.endswith("zoo-u.gf")
     assert obj.hovr.value_min < obj.hovr.value_max
-    img, engine = f12_and_engine(scene, obj, read_mfem(mesh, tmp_path / "zoo-u.gf"), CONTRACT, W, H, 2.0, tmp_path)
+
+
+@pytest.mark.parametrize("mesh_name,gf_name", VENDORED)
+def test_each_vendored_file_renders_after_an_import(scene, tmp_path, mesh_name, gf_name):
+    """Imported with its GridFunction named, F12 renders it as the engine renders the same read."""
+    mesh, gf = data_file("mfem", mesh_name), data_file("mfem", gf_name)
+    assert bpy.ops.import_scene.hovr_mfem(filepath=str(mesh), solution=str(gf), frame=False) == {'FINISHED'}
+    obj = bpy.context.active_object
+    img, engine = f12_and_engine(scene, obj, read_mfem(mesh, gf), camera_for(mesh_name), W, H, 2.0, tmp_path)
     assert np.ptp(img[..., :3]) > 0.05
     np.testing.assert_allclose(img, engine, atol=1e-5)
 

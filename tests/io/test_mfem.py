@@ -24,10 +24,10 @@ from hovr_blender.io.mfem import MFEMError, elements as el, list_fields, read_mf
 from hovr_blender.io.mfem.files import parse_collection
 from hovr_blender.io.vtu import read_vtu
 
+from ..data.mfem import FICHERA_CAMERA, VENDORED, camera_for
 from ..helpers import data_file
 
-CAMERA = {"eye": [3.9, -3.2, 3.3], "target": [0.0, 0.0, -0.1], "up": [0, 0, 1], "fov_y_deg": 36.0}
-ZOO_CAMERA = {"eye": [3.4, -2.6, 2.4], "target": [1.0, 0.5, 0.5], "up": [0, 0, 1], "fov_y_deg": 36.0}
+CAMERA = FICHERA_CAMERA
 BG = [0.05, 0.05, 0.08]
 
 
@@ -206,16 +206,17 @@ def test_variable_orders_render_as_the_raised_field(device, method):
     assert diff <= 1e-3, diff
 
 
-def test_renders_in_the_cli(tmp_path):
-    view = {"data": {"path": str(path("zoo.mesh")), "solution": str(path("zoo-u.gf"))}, "camera": ZOO_CAMERA,
-            "image": {"width": 48, "height": 40}, "transfer_function": TF_U, "background": BG,
+@pytest.mark.parametrize("mesh_name,gf_name", VENDORED)
+def test_each_vendored_file_renders_in_the_cli(tmp_path, mesh_name, gf_name):
+    view = {"data": {"path": str(path(mesh_name)), "solution": str(path(gf_name))}, "camera": camera_for(mesh_name),
+            "image": {"width": 24, "height": 20}, "transfer_function": TF_U, "background": BG,
             "render": {"method": "split"}}
     (tmp_path / "v.json").write_text(json.dumps(view))
     out = subprocess.run([sys.executable, "-m", "hovr_blender.cli", "render", str(tmp_path / "v.json"),
                           "-o", str(tmp_path / "v.npy")], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     image = np.load(tmp_path / "v.npy")
-    assert image.shape == (40, 48, 4) and image[..., 3].max() > 0.05
+    assert image.shape == (20, 24, 4) and image[..., 3].max() > 0.05
 
 
 # ----------------------------------------------------------------------------- the GridFunction beside a mesh
