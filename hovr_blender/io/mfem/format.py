@@ -69,7 +69,7 @@ def _geometry(mesh: MFEMMesh, topology: Topology):
                     for geom, (idx, conn) in topology.groups.items()]
     for g in gathered:
         T = el.conversion(g.geom, g.order, g.nodes)
-        G = np.einsum("kn,enc->ekc", T, g.values)
+        G = np.matmul(T, g.values)  # (K, n) @ (elements, n, 3)
         gmodes = el.modes(g.geom, g.order)
         shape = el.SHAPES[g.geom]
         try:
