@@ -57,7 +57,8 @@ def _guarded(path, read):
 
 
 def _geometry(mesh: MFEMMesh, topology: Topology):
-    """{geom: (gmodes, G (n, K, 3))}: each element's geometry as modal coefficients, certified."""
+    """{geom: (element indices, gmodes, G (n, K, 3))}: each element's geometry as modal coefficients,
+    certified (engine/validity.py)."""
     out = {}
     if mesh.nodes is not None:
         if mesh.nodes.vdim != 3:
