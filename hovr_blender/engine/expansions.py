@@ -204,7 +204,7 @@ def _uncollapse(shape, eta) -> np.ndarray:
 # one-dimensional factors
 
 
-def _jacobi(n: int, a: float, b: float, x) -> list:
+def jacobi_polynomials(n: int, a: float, b: float, x) -> list:
     """[P^(a,b)_0 .. P^(a,b)_n](x), standard normalisation (three-term recurrence, as Polylib)."""
     out = [np.ones_like(x)]
     if n >= 1:
@@ -227,7 +227,7 @@ class _Jac:
 
     def _fam(self, a, b):
         if (a, b) not in self.cache:
-            self.cache[(a, b)] = _jacobi(self.nmax, float(a), float(b), self.x)
+            self.cache[(a, b)] = jacobi_polynomials(self.nmax, float(a), float(b), self.x)
         return self.cache[(a, b)]
 
     def __call__(self, n, a, b):

@@ -9,12 +9,16 @@ from __future__ import annotations
 
 from ..engine import limits
 from .format_base import SNIFF_BYTES, Format
+from .mfem.format import FORMAT as MFEM
 from .nektar.format import FORMAT as NEKTAR
+from .pyfr.format import FORMAT as PYFR
 from .vtu.format import FORMAT as VTU
 
 FORMATS: list[Format] = [
     NEKTAR,
     VTU,
+    PYFR,
+    MFEM,
 ]
 
 

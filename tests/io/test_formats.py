@@ -66,7 +66,7 @@ def test_an_unregistered_format_is_refused_in_one_line(tmp_path):
     path = toy_format.write(tmp_path / "brick.toy")
     assert formats.format_of(path) is None
     with pytest.raises(SourceError, match=r"unsupported data format '\.toy' \(use builtin:NAME or a file of "
-                                          r"Nektar\+\+ \(\.xml\), VTU \(\.vtu\)\)"):
+                                          r"Nektar\+\+ \(\.xml\), VTU \(\.vtu\), PyFR \(\.pyfrm\), MFEM \(\.mesh\)\)"):
         load_volume(VolumeSource.resolve(str(path)))
 
 
