@@ -1,5 +1,6 @@
-"""Host-side inputs of the traversal: which element lies across each face, and a straight-sided
-guess of every element's world -> reference map.
+"""Host-side inputs of the traversal: which element lies across each face, how a point of a shared
+face in one element's reference coordinates reads in the other's, and a straight-sided guess of
+every element's world -> reference map.
 
 Faces are numbered as the kernels' element.face_plane numbers them (shapes.FACE_PLANES;
 tests/engine/test_adjacency.py checks the two agree). Two faces are the same when
@@ -12,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import MAX_FACES, VERTICES, plane_vertices
+from .shapes import FACE_PLANES, MAX_FACES, VERTICES, plane_vertices
 
 def face_neighbours(mesh) -> np.ndarray:
     """(N * MAX_FACES,) int32: the element across face f of element e at e * MAX_FACES + f, -1 if none."""
@@ -46,6 +47,42 @@ def face_neighbours(mesh) -> np.ndarray:
     a, b = slots[pair], slots[pair + 1]
     out[a] = b // MAX_FACES
     out[b] = a // MAX_FACES
+    return out
+
+
+def face_maps(mesh, neighbours: np.ndarray) -> np.ndarray:
+    """(N * MAX_FACES, 3, 4) float64: for face f of element e with a neighbour n, the affine map
+    xi_n = M[:, :3] xi_e + M[:, 3] of a point of the face in e's reference coordinates to the same
+    point in n's, from the face's corners matched by their world positions (a reference face is
+    flat, and a conforming face's geometry is one polynomial of its corners' coordinates from either
+    side; points off the face go along the normals, inward in e to outward in n); zero elsewhere.
+    The walk takes the neighbour's solution where it leaves e from this (kernels/walk.py)."""
+    n_el = mesh.num_elements
+    out = np.zeros((n_el * MAX_FACES, 3, 4))
+    nb = np.asarray(neighbours).reshape(n_el, MAX_FACES)
+    elem, face = np.nonzero(nb >= 0)
+    if elem.size == 0:
+        return out
+    other = nb[elem, face]
+    back = np.argmax(nb[other] == elem[:, None], axis=1)  # n's face that leads back to e
+    keys = np.stack([mesh.shape[elem], face, mesh.shape[other], back], axis=1)
+    for key in np.unique(keys, axis=0):
+        se, f, sn, g = (int(v) for v in key)
+        sel = np.nonzero((keys == key).all(axis=1))[0]
+        ie, ig = plane_vertices(se)[f], plane_vertices(sn)[g]
+        if len(ie) != len(ig):
+            continue
+        xe = mesh.vertices[elem[sel]][:, ie]  # (m, k, 3) world corners, e's order
+        xn = mesh.vertices[other[sel]][:, ig]
+        match = np.argmin(np.linalg.norm(xe[:, :, None] - xn[:, None], axis=-1), axis=2)  # (m, k)
+        ne = np.asarray(FACE_PLANES[se][f][0], float)
+        nn = np.asarray(FACE_PLANES[sn][g][0], float)
+        P = VERTICES[se][ie[:3]]  # three corners and a point off the face, in e's coordinates
+        P = np.vstack([P, P[0] - ne / np.linalg.norm(ne)])
+        Q = VERTICES[sn][np.asarray(ig)[match[:, :3]]]  # (m, 3, 3)
+        Q = np.concatenate([Q, (Q[:, 0] + nn / np.linalg.norm(nn))[:, None]], axis=1)
+        H = np.linalg.inv(np.hstack([P, np.ones((4, 1))]).T)  # Q^T = M [P^T; 1]
+        out[elem[sel] * MAX_FACES + f] = np.einsum("mpj,pk->mjk", Q, H)
     return out
 
 

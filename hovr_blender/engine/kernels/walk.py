@@ -169,6 +169,31 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
 
 
 @wp.func
+def entry_across(mesh: MeshArgs, e: int, f: int, n: int, xi_e: wp.vec3, o: wp.vec3, d: wp.vec3, t: float):
+    """Curved element n's solution and velocity where the ray leaves e through face f at t into n
+    (xi_e: the exit's point on the face in e's coordinates), as the walk's (r, dv) (r[3] <= 0:
+    not found, and Newton at t from the vertex-affine guess locates it instead): the face's point
+    in n's coordinates (adjacency.face_maps), checked and refined by one Newton step."""
+    slot = e * MAX_FACES + f
+    xi = mesh.face_map_a[slot] * xi_e + mesh.face_map_b[slot]
+    x, J = geometry.local_geometry_with_jacobian(mesh, n, xi)
+    r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    if wp.abs(wp.determinant(J)) > 1.0e-30:
+        Jinv = wp.inverse(J)
+        step = Jinv * (geometry.local_ray_point(mesh, n, o, d, t) - x)
+        if wp.length(step) < SHARED_FACE_TOL:
+            xi = xi + step
+            r = crossing.solution_at_xi(mesh, n, xi)
+            if geometry.margin_and_face(mesh.shape[n], xi)[0] <= -SHARED_FACE_TOL:
+                r[3] = -1.0
+            v = Jinv * d
+            pl = element.face_plane(mesh.shape[n], int(geometry.margin_and_face(mesh.shape[n], xi)[1]))
+            dv = wp.vec4(v[0], v[1], v[2], -(pl[0] * v[0] + pl[1] * v[1] + pl[2] * v[2]))
+    return r, dv
+
+
+@wp.func
 def write_segment(mesh: MeshArgs, segs: Segments, slot: int, e: int, a: float, b: float, curved: int,
                   uses_restriction: int, r_a: wp.vec4, dv_a: wp.vec4, r_b: wp.vec4, dv_b: wp.vec4) -> int:
     """Segment [a, b] of element e into `slot`, on the sample kernel's list unless the baselines
@@ -217,7 +242,8 @@ def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
 
 @wp.func
 def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int, t: float, e: int, left: int,
-               r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int, n_newton: int):
+               r_entry: wp.vec4, dv_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int,
+               n_newton: int):
     """Where ray i's walk got this round (its n segments, the counters) into the ray state."""
     if finished == 1:
         rays.phase[i] = 1
@@ -225,6 +251,7 @@ def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int
     rays.next_element[i] = e
     rays.left_element[i] = left
     rays.entry_r[i] = r_entry
+    rays.entry_dv[i] = dv_entry
     segs.count[i] = n
     rays.stats[pixel, STAT_FIELD_EVALS] += n_field
     rays.stats[pixel, STAT_SEGMENTS] += n_seg
@@ -322,9 +349,15 @@ def make_traverse_kernel(CURVED: bool):
             left = e
             if face >= 0 and zero_steps < MAX_ZERO_STEPS:
                 e = mesh.neighbour[e * MAX_FACES + face]
+                if wp.static(CURVED):
+                    # into a curved neighbour from a curved element: its solution from the exit's own
+                    if e >= 0 and r_b[3] > 0.0 and mesh.affine[e] == 0:
+                        r_entry, dv_entry = entry_across(mesh, left, face, e, wp.vec3(r_b[0], r_b[1], r_b[2]), o, d, t)
+                        n_newton += 1
             else:
                 e = -1
-        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, n, n_field, n_seg, n_empty, n_walk, n_newton)
+        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, dv_entry, n, n_field, n_seg, n_empty, n_walk,
+                   n_newton)
         rays.stats[pixel, STAT_BVH_CANDIDATES] += n_cand
 
     return traverse
