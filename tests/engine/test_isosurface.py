@@ -98,14 +98,20 @@ def test_grazing_pair_is_found_where_samples_see_no_crossing(device):
         samples = C.chebval(np.cos(np.pi * np.arange(4) / 3), p)
         assert np.all(samples > 0)  # no sign change at the points a degree-3 segment samples
     got = _run(series, levels, device=device)
+    _assert_touch_or_pair(cases, got, lambda r, delta: np.sqrt(-delta / (1 + 0.1 * r)), 2e-4)
+
+
+def _assert_touch_or_pair(cases, got, half, atol):
+    """Each case (r, delta) of p = (s - r)^2 q + delta: no root for delta > 0, one at r for delta
+    = 0, two at r -+ half(r, delta) within atol for delta < 0."""
     for (r, delta), g in zip(cases, got):
         if delta > 0:
             assert len(g) == 0, (r, delta, g)
         elif delta == 0:
             assert len(g) == 1 and abs(g[0] - r) < 1e-3, (r, g)
         else:
-            half = np.sqrt(-delta / (1 + 0.1 * r))
-            assert len(g) == 2 and np.allclose(g, [r - half, r + half], atol=2e-4), (r, g)
+            h = half(r, delta)
+            assert len(g) == 2 and np.allclose(g, [r - h, r + h], atol=atol), (r, delta, g)
 
 
 def test_levels_and_pyramid_weights_match_numpy(device):
@@ -137,14 +143,7 @@ def test_near_tangency_the_pair_is_met_at_its_own_roots(device):
     cases = [(r, delta) for r in (-0.4, 0.2) for delta in (-1e-4, -1e-5, 0.0, 1e-5, 1e-4)]
     series = [C.chebadd(C.chebfromroots([r, r]), [delta]).astype(np.float32) for r, delta in cases]
     got = _run(series, [0.0] * len(cases), device=device, err=1e-3)
-    for (r, delta), g in zip(cases, got):
-        if delta > 0:
-            assert len(g) == 0, (r, delta, g)
-        elif delta == 0:
-            assert len(g) == 1 and abs(g[0] - r) < 1e-3, (r, g)
-        else:
-            h = np.sqrt(-delta)
-            assert len(g) == 2 and np.allclose(g, [r - h, r + h], atol=1e-5), (r, delta, g)
+    _assert_touch_or_pair(cases, got, lambda r, delta: np.sqrt(-delta), 1e-5)
 
 
 def test_a_crossing_between_two_segments_is_met_once_at_the_start(device):

@@ -11,11 +11,19 @@ at gets p's own series there (local_series: p at its Chebyshev-Lobatto points, t
 a series q bounds itself, |q - q_0| <= sum_k>0 |q_k|. An interval whose series keeps its sign
 has no root; one whose derivative's series keeps its sign holds one root at most, where the
 ends' signs differ; one whose second derivative's keeps its sign holds at most two, on either
-side of p's one extremum, found as the root of p' first: a grazing pair (the ray touching the
-surface inside the segment, p's extremum within rounding of 0) is found
-there as one root, where sign tests at samples would miss it. Other intervals are halved, left
-half first, so the roots come out in increasing order. Roots are polished by safeguarded Newton
-inside their bracket to a few ulps of s.
+side of p's one extremum, found as the root of p' first: an extremum within the series' own
+rounding of 0 (the ray touching the surface inside the segment) is one root, where sign tests at
+samples would miss it; beyond that rounding the pair is two roots, each at its own place. Other
+intervals are halved, left half first, so the roots come out in increasing order. Roots are
+polished by safeguarded Newton inside their bracket to a few ulps of s.
+
+The segments of a ray abut only to the traversal's rounding (a gap or an overlap of up to
+STRETCH_RTOL where the next element was found by a search), and two abutting series' ends agree
+only to their rounding. So the sign tests at a segment's start take the sign of f - c at the end
+of the ray's previous segment where this one runs on from it (segment_events): a crossing between
+the two ends is met once, at this segment's start, and one met at the previous end is not met
+again. Near tangency the precision decides whether a ray meets the surface only within a band
+(docs/methods.md "Near tangency", contract §7; audit/isosurface_band.py checks it).
 
 On affine elements the series is the field itself (exact to rounding), so these are the exact
 crossings. On curved ones it interpolates the field (its tail below restriction's
