@@ -9,6 +9,7 @@ Every script runs as a module from the repository's root (`python -m bench.suite
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -61,6 +62,15 @@ def jsonable(o):
 
 
 # ----------------------------------------------------------------------- measuring renders
+
+
+def write_report(report: dict, out: str | None):
+    """The report as indented JSON into `out`, or printed where there is no `out`."""
+    text = json.dumps(report, indent=1) + "\n"
+    if out:
+        Path(out).write_text(text)
+    else:
+        print(text)
 
 
 def rgb_error(img, ref):

@@ -87,7 +87,7 @@ def _pyramid_boxes(mesh):
 def _check_dataset(job):
     """One dataset's report (a worker process: VTK objects stay in it)."""
     name, entry, size = job
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
     from hovr_blender.audit import vtk_volume
     from hovr_blender.engine import shapes
 

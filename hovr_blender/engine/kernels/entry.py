@@ -134,7 +134,8 @@ def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: cross
     the element's own triangles (its group in the BVH; a grazing ray's entry through the face it
     leaves by too), and the last entry among the crossings of the element's other faces, each
     polished from the exit's point (a thin re-entry after a dip outside, whose triangles'
-    starts polish to the crossing before the dip). It may lie before the search's start: a
+    starts polish to the crossing before the dip); failing both, the walk's own exit search
+    (geometry.curved_exit) along the reversed ray from just inside the exit. It may lie before the search's start: a
     walk's exit is a bracket on the margin, so the face it crossed and the next element's entry
     differ by its rounding, and more where the ray passes by an edge."""
     e = exit.element
@@ -162,6 +163,31 @@ def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: cross
                 found.xi = xi
                 found.v = vel
                 found.enters = 1
+    if found.element < 0:
+        # the ray is inside e just before its exit: the walk's own exit search along the reversed
+        # ray finds where it came in (a grazing clip entering and leaving by one face: both its
+        # triangles' polishes, and the mirrored ones, converge to the exit)
+        back_r = crossing.solution_at(mesh, exit)
+        back_dv = -crossing.velocity_at(mesh, exit)
+        span = geometry.box_interval(mesh, e, o, -d)
+        ex, r_b, dv_b, its_b = geometry.curved_exit(mesh, e, o, -d, -exit.t, back_r, back_dv, span[1])
+        polishes += 1
+        newton += its_b
+        if ex[1] >= 0.0 and -ex[0] < exit.t:
+            found.element = e
+            found.face = int(ex[1])
+            found.t = -ex[0]
+            found.xi = wp.vec3(r_b[0], r_b[1], r_b[2])
+            found.v = -wp.vec3(dv_b[0], dv_b[1], dv_b[2])
+            found.enters = 1
+            # the bracket's end lies in the band outside the face: the crossing itself, polished from it
+            xi, t, ok, vel, its = crossing.polish(mesh, e, found.face, o, d, found.xi, found.t)
+            polishes += 1
+            newton += its
+            if ok == 1 and t < exit.t and crossing.entering(mesh, e, found.face, vel) == 1:
+                found.t = t
+                found.xi = xi
+                found.v = vel
     return found, wp.vec3i(polishes, newton, work[2])
 
 
