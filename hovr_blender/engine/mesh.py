@@ -60,7 +60,7 @@ def _affine_maps(shape: int, gmodes, G: np.ndarray):
     good = np.isfinite(det) & (extent > 0) & (np.abs(det) > 1e-12 * extent**3)
     pts = ex.fit_points(shape, gmodes)
     B = ex.basis_matrix(shape, gmodes, pts)
-    dev = np.abs(np.einsum("pk,mkc->mpc", B, G) - (V[:, None, 0] + np.einsum("pd,mcd->mpc", pts + 1.0, J))).max(axis=(1, 2))
+    dev = np.abs(np.matmul(B, G) - (V[:, None, 0] + np.einsum("pd,mcd->mpc", pts + 1.0, J))).max(axis=(1, 2))
     ok = good & (dev <= 1e-12 * (extent + np.abs(V).max(axis=(1, 2))))
     maps = np.zeros((len(G), 3, 4))
     if ok.any():
