@@ -11,8 +11,12 @@ arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtyp
 process reads into arrays it allocates after checking their sizes against the memory limit.
 
 Limits of each task, in the reader process: its address space may grow by the memory limit
-(engine/limits.py, RLIMIT_AS; Linux), its wall time is the read time limit (this process kills it;
-an alarm in it ends it anyway should this process be gone). A reader process ends with this one:
+(engine/limits.py, RLIMIT_AS; Linux); its wall time is the read time limit, a base and a rate for
+each MB of the files it opens (limits.read_seconds: this process counts their sizes as the reader
+names them), and it is stopped sooner when it reports no progress for limits.READ_STALL_SECONDS
+(the reader reports whenever limits.progress() was called since its last report: libhdf5 looping
+on a damaged file reports nothing). This process kills it; an alarm in it ends it anyway should
+this process be gone. A reader process ends with this one:
 a parent-death signal (Linux), the end of its request pipe (everywhere). It ignores SIGINT: Ctrl-C
 reaches this process, which stops it.
 
@@ -27,15 +31,17 @@ from __future__ import annotations
 
 import atexit
 import json
+import math
 import os
 import signal
+import stat
 import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, fields as dataclass_fields
+from dataclasses import asdict, fields as dataclass_fields, replace
 from pathlib import Path
 
 from ..engine import limits
@@ -46,6 +52,7 @@ START_SECONDS = 120.0  # for a reader process to start (import numpy, the reader
 ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allocations during a task
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
+MAX_FILES_COUNTED = 10_000  # files a read's time limit counts (a multi-part field folder has one a rank)
 # dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
 ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
@@ -352,15 +359,20 @@ class Request:
     """One task in a reader process: `poll()` until it is done (then `value()`), or `cancel()`.
     `stage` is what the reader is doing, in words ("reading flow.fld")."""
 
-    def __init__(self, task: str, args: dict, seconds: float, what: str = ""):
-        self.task, self.what, self.seconds = task, what, float(seconds)
+    def __init__(self, task: str, args: dict, seconds: float | None = None, what: str = "",
+                 cap: float | None = None):
+        self.task, self.what = task, what
         self.stage = "starting the reader"
         self.done = False
         self._result = self._error = None
         self._file = what
         self._limits = limits.current()
-        self._worker = _take()
+        if seconds is not None:  # a flat limit for this task (no progress check), as HOVR_MAX_READ_SECONDS
+            self._limits = replace(self._limits, max_read_seconds=float(seconds))
+        self._cap = cap
+        self._opened: dict = {}  # the files the reader opened -> their sizes (stat here): the time limit's MB
         self._deadline = time.monotonic() + START_SECONDS  # then the time limit, from its "started"
+        self._progressed = None  # when the reader last reported progress (its first stage starts the clock)
         self._pending = bytearray(HEADER.size)  # what is being read: a length, a message or an array
         self._got = 0
         self._on_filled = self._length_read
@@ -368,11 +380,42 @@ class Request:
         self._specs: list = []
         self._reply = None
         self._started = False
+        self._worker = _take()
         try:
-            send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits),
-                                      "seconds": self.seconds})
+            send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits), "cap": cap})
         except OSError:  # it died before the request: a broken start
             self._fail_dead()
+
+    @property
+    def seconds(self) -> float:
+        """The time limit of this read as it stands: it grows with the files the reader opens."""
+        return limits.read_seconds(sum(self._opened.values()), self._cap, self._limits)
+
+    def _time_limit(self) -> str:
+        mb = sum(self._opened.values()) / 1e6
+        rule = ("" if self._limits.max_read_seconds is not None else
+                f" ({limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s a MB of the {mb:.3g} MB read)")
+        return f"longer than the limit of {self.seconds:.3g} s{rule}"
+
+    def _limit_reached(self, now: float) -> str | None:
+        """Why the task must stop now, or None."""
+        if not self._started:
+            return (f"the reader process did not start within {START_SECONDS:g} s" if now >= self._deadline
+                    else None)
+        if now >= self._deadline + self.seconds:
+            return (f"reading took {self._time_limit()} and was stopped (raise it with HOVR_MAX_READ_SECONDS if "
+                    "the file is genuine)")
+        stall = limits.read_stall_seconds(self._limits)
+        if stall is not None and now >= self._progressed + stall:
+            return (f"the reader made no progress for {stall:g} s and was stopped (a damaged file can make a "
+                    "library loop without end; if the file is genuine, HOVR_MAX_READ_SECONDS sets a flat limit)")
+        return None
+
+    def _next_check(self) -> float:
+        if not self._started:
+            return self._deadline
+        stall = limits.read_stall_seconds(self._limits)
+        return min(self._deadline + self.seconds, self._progressed + stall if stall is not None else math.inf)
 
     @property
     def pid(self) -> int | None:
@@ -386,12 +429,11 @@ class Request:
         end = time.monotonic() + max(timeout, 0.0)
         while not self.done:
             now = time.monotonic()
-            if now >= self._deadline:
-                self._stop(f"reading took longer than the limit of {self.seconds:g} s and was stopped (raise it "
-                           "with HOVR_MAX_READ_SECONDS if the file is genuine)" if self._started else
-                           f"the reader process did not start within {START_SECONDS:g} s")
+            why = self._limit_reached(now)
+            if why is not None:
+                self._stop(why)
                 break
-            wait = min(end, self._deadline) - now
+            wait = min(end, self._next_check()) - now
             if not _wait_readable(self._worker.stdout.fileno(), max(wait, 0.0)):
                 if time.monotonic() >= end:
                     break
@@ -403,6 +445,8 @@ class Request:
             if not n:
                 self._fail_dead()
                 break
+            if self._started:  # a long reply is progress too
+                self._progressed = time.monotonic()
             self._got += n
             if self._got == len(self._pending):
                 self._on_filled()
@@ -428,12 +472,16 @@ class Request:
         except ValueError:
             self._stop("the reader process sent a malformed message")
             return
-        if "stage" in message:
-            if not self._started:
+        if "stage" in message or "progress" in message:
+            self._progressed = time.monotonic()
+            if not self._started:  # the time limit runs from here (_deadline: when it started)
                 self._started = True
-                self._deadline = time.monotonic() + self.seconds
-            self.stage = _one_line(message["stage"], 200)
-            self._file = _one_line(message.get("file", self._file), 1000)
+                self._deadline = self._progressed
+            if "stage" in message:
+                self.stage = _one_line(message["stage"], 200)
+                self._file = _one_line(message.get("file", self._file), 1000)
+                if "file" in message:
+                    self._count_file(str(message["file"]))
             self._expect(HEADER.size, self._length_read)
         elif "error" in message:
             self._reply = message
@@ -458,6 +506,15 @@ class Request:
                 self._stop("the reader process sent a malformed result")
                 return
             self._next_array()
+
+    def _count_file(self, path: str):
+        """A file the reader opened counts towards the time limit by its size, as this process sees it."""
+        if path not in self._opened and len(self._opened) < MAX_FILES_COUNTED:
+            try:
+                st = os.stat(path)
+                self._opened[path] = st.st_size if stat.S_ISREG(st.st_mode) else 0
+            except (OSError, ValueError):
+                self._opened[path] = 0
 
     def _next_array(self):
         import numpy as np
@@ -515,7 +572,7 @@ class Request:
             except ValueError:
                 name = f"signal {-code}"
             if -code == getattr(signal, "SIGALRM", None):
-                why = f"reading took longer than the limit of {self.seconds:g} s and was stopped"
+                why = f"reading took {self._time_limit()} and was stopped"
             elif -code == signal.SIGKILL:
                 why = "the reader process was killed (SIGKILL, perhaps out of memory) while reading it; refused"
             else:
@@ -575,17 +632,17 @@ class Finished:
         return self._result
 
 
-def start(task: str, args: dict, seconds: float | None = None, what: str = ""):
+def start(task: str, args: dict, seconds: float | None = None, what: str = "", cap: float | None = None):
     """reader_process.TASKS[task](**args) started in a reader process: a Request to poll (or a
-    Finished one where isolation is off). `what`: the file named by failures before the reader
-    says which it opened."""
+    Finished one where isolation is off). `seconds`: a flat time limit instead of the resource
+    policy's (limits.read_seconds: by the size of what is read, and no progress for a few seconds
+    stops it); `cap`: at most this long. `what`: the file named by failures before the reader says
+    which it opened."""
     if not enabled():
         from .reader_process import TASKS
 
         return Finished(lambda: TASKS[task](**args))
-    if seconds is None:
-        seconds = limits.current().max_read_seconds
-    return Request(task, args, seconds, what)
+    return Request(task, args, seconds, what, cap)
 
 
 def wait(request, on_stage=None, cancelled=None):
@@ -605,10 +662,11 @@ def wait(request, on_stage=None, cancelled=None):
     return request.value()
 
 
-def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
+def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None,
+         cap: float | None = None):
     """Run reader_process.TASKS[task](**args) in a reader process and return its result (start,
     then wait)."""
-    return wait(start(task, args, seconds, what), on_stage, cancelled)
+    return wait(start(task, args, seconds, what, cap), on_stage, cancelled)
 
 
 # ----------------------------------------------------------------------------- the tasks, called here
@@ -644,7 +702,7 @@ def read_volume(source, **progress):
 def list_fields_request(format_name: str, path):
     """list_fields started in a reader process (start)."""
     return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path))
+                 what=str(path), cap=LIST_SECONDS)
 
 
 def list_fields(format_name: str, path, **progress):
@@ -658,7 +716,7 @@ def wall_choices_request(format_name: str, mesh_path):
     (lists: wall_choices makes them tuples)."""
     return start("wall_choices", {"format_name": format_name, "path": str(mesh_path),
                                   "extra_formats": _extra_formats()},
-                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path))
+                 what=str(mesh_path), cap=LIST_SECONDS)
 
 
 def wall_choices(format_name: str, mesh_path, **progress) -> list:

@@ -109,6 +109,95 @@ def test_the_time_limit_comes_from_the_resource_limits(monkeypatch):
         load_volume(_tet())
 
 
+_SLOW_FORMAT = """
+import time
+from hovr_blender.engine import limits
+from hovr_blender.io.format import Format
+from hovr_blender.io.synthetic import brick
+
+def read(path, solution=None, field=None, component=None):
+    kind, seconds = limits.read_regular(path, "slow file").decode().split()
+    end = time.monotonic() + float(seconds)
+    while time.monotonic() < end:  # busy, as a reader is: with progress reported, or inside one long call
+        if kind == "progress":
+            limits.progress()
+        time.sleep(0.05 if kind == "progress" else float(seconds))
+    return brick((0, 0, 0), (1, 1, 1), (1, 1, 1), 2, lambda x, y, z: x, field_name="x")
+
+FORMAT = Format(name="slow", label="Slow", extensions=(".slow",), sniff=lambda head: False, read=read,
+                list_fields=lambda path: ["x"])
+"""
+
+
+@pytest.fixture
+def slow_format(tmp_path, monkeypatch):
+    """A format whose read takes the seconds its file names, reporting progress or not; the stall
+    limit here 1 s (the parent enforces it)."""
+    import importlib.util
+
+    from hovr_blender.io import formats
+
+    (tmp_path / "slow_format.py").write_text(_SLOW_FORMAT)
+    spec = importlib.util.spec_from_file_location("slow_format", tmp_path / "slow_format.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "slow_format", module)  # the reader finds a format's module by it
+    spec.loader.exec_module(module)
+    formats.register(module.FORMAT)
+    monkeypatch.setattr(limits, "READ_STALL_SECONDS", 1.0)
+    try:
+        yield tmp_path
+    finally:
+        formats.unregister("slow")
+
+
+def test_a_read_that_reports_progress_runs_past_the_stall_limit(slow_format):
+    (slow_format / "m.slow").write_text("progress 3")
+    assert load_volume(VolumeSource(str(slow_format / "m.slow"))).num_elements == 1
+
+
+def test_a_read_without_progress_is_stopped_at_the_stall_limit(slow_format):
+    (slow_format / "m.slow").write_text("silent 30")
+    t0 = time.monotonic()
+    with pytest.raises(isolation.ReaderFailure, match=r"m.slow: the reader made no progress for 1 s"):
+        load_volume(VolumeSource(str(slow_format / "m.slow")))
+    assert time.monotonic() - t0 < 10.0
+
+
+def test_a_flat_limit_turns_the_stall_check_off(slow_format, monkeypatch):
+    monkeypatch.setenv("HOVR_MAX_READ_SECONDS", "20")
+    (slow_format / "m.slow").write_text("silent 2")
+    assert load_volume(VolumeSource(str(slow_format / "m.slow"))).num_elements == 1
+
+
+def test_the_time_limit_grows_with_the_megabytes_read():
+    mesh, rst = data_file("nektar", "hump3D_GLL.xml"), data_file("nektar", "hump3D.rst")
+    request = isolation.read_volume_request(VolumeSource.resolve(str(mesh), str(rst), "rho"))
+    assert request.seconds == limits.READ_BASE_SECONDS
+    isolation.wait(request)
+    mb = (os.path.getsize(mesh) + os.path.getsize(rst)) / 1e6
+    assert request.seconds == pytest.approx(limits.READ_BASE_SECONDS + limits.READ_SECONDS_PER_MB * mb)
+    assert limits.read_seconds(200e6, cap=30.0) == 30.0
+
+
+def test_a_huge_xml_attribute_is_refused_after_the_token_limit(tmp_path):
+    """expat 2.5 rescans an unfinished token with each piece fed: a 1 GiB attribute took 10 minutes.
+    Here one twice the token limit is refused, reading little more than the limit."""
+    from hovr_blender.io import safe_xml
+
+    head = b'<?xml version="1.0"?>\n<NEKTAR><GEOMETRY X="'
+    with open(tmp_path / "m.xml", "wb") as fh:
+        fh.write(head + b"x" * (2 * safe_xml.MAX_TOKEN_BYTES) + b'"/></NEKTAR>')
+    t0 = time.monotonic()
+    with pytest.raises(nektar.NektarError, match=r"m.xml: an XML token .* runs beyond 16 MiB from byte 30"):
+        read_volume(VolumeSource(str(tmp_path / "m.xml")))
+    assert time.monotonic() - t0 < 5.0
+    comment = '<?xml version="1.0" encoding="UTF-16"?><a><!--' + "y" * safe_xml.MAX_TOKEN_BYTES + "--></a>"
+    with pytest.raises(safe_xml.XmlRefused, match="runs beyond"):  # in UTF-16 expat's byte index counts 2 a char
+        safe_xml.parse(comment.encode("utf-16"))
+    text = b"<a>" + b"z" * (2 * safe_xml.MAX_TOKEN_BYTES) + b"</a>"  # text is no token: parsed as it comes
+    assert len(safe_xml.parse(text).text) == 2 * safe_xml.MAX_TOKEN_BYTES
+
+
 def test_cancel_kills_the_reader():
     pid = stopped_warm_reader()
     request = _started("list_fields", {"kind": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))})
