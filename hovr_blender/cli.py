@@ -25,6 +25,7 @@ import tempfile
 import time
 import traceback
 
+from .engine import scratch
 from .engine.view import METHODS
 
 EXIT_ERROR = 2
@@ -384,7 +385,8 @@ def main(argv=None) -> int:
     on_sigterm = threading.current_thread() is threading.main_thread()  # signal handlers live there only
     previous = signal.signal(signal.SIGTERM, _terminate) if on_sigterm else None
     try:
-        message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
+        with scratch.adopted():  # every temporary file of the run, its children's included, in a private folder
+            message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
         _end_progress_line()
         print("hovr: interrupted", file=sys.stderr)

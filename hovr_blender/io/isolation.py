@@ -44,7 +44,7 @@ import time
 from dataclasses import asdict, fields as dataclass_fields, replace
 from pathlib import Path
 
-from ..engine import limits
+from ..engine import limits, scratch
 
 ENV_SWITCH = "HOVR_ISOLATION"
 LIST_SECONDS = 30.0  # listing fields or composites reads headers only; the dialog waits for it
@@ -238,9 +238,11 @@ class _Worker:
                   "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
                   "address_slack": ADDRESS_SLACK, "death_signal": threading.current_thread() is threading.main_thread()}
         self.owner = os.getpid()
-        self.log = tempfile.TemporaryFile(prefix="hovr-reader-")  # its stderr: kept for HOVR_DEBUG, never shown
+        private = scratch.run_folder()  # its temporary files too: never the shared temporary folder
+        self.log = tempfile.TemporaryFile(prefix="hovr-reader-", dir=private)  # its stderr, for HOVR_DEBUG
         self.proc = subprocess.Popen([interpreter(), "-I", "-c", BOOT, json.dumps(config)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True)
+                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True,
+                                     env=scratch.child_env(private))
         self.stdin = self.proc.stdin.fileno()
         self.stdout = self.proc.stdout
 
