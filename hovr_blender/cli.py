@@ -144,13 +144,16 @@ def _png_background(text: str):
 
 def _output_path(path: str, suffix: str, what: str) -> str:
     """The absolute path to write `what` to: it ends with `suffix`, its folder exists, and if it
-    exists already it is a regular file (never a folder, FIFO or device)."""
+    exists already it is a regular file (never a folder, FIFO or device), not a link (replacing a
+    link would quietly write elsewhere than the user may think; limits.open_output refuses them too)."""
     if not path.lower().endswith(suffix):
         raise OutputError(f"{what} {path!r} must end with {suffix}")
     path = os.path.abspath(path)
     folder = os.path.dirname(path)
     if not os.path.isdir(folder):
         raise OutputError(f"{what} {path}: folder {folder} does not exist")
+    if os.path.islink(path):
+        raise OutputError(f"{what} {path} is a symbolic link; refused (outputs never follow links)")
     if os.path.lexists(path) and not os.path.isfile(path):
         raise OutputError(f"{what} {path} exists and is not a regular file")
     return path

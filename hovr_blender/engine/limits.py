@@ -276,7 +276,10 @@ def read_regular(path, what: str = "data file", max_bytes: int | None = None) ->
             raise ResourceLimitError(f"{what} {path} is {format_size(size)}; at most {format_size(max_bytes)} "
                                      f"is accepted")
         check_bytes(size, f"reading {what} {path}")
-        data = fh.read(size + 1)
+        try:
+            data = fh.read(size + 1)
+        except OSError as exc:  # a regular file that cannot be read: /proc/self/mem
+            raise UnsafeFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
     if len(data) > size:
         raise UnsafeFileError(f"{what} {path} grew while it was read; refused")
     return data

@@ -318,7 +318,7 @@ def test_reader_processes_end_with_their_parent():
     assert _gone(busy), "the stuck reader outlived its parent"
 
 
-_BARE_READ = "import sys; from hovr_blender.io.nektar import list_fields; list_fields(sys.argv[1])"
+_BARE_READ = "import sys; from hovr_blender.io.nektar.reader import list_fields; list_fields(sys.argv[1])"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals")
@@ -342,6 +342,20 @@ def test_the_hostile_hdf5_mutants_crash_or_hang_libhdf5_itself(tmp_path, mutant,
     with pytest.raises(isolation.ReaderFailure, match="m.fld"):
         with limits.using(limits.ResourceLimits(max_read_seconds=2.0)):
             isolation.list_fields("nektar", tmp_path / "m.fld")
+
+
+def test_the_packages_reading_functions_read_in_a_reader_process(tmp_path):
+    """io.nektar.list_fields and read_nektar called directly from Python: the damaged HDF5 file that
+    crashes libhdf5 (above) is one error naming it, and this process lives on."""
+    from tests.hostile import cases
+
+    cases.VLEN_TYPE_BITS(tmp_path / "m.fld")
+    mesh = data_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml")
+    with pytest.raises(isolation.ReaderFailure, match=r"m.fld: the reader process crashed \(SIGSEGV\)"):
+        nektar.list_fields(tmp_path / "m.fld")
+    with pytest.raises(isolation.ReaderFailure, match=r"m.fld: the reader process crashed \(SIGSEGV\)"):
+        nektar.read_nektar(mesh, tmp_path / "m.fld", "p")
+    assert nektar.read_nektar(mesh).num_elements == 1  # the next read works
 
 
 def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):

@@ -424,6 +424,19 @@ def _fifo_output(folder):
     return _output("{d}/out.npy")(folder)
 
 
+def _linked_output(folder):
+    """-o names a link to a file of the user's: refused, as the README says (os.replace would have
+    replaced the link quietly)."""
+    (folder / "precious.npy").write_bytes(b"the user's")
+    os.symlink(folder / "precious.npy", folder / "out.npy")
+    return _output("{d}/out.npy")(folder)
+
+
+def _link_kept(folder, outcome):
+    kept = os.path.islink(folder / "out.npy") and (folder / "precious.npy").read_bytes() == b"the user's"
+    return [] if kept else ["the link or its target changed"]
+
+
 def _step(method, h):
     def build(folder):
         return nektar_case(folder, fld=nektar_field(), args=("--method", method, "--h", str(h)))
@@ -533,11 +546,17 @@ CASES = [
     Case("view file is /dev/zero", "special files", _special_view(_symlink("/dev/zero", "view.json")),
          expect=("device",)),
     Case("view file is a FIFO", "special files", _special_view(_fifo("view.json")), expect=("FIFO",)),
+    Case("view file is /proc/self/mem", "special files", _special_view(_symlink("/proc/self/mem", "view.json")),
+         expect=("view.json", "cannot be read")),
+    Case("mesh is /proc/self/mem", "special files", _special_mesh(_symlink("/proc/self/mem", "m.xml"), "m.xml",
+                                                                  {"path": "m.xml"}), expect=("m.xml", "cannot read")),
     # output paths
     Case("-o an existing folder", "output paths", _output("{d}"), expect=(".npy",)),
     Case("-o /dev/full", "output paths", _output("/dev/full"), expect=(".npy",)),
     Case("-o without .npy", "output paths", _output("{d}/name"), expect=(".npy",)),
     Case("-o a FIFO", "output paths", _fifo_output, expect=("not a regular file",)),
+    Case("-o a link to another file", "output paths", _linked_output, expect=("out.npy", "symbolic link"),
+         after=_link_kept),
     Case("--png in a missing folder", "output paths", _output("{d}/out.npy", "--png", "{d}/no/x.png"),
          expect=("does not exist",)),
     Case("-o .npy in an existing folder renders", "output paths", _output("{d}/out.npy"), expect_rc=0),

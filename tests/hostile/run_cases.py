@@ -194,6 +194,8 @@ RUN_CASES = [
     Case("sparse 3.9 GB view file", "run budget", _sparse_view, expect=("view file", "at most")),
     Case("render-series --workers 64", "run budget", _series("1", "--workers", "64"), expect=("64 processes",)),
     Case("--camera-path a FIFO", "run budget", _camera_path(os.mkfifo), expect=("FIFO",)),
+    Case("--camera-path /proc/self/mem", "run budget", _camera_path(lambda p: os.symlink("/proc/self/mem", p)),
+         expect=("cams.json", "cannot be read")),
     Case("--camera-path /dev/zero", "run budget", _camera_path(lambda p: os.symlink("/dev/zero", p)),
          expect=("device",)),
     Case("--camera-path with a key twice", "run budget",
