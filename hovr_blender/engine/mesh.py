@@ -13,9 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import expansions as ex
+from . import limits
 from .derived_fields import concatenate_derived
 from .expansions import MODIFIED_A
 from .shapes import HEX, MAX_MODES, NAMES, VERTICES
+
+_AFFINE_BATCH = 2048  # elements a call of _affine_maps: a reader reports progress between calls
 
 
 class MeshError(ValueError):
@@ -123,6 +126,7 @@ class VolumeMesh:
                             f"{len(geom_coeffs_per_element)} geometry blocks")
         flat, gflat = [], []
         for e in range(n):  # validate every block (cheap), then do the geometry per group
+            limits.progress()
             sh = int(shapes[e])
             if sh not in NAMES:
                 raise MeshError(f"element {e}: unknown shape id {sh}")
@@ -146,9 +150,11 @@ class VolumeMesh:
         keys = np.concatenate([shapes[:, None], geom_modes], axis=1)
         for key in np.unique(keys, axis=0):
             sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
-            idx = np.nonzero((keys == key).all(axis=1))[0]
-            G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
-            vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
+            group = np.nonzero((keys == key).all(axis=1))[0]
+            for idx in np.array_split(group, -(-group.size // _AFFINE_BATCH)):  # each element on its own
+                limits.progress()
+                G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
+                vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
         sizes = np.array([f.size for f in flat], dtype=np.int64)
         gsizes = np.array([g.shape[0] for g in gflat], dtype=np.int64)
         out = cls(
