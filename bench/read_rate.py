@@ -1,14 +1,15 @@
-"""How long the reader process takes a MB of each shared dataset, and its longest stretch without
-progress: the numbers behind the read time limit (engine/limits.py READ_SECONDS_PER_MB and
-READ_STALL_SECONDS; issue 41).
+"""How long the reader process takes a MB of each shared dataset (processor and wall time), and its
+longest stretch without progress: the numbers behind the read time limit (engine/limits.py
+READ_SECONDS_PER_MB, processor time, and READ_STALL_SECONDS; issue 41).
 
     python -m bench.read_rate [--out bench/results/cpu/read_rate.json] [--repeat 3] [--only NAME ...]
 
 Each dataset is read by io.sources.load_volume in a fresh reader process (its parsed-geometry cache
 cold, as a first import), under a flat limit so that nothing is stopped. For each read: the seconds
-from the reader's start of reading to its reply (what the time limit measures), the MB of the files
-it opened (what the limit allows for), their ratio, and the longest gap between two of its progress
-reports (the stall check's clock; the reply counts as the last report). The worst of --repeat runs
+from the reader's start of reading to its reply, the processor time the reader last reported (what
+the time limit measures), the MB of the files it opened (what the limit allows for), processor
+seconds a MB, and the longest gap between two of its progress reports, in wall time and in the
+reader's processor time (the stall check's clock; the reply counts as the last report). The worst of --repeat runs
 is kept: the limit must hold for the slowest honest read on a loaded machine.
 """
 from __future__ import annotations
@@ -30,20 +31,23 @@ def read_once(source) -> dict:
     """One cold read in a fresh reader process: seconds, MB opened, longest gap between reports."""
     isolation.shutdown()  # a fresh reader: the mesh cache is cold
     request = isolation.read_volume_request(source)
-    times = []
+    times, cpus = [], []
     read = request._message_read
 
     def timed():
         times.append(time.monotonic())
+        cpus.append(isolation.process_cpu_seconds(request._worker.proc))
         read()
 
     request._message_read = timed
     isolation.wait(request)
     seconds = times[-1] - times[0]
     gaps = [b - a for a, b in zip(times, times[1:])]
+    cpu_gaps = [b - a for a, b in zip(cpus, cpus[1:]) if a is not None and b is not None]
     mb = sum(request._opened.values()) / 1e6
-    return {"seconds": seconds, "mb": mb, "seconds_per_mb": seconds / mb if mb else None,
-            "longest_gap": max(gaps, default=0.0), "reports": len(times)}
+    cpu = cpus[-1] - cpus[0] if cpus and None not in (cpus[0], cpus[-1]) else request._cpu
+    return {"seconds": seconds, "cpu_seconds": cpu, "mb": mb, "cpu_seconds_per_mb": cpu / mb if mb else None, "longest_gap": max(gaps, default=0.0),
+            "longest_cpu_gap": max(cpu_gaps, default=0.0), "reports": len(times)}
 
 
 def main(argv=None) -> int:
@@ -63,9 +67,10 @@ def main(argv=None) -> int:
             worst = {k: max(r[k] for r in runs if r[k] is not None) if any(r[k] is not None for r in runs) else None
                      for k in runs[0]}
             rows[name] = worst
-            print(f"{name:22s} {worst['mb']:7.3f} MB {worst['seconds']:6.2f} s "
-                  f"{(worst['seconds_per_mb'] or 0):6.2f} s/MB  longest gap {worst['longest_gap']:5.2f} s", flush=True)
-    print(f"limits: {limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s/MB, "
+            print(f"{name:22s} {worst['mb']:7.3f} MB {worst['seconds']:6.2f} s, processor {worst['cpu_seconds']:6.2f} s "
+                  f"{(worst['cpu_seconds_per_mb'] or 0):6.2f} s/MB  longest gap {worst['longest_gap']:5.2f} s, "
+                  f"processor {worst['longest_cpu_gap']:5.2f} s", flush=True)
+    print(f"limits: {limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s/MB of processor time, "
           f"stall {limits.READ_STALL_SECONDS:g} s")
     if args.out:
         with open(args.out, "w") as fh:

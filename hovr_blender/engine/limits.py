@@ -38,16 +38,16 @@ DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h
 # sizes agree with each other is still refused when they are far beyond what its bytes can hold.
 DEFAULT_MAX_INFLATE_RATIO = 100
 INFLATE_FLOOR = 64 << 20
-# One read in the reader process (io/isolation.py) may take READ_BASE_SECONDS plus
-# READ_SECONDS_PER_MB for each MB (10^6 bytes) of the files it opens, and is stopped sooner when it
-# makes no progress for READ_STALL_SECONDS (libhdf5 loops without end on some damaged files).
-# Measured on the shared data (bench/read_rate.py; docs/limits.md has the table): scaleHO, the
-# slowest honest read a MB, took 1.08 s a MB at worst (4.4 s, limit 13 s) on this 2-core machine
-# at load 6, and no dataset went more than 0.51 s without progress: a laptop core a few times
-# slower stays within both.
+# One read in the reader process (io/isolation.py) may use READ_BASE_SECONDS plus
+# READ_SECONDS_PER_MB of processor time for each MB (10^6 bytes) of the files it opens, and is
+# stopped when it uses READ_STALL_SECONDS of processor time without progress (libhdf5 loops without
+# end on some damaged files). Processor time, because a loaded machine stretches an honest read's
+# wall time (scaleHO: 4.4 s at load 6, more than 13 s at load 10, on this 2-core machine; 4.5 s
+# between two progress reports at load 9) but not its processor time (scaleHO 0.65 s a MB, 0.23 s
+# at most between two reports). Measured: bench/read_rate.py, docs/limits.md has the table.
 READ_BASE_SECONDS = 5.0
 READ_SECONDS_PER_MB = 2.0
-READ_STALL_SECONDS = 5.0
+READ_STALL_SECONDS = 2.0
 
 
 def cpu_cores() -> int:
@@ -149,8 +149,9 @@ def using(limits: ResourceLimits):
 
 
 def read_seconds(nbytes: int, cap: float | None = None, limits: ResourceLimits | None = None) -> float:
-    """The wall time one read of files of `nbytes` in all may take: the flat limit where one is
-    set (HOVR_MAX_READ_SECONDS), else READ_BASE_SECONDS + READ_SECONDS_PER_MB a MB; at most `cap`."""
+    """The time one read of files of `nbytes` in all may take: the flat limit where one is set
+    (HOVR_MAX_READ_SECONDS: wall time), else READ_BASE_SECONDS + READ_SECONDS_PER_MB a MB of
+    processor time; at most `cap`."""
     flat = (limits or current()).max_read_seconds
     seconds = float(flat) if flat is not None else READ_BASE_SECONDS + READ_SECONDS_PER_MB * max(0, nbytes) / 1e6
     return seconds if cap is None else min(seconds, float(cap))

@@ -11,12 +11,14 @@ arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtyp
 process reads into arrays it allocates after checking their sizes against the memory limit.
 
 Limits of each task, in the reader process: its address space may grow by the memory limit
-(engine/limits.py, RLIMIT_AS; Linux); its wall time is the read time limit, a base and a rate for
-each MB of the files it opens (limits.read_seconds: this process counts their sizes as the reader
-names them), and it is stopped sooner when it reports no progress for limits.READ_STALL_SECONDS
-(the reader reports whenever limits.progress() was called since its last report: libhdf5 looping
-on a damaged file reports nothing). This process kills it; an alarm in it ends it anyway should
-this process be gone. A reader process ends with this one:
+(engine/limits.py, RLIMIT_AS; Linux); its processor time may be the read time limit, a base and
+a rate for each MB of the files it opens (limits.read_seconds: this process counts their sizes as
+the reader names them; processor time, so a loaded machine does not refuse an honest read), and it
+is stopped when it reports no progress for limits.READ_STALL_SECONDS of wall time (the reader
+reports, with its processor time, whenever limits.progress() was called since its last report:
+libhdf5 looping on a damaged file reports nothing). HOVR_MAX_READ_SECONDS makes it a flat limit on
+the wall time, without the progress check. This process kills it; a timer in it (SIGPROF, or
+SIGALRM for a flat limit) ends it anyway should this process be gone. A reader process ends with this one:
 a parent-death signal (Linux), the end of its request pipe (everywhere). It ignores SIGINT: Ctrl-C
 reaches this process, which stops it.
 
@@ -31,7 +33,6 @@ from __future__ import annotations
 
 import atexit
 import json
-import math
 import os
 import signal
 import stat
@@ -53,6 +54,11 @@ ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allo
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
 MAX_FILES_COUNTED = 10_000  # files a read's time limit counts (a multi-part field folder has one a rank)
+# A reader that makes no progress and uses no processor time (blocked: a file system that never
+# answers) is stopped after this long; one that uses processor time after READ_STALL_SECONDS of it.
+READ_BLOCKED_SECONDS = 60.0
+STALL_WALL_SECONDS = 15.0  # the stall check in wall time, where the reader's processor time is not known
+CHECK_SECONDS = 0.1
 # dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
 ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
@@ -202,6 +208,33 @@ def decode(tree, arrays: list):
 
 
 # ----------------------------------------------------------------------------- the process
+
+def process_cpu_seconds(proc) -> float | None:
+    """The processor time (user and system) a child process has used, where this platform tells
+    (Linux: /proc; Windows: GetProcessTimes; elsewhere psutil, where installed); None otherwise, or
+    once it is gone."""
+    try:
+        if sys.platform.startswith("linux"):
+            with open(f"/proc/{proc.pid}/stat", "rb") as fh:
+                fields = fh.read().rsplit(b")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        if os.name == "nt":
+            import ctypes
+            from ctypes import wintypes
+
+            times = [wintypes.FILETIME() for _ in range(4)]
+            if not ctypes.windll.kernel32.GetProcessTimes(int(proc._handle), *[ctypes.byref(t) for t in times]):
+                return None
+            return sum((t.dwHighDateTime << 32 | t.dwLowDateTime) for t in times[2:]) / 1e7
+        import psutil
+
+        used = psutil.Process(proc.pid).cpu_times()
+        return used.user + used.system
+    except (OSError, ValueError, IndexError, AttributeError, ImportError):
+        return None
+    except Exception:  # noqa: BLE001  (psutil's NoSuchProcess, AccessDenied)
+        return None
+
 
 def _package_dir() -> Path:
     return Path(__file__).resolve().parents[1]
@@ -375,6 +408,8 @@ class Request:
         self._opened: dict = {}  # the files the reader opened -> their sizes (stat here): the time limit's MB
         self._deadline = time.monotonic() + START_SECONDS  # then the time limit, from its "started"
         self._progressed = None  # when the reader last reported progress (its first stage starts the clock)
+        self._cpu = 0.0  # the processor time the reader has used on the task, as far as known
+        self._cpu_start = self._cpu_progressed = None  # its processor time (process_cpu_seconds) then
         self._pending = bytearray(HEADER.size)  # what is being read: a length, a message or an array
         self._got = 0
         self._on_filled = self._length_read
@@ -390,34 +425,59 @@ class Request:
 
     @property
     def seconds(self) -> float:
-        """The time limit of this read as it stands: it grows with the files the reader opens."""
+        """The time limit of this read as it stands (processor time; wall time for a flat limit):
+        it grows with the files the reader opens."""
         return limits.read_seconds(sum(self._opened.values()), self._cap, self._limits)
 
+    @property
+    def _flat(self) -> bool:
+        return self._limits.max_read_seconds is not None
+
     def _time_limit(self) -> str:
+        """What passed the time limit, in words."""
+        if self._flat:
+            return (f"reading took longer than the limit of {self.seconds:.3g} s and was stopped (raise it with "
+                    "HOVR_MAX_READ_SECONDS if the file is genuine)")
         mb = sum(self._opened.values()) / 1e6
-        rule = ("" if self._limits.max_read_seconds is not None else
-                f" ({limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s a MB of the {mb:.3g} MB read)")
-        return f"longer than the limit of {self.seconds:.3g} s{rule}"
+        return (f"reading used more than its limit of {self.seconds:.3g} s of processor time "
+                f"({limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s a MB of the {mb:.3g} MB read) "
+                "and was stopped (HOVR_MAX_READ_SECONDS sets a flat limit instead, if the file is genuine)")
 
     def _limit_reached(self, now: float) -> str | None:
         """Why the task must stop now, or None."""
         if not self._started:
             return (f"the reader process did not start within {START_SECONDS:g} s" if now >= self._deadline
                     else None)
-        if now >= self._deadline + self.seconds:
-            return (f"reading took {self._time_limit()} and was stopped (raise it with HOVR_MAX_READ_SECONDS if "
-                    "the file is genuine)")
+        if self._flat:
+            return self._time_limit() if now >= self._deadline + self.seconds else None
+        cpu = process_cpu_seconds(self._worker.proc)
+        if cpu is not None and self._cpu_start is not None:
+            self._cpu = max(self._cpu, cpu - self._cpu_start)
+        if self._cpu > self.seconds:
+            return self._time_limit()
         stall = limits.read_stall_seconds(self._limits)
-        if stall is not None and now >= self._progressed + stall:
-            return (f"the reader made no progress for {stall:g} s and was stopped (a damaged file can make a "
-                    "library loop without end; if the file is genuine, HOVR_MAX_READ_SECONDS sets a flat limit)")
+        if cpu is not None and self._cpu_progressed is not None:  # processor time: a loaded machine slows both
+            looping = cpu - self._cpu_progressed >= stall
+        else:  # where the reader's processor time is not known: wall time, with room for a loaded machine
+            looping = now >= self._progressed + STALL_WALL_SECONDS
+        if looping:
+            return (f"the reader made no progress for {stall:g} s of processor time and was stopped (a damaged "
+                    "file can make a library loop without end; if the file is genuine, HOVR_MAX_READ_SECONDS "
+                    "sets a flat limit)")
+        if now >= self._progressed + READ_BLOCKED_SECONDS:
+            return f"the reader made no progress for {READ_BLOCKED_SECONDS:g} s and was stopped"
         return None
 
     def _next_check(self) -> float:
         if not self._started:
             return self._deadline
-        stall = limits.read_stall_seconds(self._limits)
-        return min(self._deadline + self.seconds, self._progressed + stall if stall is not None else math.inf)
+        if self._flat:
+            return self._deadline + self.seconds
+        return time.monotonic() + CHECK_SECONDS  # the reader's processor time is looked at this often
+
+    def _progress_reported(self):
+        self._progressed = time.monotonic()
+        self._cpu_progressed = process_cpu_seconds(self._worker.proc) if self._worker is not None else None
 
     @property
     def pid(self) -> int | None:
@@ -448,7 +508,7 @@ class Request:
                 self._fail_dead()
                 break
             if self._started:  # a long reply is progress too
-                self._progressed = time.monotonic()
+                self._progress_reported()
             self._got += n
             if self._got == len(self._pending):
                 self._on_filled()
@@ -475,10 +535,12 @@ class Request:
             self._stop("the reader process sent a malformed message")
             return
         if "stage" in message or "progress" in message:
-            self._progressed = time.monotonic()
+            self._progress_reported()
             if not self._started:  # the time limit runs from here (_deadline: when it started)
                 self._started = True
-                self._deadline = self._progressed
+                self._deadline, self._cpu_start = self._progressed, self._cpu_progressed
+            if isinstance(message.get("cpu"), (int, float)):
+                self._cpu = float(message["cpu"])
             if "stage" in message:
                 self.stage = _one_line(message["stage"], 200)
                 self._file = _one_line(message.get("file", self._file), 1000)
@@ -573,8 +635,8 @@ class Request:
                 name = signal.Signals(-code).name
             except ValueError:
                 name = f"signal {-code}"
-            if -code == getattr(signal, "SIGALRM", None):
-                why = f"reading took {self._time_limit()} and was stopped"
+            if -code in (getattr(signal, "SIGALRM", None), getattr(signal, "SIGPROF", None)):
+                why = self._time_limit()
             elif -code == signal.SIGKILL:
                 why = "the reader process was killed (SIGKILL, perhaps out of memory) while reading it; refused"
             else:

@@ -102,7 +102,7 @@ class _Task:
         self.limits = limits.ResourceLimits()
         self.cap = None
         self.opened: dict = {}
-        self.started = 0.0
+        self.started = self.cpu = 0.0
 
     def send(self, message: dict, arrays=()):
         with self.lock:
@@ -112,7 +112,7 @@ class _Task:
         self.limits = limits.ResourceLimits(**request["limits"])
         self.cap = request.get("cap")
         self.opened = {}
-        self.started = time.monotonic()
+        self.started, self.cpu = time.monotonic(), time.process_time()
         with self.lock:
             self.running = True
             isolation.send(self.out, {"stage": "reading"})  # the parent's time limit starts now
@@ -125,13 +125,24 @@ class _Task:
             isolation.send(self.out, message, arrays)
         if hasattr(signal, "setitimer"):
             signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.setitimer(signal.ITIMER_PROF, 0)
+
+    def cpu_seconds(self) -> float:
+        """The processor time the task has used (every thread of this process)."""
+        return time.process_time() - self.cpu
 
     def arm_alarm(self):
-        """SIGALRM (its default action ends the process, C loops included) at the time limit for
-        the files opened so far, and a grace: should the parent be gone and not stop it."""
-        if hasattr(signal, "setitimer"):
-            end = self.started + limits.read_seconds(sum(self.opened.values()), self.cap, self.limits) + self.grace
-            signal.setitimer(signal.ITIMER_REAL, max(end - time.monotonic(), 0.001))
+        """The task's time limit for the files opened so far, and a grace, enforced here too should
+        the parent be gone: SIGPROF when its processor time passes it (the policy's rule), SIGALRM
+        when the wall time passes a flat limit; the default action of both ends the process, C
+        loops included."""
+        if not hasattr(signal, "setitimer"):
+            return
+        seconds = limits.read_seconds(sum(self.opened.values()), self.cap, self.limits) + self.grace
+        if self.limits.max_read_seconds is None:
+            signal.setitimer(signal.ITIMER_PROF, max(seconds - self.cpu_seconds(), 0.001))
+        else:
+            signal.setitimer(signal.ITIMER_REAL, max(self.started + seconds - time.monotonic(), 0.001))
 
     def opening(self, path, what):
         """limits.OPEN_OBSERVERS: the stage and the file (the parent counts its size), the alarm moved."""
@@ -146,14 +157,15 @@ class _Task:
 
     def heartbeat(self):
         """A thread: every HEARTBEAT_SECONDS in which limits.progress() was called, one progress
-        message. A library looping in C (holding the interpreter, or not calling back) sends none."""
+        message with the processor time used so far. A library looping in C (holding the
+        interpreter, or not calling back) sends none."""
         seen = None
         while True:
             time.sleep(HEARTBEAT_SECONDS)
             count = limits.progress_count()
             with self.lock:
                 if self.running and count != seen:
-                    isolation.send(self.out, {"progress": count})
+                    isolation.send(self.out, {"progress": count, "cpu": round(self.cpu_seconds(), 3)})
                 seen = count
 
 
