@@ -59,6 +59,7 @@ MAX_FILES_COUNTED = 10_000  # files a read's time limit counts (a multi-part fie
 READ_BLOCKED_SECONDS = 60.0
 STALL_WALL_SECONDS = 15.0  # the stall check in wall time, where the reader's processor time is not known
 CHECK_SECONDS = 0.1
+BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")  # the reader's: one each
 # dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
 ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
 HEADER = struct.Struct("<Q")
@@ -273,9 +274,10 @@ class _Worker:
         self.owner = os.getpid()
         private = scratch.run_folder()  # its temporary files too: never the shared temporary folder
         self.log = tempfile.TemporaryFile(prefix="hovr-reader-", dir=private)  # its stderr, for HOVR_DEBUG
+        env = scratch.child_env(private)
+        env.update(dict.fromkeys(BLAS_THREADS, "1"))  # no spinning BLAS threads: its processor time is the read's
         self.proc = subprocess.Popen([interpreter(), "-I", "-c", BOOT, json.dumps(config)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True,
-                                     env=scratch.child_env(private))
+                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True, env=env)
         self.stdin = self.proc.stdin.fileno()
         self.stdout = self.proc.stdout
 
