@@ -50,6 +50,7 @@ import numpy as np
 from numpy.polynomial import chebyshev
 
 from . import expansions as ex
+from . import limits
 from .mesh_base import TOLERANCE, MeshError
 from .shapes import CENTROIDS, HEX, NAMES, PRISM, PYR, TET
 
@@ -275,6 +276,7 @@ def _roots(shape, modes, G, centre, sizes, column_bound=False) -> _Roots:
     lebesgue = np.prod([a.lebesgue for a in s.axes])
     step = max(1, _CHUNK // (9 * S))
     for i0 in range(0, n, step):
+        limits.progress()
         sl = slice(i0, min(n, i0 + step))
         cols = s.columns(G[sl])
         m = cols[0].shape[1]
@@ -398,6 +400,7 @@ def _full_pass(shape, modes, G, centre, tolerance, max_boxes, out, index):
     coeffs, allowance, element = r.coeffs, r.allowance.copy(), np.arange(n)  # the open boxes
     lo, hi = np.full((n, 3), -1.0), np.full((n, 3), 1.0)
     while coeffs.shape[0]:
+        limits.progress()
         _lowest_of_boxes(shape, coeffs, lo, hi, element, axes, lowest, where)
         bad = (status < 0) & (lowest <= tolerance * scale)
         status[bad] = np.where(lowest[bad] < -tolerance * scale[bad], INVERTED, DEGENERATE)

@@ -13,8 +13,8 @@ wss_3D_periodic and Tet_channel_m3. Each mutant changes one byte (xor 0xFF, zero
 or one bit) at a random position; the hostile suite's three named mutants (a vlen string type's
 class bits: SIGSEGV; a global heap object of size 0: loops; a 4 GiB string length) come first.
 
-Every mutant is loaded here through io.sources.load_volume (the reader process, a read time
-limit of --seconds); --cli of them (every one the reader died or was stopped on, then others) run
+Every mutant is loaded here through io.sources.load_volume (the reader process, at the policy's
+read time limits, or a flat limit of --seconds); --cli of them (every one the reader died or was stopped on, then others) run
 as `hovr render` commands, judged like the hostile suite (exit 0 or 2, one `hovr: error:` line,
 no hang); --bpy of them are imported in bpy (a fresh Blender-as-a-module process: its import
 operator reports, the scene keeps its datablocks, the process exits normally). Results:
@@ -87,7 +87,7 @@ def classify(exc: BaseException | None) -> str:
     if isinstance(exc, isolation.ReaderFailure):
         if "crashed" in text:
             return "reader crashed"
-        if "longer than the limit" in text:
+        if "longer than the limit" in text or "no progress" in text:
             return "reader stopped (time limit)"
         if "killed" in text:
             return "reader killed"
@@ -97,7 +97,12 @@ def classify(exc: BaseException | None) -> str:
     return "unexpected"
 
 
-def run_here(items, folder: Path, seconds: float) -> dict:
+def _env(seconds: float | None) -> dict:
+    """The environment of a `hovr` or bpy process: the read limit --seconds where given."""
+    return {} if seconds is None else {"HOVR_MAX_READ_SECONDS": str(seconds)}
+
+
+def run_here(items, folder: Path, seconds: float | None) -> dict:
     """Each mutant loaded by this process through the reader process."""
     from hovr_blender.engine import limits
     from hovr_blender.io.sources import VolumeSource, load_volume
@@ -124,19 +129,19 @@ def run_here(items, folder: Path, seconds: float) -> dict:
             if outcome == "unexpected" or "\n" in message or (error is not None and "m.fld" not in message
                                                                and Path(mesh).name not in message):
                 summary["problems"].append(f"{label}: {type(error).__name__}: {message[:300]}")
-            if dt > seconds + 30:
+            if dt > (seconds or limits.READ_STALL_SECONDS) + 30:
                 summary["problems"].append(f"{label}: took {dt:.0f} s")
     return summary
 
 
-def run_cli(items, folder: Path, seconds: float) -> dict:
+def run_cli(items, folder: Path, seconds: float | None) -> dict:
     """Each mutant through `hovr render`, judged as the hostile suite judges."""
     out = {"mutants": 0, "exit_codes": {}, "problems": [], "max_seconds": 0.0, "max_peak_mb": 0.0}
     for label, mesh, data, field in items:
         (folder / "m.xml").write_bytes(Path(mesh).read_bytes())
         (folder / "m.fld").write_bytes(data)
         args = cases.render_args(folder, cases.base_view({"path": "m.xml", "solution": "m.fld", "field": field}))
-        o = harness.run_hovr(args, folder, {"HOVR_MAX_READ_SECONDS": str(seconds)})
+        o = harness.run_hovr(args, folder, _env(seconds))
         out["mutants"] += 1
         out["exit_codes"][str(o.returncode)] = out["exit_codes"].get(str(o.returncode), 0) + 1
         out["max_seconds"] = max(out["max_seconds"], round(o.seconds, 2))
@@ -174,16 +179,16 @@ _BPY = textwrap.dedent("""
 """)
 
 
-def run_bpy(items, folder: Path, seconds: float) -> dict:
+def run_bpy(items, folder: Path, seconds: float | None) -> dict:
     """The mutants imported by bpy's File > Import operator in one fresh process."""
     payload = []
     for k, (label, mesh, data, field) in enumerate(items):
         (folder / f"b{k}.fld").write_bytes(data)
         payload.append((str(mesh), str(folder / f"b{k}.fld"), field))
-    env = dict(os.environ, PYTHONPATH=str(REPO), HOVR_MAX_READ_SECONDS=str(seconds))
+    env = dict(os.environ, PYTHONPATH=str(REPO), **_env(seconds))
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", _BPY], input=json.dumps(payload), capture_output=True, text=True,
-                       env=env, timeout=60 + len(items) * (seconds + 30))
+                       env=env, timeout=60 + len(items) * ((seconds or 10) + 30))
     line = next((ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")), None)
     outcomes = json.loads(line[7:]) if line else []
     problems = [] if p.returncode == 0 and line else [f"bpy process exit {p.returncode}: {p.stderr[-400:]!r}"]
@@ -192,7 +197,7 @@ def run_bpy(items, folder: Path, seconds: float) -> dict:
             "exit_code": p.returncode, "seconds": round(time.perf_counter() - t0, 1)}
 
 
-def run(count=2000, seed=29, cli=40, bpy=12, seconds=5.0) -> dict:
+def run(count=2000, seed=29, cli=40, bpy=12, seconds=None) -> dict:
     rng = np.random.default_rng(seed)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -220,7 +225,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=29)
     ap.add_argument("--cli", type=int, default=40, help="mutants also run as `hovr render` (0: none)")
     ap.add_argument("--bpy", type=int, default=12, help="mutants also imported in bpy (0: none)")
-    ap.add_argument("--seconds", type=float, default=5.0, help="the reader's time limit per mutant")
+    ap.add_argument("--seconds", type=float, help="a flat read time limit per mutant (default: the policy's, "
+                    "engine/limits.read_seconds, and no progress for READ_STALL_SECONDS)")
     ap.add_argument("--out", type=Path, default=RESULT)
     args = ap.parse_args(argv)
     result = run(args.mutants, args.seed, args.cli, args.bpy, args.seconds)
