@@ -272,6 +272,7 @@ def _roots(shape, modes, G, centre, sizes, column_bound=False) -> _Roots:
     S = int(np.prod(sizes))
     out = _Roots(np.empty((n, *sizes)), np.empty(n), np.empty(n), np.empty(n), np.empty((n, 3)),
                  np.empty(n, bool), np.empty((n, 3)) if column_bound else None)
+    limits.progress()
     e = s.entry_rounding(G, centre).sum(axis=1)  # (n, 3) column 1-norm bounds of the rounding
     lebesgue = np.prod([a.lebesgue for a in s.axes])
     step = max(1, _CHUNK // (9 * S))
@@ -364,6 +365,7 @@ def jacobian_validity(shape, modes, G, tolerance: float = TOLERANCE, max_boxes: 
         return out
     with np.errstate(all="ignore"):
         Gc, centre = _centred(shape, modes, G)
+        limits.progress()
         todo = np.arange(n)
         if modes != _STRAIGHT and min(modes) >= 2:
             bounds = _mode_gradient_bounds(shape, modes)
