@@ -377,7 +377,7 @@ def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):
     from tests.fuzz import hdf5_mutation as fuzz
 
     items = fuzz.mutants(np.random.default_rng(7), fuzz.sources(tmp_path), 30, tmp_path)
-    summary = fuzz.run_here(items, tmp_path, seconds=2.0)
+    summary = fuzz.CAMPAIGN.run_here(items, tmp_path, seconds=2.0)
     assert summary["mutants"] == 30 and not summary["problems"], summary
     assert summary["outcomes"].get("reader crashed", 0) >= 1, summary  # the SIGSEGV mutant, contained
     assert summary["outcomes"].get("reader stopped (time limit)", 0) >= 1, summary  # the heap loop, stopped
