@@ -152,8 +152,7 @@ class IndependentReference:
         """Parametric coordinates of x by Newton on VTK's shape functions from pc, or None."""
         for _ in range(NEWTON_STEPS):
             cell.InterpolateFunctions(list(pc), w)
-            J = self._jacobian(cell, pc, w, dw, nodes)
-            cell.InterpolateFunctions(list(pc), w)
+            J = self._jacobian(cell, pc, w, dw, nodes)  # leaves w at pc
             try:
                 step = np.linalg.solve(J.T, np.asarray(w) @ nodes - x)
             except np.linalg.LinAlgError:
