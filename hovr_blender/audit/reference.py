@@ -62,14 +62,18 @@ class IndependentReference:
     """The reference for one volume (a vtkUnstructuredGrid with point array FIELD) and one
     transfer function (arrays of breakpoints)."""
 
-    def __init__(self, grid, color_s, color_rgb, density_s, density_tau, tol: float = 1e-10):
+    def __init__(self, grid, color_s, color_rgb, density_s, density_tau, tol: float = 1e-10, pyramids=None):
+        """grid may be None (no VTK cells); pyramids (pyramids.AffinePyramids): cells after the
+        grid's, decided by their exact affine inverse (pyramids.py)."""
         vtk = import_vtk()
-        from vtk.util.numpy_support import vtk_to_numpy
+        from vtkmodules.util.numpy_support import vtk_to_numpy
 
         self.grid = grid
-        self.values = vtk_to_numpy(grid.GetPointData().GetArray(FIELD)).astype(np.float64)
-        points = vtk_to_numpy(grid.GetPoints().GetData()).astype(np.float64)
-        self.n_cells = grid.GetNumberOfCells()
+        self.pyramids = pyramids
+        if grid is not None and grid.GetNumberOfCells():
+            self.values = vtk_to_numpy(grid.GetPointData().GetArray(FIELD)).astype(np.float64)
+            points = vtk_to_numpy(grid.GetPoints().GetData()).astype(np.float64)
+        self.n_cells = grid.GetNumberOfCells() if grid is not None else 0
         self.cells = []
         boxes = np.zeros((self.n_cells, 6))
         for c in range(self.n_cells):
@@ -82,6 +86,10 @@ class IndependentReference:
         size = np.maximum(boxes[:, 1::2] - boxes[:, 0::2], 0.0).max(axis=1, keepdims=True)
         self.lo = boxes[:, 0::2] - 0.1 * size
         self.hi = boxes[:, 1::2] + 0.1 * size
+        if pyramids is not None and len(pyramids):  # affine: their vertices' box holds them
+            pad = 1e-9 * np.ptp(pyramids.hi - pyramids.lo, axis=1, keepdims=True)
+            self.lo = np.concatenate([self.lo, pyramids.lo - pad])
+            self.hi = np.concatenate([self.hi, pyramids.hi + pad])
         self.color_s, self.color_rgb = np.asarray(color_s, float), np.asarray(color_rgb, float)
         self.density_s, self.density_tau = np.asarray(density_s, float), np.asarray(density_tau, float)
         self.levels = np.unique(np.concatenate([self.color_s, self.density_s]))
@@ -99,8 +107,10 @@ class IndependentReference:
         """(inside cell c, field of cell c's interpolant) at world point x. Inside is decided on
         the polished parametric coordinates with a tolerance of 1e-12 (VTK's own status
         allows 1e-3)."""
-        cell, ids, w, dw, nodes = self.cells[c]
         self.evaluations += 1
+        if c >= self.n_cells:
+            return self.pyramids.at(c - self.n_cells, x)
+        cell, ids, w, dw, nodes = self.cells[c]
         x = np.asarray(x, dtype=np.float64)
         cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         cell.GetParametricCenter(self._center)
