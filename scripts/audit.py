@@ -110,11 +110,12 @@ def vtk_grid(mesh):
     """VTK's cells of a project mesh, its pyramids left out (None: none left)."""
     from hovr_blender.audit import vtk_volume
     from hovr_blender.engine import shapes
+    from hovr_blender.engine.mesh import subset
 
     keep = mesh.shape != shapes.PYR
     if not keep.any():
         return None
-    return vtk_volume.from_mesh(mesh if keep.all() else _without(mesh, keep))
+    return vtk_volume.from_mesh(mesh if keep.all() else subset(mesh, np.nonzero(keep)[0]))
 
 
 def _check_dataset(job):
@@ -155,22 +156,6 @@ def _check_dataset(job):
         print(f"{name} {vname}: {len(checked)} checked, wrong f32 {report['views'][vname]['wrong_float32']}, "
               f"f64 {report['views'][vname]['wrong_float64']}", flush=True)
     return name, report
-
-
-def _without(mesh, keep):
-    from hovr_blender.engine.mesh import VolumeMesh
-
-    idx = np.nonzero(keep)[0]
-    return VolumeMesh.from_elements(mesh.shape[idx], mesh.modes[idx], [mesh.element_coeffs(e) for e in idx],
-                                    mesh.geom_modes[idx],
-                                    [mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] +
-                                                      _num_geom(mesh, e)] for e in idx])
-
-
-def _num_geom(mesh, e):
-    from hovr_blender.engine import expansions
-
-    return expansions.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])
 
 
 def _ray_meets_boxes(o, d, lo, hi):
@@ -451,20 +436,6 @@ def _select(images, top, max_gap):
     return sorted(picked, key=lambda p: -score[p[1], p[0]]), stats, int(len(jj))
 
 
-def _compile_all(meshes, device):
-    """Every kernel module the audit's renders use, compiled side by side (renderer.load_modules,
-    HOVR_COMPILE_WORKERS threads): seconds."""
-    from hovr_blender.engine import renderer as rmod
-
-    t0 = time.perf_counter()
-    kernels = []
-    for mesh in meshes:
-        for precision in ("float32", "float64"):
-            kernels += rmod.render_kernels(rmod.kernel_variant([mesh]), precision)
-    rmod.load_modules(kernels, rmod.resolve_device(device))
-    return time.perf_counter() - t0
-
-
 def _dataset_report(name, entry, checker, threshold=WRONG):
     """entry (what the GPU side has) and the checker's rows of `name` as the JSON's record."""
     with checker.lock:
@@ -519,7 +490,7 @@ def gpu_stage(args):
     import datetime
     import tempfile
 
-    from bench.common import command_line, git
+    from bench.common import command_line, compile_all, git
 
     t_start = time.monotonic()
     deadline = t_start + args.deadline
@@ -568,7 +539,7 @@ def gpu_stage(args):
             except FileNotFoundError as exc:
                 entries[name] = {"skipped": f"missing {exc}"}
         out["load_seconds"] = round(time.perf_counter() - t0, 1)
-        out["compile_seconds"] = round(_compile_all([m for m, _ in meshes.values()], args.device), 1)
+        out["compile_seconds"] = round(compile_all([m for m, _ in meshes.values()], args.device), 1)
         out["device_name"] = wp.get_device(args.device).name
         print(f"loaded in {out['load_seconds']} s, compiled in {out['compile_seconds']} s", flush=True)
         for name, (mesh, data) in meshes.items():

@@ -353,35 +353,56 @@ def in_face(u, v, tri):
     return np.maximum(np.abs(u), np.abs(v)) <= 1 + e
 
 
-def _face_hits(C, tri, o, d, scale, starts=None):
-    """t of every crossing of the rays with one patch (NaN where none), one per start. Each
-    start's Newton is deflated by the roots the earlier starts found (Farrell et al., 2015: the
-    step scaled by 1 / (1 - grad(m)/m . step), m = prod (1 / |z - r|^2 + 1) over the roots r, z =
-    (u, v, t / scale)), so that a ray that crosses the patch twice, grazing it, finds both."""
+def _newton(C, tri, o, d, scale, su, sv, found):
+    """(ok, u, v, t) of Newton on x(u, v) = o + t d from (su, sv), deflated by the roots `found`
+    (rows of (u, v, t / scale), NaN for none; Farrell, Birkisson and Funke 2015: the step scaled by
+    1 / (1 - grad(m)/m . step), m = prod (1 / |z - r|^2 + 1), z = (u, v, t / scale))."""
     n = len(o)
+    u, v = np.full(n, su), np.full(n, sv)
+    t = np.einsum("ij,ij->i", patch_eval(C, u, v)[0] - o, d) / np.einsum("ij,ij->i", d, d)
+    for _ in range(ITERATIONS):
+        x, xu, xv = patch_eval(C, u, v)
+        F = x - o - t[:, None] * d
+        M = np.stack([xu, xv, -d], axis=2)
+        with np.errstate(all="ignore"):
+            step = np.linalg.solve(M, F[..., None])[..., 0]
+            z = np.stack([u, v, t / scale], axis=1)
+            dz = -step * np.array([1.0, 1.0, 1.0 / scale])
+            g = np.zeros(n)
+            for r in found:
+                diff = z - r
+                nn = np.maximum(np.einsum("ij,ij->i", diff, diff), 1e-300)
+                g += np.nan_to_num(-2.0 * np.einsum("ij,ij->i", diff, dz) / (nn * (1.0 + nn)))
+            step = step / (1.0 - g)[:, None]
+        step = np.nan_to_num(step, nan=0.0, posinf=0.0, neginf=0.0)
+        u, v, t = np.clip(u - step[:, 0], -1.5, 1.5), np.clip(v - step[:, 1], -1.5, 1.5), t - step[:, 2]
+    F = patch_eval(C, u, v)[0] - o - t[:, None] * d
+    ok = (np.abs(F).max(axis=1) < ROOT_TOL * scale) & in_face(u, v, tri) & (t >= 0)
+    return ok, u, v, t
+
+
+def _face_hits(C, tri, o, d, scale, starts=None):
+    """t of every crossing of the rays with one patch (NaN where none), up to one per start. A
+    start whose plain Newton fails, or finds a root found before, runs again deflated by the
+    roots found so far (_newton), so that a ray crossing the patch twice close together, grazing
+    it, finds both; deflation only ever adds to what plain Newton finds."""
     hits, found = [], []
     su_all, sv_all = _starts(tri) if starts is None else starts
     for su, sv in zip(su_all, sv_all):
-        u, v = np.full(n, su), np.full(n, sv)
-        t = np.einsum("ij,ij->i", patch_eval(C, u, v)[0] - o, d) / np.einsum("ij,ij->i", d, d)
-        for _ in range(ITERATIONS):
-            x, xu, xv = patch_eval(C, u, v)
-            F = x - o - t[:, None] * d
-            M = np.stack([xu, xv, -d], axis=2)
-            with np.errstate(all="ignore"):
-                step = np.linalg.solve(M, F[..., None])[..., 0]
-                z = np.stack([u, v, t / scale], axis=1)
-                dz = -step * np.array([1.0, 1.0, 1.0 / scale])
-                g = np.zeros(n)
-                for r in found:
-                    diff = z - r
-                    nn = np.maximum(np.einsum("ij,ij->i", diff, diff), 1e-300)
-                    g += np.nan_to_num(-2.0 * np.einsum("ij,ij->i", diff, dz) / (nn * (1.0 + nn)))
-                step = step / (1.0 - g)[:, None]
-            step = np.nan_to_num(step, nan=0.0, posinf=0.0, neginf=0.0)
-            u, v, t = np.clip(u - step[:, 0], -1.5, 1.5), np.clip(v - step[:, 1], -1.5, 1.5), t - step[:, 2]
-        F = patch_eval(C, u, v)[0] - o - t[:, None] * d
-        ok = (np.abs(F).max(axis=1) < ROOT_TOL * scale) & in_face(u, v, tri) & (t >= 0)
+        ok, u, v, t = _newton(C, tri, o, d, scale, su, sv, [])
+        known = np.zeros(len(o), bool)
+        for h in hits:
+            known |= np.abs(h - t) < DUPLICATE * scale
+        again = np.nonzero((~ok | known) & np.any([np.isfinite(r[:, 0]) for r in found], axis=0))[0] \
+            if found else np.zeros(0, np.int64)
+        ok &= ~known
+        if len(again):
+            ok2, u2, v2, t2 = _newton(C, tri, o[again], d[again], scale, su, sv, [r[again] for r in found])
+            new = np.ones(len(again), bool)
+            for h in hits:
+                new &= ~(np.abs(h[again] - t2) < DUPLICATE * scale)
+            take = again[ok2 & new]
+            ok[take], u[take], v[take], t[take] = True, u2[ok2 & new], v2[ok2 & new], t2[ok2 & new]
         hits.append(np.where(ok, t, np.nan))
         found.append(np.where(ok[:, None], np.stack([u, v, t / scale], axis=1), np.nan))
     return np.stack(hits, axis=1)
@@ -467,6 +488,53 @@ def _kernel():
         nn = wp.max(wp.dot(diff, diff), f64(1.0e-300))
         return f64(-2.0) * wp.dot(diff, dz) / (nn * (f64(1.0) + nn))
 
+    @wp.func
+    def newton(C: wp.array(dtype=v3, ndim=3), f: int, n: int, o: v3, d: v3, u: f64, v: f64, scale: f64,
+               r0: v3, r1: v3, r2: v3, r3: v3, nr: int):
+        """(u, v, t) after Newton from (u, v), deflated by the first nr of r0..r3 (_newton)."""
+        x, xu, xv = patch_at(C, f, n, u, v)
+        t = wp.dot(x - o, d) / wp.dot(d, d)
+        for it in range(ITERATIONS):
+            x, xu, xv = patch_at(C, f, n, u, v)
+            F = x - o - t * d
+            M = wp.mat33d(xu[0], xv[0], -d[0], xu[1], xv[1], -d[1], xu[2], xv[2], -d[2])
+            if wp.determinant(M) == f64(0.0):
+                break
+            step = wp.inverse(M) * F
+            if nr > 0:
+                z = v3(u, v, t / scale)
+                dz = v3(-step[0], -step[1], -step[2] / scale)
+                g = deflation(z, dz, r0, nr > 0) + deflation(z, dz, r1, nr > 1)
+                g = g + deflation(z, dz, r2, nr > 2) + deflation(z, dz, r3, nr > 3)
+                step = step / (f64(1.0) - g)
+            u = wp.clamp(u - step[0], f64(-1.5), f64(1.5))
+            v = wp.clamp(v - step[1], f64(-1.5), f64(1.5))
+            t = t - step[2]
+            if wp.max(wp.max(wp.abs(step[0]), wp.abs(step[1])), wp.abs(step[2]) / scale) < f64(STEP_TOL):
+                break
+        return v3(u, v, t)
+
+    @wp.func
+    def is_root(C: wp.array(dtype=v3, ndim=3), f: int, n: int, o: v3, d: v3, z: v3, is_tri: bool, scale: f64):
+        """Whether (u, v, t) = z is a crossing: on the ray to ROOT_TOL, in the face, ahead."""
+        x, xu, xv = patch_at(C, f, n, z[0], z[1])
+        F = x - o - z[2] * d
+        err = wp.max(wp.max(wp.abs(F[0]), wp.abs(F[1])), wp.abs(F[2]))
+        e = f64(EDGE_TOL)
+        inside = wp.max(wp.abs(z[0]), wp.abs(z[1])) <= f64(1.0) + e
+        if is_tri:
+            inside = z[0] >= f64(-1.0) - e and z[1] >= f64(-1.0) - e and z[0] + z[1] <= e
+        return err < f64(ROOT_TOL) * scale and inside and z[2] >= f64(0.0)
+
+    @wp.func
+    def seen(hits: wp.array(dtype=f64, ndim=2), i: int, count: int, t: f64, dup: f64):
+        """Whether t is a crossing the ray has (from another start, or a neighbouring patch at an edge)."""
+        known = int(0)
+        for k in range(wp.min(count, MAX_HITS)):
+            if wp.abs(hits[i, k] - t) < dup:
+                known = 1
+        return known == 1
+
     @wp.kernel
     def chord(C: wp.array(dtype=v3, ndim=3), tri: wp.array(dtype=wp.int32), lo: wp.array(dtype=v3),
               hi: wp.array(dtype=v3), n: int, scale: f64, origins: wp.array(dtype=v3), dirs: wp.array(dtype=v3),
@@ -474,10 +542,7 @@ def _kernel():
         i = wp.tid()
         o = origins[i]
         d = dirs[i]
-        root_tol = f64(ROOT_TOL) * scale
-        step_tol = f64(STEP_TOL)
         dup = f64(DUPLICATE) * scale
-        edge = f64(EDGE_TOL)
         count = int(0)
         for f in range(C.shape[0]):
             # slab test against the patch's box
@@ -495,7 +560,7 @@ def _kernel():
             if t1 < wp.max(t0, f64(0.0)):
                 continue
             is_tri = tri[f] == 1
-            nr = int(0)  # roots found on this patch: they deflate the later starts (_face_hits)
+            nr = int(0)  # roots found on this patch: they deflate the reruns (_face_hits)
             r0 = v3()
             r1 = v3()
             r2 = v3()
@@ -510,52 +575,27 @@ def _kernel():
                 v = b
                 if is_tri:  # collapse(a, b)
                     u = f64(0.5) * (f64(1.0) + a) * (f64(1.0) - b) - f64(1.0)
-                x, xu, xv = patch_at(C, f, n, u, v)
-                t = wp.dot(x - o, d) / wp.dot(d, d)
-                for it in range(ITERATIONS):
-                    x, xu, xv = patch_at(C, f, n, u, v)
-                    F = x - o - t * d
-                    M = wp.mat33d(xu[0], xv[0], -d[0], xu[1], xv[1], -d[1], xu[2], xv[2], -d[2])
-                    det = wp.determinant(M)
-                    if det == f64(0.0):
-                        break
-                    step = wp.inverse(M) * F
-                    z = v3(u, v, t / scale)
-                    dz = v3(-step[0], -step[1], -step[2] / scale)
-                    g = deflation(z, dz, r0, nr > 0) + deflation(z, dz, r1, nr > 1)
-                    g = g + deflation(z, dz, r2, nr > 2) + deflation(z, dz, r3, nr > 3)
-                    step = step / (f64(1.0) - g)
-                    u = wp.clamp(u - step[0], f64(-1.5), f64(1.5))
-                    v = wp.clamp(v - step[1], f64(-1.5), f64(1.5))
-                    t = t - step[2]
-                    if wp.max(wp.max(wp.abs(step[0]), wp.abs(step[1])), wp.abs(step[2]) / scale) < step_tol:
-                        break
-                x, xu, xv = patch_at(C, f, n, u, v)
-                F = x - o - t * d
-                err = wp.max(wp.max(wp.abs(F[0]), wp.abs(F[1])), wp.abs(F[2]))
-                inside = wp.max(wp.abs(u), wp.abs(v)) <= f64(1.0) + edge
-                if is_tri:
-                    inside = u >= f64(-1.0) - edge and v >= f64(-1.0) - edge and u + v <= edge
-                if err < root_tol and inside and t >= f64(0.0):
-                    z = v3(u, v, t / scale)
+                z = newton(C, f, n, o, d, u, v, scale, r0, r1, r2, r3, 0)
+                ok = is_root(C, f, n, o, d, z, is_tri, scale)
+                known = ok and seen(hits, i, count, z[2], dup)
+                if (not ok or known) and nr > 0:
+                    z = newton(C, f, n, o, d, u, v, scale, r0, r1, r2, r3, nr)
+                    ok = is_root(C, f, n, o, d, z, is_tri, scale)
+                    known = ok and seen(hits, i, count, z[2], dup)
+                if ok and not known:
+                    zs = v3(z[0], z[1], z[2] / scale)
                     if nr == 0:
-                        r0 = z
+                        r0 = zs
                     elif nr == 1:
-                        r1 = z
+                        r1 = zs
                     elif nr == 2:
-                        r2 = z
+                        r2 = zs
                     elif nr == 3:
-                        r3 = z
+                        r3 = zs
                     nr += 1
-                    # the same root from another start (or a neighbouring patch at an edge): once
-                    known = int(0)
-                    for k in range(wp.min(count, MAX_HITS)):
-                        if wp.abs(hits[i, k] - t) < dup:
-                            known = 1
-                    if known == 0:
-                        if count < MAX_HITS:
-                            hits[i, count] = t
-                        count += 1
+                    if count < MAX_HITS:
+                        hits[i, count] = z[2]
+                    count += 1
         if count > MAX_HITS:
             crossings[i] = -1  # too many crossings to keep: the caller refuses the ray
             length[i] = f64(0.0)
