@@ -1,5 +1,19 @@
-"""Audit of the renderer against the independent reference (issue 15), in two stages.
+"""Audit of the renderer against the independent reference (issues 15 and 36).
 
+    python -m scripts.audit gpu --device cuda:0 --size 1920x1080 --out audit_gpu.json [--datasets a,b]
+        issue 36: everything in one device command of at most 10 minutes. Every shared dataset
+        (datasets.SHARED_DATASETS) from the audit's oblique view with its three tents, in
+        float32 and float64, split and classified, at the options a user gets, beside the base
+        (float64 split, tolerance 1e-7, no early termination). Decided by the independent
+        reference, in a pool of --jobs processes beside the GPU work: every pixel where an
+        image differs from the base by more than 1e-3 (at most --max-gap), each image's --top
+        largest differences, and --sample random pixels whose rays pass through the domain (by
+        the exact chords of audit/chords.py, which also show the reference where the ray is
+        inside). One JSON, rewritten after each dataset and every 30 s, cut at --deadline:
+        every decided pixel over 1e-3 (any image against the reference) with its ray, the
+        images' values and the reference; per dataset and image, pixels over 1e-3 against the
+        base and against the reference and the largest errors. docs/benchmarks.md (issue 36)
+        gives the device commands that carry Warp, VTK and the data there.
     python -m scripts.audit render --device cuda:0 --size 1920x1080 --out audit.json [--datasets a,b]
         renders every dataset from three views (oblique, along the mesh lines, grazing) in
         float32 and float64 and keeps, per view, every pixel where the two differ by more than
@@ -11,9 +25,11 @@
         which side is wrong (> 1e-3), the reference's own error estimate and the cells the ray
         crosses; a summary per dataset and view.
 
-Rays that cross a pyramid cannot be checked (VTK has no cell in the same space); they are
-counted as such. The datasets are those of ../shared/data (skipped where absent) and the two
-synthetic benchmark meshes.
+Rays through pyramids: VTK has no cell in the pyramid's (rational) space; affine pyramids are
+decided by audit/pyramids.py (their exact inverse, the element's own expansion, the reference's
+quadrature); rays that meet a curved pyramid cannot be checked and are counted as such. The
+datasets are those of ../shared/data (or HOVR_DATA; skipped where absent) and the synthetic
+benchmark meshes.
 """
 from __future__ import annotations
 
@@ -123,8 +139,11 @@ def _check_dataset(job):
     name, entry, size = job
     from hovr_blender.audit import reference as R
 
+    from hovr_blender.audit import chords
+
     mesh, data = load(name)
     ref, pyr_lo, pyr_hi = reference_parts(mesh, data, entry["transfer_function"])
+    boundary = chords.Boundary(mesh)
     W, H = size
     report = {"dataset": name, "elements": entry["elements"], "views": {}}
     for vname, v in entry["views"].items():
@@ -135,13 +154,16 @@ def _check_dataset(job):
                 rows.append({**p, "checkable": False})
                 continue
             t0 = time.perf_counter()
-            r = ref.pixel(o, d, np.zeros(3))
+            cover = chords.intervals(boundary, o[None], d[None])[0]
+            r = ref.pixel(o, d, np.zeros(3), cover=cover)
             e32 = float(np.abs(np.asarray(p["float32"]) - r.rgba).max())
             e64 = float(np.abs(np.asarray(p["float64"]) - r.rgba).max())
             rows.append({**p, "checkable": True, "reference": r.rgba.tolist(), "reference_error": r.error,
                          "error_float32": e32, "error_float64": e64,
                          "wrong": [s for s, e in (("float32", e32), ("float64", e64)) if e > WRONG],
                          "cells": sorted({c for _, _, c in r.stretches}), "notes": r.notes,
+                         "exact_chord": None if cover is None else sum(b - a for a, b in cover),
+                         "reference_inside": _inside_length(r.stretches),
                          "seconds": round(time.perf_counter() - t0, 2)})
         checked = [r for r in rows if r["checkable"]]
         report["views"][vname] = {
@@ -307,33 +329,34 @@ def _decide(name, cache, kind, pixels, seed=0):
     rays = lambda ij: np.array([np.concatenate(R.contract_ray(cam, W, H, i, j)) for i, j in ij]).reshape(-1, 6)
     if kind == "sample":
         rng = np.random.default_rng(seed)
-        want, pixels, L = len(pixels), [], []
+        want, pixels, cover = len(pixels), [], []
         while len(pixels) < want:
             ij = np.stack([rng.integers(0, W, 64), rng.integers(0, H, 64)], axis=1)
             r = rays(ij)
-            c = chords.chords_numpy(boundary, r[:, :3], r[:, 3:])
-            keep = ~(c <= 0.0)  # through the domain, or undecided (NaN)
-            pixels += [tuple(map(int, p)) for p in ij[keep]]
-            L += list(c[keep])
-        pixels, L = pixels[:want], np.array(L[:want])
+            for p, iv in zip(ij, chords.intervals(boundary, r[:, :3], r[:, 3:])):
+                if iv is None or iv:  # through the domain, or undecided
+                    pixels.append(tuple(map(int, p)))
+                    cover.append(iv)
+        pixels, cover = pixels[:want], cover[:want]
     else:
         r = rays(pixels)
-        L = chords.chords_numpy(boundary, r[:, :3], r[:, 3:]) if len(pixels) else np.zeros(0)
+        cover = chords.intervals(boundary, r[:, :3], r[:, 3:]) if len(pixels) else []
     rows = []
-    for (i, j), chord in zip(pixels, L):
+    for (i, j), iv in zip(pixels, cover):
         o, d = R.contract_ray(cam, W, H, i, j)
+        chord = None if iv is None else sum(b - a for a, b in iv)
         row = {"i": int(i), "j": int(j), "why": kind, "origin": o.tolist(), "direction": d.tolist(),
-               "exact_chord": None if np.isnan(chord) else float(chord)}
+               "exact_chord": chord}
         lo, hi = st["unchecked"]
         if len(lo) and _ray_meets_boxes(o, d, lo, hi):
             rows.append({**row, "checkable": False})
             continue
         t0 = time.perf_counter()
-        res = st["reference"].pixel(o, d, np.zeros(3))
+        res = st["reference"].pixel(o, d, np.zeros(3), cover=iv)
         inside = _inside_length(res.stretches)
         row.update(checkable=True, reference=res.rgba.tolist(), reference_error=res.error, notes=res.notes,
                    reference_inside=inside, seconds=round(time.perf_counter() - t0, 2),
-                   reference_missed_chord=bool(not np.isnan(chord) and abs(inside - chord) > LOST * boundary.scale))
+                   reference_missed_chord=bool(chord is not None and abs(inside - chord) > LOST * boundary.scale))
         rows.append(row)
     return rows
 
@@ -549,15 +572,21 @@ def gpu_stage(args):
             cam = views(mesh)["oblique"]
             tf = transfer_function(mesh)
             camera = RayCamera.from_contract(cam, W, H)
-            renderer = Renderer(mesh, args.device)
             entry = {"elements": int(mesh.num_elements), "camera": cam, "transfer_function": tf.to_contract(),
                      "render_seconds": {}, "images": {}}
-            for k in ALL_IMAGES:
-                t0 = time.perf_counter()
-                res = renderer.render(camera, tf, np.zeros(3), _image_options(k, args.device))
-                entry["render_seconds"][k] = round(time.perf_counter() - t0, 3)
-                entry["images"][k] = res.rgba.astype(np.float64)
-            del renderer
+            try:
+                renderer = Renderer(mesh, args.device)
+                for k in ALL_IMAGES:
+                    t0 = time.perf_counter()
+                    res = renderer.render(camera, tf, np.zeros(3), _image_options(k, args.device))
+                    entry["render_seconds"][k] = round(time.perf_counter() - t0, 3)
+                    entry["images"][k] = res.rgba.astype(np.float64)
+                del renderer
+            except Exception as exc:  # the other datasets go on; the JSON says why this one has no images
+                entries[name] = {k: v for k, v in entry.items() if k != "images"}
+                entries[name]["render_error"] = f"{type(exc).__name__}: {exc}"[:2000]
+                print(f"{name}: render failed: {entries[name]['render_error']}", flush=True)
+                continue
             pixels, entry["vs_base"], entry["pixels_over_vs_base"] = _select(entry["images"], args.top, args.max_gap)
             for r, k in enumerate(range(0, len(pixels), GAP_CHUNK)):
                 checker.push((PRIORITY_GAP, r), ("gap", name, cache, pixels[k:k + GAP_CHUNK], 0))

@@ -429,20 +429,36 @@ def _rays(boundary, o, d):
     return o, d
 
 
-def chords_numpy(boundary: Boundary, o, d):
-    """Chord of each ray (o, d: (..., 3)) through the mesh; NaN where the crossings are odd."""
-    shape = o.shape[:-1]
-    o, d = _rays(boundary, o, d)
-    cols = []
+def _all_hits(boundary, o, d):
+    """(rays, crossings) t of every crossing found (NaN padded), rays (n, 3) about the centre."""
+    cols = [np.full((len(o), 0), np.nan)]
     for C, tri, lo, hi in zip(boundary.patches, boundary.tri, boundary.lo, boundary.hi):
         near = box_chord(o, d, lo, hi) > 0
         col = np.full((len(o), len(STARTS)), np.nan)
         if near.any():
             col[near] = _face_hits(C, bool(tri), o[near], d[near], boundary.scale)
         cols.append(col)
-    if not cols:
-        return np.zeros(shape)
-    return _pair_up(np.concatenate(cols, axis=1), boundary.scale).reshape(shape)
+    return np.concatenate(cols, axis=1)
+
+
+def chords_numpy(boundary: Boundary, o, d):
+    """Chord of each ray (o, d: (..., 3)) through the mesh; NaN where the crossings are odd."""
+    shape = o.shape[:-1]
+    o, d = _rays(boundary, o, d)
+    return _pair_up(_all_hits(boundary, o, d), boundary.scale).reshape(shape)
+
+
+def intervals(boundary: Boundary, o, d):
+    """Per ray (o, d: (n, 3)), [(t_in, t_out)] where it is inside the mesh, or None where its
+    crossings are odd (chords_numpy's crossings, duplicates dropped)."""
+    H = np.sort(_all_hits(boundary, *_rays(boundary, o, d)), axis=1)
+    out = []
+    for h in H:
+        h = h[np.isfinite(h)]
+        if len(h):
+            h = h[np.concatenate([[True], np.diff(h) >= DUPLICATE * boundary.scale])]
+        out.append(None if len(h) % 2 else [(float(a), float(b)) for a, b in zip(h[0::2], h[1::2])])
+    return out
 
 
 # ----------------------------------------------------------------------------- the Warp kernel

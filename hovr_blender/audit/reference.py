@@ -182,8 +182,12 @@ class IndependentReference:
         return np.stack([np.interp(s, self.color_s, self.color_rgb[:, k]) for k in range(3)], axis=-1)
 
     # ------------------------------------------------------------------ 1. the stretches
-    def stretches(self, o, d, t0, t1):
-        """Sorted (a, b, cell) where the ray o + t d, t in [t0, t1], lies in a cell."""
+    def stretches(self, o, d, t0, t1, cover=None):
+        """Sorted (a, b, cell) where the ray o + t d, t in [t0, t1], lies in a cell. cover: the
+        intervals [(a, b)] where the ray is known to be inside the domain (the exact chords'
+        crossings, audit/chords.py, along the same o and d): a part of them that no stretch
+        covers, such as a cell clipped before the first stretch or after the last (no gap
+        brackets those), is sampled again at its own scale."""
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / d
             ta = (self.lo - o) * inv
@@ -207,6 +211,10 @@ class IndependentReference:
         for g0, g1 in gaps:
             for c in hits[(tmin[hits] < g1) & (tmax[hits] > g0)]:
                 # (not the neighbours' own ends again: runs at the gap's ends that round to inside)
+                out += [r for r in self._runs(c, o, d, max(g0, tmin[c]), min(g1, tmax[c]), eps) if r[1] - r[0] > 2.0 * eps]
+        out.sort()
+        for g0, g1 in uncovered(cover or [], out, 2.0 * eps):
+            for c in hits[(tmin[hits] < g1) & (tmax[hits] > g0)]:
                 out += [r for r in self._runs(c, o, d, max(g0, tmin[c]), min(g1, tmax[c]), eps) if r[1] - r[0] > 2.0 * eps]
         out.sort()
         return out
@@ -285,11 +293,12 @@ class IndependentReference:
                 stack.append((mid, hi))  # right half after the left one: front to back
                 stack.append((lo, mid))
 
-    def pixel(self, o, d, background, t0=0.0, t1=np.inf) -> PixelResult:
+    def pixel(self, o, d, background, t0=0.0, t1=np.inf, cover=None) -> PixelResult:
+        """The pixel of the ray o + t d (d is normalised; cover, for a unit d: see stretches)."""
         o, d = np.asarray(o, float), np.asarray(d, float)
         d = d / np.linalg.norm(d)
         self.evaluations = 0
-        stretches = self.stretches(o, d, t0, t1)
+        stretches = self.stretches(o, d, t0, t1, cover)
         state = [np.zeros(3), 0.0, 0.0, 0]
         notes = []
         end = -np.inf
@@ -351,6 +360,21 @@ class IndependentReference:
             if inside:
                 return value
         return float("nan")
+
+
+def uncovered(cover, stretches, tol):
+    """The parts of the intervals `cover` [(a, b)] that no stretch (a, b, cell) covers, longer than tol."""
+    out = []
+    for a, b in cover:
+        for s0, s1, _ in sorted(stretches):
+            if s1 <= a or s0 >= b:
+                continue
+            if s0 - a > tol:
+                out.append((a, s0))
+            a = max(a, s1)
+        if b - a > tol:
+            out.append((a, b))
+    return out
 
 
 def contract_ray(camera: dict, width: int, height: int, i: int, j: int):
