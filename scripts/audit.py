@@ -37,6 +37,7 @@ import argparse
 import json
 import os
 import shutil
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -383,7 +384,6 @@ class _Checker:
         import heapq
         import itertools
         import multiprocessing as mp
-        import threading
 
         self.heapq, self.order, self.lock = heapq, itertools.count(), threading.Lock()
         self.jobs, self.cache = jobs, cache
@@ -534,18 +534,29 @@ def gpu_stage(args):
            "device": args.device, "size": [W, H], "threshold": WRONG, "deadline_seconds": args.deadline,
            "images": {k: _image_options(k, args.device).as_dict() for k in ALL_IMAGES}, "datasets": {}}
     entries = {}
-    last_write = [0.0]
+    writing = threading.Lock()
+    stop = threading.Event()
 
     def write(final=False):
-        out["wall_seconds"] = round(time.monotonic() - t_start, 1)
-        out["complete"] = final and not checker.busy()
-        out["datasets"] = {name: _dataset_report(name, entries.get(name, {}), checker) for name in names}
-        out["summary"] = _summary(out)
-        tmp = args.out + ".part"
-        with open(tmp, "w") as f:
-            json.dump(out, f, indent=1, default=lambda v: np.asarray(v).tolist())
-        os.replace(tmp, args.out)
-        last_write[0] = time.monotonic()
+        with writing:
+            out["wall_seconds"] = round(time.monotonic() - t_start, 1)
+            out["complete"] = final and not checker.busy()
+            have = dict(entries)
+            out["datasets"] = {name: _dataset_report(name, have.get(name, {}), checker) for name in names}
+            out["summary"] = _summary(out)
+            tmp = args.out + ".part"
+            with open(tmp, "w") as f:
+                json.dump(out, f, indent=1, default=lambda v: np.asarray(v).tolist())
+            os.replace(tmp, args.out)
+
+    def every_30_s():  # also while a long render holds the main thread: a killed command keeps its JSON
+        while not stop.wait(30.0):
+            write()
+            with checker.lock:
+                decided = sum(len(v) for v in checker.results.values())
+            print(f"{round(time.monotonic() - t_start)} s: {decided} pixels decided", flush=True)
+
+    threading.Thread(target=every_30_s, daemon=True).start()
 
     try:
         import warp as wp
@@ -577,6 +588,8 @@ def gpu_stage(args):
             try:
                 renderer = Renderer(mesh, args.device)
                 for k in ALL_IMAGES:
+                    if time.monotonic() > deadline:
+                        raise TimeoutError("deadline before all its images")
                     t0 = time.perf_counter()
                     res = renderer.render(camera, tf, np.zeros(3), _image_options(k, args.device))
                     entry["render_seconds"][k] = round(time.perf_counter() - t0, 3)
@@ -598,11 +611,8 @@ def gpu_stage(args):
             write()
         while checker.busy() and time.monotonic() < deadline:
             time.sleep(1.0)
-            if time.monotonic() - last_write[0] > 30.0:
-                write()
-                print(f"{round(time.monotonic() - t_start)} s: {sum(len(v) for v in checker.results.values())} "
-                      f"pixels decided", flush=True)
     finally:
+        stop.set()
         checker.stop()
         write(final=True)
         shutil.rmtree(cache, ignore_errors=True)
