@@ -22,9 +22,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -68,7 +66,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine import launch_args
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import AUTO_STEP_ERROR, RenderOptions
 
@@ -109,8 +107,8 @@ def main(argv=None):
             row = {"method": method, "setting": label, **kw}
             imgs = {}
             opts_kw = {k: v for k, v in kw.items() if k != "step_error"}
-            # the renderer reads the bound from its module when it sets up a render's quadrature
-            renderer_module.AUTO_STEP_ERROR = kw.get("step_error", AUTO_STEP_ERROR)
+            # the renderer reads the bound from launch_args when it sets up a render's quadrature
+            launch_args.AUTO_STEP_ERROR = kw.get("step_error", AUTO_STEP_ERROR)
             for precision in ("float32", "float64"):
                 img, stats, secs = render(method=method, precision=precision, **opts_kw)
                 imgs[precision] = img
@@ -126,11 +124,7 @@ def main(argv=None):
                 f"{row[p]['samples_per_ray']:.0f} samples/ray, {row[p]['seconds']:.2f} s" for p in ("float32", "float64"))
                 + f"  f32-f64 {row['float32_vs_float64']:.2e}", flush=True)
         report["cases"][name] = case
-    text = json.dumps(report, indent=1) + "\n"
-    if args.out:
-        Path(args.out).write_text(text)
-    else:
-        print(text)
+    common.write_report(report, args.out)
 
 
 if __name__ == "__main__":

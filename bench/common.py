@@ -9,6 +9,7 @@ Every script runs as a module from the repository's root (`python -m bench.suite
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -63,6 +64,15 @@ def jsonable(o):
 # ----------------------------------------------------------------------- measuring renders
 
 
+def write_report(report: dict, out: str | None):
+    """The report as indented JSON into `out`, or printed where there is no `out`."""
+    text = json.dumps(report, indent=1) + "\n"
+    if out:
+        Path(out).write_text(text)
+    else:
+        print(text)
+
+
 def rgb_error(img, ref):
     return float(np.abs(np.asarray(img)[..., :3].astype(np.float64) - np.asarray(ref)[..., :3]).max())
 
@@ -90,14 +100,15 @@ def row_of(res, **extra):
 
 def compile_all(meshes, device, precisions=("float32", "float64")) -> float:
     """Compile every kernel module renders of `meshes` use in `precisions`, side by side
-    (renderer.load_modules: HOVR_COMPILE_WORKERS threads), before the first frame: seconds.
-    On a GPU each module's first compile takes tens of seconds; one after another they add up."""
-    from hovr_blender.engine import renderer as rmod
+    (engine/kernel_loading.load_modules: HOVR_COMPILE_WORKERS threads), before the first frame:
+    seconds. On a GPU each module's first compile takes tens of seconds; one after another they add up."""
+    from hovr_blender.engine import kernel_loading as kl
+    from hovr_blender.engine.devices import resolve_device
 
     t0 = time.perf_counter()
     kernels = [k for mesh in meshes for precision in precisions
-               for k in rmod.render_kernels(rmod.kernel_variant([mesh]), precision)]
-    rmod.load_modules(kernels, rmod.resolve_device(device))
+               for k in kl.render_kernels(kl.kernel_variant([mesh]), precision)]
+    kl.load_modules(kernels, resolve_device(device))
     return time.perf_counter() - t0
 
 

@@ -41,7 +41,7 @@ def main(argv=None):
     import warp as wp
 
     from hovr_blender.engine.multi_device import make_renderer
-    from hovr_blender.engine.renderer import cpu_cores
+    from hovr_blender.engine.limits import cpu_cores
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.nektar import read_nektar
 

@@ -105,7 +105,7 @@ def crossings(mesh, walls, camera, device):
     the bound of a triangle)."""
     import warp as wp
 
-    from hovr_blender.engine.renderer import camera_args
+    from hovr_blender.engine.launch_args import camera_args
     from hovr_blender.engine.kernels import raycast
     from hovr_blender.engine.kernels.precision import Precision
 

@@ -9,6 +9,8 @@ float64 render converged far below 1e-3 (the independent reference's audit is sc
     python -m bench.interactive --device cuda:0 --million --out $OUT/million.json  1 M curved elements
     python -m bench.interactive --device cuda:0 --all --out $OUT/all.json     datasets, edits and 1 M elements
     python -m bench.interactive --device cpu --size 192x108 --datasets hump3D    (a small CPU check)
+    python -m bench.interactive --probe --device cuda:0 --sizes 1920x1080,512x512 --out $OUT/frame.json
+    python -m bench.interactive --probe --device cpu --paper 48,96 --sizes 64x48 --repeats 3   (a small CPU check)
 
 Datasets, views and transfer functions are the audit's (hovr_blender/audit/datasets.py: the oblique view, three
 tents over the field's 2..98 % range). Times are the best of --repeats renders after a warm-up
@@ -26,13 +28,18 @@ user's wait), then runs the child with an empty kernel cache and that store (HOV
 the first image as the installed extension gives it (target 5 s); `compiled` lists any module that
 still compiled. --cold-dataset sphere is the built-in sphere.
 
-Each frame records its work counts (engine/renderer.work_counts: per ray, Newton iterations by
+Each frame records its work counts (engine/work_counts.work_counts: per ray, Newton iterations by
 phase, BVH candidates, segments, samples, and each one's divergence over 32-ray blocks; the
 counts tests/perf guards on the CPU), and per dataset and method a transfer-function edit: the
 view traced once (Renderer.trace) and --tf-edits edits shaded from its segments (bench/tf_edit.py's
 edits, which keep the field's frame), the best of --repeats each.
 
 --all: the datasets (with their edits) and --million in one run, one JSON.
+
+--probe: one frame looked at closely, the quick probe for performance work (run_probe): the
+paper-scale channel, curved and straight, at --sizes and --settings (SETTINGS), with the counters
+per ray, the error against the pixel-exact reference and its worst pixel, and with --profile the
+time per kernel. bench/suite.py is the full benchmark.
 
 --million: copies of the curved paper-scale channel (order 6, 11,008 elements each) side by side
 in a grid, one volume of about 1 M curved elements (elements of different copies never touch;
@@ -53,7 +60,19 @@ import numpy as np
 
 from bench import common
 from hovr_blender.audit import datasets  # the audit's datasets, views, transfer functions
+from hovr_blender.engine.kernels.precision import Precision
 
+# --probe's method settings by name (h_div: h = the data's diagonal / h_div); bench/multigpu.py's too
+SETTINGS = {
+    "split-1e-5": dict(method="split", tolerance=1e-5),
+    "split-1e-3": dict(method="split", tolerance=1e-3),
+    "classified-d400": dict(method="classified", h_div=400),
+    "classified-d800": dict(method="classified", h_div=800),
+    "classified-d1600": dict(method="classified", h_div=1600),
+    "classified-d2400": dict(method="classified", h_div=2400),
+    "trapezoid-d400": dict(method="trapezoid", h_div=400),
+    "trapezoid-d3200": dict(method="trapezoid", h_div=3200),
+}
 DATASETS = ["paper_scale", "hump3D", "scaleHO", "ngsolve_ball", "ngsolve_post", "mfem_fichera", "pyfr_tgv"]
 SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
 METHODS = ("split", "classified")
@@ -69,16 +88,7 @@ def _camera(mesh, W, H):
 
 def device_bytes_per_element(renderer, precision="float32") -> float:
     """The mesh's arrays on the device (MeshArgs, BVH boxes, neighbours) over its elements."""
-    import warp as wp
-
-    upload = renderer._upload(precision)
-    total = 0
-    for name in dir(upload.mesh_args):
-        a = getattr(upload.mesh_args, name, None)
-        if isinstance(a, wp.array):
-            total += a.capacity
-    total += renderer._lowers.capacity + renderer._uppers.capacity
-    return total / renderer.mesh.num_elements
+    return renderer.device_bytes(precision) / renderer.mesh.num_elements
 
 
 def options(renderer, method, classified_div):
@@ -91,7 +101,7 @@ def options(renderer, method, classified_div):
 
 
 def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_div=None):
-    from hovr_blender.engine.renderer import work_counts
+    from hovr_blender.engine.work_counts import work_counts
 
     cam = _camera(mesh, W, H)
     opts = options(renderer, method, classified_div)
@@ -107,7 +117,7 @@ def frame(renderer, mesh, tf, W, H, method, repeats, reference=None, classified_
            "samples_per_ray": s["samples_per_ray"], "segments_per_ray": s["segments"] / (W * H),
            "curved_locates_per_ray": s["curved_locates"] / (W * H), "walks": s["walks"],
            "kernel_seconds": prof.stats["kernel_seconds"], "options": opts.as_dict(),
-           "work_counts": work_counts(renderer._upload(opts.precision).precision.kernels, prof.ray_counts),
+           "work_counts": work_counts(Precision.named(opts.precision).kernels, prof.ray_counts),
            "lane_occupancy": prof.stats["lane_occupancy"], "regroup": renderer.regroup}
     if reference is not None:
         row["max_error_vs_float64"] = float(np.abs(best.rgba.astype(np.float64) - reference).max())
@@ -118,7 +128,6 @@ def tf_edit(renderer, mesh, tf, W, H, method, edits, repeats, classified_div=Non
     """The view traced once, then `edits` transfer functions (tf_edit.edits: the field's frame kept)
     shaded from its segments: the best of `repeats` shades each (after a warm-up shade)."""
     from bench import tf_edit as edit_bench
-
     from hovr_blender.engine.limits import ResourceLimitError
 
     cam = _camera(mesh, W, H)
@@ -147,7 +156,8 @@ def reference_image(renderer, mesh, tf, W, H):
 
 
 def run_datasets(args, out):
-    from hovr_blender.engine.renderer import Renderer, load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
+    from hovr_blender.engine.renderer import Renderer
 
     W, H = map(int, args.size.split("x"))
     for name in args.datasets.split(","):
@@ -166,7 +176,7 @@ def run_datasets(args, out):
         entry = {"elements": mesh.num_elements, "curved": int((~mesh.affine).sum()) if mesh.affine is not None else 0,
                  "load_seconds": load, "renderer_seconds": setup,
                  "device_bytes_per_element": device_bytes_per_element(r),
-                 "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+                 "tile_bytes_per_ray": r.tile_bytes_per_ray(Precision.named("float32")), "frames": []}
         ref = reference_image(r, mesh, tf, W, H) if not args.no_reference else None
         for method in METHODS:
             row = frame(r, mesh, tf, W, H, method, args.repeats, ref, args.classified_div)
@@ -211,7 +221,8 @@ def million_mesh(target: int):
 
 
 def run_million(args, out):
-    from hovr_blender.engine.renderer import Renderer, load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
+    from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.transfer_function import TransferFunction
 
     W, H = map(int, args.size.split("x"))
@@ -235,7 +246,7 @@ def run_million(args, out):
                                          "density": [[0.25, 0.0], [0.6, 0.0], [0.9, 3.0 / rad * 4], [1.2, 0.0]]})
     entry = {"elements": mesh.num_elements, "copies": copies, "build_seconds": build, "renderer_seconds": setup,
              "device_bytes_per_element": device_bytes_per_element(r),
-             "tile_bytes_per_ray": r._ray_bytes(r._upload("float32").precision), "frames": []}
+             "tile_bytes_per_ray": r.tile_bytes_per_ray(Precision.named("float32")), "frames": []}
     for method in METHODS:
         opts = options(r, method, args.classified_div)
         r.render(cam, tf, np.zeros(3), opts)
@@ -257,8 +268,7 @@ def cold_child(args):
     t_start = float(os.environ["HOVR_COLD_T0"])
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
-
-    from hovr_blender.engine.renderer import load_kernels
+    from hovr_blender.engine.kernel_loading import load_kernels
 
     mesh = _cold_mesh(args.cold_child)
     tf = datasets.transfer_function(mesh)
@@ -282,7 +292,7 @@ def _cold_mesh(name):
 
 
 def run_cold(args, out):
-    from hovr_blender.engine.renderer import kernel_variant
+    from hovr_blender.engine.kernel_loading import kernel_variant
     from scripts import build_extension  # the extension's kernel build step
 
     rows = []
@@ -319,6 +329,84 @@ def run_cold(args, out):
     _write(args.out, out)
 
 
+def run_probe(args):
+    """--probe: one frame looked at closely (what bench/frame.py was): the paper-scale channel
+    (--variants curved, straight; --paper hexahedra,prisms) at --sizes and --settings (SETTINGS),
+    with the kernel's counters per ray and the error against engine/reference.pixel_exact_reference
+    (float64, split at tolerance 1e-9, no early termination; --no-reference skips it). Each case:
+    the build time, the first render (kernel compile or cache load), then per setting the best of
+    --repeats renders: seconds, element segments, curved locations, field and restriction
+    evaluations per ray, the empty/smooth/piecewise counts, the max RGB error and the worst pixel;
+    with --profile one more render per setting, each kernel waited for and timed."""
+    import warp as wp
+
+    from hovr_blender.audit import scenes  # framing and transfer functions: the suite's own
+    from hovr_blender.engine.reference import pixel_exact_reference  # every benchmark's reference
+    from hovr_blender.engine.view import RenderOptions
+
+    wp.config.quiet = True
+    wp.init()
+    n_hex, n_prism = (int(v) for v in args.paper.split(","))
+    out = {"device": args.device, "device_name": wp.get_device(args.device).name,
+           "date": datetime.datetime.now().isoformat(timespec="seconds"),
+           "command": common.command_line(),
+           "git_commit": common.git("rev-parse", "HEAD"), "cases": []}
+    from hovr_blender.io.paper_scale import paper_scale_mesh
+
+    for variant in args.variants.split(","):
+        t0 = time.perf_counter()
+        mesh = paper_scale_mesh(n_hex, n_prism, curved=(variant == "curved"))
+        build = time.perf_counter() - t0
+        tf = scenes.tents(0.25, 1.55, scenes.COLORS, 3.0)
+        r, first = common.compiled_renderer(mesh, args.device)
+        lo, hi = scenes.mesh_bounds(mesh)
+        diag = float(np.linalg.norm(hi - lo))
+        print(f"{variant}: {mesh.num_elements} elements ({int(mesh.affine.sum())} affine), build {build:.1f} s, "
+              f"upload {r.upload_seconds:.2f} s, first render {first:.1f} s", flush=True)
+        for size in args.sizes.split(","):
+            W, H = (int(v) for v in size.split("x"))
+            cam = scenes.framing(mesh, W, H, direction=(0.3, -1.0, 1.2))
+            case = {"variant": variant, "elements": mesh.num_elements, "affine": int(mesh.affine.sum()),
+                    "size": [W, H], "build_seconds": build, "first_render_seconds": first, "runs": []}
+            ref = None
+            if not args.no_reference:
+                ref, ref_stats = pixel_exact_reference(mesh, cam, tf, scenes.BACKGROUND, args.device, renderer=r)
+                case["reference_seconds"] = ref_stats["render_seconds"]
+            for name in args.settings.split(","):
+                kw = dict(SETTINGS[name])
+                if "h_div" in kw:
+                    kw["h"] = diag / kw.pop("h_div")
+                res = common.timed(r, cam, tf, RenderOptions(device=args.device, **kw), args.repeats)
+                row = common.row_of(res, setting=name, **kw)
+                px = W * H
+                row.update(segments_per_ray=row["segments"] / px, locates_per_ray=row["curved_locates"] / px,
+                           field_evals_per_ray=row["field_evaluations"] / px,
+                           restriction_evals_per_ray=row["restriction_evaluations"] / px)
+                row["rounds"] = res.stats.get("rounds")
+                if args.profile:
+                    prof = r.render(cam, tf, scenes.BACKGROUND, RenderOptions(device=args.device, **kw), profile=True)
+                    row["kernel_seconds"] = prof.stats["kernel_seconds"]
+                if ref is not None:
+                    row["max_error"] = common.rgb_error(res.rgba, ref)
+                    err = np.abs(res.rgba[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
+                    worst = np.unravel_index(int(err.argmax()), err.shape)
+                    row["worst_pixel"] = {"row": int(worst[0]), "col": int(worst[1]),
+                                          "got": res.rgba[worst].tolist(), "reference": ref[worst].tolist()}
+                    row["pixels_over"] = {f"{v:g}": int((err > v).sum()) for v in (1e-5, 1e-4, 1e-3, 1 / 255)}
+                case["runs"].append(row)
+                print(f"  {W}x{H} {name:16s} {row['seconds'] * 1e3:9.1f} ms  err {row.get('max_error', float('nan')):.1e}  "
+                      f"seg/ray {row['segments_per_ray']:.2f} loc/ray {row['locates_per_ray']:.2f} "
+                      f"field/ray {row['field_evals_per_ray']:.1f} restr/ray {row['restriction_evals_per_ray']:.1f} "
+                      f"empty {row['empty_fraction']:.2f}" + (f" kernels {row['kernel_seconds']}" if args.profile else ""),
+                      flush=True)
+            out["cases"].append(case)
+            if args.out:
+                with open(args.out, "w") as fh:
+                    json.dump(out, fh, indent=1, default=common.jsonable)
+        del r
+
+
+
 def _write(path, out):
     if path:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -347,13 +435,24 @@ def main(argv=None):
     ap.add_argument("--all", action="store_true", help="the datasets, then --million, in one run and one JSON")
     ap.add_argument("--no-regroup", action="store_true", help="the rays in the order each round leaves them "
                     "(Renderer(regroup=False)), to time the regrouping against it")
+    ap.add_argument("--probe", action="store_true", help="one frame looked at closely (run_probe): the paper-scale "
+                    "channel at --sizes and --settings")
+    ap.add_argument("--sizes", default="1920x1080", help="--probe: image sizes")
+    ap.add_argument("--paper", default="3400,7600", help="--probe: requested hexahedra,prisms")
+    ap.add_argument("--variants", default="curved,straight", help="--probe: curved, straight or both")
+    ap.add_argument("--settings", default="split-1e-5,split-1e-3,classified-d400,trapezoid-d400",
+                    help="--probe: SETTINGS names")
+    ap.add_argument("--profile", action="store_true", help="--probe: one more render per setting, each kernel waited "
+                    "for and timed")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     if args.cold_child:
         return cold_child(args)
+    if args.probe:
+        return run_probe(args)
     import warp as wp
 
-    from hovr_blender.engine.renderer import resolve_device
+    from hovr_blender.engine.devices import resolve_device
 
     resolve_device(args.device)
     out = {"device": args.device, "device_name": wp.get_device(args.device).name,

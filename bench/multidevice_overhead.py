@@ -28,7 +28,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
     from hovr_blender.engine.multi_device import MultiDeviceRenderer
-    from hovr_blender.engine.renderer import expand_devices
+    from hovr_blender.engine.devices import expand_devices
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io import synthetic
 

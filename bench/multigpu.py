@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from bench import common, frame
+from bench import common, interactive
 from hovr_blender.audit import scenes
 
 
@@ -154,7 +154,7 @@ def main(argv=None):
     ap.add_argument("--devices", default="cuda:all", help="the devices of the split frame (default every CUDA device)")
     ap.add_argument("--size", default="1920x1080")
     ap.add_argument("--paper", default="3400,7600", help="paper-scale: requested hexahedra,prisms")
-    ap.add_argument("--methods", default="split-1e-5,classified-d400", help="bench/frame.py's settings")
+    ap.add_argument("--methods", default="split-1e-5,classified-d400", help="bench/interactive.py's --probe settings")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--frames", type=int, default=100, help="series length (0: no series)")
     ap.add_argument("--series-size", default="1920x1080")
@@ -164,7 +164,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     import warp as wp
 
-    from hovr_blender.engine.renderer import expand_devices
+    from hovr_blender.engine.devices import expand_devices
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.paper_scale import paper_scale_mesh
 
@@ -191,7 +191,7 @@ def main(argv=None):
         for setting in args.methods.split(","):
             for name, mesh, tf, direction in (("paper-scale curved", paper, paper_tf, (0.3, -1.0, 1.2)),
                                               ("hump3D", hump, hump_tf, (1.0, -0.8, 0.7))):
-                kw = dict(frame.SETTINGS[setting])
+                kw = dict(interactive.SETTINGS[setting])
                 if "h_div" in kw:
                     lo, hi = scenes.mesh_bounds(mesh)
                     kw["h"] = float(np.linalg.norm(hi - lo)) / kw.pop("h_div")

@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
+from bench import common
 from bench.common import DATA
 from hovr_blender.audit.scenes import BACKGROUND, COLORS, framing, pascals, tents  # the tests' scenes
 from hovr_blender.engine import field_frame
@@ -119,11 +118,7 @@ def main(argv=None):
                   f"frame, {case[method]['max_error_float32_own_units']:.2e} in its own units; "
                   f"{row['float32']['seconds']:.3f} / {row['float32_own_units']['seconds']:.3f} s", flush=True)
         report["cases"][name] = case
-    text = json.dumps(report, indent=1) + "\n"
-    if args.out:
-        Path(args.out).write_text(text)
-    else:
-        print(text)
+    common.write_report(report, args.out)
 
 
 if __name__ == "__main__":

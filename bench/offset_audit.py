@@ -57,7 +57,7 @@ def main(argv=None):
         sys.exit(f"missing {PYFR}")
     import warp as wp
 
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
     from hovr_blender.audit import vtk_volume
     from hovr_blender.engine.camera import RayCamera
     from hovr_blender.engine.renderer import Renderer

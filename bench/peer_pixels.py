@@ -1,7 +1,7 @@
 """Whose error is it? One pixel of a peers run (bench/peers.py) traced again on any device:
 ours in float32 (the peers' `split` setting) and in float64 (the pixel-exact preset), each in
 its own image row (Renderer.render(rows=...): the very ray the whole frame traces), the
-independent VTK reference (hovr_blender/audit/reference.py) with the stretches of the ray it
+independent VTK reference (hovr_blender/audit/vtk_reference.py) with the stretches of the ray it
 found inside the cells, and, on hexahedral meshes, the exact chord of the ray through the mesh's
 boundary (hovr_blender/audit/chords.py). Then the same along a sub-pixel scan (the ray moved
 by fractions of a pixel, across and along the row), which shows whether the pixel's value is a
@@ -50,7 +50,7 @@ def scan_camera(camera, i, j, offsets, axis):
 def trace(dataset, i, j, size=(1920, 1080), view="oblique", device="cpu", offsets=None, scan_independent=True,
           log=print):
     from hovr_blender.audit import chords
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
     from hovr_blender.engine.camera import RayCamera
     from hovr_blender.engine.reference import pixel_exact_reference
     from hovr_blender.engine.view import RenderOptions

@@ -308,7 +308,7 @@ def _grid_points(grid, n):
 def independent_sample(grid, camera_dict, W, H, tf, ref, k, seed, log):
     """(pixels [(i, j)], their independent-reference RGBA (k, 4), the reference's own error
     estimate): k seeded pixels where the float64 image is not empty."""
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
 
     rng = np.random.default_rng(seed)
     jj, ii = np.nonzero(ref[..., 3] > 0.002)
@@ -353,7 +353,7 @@ def decide(grid, camera_dict, W, H, tf, ref, other, limit, log, threshold=1e-3, 
     (exact_chords), a pixel where the independent reference's stretches inside the cells do not
     add up to the exact chord is not replaced: it misses short chords where a ray clips a curved
     boundary (benchmarks.md, "Our two pixels over 1e-3"); those are counted as independent_missed."""
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
 
     e = np.abs(other[..., :3].astype(np.float64) - ref[..., :3]).max(axis=-1)
     jj, ii = np.nonzero(e > threshold)

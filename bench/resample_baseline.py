@@ -104,7 +104,7 @@ def _newton(shape, gm, G, X, xi, iters=30, tol=1e-11):
     for _ in range(iters):
         if act.size == 0:
             break
-        B, D = ex._basis(shape, gm, xi[act], True)  # values (a, Kg), d/dxi (a, Kg, 3)
+        B, D = ex.modal_basis(shape, gm, xi[act], True)  # values (a, Kg), d/dxi (a, Kg, 3)
         g = G[act]
         r = X[act] - np.matmul(B[:, None, :], g)[:, 0, :]
         J = np.matmul(g.transpose(0, 2, 1), D)  # (a, 3 coordinates, 3 reference directions)
@@ -112,7 +112,7 @@ def _newton(shape, gm, G, X, xi, iters=30, tol=1e-11):
         ok = np.isfinite(det) & (np.abs(det) > 1e-300)
         step = np.zeros_like(r)
         step[ok] = np.linalg.solve(J[ok], r[ok][..., None])[..., 0]
-        xi[act] = ex._hold(shape, xi[act] + step)
+        xi[act] = ex.hold_inside(shape, xi[act] + step)
         size = np.abs(step).max(axis=1)
         small = ok & (size <= tol)
         far = ok & ~small & (size < 1e-2) & ~ex.inside(shape, xi[act], tol=0.05)
@@ -162,7 +162,7 @@ def _block(task):
         xi = np.einsum("pij,pj->pi", A[pe], X) + b[pe]
         near = ex.inside(sh, (xi - shapes.CENTROIDS[sh]) / (1.0 + grow) + shapes.CENTROIDS[sh], tol=0.0)
         pe, flat, X, e, xi = pe[near], flat[near], X[near], e[near], xi[near]
-        xi, conv, outside = _newton(sh, gm, Ge[pe], X, ex._hold(sh, xi))
+        xi, conv, outside = _newton(sh, gm, Ge[pe], X, ex.hold_inside(sh, xi))
         ins = conv & ex.inside(sh, xi, tol=1e-9)
         # Newton stalls on points beyond a prism's collapsed edge (outside: their residual stays
         # large); one that stalls with a tiny residual is in the element: kept, and counted

@@ -42,12 +42,12 @@ import numpy as np
 
 from hovr_blender.audit.scenes import BACKGROUND, COLORS, curved_mixed_scene, framing, mesh_bounds, tents
 from hovr_blender.engine.camera import RayCamera
+from hovr_blender.engine.methods import METHODS, samples_segments, takes_step
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.io.synthetic import brick
 
 from bench.common import RESULTS, command_line, compiled_renderer, git, git_dirty, jsonable, rgb_error, row_of, timed
 
-METHODS = ("riemann", "trapezoid", "classified", "split")
 
 CONFIG = {
     "small": {
@@ -218,13 +218,13 @@ class Suite:
                 if name == "paper_scale" and (W, H) == tuple(cfg["method_sizes"][-1]):
                     write_png(os.path.join(self.args.out, "suite_paper_scale.png"), ref.astype(np.float32), alpha=False)
                 for method in METHODS:
-                    if method == "split":
+                    if not takes_step(method):  # split: a sweep of its tolerance
                         sweep = [dict(tolerance=t) for t in cfg["tolerances"]]
                     else:
                         sweep = [dict(h=diag / d) for d in cfg["h_divisions"]]
                     times = []
                     for i, kw in enumerate(sweep):
-                        grow = 2.0 if method == "split" or i == 0 else (sweep[i - 1]["h"] / kw["h"])
+                        grow = 2.0 if not takes_step(method) or i == 0 else (sweep[i - 1]["h"] / kw["h"])
                         # time ~ a + b / h: from two renders extrapolate the growing part only (curved
                         # data spend most of the time locating elements, whatever h); from one, all of it
                         est = times[-1] + grow * max(times[-1] - times[-2], 0.0) if len(times) > 1 else \
@@ -465,7 +465,7 @@ def plot(path):
                 if key.startswith("paper_scale"):
                     axs[1].loglog([r["samples_per_ray"] for r in rows], [r["seconds"] for r in rows], marker=mk,
                                   color=col, ls="", label=f"{m} ({key})")
-                if m in ("classified", "split"):
+                if samples_segments(m):
                     axs[4].semilogx([case["elements"]], [rows[-1]["empty_fraction"]], marker=mk, color=f"C{i + 3}",
                                     ls="", label=f"{m}: {key}")
         for ax, (xl, yl, t) in zip(axs, [("pixels", "seconds", "image size (paper-scale data)"),

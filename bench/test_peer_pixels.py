@@ -3,7 +3,7 @@ stated fractions of a pixel (the contract's rays, written out in audit/reference
 import numpy as np
 
 from bench.peer_pixels import scan_camera
-from hovr_blender.audit.reference import contract_ray
+from hovr_blender.audit.vtk_reference import contract_ray
 from hovr_blender.engine.camera import RayCamera
 
 

@@ -297,7 +297,7 @@ class Scene:
 
 def chord_lengths(camera: dict, width: int, height: int, lo, hi):
     """(H, W) length of each contract pixel ray inside the box [lo, hi] (slab method)."""
-    from hovr_blender.audit.reference import contract_ray
+    from hovr_blender.audit.vtk_reference import contract_ray
 
     out = np.zeros((height, width))
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)

@@ -25,7 +25,7 @@ import tempfile
 import time
 import traceback
 
-from .engine.view import METHODS
+from .engine.methods import METHODS
 
 EXIT_ERROR = 2
 
@@ -225,9 +225,12 @@ def _run(args) -> str:
         load_s = time.perf_counter() - t0
         if args.command == "render":
             view.options.check_steps(data_diagonal(mesh))
-            from .engine.multi_device import render_view
+            from .engine.frame import Frame, render_frame
+            from .engine.multi_device import make_renderer
 
-            result = render_view(view, mesh)
+            frame = Frame.from_view(view)
+            with make_renderer(mesh, view.options.device, frame=frame) as renderer:  # a device list splits the rows
+                result = render_frame(renderer, frame, view.camera)
             rgba, stats = result.rgba, result.stats
             for warning in stats.get("warnings", []):
                 print(f"hovr: warning: {warning}", file=sys.stderr)

@@ -101,7 +101,7 @@ def reference_parts(mesh, data, tf: dict, grid=None):
     (contract dict): VTK's cells (a .vtu read by VTK; a project mesh converted, `grid` if given)
     and the affine pyramids (audit/pyramids.py); a ray that meets a box of `unchecked` (a curved
     pyramid) cannot be decided."""
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
     from hovr_blender.audit import vtk_volume
     from hovr_blender.audit.pyramids import AffinePyramids
     from hovr_blender.engine import shapes
@@ -138,9 +138,8 @@ def vtk_grid(mesh):
 def _check_dataset(job):
     """One dataset's report (a worker process: VTK objects stay in it)."""
     name, entry, size = job
-    from hovr_blender.audit import reference as R
-
     from hovr_blender.audit import chords
+    from hovr_blender.audit import vtk_reference as R
 
     mesh, data = load(name)
     ref, pyr_lo, pyr_hi = reference_parts(mesh, data, entry["transfer_function"])
@@ -283,7 +282,7 @@ def _state(name, cache):
     if name not in _STATE:
         import pickle
 
-        from hovr_blender.audit import reference as R
+        from hovr_blender.audit import vtk_reference as R
         from hovr_blender.audit import vtk_volume
 
         vtu, pkl = _cache_files(cache, name)
@@ -322,7 +321,7 @@ def _decide(name, cache, kind, pixels, seed=0):
     """Reference rows for `pixels` [(i, j)] or, for kind "sample", for len(pixels) random pixels
     whose rays pass through the domain (exact chord > 0, or undecided), drawn from seed."""
     from hovr_blender.audit import chords
-    from hovr_blender.audit import reference as R
+    from hovr_blender.audit import vtk_reference as R
 
     st = _state(name, cache)
     W, H = st["size"]

@@ -15,7 +15,7 @@
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
   Compiled kernels (--kernels; on by default with --wheels, --no-kernels leaves them out): every
-      kernel module a render loads (engine/renderer.session_kernels) for each --kernel-variants
+      kernel module a render loads (engine/kernel_loading.session_kernels) for each --kernel-variants
       (affine and curved, the sample kernel's orders 0..6 and generic) in --kernel-precisions,
       compiled into kernel_binaries/warp-<version>/ of the zip (engine/shipped_kernels.py loads
       them where their source's hash matches): PTX for CUDA (arch 75; the driver compiles it for
@@ -54,7 +54,7 @@ SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
 WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
-# enable time, tests/engine/test_blender_framing.py that they agree): Warp renders, h5py reads
+# enable time, tests/ui/test_framing.py that they agree): Warp renders, h5py reads
 # HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
 # io/safe_xml.py). pip resolves their dependencies; numpy is left out: Blender ships its own,
 # and a second copy in the extension's site-packages would shadow it.
@@ -71,9 +71,9 @@ DEFAULT_PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
 
 KERNEL_STORE = REPO / "build" / "kernels"
 KERNEL_FOLDER = "kernel_binaries"  # in the zip; engine/shipped_kernels.store_dir() reads it there
-# (curved, sample modes): the sample kernel's specialisations of the usual orders (element.STATIC_MODES)
-# and the generic one (0: tetrahedra and pyramids only, or mixed orders), affine and curved
-DEFAULT_KERNEL_VARIANTS = tuple((curved, modes, False) for curved in (False, True) for modes in (0, 2, 3, 4, 5, 6, 7))
+# KernelVariant keys (engine/kernel_loading.py): the sample kernel's specialisations of the usual orders
+# (element.STATIC_MODES) and the generic one (0: tetrahedra and pyramids only, or mixed orders), affine and curved
+DEFAULT_KERNEL_VARIANTS = tuple(f"{kind}:{modes}" for kind in ("affine", "curved") for modes in (0, 2, 3, 4, 5, 6, 7))
 NO_CUDA_PLATFORMS = {"macos-arm64", "macos-x64"}
 
 BLENDER_PLATFORMS = {"windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64"}
@@ -135,15 +135,15 @@ def host_platform() -> str | None:
 
 
 def parse_variants(text: str) -> tuple:
-    """"affine:3,curved:0-7" -> ((False, 3, False), (True, 0, False), ..., (True, 7, False)): kernel_variant's
-    (curved, modes, derived) of fields read from a file (a derived field's kernels compile on first use)."""
+    """"affine:3,curved:0-7" -> ("affine:3", "curved:0", ..., "curved:7"): the KernelVariant keys
+    (engine/kernel_loading.py) of fields read from a file (a derived field's kernels compile on first use)."""
     out = []
     for item in filter(None, (t.strip() for t in text.split(","))):
         kind, _, modes = item.partition(":")
         if kind not in ("affine", "curved") or not modes:
             raise SystemExit(f"--kernel-variants: {item!r} is not affine:N or curved:N (N, or N-M)")
         lo, _, hi = modes.partition("-")
-        out += [(kind == "curved", m, False) for m in range(int(lo), int(hi or lo) + 1) if m != 1]
+        out += [f"{kind}:{m}" for m in range(int(lo), int(hi or lo) + 1) if m != 1]
     return tuple(out)
 
 
@@ -155,7 +155,7 @@ def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=
     ptx = platform not in NO_CUDA_PLATFORMS
     if not (cpu or ptx):
         return {"warp": WARP_VERSION, "files": []}
-    job = {"store": str(store), "cpu": cpu, "ptx": ptx, "variants": [list(v) for v in variants],
+    job = {"store": str(store), "cpu": cpu, "ptx": ptx, "variants": list(variants),
            "precisions": list(precisions), "cubin_archs": list(cubin_archs) if ptx else []}
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
     proc = subprocess.run([sys.executable, "-m", "scripts.build_extension", "compile-kernels", json.dumps(job)],
@@ -167,16 +167,18 @@ def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=
 
 def compile_kernels_here(job: dict) -> dict:
     """compile_kernels' child: the repository's engine builds its store (shipped_kernels.build_store)."""
-    from hovr_blender.engine import renderer, shipped_kernels
+    from hovr_blender.engine import shipped_kernels
+    from hovr_blender.engine.devices import resolve_device
+    from hovr_blender.engine.kernel_loading import KernelVariant, session_kernels
 
-    renderer.resolve_device("cpu")  # starts Warp as a render does (its CPU flags, shipped_kernels.py)
+    resolve_device("cpu")  # starts Warp as a render does (its CPU flags, shipped_kernels.py)
     import warp as wp
 
     store = Path(job["store"]) / f"warp-{wp.config.version}"
     files = set()
     for precision in job["precisions"]:
-        for curved, modes, derived in job["variants"]:
-            kernels = renderer.session_kernels((bool(curved), int(modes), bool(derived)), precision, surfaces=True)
+        for key in job["variants"]:
+            kernels = session_kernels(KernelVariant.from_key(key), precision, surfaces=True)
             files.update(shipped_kernels.build_store(kernels, store, cpu=job["cpu"],
                                                      ptx_archs=shipped_kernels.PTX_ARCHS if job["ptx"] else (),
                                                      cubin_archs=job["cubin_archs"]))

@@ -71,7 +71,7 @@ def main(argv=None):
     for kind, m, derived, iso in variants:
         with_iso = " with isosurfaces and planes" if iso else ""
         sampled = "a derived field" if derived else f"modes {m or 'generic'}"
-        for name, kern in raycast.kernel_table(kind == "curved", m, derived, iso).items():
+        for name, kern in raycast.kernel_table(kind == "curved", m, derived, iso).named().items():
             label = {"search": f"search ({kind})", "traverse": f"traverse ({kind})",
                      "sample": f"sample ({kind}, {sampled})", "integrate": f"integrate{with_iso}",
                      "shade": f"shade{with_iso}"}.get(name, name)

@@ -43,7 +43,7 @@ def vtk_velocity_grid(name: str):
 
     if VTK_COMPONENTS[name] is None:
         r = vtk.vtkXMLUnstructuredGridReader()
-        r.SetFileName(datasets._data(name)["path"])
+        r.SetFileName(datasets.view_data(name)["path"])
         r.Update()
         return r.GetOutput()
     grids = [vtk_volume.from_mesh(datasets.load_field(name, f)) for f in VTK_COMPONENTS[name]]

@@ -161,18 +161,7 @@ class Chords:
             self._dense = ch.Boundary(self.mesh, flat=DENSE_FLAT, max_depth=DENSE_DEPTH)
         g = np.linspace(-0.8, 0.8, DENSE_STARTS)
         A, B = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
-        out = np.empty(len(o))
-        oo, dd = ch._rays(self._dense, o, d)
-        cols = []
-        for C, tri, lo, hi in zip(self._dense.patches, self._dense.tri, self._dense.lo, self._dense.hi):
-            near = ch.box_chord(oo, dd, lo, hi) > 0
-            col = np.full((len(oo), len(A)), np.nan)
-            if near.any():
-                col[near] = ch._face_hits(C, bool(tri), oo[near], dd[near], self._dense.scale,
-                                          starts=ch.collapse(A, B) if tri else (A, B))
-            cols.append(col)
-        out[:] = ch._pair_up(np.concatenate(cols, axis=1), self._dense.scale) if cols else 0.0
-        return out
+        return ch.chords_numpy(self._dense, o, d, starts=(A, B))
 
 
 def check_rays(chords, o, d, rgba, tau, diag, precision, centre):

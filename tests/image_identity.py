@@ -8,8 +8,10 @@ Scenes (small, CPU, float32 and float64 where the tests use both): the example v
 through the loader (the sphere, ElVis' sphere, hump3D), the F12 tests' sphere (tests.helpers.SPHERE,
 both projections, classified and split), the curved mixed cube of the precision and benchmark
 tests, and vendored real Nektar++ files (a curved face, a magnitude |u,v,w|, a mixed mesh, all
-four shapes) with the framing camera and tents. Only APIs both sides of the rename's refactoring
-have are used (tests.helpers, io.sources, engine.renderer).
+four shapes) with the framing camera and tents; and, through the door (engine/frame.render_frame),
+the example sphere with its isosurface and plane, with an opaque plane (shaded and holdout), bands
+of rows, and a segment cache traced and then shaded through another transfer function, and the
+`hovr render` of that view. Both checkouts need the door (issue 35 on).
 """
 from __future__ import annotations
 
@@ -70,7 +72,50 @@ def render(folder: Path):
             image = SPHERE.core_render(contract, method, False, camera=RayCamera.from_contract(contract, SPHERE.W,
                                                                                                SPHERE.H))
             np.save(folder / f"blender_sphere_{projection}_{method}.npy", image)
+    render_frames(folder)
     print(f"{len(list(folder.glob('*.npy')))} images in {folder}")
+
+
+def render_frames(folder: Path):
+    """The example sphere's isosurface and plane, opaque meshes, bands and a segment cache, each
+    through the door; and the CLI's image of the same view."""
+    import json
+
+    from hovr_blender import cli
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+    from hovr_blender.engine.opaque import OpaqueScene
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.view import View
+    from hovr_blender.io.sources import load_view_data
+    from tests.engine.test_opaque import plane_mesh
+    from tests.helpers import REPO
+
+    view = View.load(str(REPO / "examples" / "sphere_isosurface.json"))
+    cam = type(view.camera)(**{**view.camera.__dict__, "width": 40, "height": 30})
+    r = Renderer(load_view_data(view), "cpu")
+    tf = view.transfer_function
+    edited = type(tf)(tf.color_s, tf.color_rgb[::-1].copy(), tf.density_s, tf.density_tau * 0.5)
+    opaque = OpaqueScene([plane_mesh()])
+    for precision in ("float32", "float64"):
+        frame = Frame.from_view(view, options=view.options.with_(precision=precision))
+        plain = frame.with_(surfaces=None)
+        runs = {"iso": (frame, {}), "opaque": (plain.with_(opaque=opaque), {}),
+                "opaque_holdout": (plain.with_(opaque=opaque, opaque_mode="HOLDOUT"), {}),
+                "opaque_iso": (frame.with_(opaque=opaque), {}), "iso_band": (frame, {"rows": (7, 19)}),
+                "opaque_band": (plain.with_(opaque=opaque), {"rows": (7, 19)})}
+        for name, (f, how) in runs.items():
+            np.save(folder / f"frame_{name}_{precision}.npy", render_frame(r, f, cam, **how).rgba)
+        for name, f, rows in (("cached", frame.with_(opaque=opaque), None), ("cached_band", frame, (3, 22))):
+            slot = SegmentSlot()
+            traced = render_frame(r, f.with_(cache=slot), cam, rows=rows)
+            shaded = render_frame(r, f.with_(cache=slot, transfer_function=edited), cam, rows=rows)
+            np.save(folder / f"frame_{name}_trace_{precision}.npy", traced.rgba)
+            np.save(folder / f"frame_{name}_shade_{precision}.npy", shaded.rgba)
+    doc = json.loads((REPO / "examples" / "sphere_isosurface.json").read_text())
+    doc["image"] = {"width": 40, "height": 30}
+    (folder / "view.json").write_text(json.dumps(doc))
+    assert cli.main(["render", str(folder / "view.json"), "-o", str(folder / "cli_sphere_isosurface.npy")]) == 0
+    (folder / "view.json").unlink()
 
 
 def compare(a: Path, b: Path) -> int:

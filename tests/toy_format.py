@@ -1,7 +1,7 @@
 """A toy data format, all in this one module, to show what adding a format takes: this module
 and one registry line (hovr_blender.io.formats.register(FORMAT)). The tests that register it
 import and render a .toy file through the loader, the `hovr` command and Blender's File > Import
-(tests/engine/test_formats.py, tests/blender/test_formats.py).
+(tests/io/test_formats.py, tests/blender/test_formats.py).
 
 A .toy file is text: the word TOY, then the box and its cells,
 
@@ -15,7 +15,7 @@ and offers two fields on that brick of hexahedra: r2 = x^2 + y^2 + z^2 (the defa
 from __future__ import annotations
 
 from hovr_blender.engine import limits
-from hovr_blender.io.format import Format
+from hovr_blender.io.format_base import Format
 from hovr_blender.io.synthetic import brick
 
 FIELDS = {"r2": lambda x, y, z: x * x + y * y + z * z, "x": lambda x, y, z: x + 0.0 * y}

@@ -429,23 +429,28 @@ def _rays(boundary, o, d):
     return o, d
 
 
-def _all_hits(boundary, o, d):
-    """(rays, crossings) t of every crossing found (NaN padded), rays (n, 3) about the centre."""
+def _all_hits(boundary, o, d, starts=None):
+    """(rays, crossings) t of every crossing found (NaN padded), rays (n, 3) about the centre;
+    starts: Newton's starts (a, b) in a sub-patch's square (default STARTS)."""
+    a, b = STARTS.T if starts is None else starts
     cols = [np.full((len(o), 0), np.nan)]
     for C, tri, lo, hi in zip(boundary.patches, boundary.tri, boundary.lo, boundary.hi):
         near = box_chord(o, d, lo, hi) > 0
-        col = np.full((len(o), len(STARTS)), np.nan)
+        col = np.full((len(o), len(a)), np.nan)
         if near.any():
-            col[near] = _face_hits(C, bool(tri), o[near], d[near], boundary.scale)
+            col[near] = _face_hits(C, bool(tri), o[near], d[near], boundary.scale,
+                                   starts=collapse(a, b) if tri else (a, b))
         cols.append(col)
     return np.concatenate(cols, axis=1)
 
 
-def chords_numpy(boundary: Boundary, o, d):
-    """Chord of each ray (o, d: (..., 3)) through the mesh; NaN where the crossings are odd."""
+def chords_numpy(boundary: Boundary, o, d, starts=None):
+    """Chord of each ray (o, d: (..., 3)) through the mesh; NaN where the crossings are odd.
+    starts: Newton's starts (a, b) on each sub-patch's square, default STARTS (a denser grid: a
+    slower, more thorough search)."""
     shape = o.shape[:-1]
     o, d = _rays(boundary, o, d)
-    return _pair_up(_all_hits(boundary, o, d), boundary.scale).reshape(shape)
+    return _pair_up(_all_hits(boundary, o, d, starts), boundary.scale).reshape(shape)
 
 
 def intervals(boundary: Boundary, o, d):

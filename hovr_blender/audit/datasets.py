@@ -43,7 +43,7 @@ def load_field(name, field: str):
     """The file dataset's `field` instead of its own (e.g. Q_FIELDS[name]): a VolumeMesh."""
     from ..io.sources import VolumeSource, load_volume
 
-    return load_volume(VolumeSource.from_view_data({**_data(name), "field": field}))
+    return load_volume(VolumeSource.from_view_data({**view_data(name), "field": field}))
 
 
 # the Q isosurface's level as a fraction of the 99th percentile of Q's fit at a lattice of points:
@@ -104,11 +104,11 @@ def load(name):
         return curved_cube(4), None  # the benchmark suite's curved mixed cube (full size)
     from ..io.sources import VolumeSource, load_volume
 
-    data = _data(name)
+    data = view_data(name)
     return load_volume(VolumeSource.from_view_data(data)), data
 
 
-def _data(name) -> dict:
+def view_data(name) -> dict:
     """A file dataset's view-file `data` (absolute paths); FileNotFoundError where a file is missing."""
     data = {k: str(SHARED / v) if k in ("path", "solution") else v for k, v in DATASETS[name].items()}
     for k in ("path", "solution"):

@@ -68,7 +68,7 @@ def sample_points(shape, n, rng):
             h = m // 2
             eta[:h, 1] = 1.0 - 10.0 ** rng.uniform(-6, -2, h)
             eta[:h, 2] = rng.uniform(-1, 1, h)
-        near = ex._uncollapse(shape, eta)
+        near = ex.uncollapse(shape, eta)
     return pts, near, shapes.VERTICES[shape].copy()
 
 

@@ -6,7 +6,7 @@ Lagrange cells where the polynomial spaces coincide: a hexahedron of m modes per
 Q_(m-1), a tetrahedron P_(m-1), a prism P_p(triangle) x P_p(line), each inside VTK's Lagrange
 cell of the same degree, so the conversion is exact. The only project code it uses is the
 evaluation of the mesh's expansion at VTK's node positions (node positions and order come from
-VTK); tests/engine/test_audit_reference.py checks converted Nektar++ files against their analytic
+VTK); tests/audit/test_audit_reference.py checks converted Nektar++ files against their analytic
 solutions through VTK's own interpolation. Pyramids have no VTK counterpart and are refused.
 """
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """A series of frames over a Dask cluster: a numbered field series (`flow_####.fld`), a camera
-path, or both. Dask schedules; this module says what one frame is (render_frame, run on a
-worker) and submits the frames that are not written yet (render_series, on the client).
+path, or both. Dask schedules; this module says what one frame is (write_frame, run on a
+worker: the view's Frame through engine/frame.render_frame, as `hovr render` renders it, then
+its files) and submits the frames that are not written yet (render_series, on the client).
 
 A worker keeps its Renderer between frames (process-global, one task at a time per worker:
 threads_per_worker=1): the kernels stay compiled and, while the geometry stays the same, only
@@ -39,6 +40,7 @@ import numpy as np
 
 from ..engine import limits, strict_json
 from ..engine.camera import RayCamera
+from ..engine.frame import Frame, render_frame
 from ..engine.image_io import png_pixels, write_json, write_npy, write_png
 from ..engine.view import View
 from ..io.sources import VolumeSource, cached_volume, frame_path
@@ -156,7 +158,7 @@ def worker_device(requested: str = "auto") -> str:
     cuda:0), or cpu where there is none."""
     if requested != "auto":
         return requested
-    from ..engine.renderer import cuda_devices
+    from ..engine.devices import cuda_devices
 
     cuda = cuda_devices()
     if not cuda:
@@ -255,7 +257,7 @@ def frame_view(job: SeriesJob, frame: int):
     return view, source, camera
 
 
-def render_frame(job, frame: int, before_render=None) -> dict:
+def write_frame(job, frame: int, before_render=None) -> dict:
     """Render one frame of `job` (a SeriesJob or its dict) here and write its files (module doc);
     `before_render()`, if given, is called first (instrumentation, e.g. the tests' slow
     frames). Returns what happened: written or skipped, seconds to load and render, the worker."""
@@ -279,7 +281,7 @@ def render_frame(job, frame: int, before_render=None) -> dict:
     renderer, upload = _renderer_for(mesh, device)
     upload_s = time.perf_counter() - t1
     options = view.options.with_(**{**job.options, "device": renderer.device})
-    result = renderer.render(camera, view.transfer_function, view.background, options)
+    result = render_frame(renderer, Frame.from_view(view, options=options), camera)  # isosurfaces and planes too
     stats = {**result.stats, "frame": int(frame), "load_seconds": load_s, "upload_seconds": upload_s,
              "upload": upload, "source": source.path + (" " + source.solution if source.solution else "")}
     if job.stats:
@@ -326,7 +328,7 @@ def render_series(job: SeriesJob, client, progress=None, before_render=None, ret
         raise ValueError(f"output folder {folder} does not exist")
     payload = job.to_dict()
     return submit_frames(client, pending_frames(job), "hovr-frame",
-                         lambda f, key: client.submit(render_frame, payload, f, before_render, key=key, pure=False,
+                         lambda f, key: client.submit(write_frame, payload, f, before_render, key=key, pure=False,
                                                       retries=retries), progress)
 
 
@@ -392,7 +394,7 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
 
     if workers is None:
         workers = 1
-        from ..engine.renderer import cuda_devices
+        from ..engine.devices import cuda_devices
 
         if device in ("auto", "cuda:all"):
             workers = len(cuda_devices())

@@ -24,7 +24,7 @@ modes (fit_modes: 2P - 1 per direction, at most MAX_MODES), used for what needs 
 coefficients: the element ranges that classify segments (the fit's certified range widened by
 its measured error, field_range_hull), the data range, the field frame, and the isosurfaces'
 normals. Its error is measured at random points against the exact values (derived_values, the
-host oracle) and stated, as io/derived.py does for magnitudes: an estimate, not a certificate.
+host oracle) and stated, as io/magnitude.py does for magnitudes: an estimate, not a certificate.
 """
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import expansions as ex
+from .mesh import element_field_ranges
+from .mesh_base import DerivedFieldError, MeshError
 from .shapes import MAX_MODES
 
 OPERATIONS = ("|grad|", "vorticity", "Q", "speed")
@@ -43,10 +45,6 @@ MAX_SAMPLE_POINTS = 400_000
 ERROR_SAFETY = 2.0  # the hull widens the fit's range by this times its largest measured error
 _CALL = re.compile(r"\A\s*(\|grad\||vorticity|Q|speed)\s*\((.*)\)\s*\Z")
 _NAME = re.compile(r"\A[^,/()|]+\Z")
-
-
-class DerivedFieldError(ValueError):
-    """A derived field name that cannot be read, or data that cannot give it."""
 
 
 @dataclass(frozen=True)
@@ -166,35 +164,6 @@ class DerivedField:
                                    axes=self.axes[e], derived=self.derived[e])
 
 
-def concatenate_derived(meshes):
-    """The DerivedField of meshes merged by mesh.concatenate: at most one derived field among
-    them (its elements derived, the others' fields their own); None where none is derived."""
-    fields = [m.derived for m in meshes if m.derived is not None]
-    if not fields:
-        return None
-    if len({f.spec for f in fields}) > 1 or len(fields) > 1:
-        raise DerivedFieldError("one derived field per scene: "
-                                + ", ".join(f.spec.name for f in fields) + " cannot render together")
-    field = fields[0]
-    parts = []
-    for m in meshes:
-        if m.derived is not None:
-            parts.append(m.derived)
-        else:
-            n = m.num_elements
-            parts.append(dataclasses.replace(field, modes=np.ones((n, 3), np.int32), size=np.zeros(n, np.int64),
-                                             offset=np.zeros(n, np.int64), coeffs=np.zeros(0),
-                                             axes=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
-                                             derived=np.zeros(n, bool)))
-    starts = np.cumsum([0] + [len(p.coeffs) for p in parts[:-1]])
-    return dataclasses.replace(field, modes=np.concatenate([p.modes for p in parts]),
-                               size=np.concatenate([p.size for p in parts]),
-                               offset=np.concatenate([p.offset + s for p, s in zip(parts, starts)]),
-                               coeffs=np.concatenate([p.coeffs for p in parts]),
-                               axes=np.concatenate([p.axes for p in parts]),
-                               derived=np.concatenate([p.derived for p in parts]))
-
-
 def gradient_expansion(shape: int, modes, C: np.ndarray) -> np.ndarray:
     """(3, K, E): d/dxi_k of the expansions C (K, E) as expansions in the same modes, fitted
     from the exact derivatives at the fit points: exact on hexahedra, prisms and tetrahedra
@@ -292,8 +261,6 @@ def derived_mesh(spec: DerivedSpec, components, seed: int = 0):
     """The VolumeMesh of derived field `spec` from its component meshes (same geometry and
     modes; a velocity's three then the density where there is one): the fit as its field, the
     components as its DerivedField, the range hull and the fit's measured error."""
-    from .mesh import MeshError, element_field_ranges
-
     components = list(components)
     expected = 1 if spec.operation == "|grad|" else 3 + (spec.density is not None)
     if len(components) != expected:

@@ -204,7 +204,7 @@ def _uncollapse(shape, eta) -> np.ndarray:
 # one-dimensional factors
 
 
-def _jacobi(n: int, a: float, b: float, x) -> list:
+def jacobi_polynomials(n: int, a: float, b: float, x) -> list:
     """[P^(a,b)_0 .. P^(a,b)_n](x), standard normalisation (three-term recurrence, as Polylib)."""
     out = [np.ones_like(x)]
     if n >= 1:
@@ -227,7 +227,7 @@ class _Jac:
 
     def _fam(self, a, b):
         if (a, b) not in self.cache:
-            self.cache[(a, b)] = _jacobi(self.nmax, float(a), float(b), self.x)
+            self.cache[(a, b)] = jacobi_polynomials(self.nmax, float(a), float(b), self.x)
         return self.cache[(a, b)]
 
     def __call__(self, n, a, b):
@@ -304,7 +304,7 @@ def _columns(keys, func):
 # the basis matrix and its gradient
 
 
-def _basis(shape: int, modes, X, grad: bool, corrected: bool = True):
+def modal_basis(shape: int, modes, X, grad: bool, corrected: bool = True):
     """B (N, K) of every stored mode at points X (N, 3) and, with grad, dB/dxi (N, K, 3).
     Derivatives through the collapse use the reduced factors (value / collapse factor), so no
     division by (1 - xi3) or (-xi2 - xi3) occurs and the gradient is finite at the singularity."""
@@ -416,7 +416,7 @@ def basis_matrix(shape, modes, xi, corrected: bool = True) -> np.ndarray:
     shape = _check_shape(shape)
     modes = _check_modes(shape, modes)
     lead, X = _points(xi)
-    return _basis(shape, modes, X, False, corrected)[0].reshape(lead + (-1,))
+    return modal_basis(shape, modes, X, False, corrected)[0].reshape(lead + (-1,))
 
 
 def _evaluate(shape, modes, coeffs, xi, grad: bool):
@@ -433,7 +433,7 @@ def _evaluate(shape, modes, coeffs, xi, grad: bool):
     out = np.empty((n, nc, 3) if grad else (n, nc))
     step = max(1, _CHUNK // (k * (4 if grad else 1)))
     for i0 in range(0, n, step):
-        B, G = _basis(shape, modes, X[i0:i0 + step], grad)
+        B, G = modal_basis(shape, modes, X[i0:i0 + step], grad)
         if grad:
             out[i0:i0 + step] = np.matmul(G.transpose(0, 2, 1), c2).transpose(0, 2, 1)
         else:
@@ -476,7 +476,7 @@ def _fit(shape: int, modes: tuple[int, int, int]):
         axes = [gll_points(P0 + 1), gll_points(P1 + 1), _radau_like(max(P2, min(P0, P1) + P2 - 3) + 1)]
     eta = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     pts = _uncollapse(shape, eta)
-    B = _basis(shape, modes, pts, False)[0]
+    B = modal_basis(shape, modes, pts, False)[0]
     solve = np.linalg.pinv(B)
     for a in (pts, B, solve):
         a.setflags(write=False)
@@ -537,7 +537,7 @@ _BOUND_GRID = 4096  # Chebyshev points per direction for the 1-D maxima of mode_
 def mode_max_bounds(shape, modes) -> np.ndarray:
     """B (K,) with B[m] >= max |phi_m| over the element: certified, not sampled.
 
-    Every stored mode (corrections included, as _basis builds them) is a product of 1-D
+    Every stored mode (corrections included, as modal_basis builds them) is a product of 1-D
     factors in the collapsed coordinates (eta1, eta2 or xi2, xi3), which range over the whole
     cube independently, so its maximum is the product of the factors' maxima. A factor of
     degree D sampled at M Chebyshev points is bounded by the sample maximum / cos(pi D / 2M)
@@ -638,7 +638,7 @@ def affine_fit(shape, gmodes, gcoeffs):
 _BOX = 0.5  # Newton may leave the element by this much (in eta) before it is held back
 
 
-def _hold(shape, xi):
+def hold_inside(shape, xi):
     """Clamp Newton iterates to a slightly enlarged element: a box in the collapsed coordinates,
     xi3 <= 1 (beyond the collapse the collapsed shapes fold over)."""
     if shape == HEX:
@@ -675,7 +675,7 @@ def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
     if xi0 is None:
         # best of: the vertex-affine guess and a fixed grid of interior seeds
         A, b, _ = affine_fit(shape, gmodes, g)
-        cand = _hold(shape, X @ A.T + b)
+        cand = hold_inside(shape, X @ A.T + b)
         best = np.linalg.norm(xmap(cand) - X, axis=1)
         grid = np.array([-0.6, 0.0, 0.6])
         seeds = _uncollapse(shape, np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3))
@@ -687,7 +687,7 @@ def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
         xi = cand
         xi[use] = seeds[j[use]]
     else:
-        xi = _hold(shape, np.broadcast_to(np.asarray(xi0, dtype=np.float64), lead + (3,)).reshape(-1, 3).copy())
+        xi = hold_inside(shape, np.broadcast_to(np.asarray(xi0, dtype=np.float64), lead + (3,)).reshape(-1, 3).copy())
 
     # Newton steps below round-off are as good as it gets: eps * |coefficients| * |J^-1|
     cmag = np.abs(g).sum(axis=0).max()
@@ -697,7 +697,7 @@ def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
         if active.size == 0:
             break
         xa = xi[active]
-        B, G = _basis(shape, gmodes, xa, True)
+        B, G = modal_basis(shape, gmodes, xa, True)
         val = B @ g
         J = np.matmul(G.transpose(0, 2, 1), g).transpose(0, 2, 1)  # (m, 3 coords, 3 xi)
         r = X[active] - val
@@ -707,7 +707,7 @@ def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
         small = np.abs(step).max(axis=1) <= np.maximum(tol, noise)
         if small.any():
             idx = active[small]
-            xi[idx] = _hold(shape, xa[small] + step[small])
+            xi[idx] = hold_inside(shape, xa[small] + step[small])
             conv[idx] = True
         rest = ~small
         xa, step, rn, idx = xa[rest], step[rest], np.linalg.norm(r[rest], axis=1), active[rest]
@@ -717,7 +717,7 @@ def invert_map(shape, gmodes, gcoeffs, x, xi0=None, tol=1e-12, max_iter=50):
             todo = ~accepted
             if not todo.any():
                 break
-            cand = _hold(shape, xa[todo] + alpha * step[todo])
+            cand = hold_inside(shape, xa[todo] + alpha * step[todo])
             rc = np.linalg.norm(X[idx[todo]] - xmap(cand), axis=1)
             ok = rc < rn[todo]
             sel = np.nonzero(todo)[0][ok]

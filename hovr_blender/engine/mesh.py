@@ -8,18 +8,15 @@ Struct-of-arrays so it uploads to Warp unchanged. One row per element:
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
 from . import expansions as ex
-from .derived_fields import concatenate_derived
 from .expansions import MODIFIED_A
+from .mesh_base import TOLERANCE, DerivedFieldError, MeshError
 from .shapes import HEX, MAX_MODES, NAMES, VERTICES
-
-
-class MeshError(ValueError):
-    """An element the renderer cannot represent (degenerate, non-affine, bad order, NaN)."""
 
 
 def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9):
@@ -36,8 +33,6 @@ def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9
             f"element {element}: hexahedron is not a parallelepiped (trilinear and curved "
             "geometry arrive with the element issue)"
         )
-    from .validity import TOLERANCE  # validity imports this module
-
     det = np.linalg.det(J)
     if not np.isfinite(det) or abs(det) <= TOLERANCE * np.prod(np.linalg.norm(J, axis=0)):
         raise MeshError(f"element {element}: degenerate hexahedron (Jacobian determinant {det:.3g})")
@@ -87,7 +82,7 @@ class VolumeMesh:
     geom_offset: np.ndarray | None = None  # (N,) int64
     geom_coeffs: np.ndarray | None = None  # (G, 3) float64
     affine: np.ndarray | None = None  # (N,) bool: ref_from_world is exact for these
-    # (lo (N,), hi (N,)) that element_field_ranges must also enclose: a derived field (io/derived.py)
+    # (lo (N,), hi (N,)) that element_field_ranges must also enclose: a derived field (io/magnitude.py)
     # is rendered through a polynomial fit, and its true values may leave the fit's own range
     field_range_hull: tuple | None = None
     # (N,) which volume each element belongs to (0..V-1), for meshes that merge several volumes
@@ -494,3 +489,33 @@ def boxes_diagonal(lowers, uppers) -> float:
 def data_diagonal(mesh: "VolumeMesh") -> float:
     """The renderer's data_diagonal of `mesh` (the fixed-step methods' samples per ray), without Warp."""
     return boxes_diagonal(*padded_element_boxes(mesh))
+
+
+def concatenate_derived(meshes):
+    """The DerivedField (engine/derived_fields.py) of meshes merged by concatenate: at most one
+    derived field among them (its elements derived, the others' fields their own); None where none
+    is derived."""
+    fields = [m.derived for m in meshes if m.derived is not None]
+    if not fields:
+        return None
+    if len({f.spec for f in fields}) > 1 or len(fields) > 1:
+        raise DerivedFieldError("one derived field per scene: "
+                                + ", ".join(f.spec.name for f in fields) + " cannot render together")
+    field = fields[0]
+    parts = []
+    for m in meshes:
+        if m.derived is not None:
+            parts.append(m.derived)
+        else:
+            n = m.num_elements
+            parts.append(dataclasses.replace(field, modes=np.ones((n, 3), np.int32), size=np.zeros(n, np.int64),
+                                             offset=np.zeros(n, np.int64), coeffs=np.zeros(0),
+                                             axes=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+                                             derived=np.zeros(n, bool)))
+    starts = np.cumsum([0] + [len(p.coeffs) for p in parts[:-1]])
+    return dataclasses.replace(field, modes=np.concatenate([p.modes for p in parts]),
+                               size=np.concatenate([p.size for p in parts]),
+                               offset=np.concatenate([p.offset + s for p, s in zip(parts, starts)]),
+                               coeffs=np.concatenate([p.coeffs for p in parts]),
+                               axes=np.concatenate([p.axes for p in parts]),
+                               derived=np.concatenate([p.derived for p in parts]))

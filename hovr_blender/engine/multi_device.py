@@ -34,8 +34,12 @@ import types
 import numpy as np
 
 from . import limits
+from .frame import Capability, Frame, check_frame
 from .processes import sigint_blocked, watch_parent
-from .renderer import Renderer, RenderError, RenderResult, expand_devices
+from .devices import expand_devices
+from .kernel_loading import kernel_variant
+from .render_result import RenderError, RenderResult
+from .renderer import Renderer
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
                 "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
@@ -306,12 +310,18 @@ def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
 
 class MultiDeviceRenderer:
     """Renderer's render() over several devices (e.g. every CUDA device of the host): one process
-    a device, each holding the mesh; close() (or `with`) stops them."""
+    a device, each holding the mesh; close() (or `with`) stops them. Of a Frame it draws opaque
+    meshes (each device reads its band of the whole image's hits), not isosurfaces or planes, and it
+    keeps no segment cache (engine/frame.py)."""
+
+    capabilities = frozenset({Capability.OPAQUE})
+    kind = "over several devices"
 
     def __init__(self, mesh, devices, max_tile_rays: int | None = None):
         self.devices = expand_devices(devices)
         self.device = ",".join(self.devices)
         self.mesh = mesh
+        self.kernel_variant = kernel_variant([mesh])  # what every device's process compiles
         self._row_cost = None  # the last frame's cost per row, for the next split
         self._speeds = np.ones(len(self.devices))  # cost per second, per device
         t0 = time.perf_counter()
@@ -422,22 +432,13 @@ class MultiDeviceRenderer:
         self.close()
 
 
-def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None):
-    """A Renderer for one device, a MultiDeviceRenderer for a list ("cuda:0,cuda:1", "cuda:all")."""
+def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None, frame: Frame | None = None):
+    """A Renderer for one device, a MultiDeviceRenderer for a list ("cuda:0,cuda:1", "cuda:all");
+    with `frame`, UnsupportedFrame before any process starts where that renderer cannot draw it."""
     devices = expand_devices(device)
-    if len(devices) == 1:
+    cls = Renderer if len(devices) == 1 else MultiDeviceRenderer
+    if frame is not None:
+        check_frame(cls, frame)
+    if cls is Renderer:
         return Renderer(mesh, devices[0], max_tile_rays=max_tile_rays)
     return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays)
-
-
-def render_view(view, mesh) -> RenderResult:
-    """A view file's image of `mesh` (hovr_blender.io.load_volume reads the view's data); a device
-    list (e.g. "cuda:0,cuda:1" or "cuda:all") splits the frame over those devices."""
-    devices = expand_devices(view.options.device)
-    if len(devices) > 1:
-        if view.surfaces:
-            raise RenderError("isosurfaces and planes render on one device; give one --device")
-        with MultiDeviceRenderer(mesh, devices) as r:
-            return r.render(view.camera, view.transfer_function, view.background, view.options)
-    return Renderer(mesh, devices[0]).render(view.camera, view.transfer_function, view.background, view.options,
-                                             surfaces=view.surfaces)

@@ -82,8 +82,11 @@ def _key(module, device) -> str:
 
 
 def _cpu_suffix(module) -> str:
-    """The tail of the CPU object's name Warp gives on this machine (".cpu<target>.o")."""
-    name = module._get_compile_output_name(wp.get_device("cpu"), block_dim=1)  # Warp 1.19, private
+    """The tail of the CPU object's name Warp gives on this machine (".cpu<target>.o"). Warp's one
+    private function the package calls, here only (tests/engine/test_layers.py PRIVATE_USES): Warp
+    names a CPU object after its LLVM version and target triple, which no public function gives,
+    and the store must find the object by that very name (Warp 1.19)."""
+    name = module._get_compile_output_name(wp.get_device("cpu"), block_dim=1)
     return name[len(module.get_module_identifier(1)):]
 
 

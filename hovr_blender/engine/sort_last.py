@@ -19,7 +19,7 @@ slabs compute the cut t = w / (d . a) from the same numbers, so the pieces meet 
 an overlap; inside a slab the kernel integrates the elements' segments clipped at the planes,
 each exactly as in one device's render, so the composite differs from the single-device image
 only by the quadrature's splitting of the two segments at a cut (within the method's tolerance:
-<= 1e-6 for the pixel-exact settings, tests/engine/test_sort_last.py) and by rounding.
+<= 1e-6 for the pixel-exact settings, tests/engine/test_multi_device.py) and by rounding.
 
 The axis is the camera's forward direction when the partition is made, and a partition serves
 every later camera whose rays all have d . a > 0 (a perspective camera's four corner rays say so)
@@ -35,7 +35,10 @@ import time
 import numpy as np
 
 from .mesh import element_boxes, subset
-from .renderer import Renderer, RenderError, RenderResult, expand_devices
+from .devices import expand_devices
+from .kernel_loading import kernel_variant
+from .render_result import RenderResult
+from .renderer import Renderer
 
 FAR = 1.0e30  # the open ends of the first and last slab (the kernel's float32 infinity stand-in)
 
@@ -112,11 +115,17 @@ def composite(partials, background) -> np.ndarray:
 class SortLastRenderer:
     """Renderer.render() with the mesh's elements split over `devices` in slabs, one part a
     device; with `processes` (the default) each part lives in its own process (engine/multi_device.py),
-    rendered at once, else one after the other in this process (tests; a single device)."""
+    rendered at once, else one after the other in this process (tests; a single device). Of a
+    Frame it draws the volume alone (engine/frame.py)."""
+
+    capabilities = frozenset()
+    kind = "sort-last over several devices"
 
     def __init__(self, mesh, devices, processes: bool = True, max_tile_rays: int | None = None):
         self.mesh = mesh
+        self.kernel_variant = kernel_variant([mesh])  # every part's kernels (a part's may need fewer)
         self.devices = expand_devices(devices)
+        self.device = ",".join(self.devices)
         self.processes = processes
         self.max_tile_rays = max_tile_rays
         self.axis = None
@@ -163,7 +172,7 @@ class SortLastRenderer:
         stats = dict(results[0].stats)
         for k in ("field_evaluations", "restriction_evaluations", "segments", "curved_locates"):
             stats[k] = int(sum(r.stats[k] for r in results))
-        stats.update(render_seconds=seconds, device=",".join(self.devices), elements=self.mesh.num_elements,
+        stats.update(render_seconds=seconds, device=self.device, elements=self.mesh.num_elements,
                      sort_last=[{"device": d, "elements": n, "render_seconds": r.stats["render_seconds"]}
                                 for d, n, r in zip(self.devices, self.part_elements, results)])
         if progress is not None:

@@ -75,7 +75,7 @@ def tensor_matrix(D: int, xi) -> np.ndarray:
 def fit_tensor_geometry(shape: int, gmodes, G: np.ndarray, element_ids=None):
     """G (m, K, 3) modal geometry of m elements of one shape and geometry order ->
     (D, C) with C (m, (D+1)^3, 3) the tensor Legendre coefficients of x w^2."""
-    from .mesh import MeshError
+    from .mesh_base import MeshError
 
     D = tensor_degree(shape, gmodes)
     if D > MAX_DEGREE:

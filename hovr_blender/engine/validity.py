@@ -50,10 +50,9 @@ import numpy as np
 from numpy.polynomial import chebyshev
 
 from . import expansions as ex
-from .mesh import MeshError
+from .mesh_base import TOLERANCE, MeshError
 from .shapes import CENTROIDS, HEX, NAMES, PRISM, PYR, TET
 
-TOLERANCE = 1e-8  # det J below this fraction of the element's scale counts as zero
 MAX_BOXES = 512  # sub-boxes examined per element before it is refused as not certified
 VALID, INVERTED, DEGENERATE, UNCERTIFIED, OVERFLOW = range(5)
 

@@ -11,11 +11,10 @@ from .camera import RayCamera
 from . import limits
 from .isosurfaces import Surfaces, surfaces_from_view
 from .limits import read_regular
-from .methods import METHODS
+from .methods import METHODS, needs_step, takes_step
 from .strict_json import as_integer, as_object, as_string, as_vector3, loads
 from .transfer_function import TransferFunction
 
-FIXED_STEP_METHODS = ("riemann", "trapezoid")  # the baselines: a step h is what they are
 # classified without h: each piecewise-smooth segment's trapezoid step is the largest whose error
 # bound on the segment is at most this (kernels/quadrature.auto_steps). A quarter of the contract's
 # aim for a whole image (§6): a ray's errors add up over the segments it marches (the paper-scale
@@ -84,7 +83,7 @@ class RenderOptions:
         if self.method not in METHODS:
             raise ViewError(f"unknown method {self.method!r}; one of {', '.join(METHODS)}")
         if self.h is None:
-            if self.method in FIXED_STEP_METHODS:
+            if needs_step(self.method):
                 raise ViewError(f"method {self.method} marches with a fixed step: give h in world units "
                                 f"(--h, or \"render\": {{\"h\": ...}} in the view file)")
         elif not (np.isfinite(self.h) and self.h > 0):
@@ -115,7 +114,7 @@ class RenderOptions:
     @property
     def fixed_step(self) -> bool:
         """Whether rays march with the fixed step h (the samples-per-ray limit applies)."""
-        return self.method != "split" and self.h is not None
+        return takes_step(self.method) and self.h is not None
 
     def check_steps(self, data_diagonal: float):
         """A fixed step against the samples-per-ray limit across the data (engine/limits.py)."""
@@ -184,7 +183,7 @@ def resolving_step(options: RenderOptions, tfs, value_ranges) -> tuple[RenderOpt
     with a warning that says so; tau_max is the largest density of each volume's transfer function
     (`tfs`: one, or one per volume) over that volume's field values (`value_ranges`: (lo, hi) per
     volume). Other options come back as they are."""
-    if options.h is None or options.method == "split":
+    if options.h is None or not takes_step(options.method):
         return options, []
     tfs = [tfs] if isinstance(tfs, TransferFunction) else list(tfs)
     tau = max(tf.max_density(lo, hi) for tf, (lo, hi) in zip(tfs, value_ranges))

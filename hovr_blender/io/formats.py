@@ -1,4 +1,4 @@
-"""The data formats' registry: one line a format (its module declares it: io/format.py).
+"""The data formats' registry: one line a format (its module declares it: io/format_base.py).
 
 The loader (io/sources.py), the `hovr` command, Blender's import operators and menu, the volume
 panel and the dependency check all read FORMATS, so a new format is one module and one line
@@ -8,13 +8,17 @@ makes its import operators from the registry when the add-on registers.
 from __future__ import annotations
 
 from ..engine import limits
-from .format import SNIFF_BYTES, Format
+from .format_base import SNIFF_BYTES, Format
+from .mfem.format import FORMAT as MFEM
 from .nektar.format import FORMAT as NEKTAR
+from .pyfr.format import FORMAT as PYFR
 from .vtu.format import FORMAT as VTU
 
 FORMATS: list[Format] = [
     NEKTAR,
     VTU,
+    PYFR,
+    MFEM,
 ]
 
 

@@ -29,16 +29,16 @@ import atexit
 import json
 import os
 import signal
-import struct
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, fields as dataclass_fields
+from dataclasses import asdict
 from pathlib import Path
 
 from ..engine import limits
+from .reader_protocol import ARRAY_DTYPES, HEADER, ReaderFailure, array_specs, decode, send
 
 ENV_SWITCH = "HOVR_ISOLATION"
 LIST_SECONDS = 30.0  # listing fields or composites reads headers only; the dialog waits for it
@@ -46,9 +46,6 @@ START_SECONDS = 120.0  # for a reader process to start (import numpy, the reader
 ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allocations during a task
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
-# dtypes an array may come back in (a reader process that misbehaves cannot make this one build objects)
-ARRAY_DTYPES = frozenset(("|b1", "|u1", "<i4", "<i8", "<u4", "<u8", "<f4", "<f8"))  # numpy's dtype.str
-HEADER = struct.Struct("<Q")
 
 # The package is loaded as the render devices' processes load it (engine/bootstrap.py, run from
 # its file: nothing of the package is importable before), under this process's name for it.
@@ -59,11 +56,6 @@ BOOT = (
     "runpy.run_path(cfg['bootstrap'])['import_package'](cfg['package'], cfg['folder'])\n"
     "importlib.import_module(cfg['package'] + '.io.reader_process').main(cfg)\n"
 )
-
-
-class ReaderFailure(ValueError):
-    """The reader process crashed, hung, ran out of its memory or failed to start: one line that
-    names the file being read."""
 
 
 class ReadCancelled(Exception):
@@ -91,107 +83,6 @@ def interpreter() -> str:
             return candidate
     raise ReaderFailure(f"no Python interpreter found to run the reader process (sys.executable is {exe!r}); "
                         f"set {ENV_SWITCH}=0 to read in this process")
-
-
-# ----------------------------------------------------------------------------- messages
-
-def send(fd: int, message: dict, arrays=()):
-    """One JSON message, then the raw bytes of `arrays` (their dtypes and shapes in it)."""
-    body = json.dumps(message).encode()
-    _write_all(fd, HEADER.pack(len(body)) + body)
-    for a in arrays:
-        _write_all(fd, memoryview(a).cast("B"))
-
-
-def _write_all(fd: int, data):
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-
-
-def encode(value, arrays: list):
-    """A task's result as JSON, its arrays appended to `arrays`: numbers, strings, lists,
-    tuples, dicts with string keys, arrays, VolumeMesh and its DerivedField."""
-    import numpy as np
-
-    from ..engine.derived_fields import DerivedField
-    from ..engine.mesh import VolumeMesh
-
-    if isinstance(value, np.ndarray):
-        if value.dtype.str not in ARRAY_DTYPES:  # a big-endian array goes as its native copy
-            value = value.astype(value.dtype.newbyteorder("<")) if value.dtype.byteorder == ">" else value
-        if value.dtype.str not in ARRAY_DTYPES:
-            raise TypeError(f"array of dtype {value.dtype} cannot leave the reader process")
-        arrays.append(np.ascontiguousarray(value))
-        return {"$array": len(arrays) - 1, "dtype": value.dtype.str, "shape": list(value.shape)}
-    if isinstance(value, VolumeMesh):
-        names = [f.name for f in dataclass_fields(VolumeMesh)]
-        extra = {k: v for k, v in vars(value).items() if k not in names}
-        return {"$mesh": {k: encode(getattr(value, k), arrays) for k in names},
-                "extra": {k: encode(v, arrays) for k, v in extra.items()}}
-    if isinstance(value, DerivedField):  # a derived field's components (engine/derived_fields.py)
-        spec = value.spec
-        return {"$derived": {f.name: encode(getattr(value, f.name), arrays) for f in dataclass_fields(DerivedField)
-                             if f.name != "spec"},
-                "spec": [spec.operation, list(spec.components), spec.density]}
-    if isinstance(value, tuple):
-        return {"$tuple": [encode(v, arrays) for v in value]}
-    if isinstance(value, list):
-        return [encode(v, arrays) for v in value]
-    if isinstance(value, dict):
-        return {"$dict": {str(k): encode(v, arrays) for k, v in value.items()}}
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    raise TypeError(f"a {type(value).__name__} cannot leave the reader process")
-
-
-def _array_specs(tree, out: list):
-    """The array entries of an encoded tree, in index order."""
-    if isinstance(tree, dict):
-        if "$array" in tree:
-            out.append(tree)
-        for v in tree.values():
-            _array_specs(v, out)
-    elif isinstance(tree, list):
-        for v in tree:
-            _array_specs(v, out)
-    return out
-
-
-def decode(tree, arrays: list):
-    from ..engine.mesh import VolumeMesh
-
-    if isinstance(tree, list):
-        return [decode(v, arrays) for v in tree]
-    if not isinstance(tree, dict):
-        return tree
-    if "$array" in tree:
-        return arrays[tree["$array"]]
-    if "$tuple" in tree:
-        return tuple(decode(v, arrays) for v in tree["$tuple"])
-    if "$dict" in tree:
-        return {k: decode(v, arrays) for k, v in tree["$dict"].items()}
-    if "$derived" in tree:
-        from ..engine.derived_fields import DerivedField, DerivedSpec
-
-        op, components, density = tree["spec"]
-        given = {f.name: decode(tree["$derived"][f.name], arrays) for f in dataclass_fields(DerivedField)
-                 if f.name != "spec"}
-        return DerivedField(spec=DerivedSpec(str(op), tuple(str(c) for c in components),
-                                             None if density is None else str(density)), **given)
-    if "$mesh" in tree:
-        names = {f.name for f in dataclass_fields(VolumeMesh)}
-        given = {k: decode(v, arrays) for k, v in tree["$mesh"].items() if k in names}
-        mesh = VolumeMesh(**given)
-        for k, v in tree.get("extra", {}).items():
-            if k.isidentifier() and not k.startswith("_") and k not in names:
-                setattr(mesh, k, decode(v, arrays))
-        return mesh
-    raise ReaderFailure("the reader process sent a malformed result")
 
 
 # ----------------------------------------------------------------------------- the process
@@ -338,9 +229,10 @@ def _error_class(kind: str):
     """The class a reader's error of that name is raised as here: a registered format's own
     error, or one of the loader's and the policy's."""
     from ..engine.mesh import MeshError
-    from . import derived, formats, sources
+    from . import formats, magnitude
+    from .volume_source import SourceError
 
-    known = {"SourceError": sources.SourceError, "DerivedError": derived.DerivedError, "MeshError": MeshError,
+    known = {"SourceError": SourceError, "DerivedError": magnitude.DerivedError, "MeshError": MeshError,
              "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
              "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
              "ModuleNotFoundError": ModuleNotFoundError}
@@ -443,7 +335,7 @@ class Request:
             import numpy as np
 
             try:
-                self._specs = _array_specs(message.get("result"), [])
+                self._specs = array_specs(message.get("result"), [])
                 total = 0
                 for index, spec in enumerate(self._specs):
                     dtype, shape = np.dtype(spec["dtype"]), tuple(int(s) for s in spec["shape"])

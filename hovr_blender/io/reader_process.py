@@ -2,7 +2,7 @@
 and the loop that runs them one request at a time under the request's limits.
 
 Started by isolation.BOOT with its configuration as JSON; it talks on its own stdin (requests)
-and a private copy of its stdout (replies: isolation.send), with file descriptor 1 pointed at
+and a private copy of its stdout (replies: reader_protocol.send), with file descriptor 1 pointed at
 its stderr so that a library's stray output cannot corrupt a reply.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ import signal
 import sys
 
 from ..engine import limits
-from . import formats, isolation, sources
+from . import formats, volume_source
+from .reader_protocol import HEADER, encode, send
 
 
 def _known(extra_formats):
@@ -23,7 +24,7 @@ def _known(extra_formats):
     reader) from their modules' files: the reader process knows the package's own already."""
     import importlib.util
 
-    from .format import Format
+    from .format_base import Format
 
     for name, module_file in extra_formats:
         if any(f.name == name for f in formats.FORMATS):
@@ -39,7 +40,7 @@ def _known(extra_formats):
 
 def _read_volume(path, solution, field, component, extra_formats=()):
     _known(extra_formats)
-    return sources.read_volume(sources.VolumeSource(path, solution, field, (), component))
+    return volume_source.read_volume(volume_source.VolumeSource(path, solution, field, (), component))
 
 
 def _list_fields(format_name, path, extra_formats=()):
@@ -89,12 +90,12 @@ def _read_exact(fd: int, n: int) -> bytes | None:
 
 def _stage_reporter(fd: int):
     def opened(path, what):
-        isolation.send(fd, {"stage": f"reading {os.path.basename(str(path))}", "file": str(path)})
+        send(fd, {"stage": f"reading {os.path.basename(str(path))}", "file": str(path)})
     return opened
 
 
 def _run(request: dict, out: int, config: dict):
-    isolation.send(out, {"stage": "reading"})  # the parent's time limit starts now
+    send(out, {"stage": "reading"})  # the parent's time limit starts now
     task = TASKS[request["task"]]
     lim = limits.ResourceLimits(**request["limits"])
     limits.cap_address_space(lim.max_memory + int(config["address_slack"]))
@@ -104,7 +105,7 @@ def _run(request: dict, out: int, config: dict):
         with limits.using(lim):
             value = task(**request["args"])
         arrays: list = []
-        result = isolation.encode(value, arrays)
+        result = encode(value, arrays)
         return {"result": result}, arrays
     except MemoryError:
         return {"error": {"kind": "MemoryError", "message": "out of memory"}}, []
@@ -123,7 +124,7 @@ def main(config: dict):
     out = os.dup(1)
     os.dup2(2, 1)
     limits.OPEN_OBSERVERS.append(_stage_reporter(out))
-    header = isolation.HEADER
+    header = HEADER
     while True:
         raw = _read_exact(0, header.size)
         if raw is None:
@@ -132,5 +133,5 @@ def main(config: dict):
         if body is None:
             break
         message, arrays = _run(json.loads(body), out, config)
-        isolation.send(out, message, arrays)
+        send(out, message, arrays)
     os._exit(0)

@@ -63,7 +63,7 @@ def output_path(scene, frame: int, root: str, mode: str) -> str:
     return out
 
 
-def render_frame(frame: int, root: str, mode: str):
+def render_scene_frame(frame: int, root: str, mode: str):
     scene = bpy.context.scene
     out = output_path(scene, frame, root, mode)
     if os.path.lexists(out):
@@ -84,7 +84,7 @@ def render_frame(frame: int, root: str, mode: str):
 
 def _run(frame: str, root: str, mode: str) -> int:
     try:
-        render_frame(int(frame), root, mode)
+        render_scene_frame(int(frame), root, mode)
     except Refused as exc:
         print("HOVR-ERROR", exc, flush=True)
         return EXIT_REFUSED

@@ -35,7 +35,8 @@ from ..io import formats, isolation
 from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, parse_component
 from . import compat, operators
 from .jobs import Job, Listings, summarise_warnings
-from .render import failure_text, volume_extent, volume_points
+from .render import failure_text
+from .snapshot import volume_extent, volume_points, volume_source
 from .scene import field_samples
 
 
@@ -536,14 +537,14 @@ class HOVR_OT_add_walls(bpy.types.Operator):
         data_format = _with_boundaries(context.object.hovr.source)
         if data_format is not None:
             try:
-                draw_wall_choices(layout, operators.volume_source(context.object, context.scene).path, data_format)
+                draw_wall_choices(layout, volume_source(context.object, context.scene).path, data_format)
             except ValueError:
                 pass
 
     def execute(self, context):
         volume = context.object
         try:
-            source = operators.volume_source(volume, context.scene)
+            source = volume_source(volume, context.scene)
             mesh = cached_volume(source)
             walls = make_walls(mesh, source.path, self.walls_from, self.walls_tolerance)
         except Exception as exc:

@@ -219,8 +219,8 @@ class Listings:
 
 
 class CompiledKernels:
-    """Render kernels compiled in this session, by key (device, precision, kernel variant,
-    surfaces); `compile_key(key)` does the compiling (the core's load_kernels), `shipped(key)`
+    """Render kernels compiled in this session, by key (device, precision, KernelVariant, opaque
+    meshes, isosurfaces: kernel_key); `compile_key(key)` does the compiling (the core's load_kernels), `shipped(key)`
     says whether the add-on's compiled kernels hold them all (and whether it ships any)."""
 
     COMPILING = "Compiling render kernels (first use)"
@@ -256,18 +256,19 @@ class CompiledKernels:
         return True
 
 
-def kernel_key(device: str, precision: str, variant: tuple, surfaces: bool, isosurfaces: bool = False) -> tuple:
+def kernel_key(device: str, precision: str, variant, surfaces: bool, isosurfaces: bool = False) -> tuple:
     """What a set of compiled render kernels is for: the scene's Device and Precision, the
-    kernel variant of its volumes (engine.renderer.kernel_variant), whether surfaces are cast and
+    KernelVariant of its volumes (engine/kernel_loading.py), whether opaque meshes are cast and
     whether the look has isosurfaces or cut planes (their own integrate and shade)."""
-    return (str(device), str(precision), tuple(variant), bool(surfaces), bool(isosurfaces))
+    return (str(device), str(precision), variant, bool(surfaces), bool(isosurfaces))
 
 
 def compile_render_kernels(key: tuple) -> None:
     """Compile (or load from Warp's disk cache) a kernel_key's kernels on its device's first
     device: a split device ("cpu:all", "cuda:all") renders in processes of its own, which then
     load the kernels from the disk cache instead of compiling them."""
-    from ..engine.renderer import expand_devices, load_kernels
+    from ..engine.devices import expand_devices
+    from ..engine.kernel_loading import load_kernels
 
     device, precision, variant, surfaces, isosurfaces = key
     load_kernels(variant, expand_devices(device)[0], precision, surfaces=surfaces, isosurfaces=isosurfaces)
@@ -276,7 +277,8 @@ def compile_render_kernels(key: tuple) -> None:
 def shipped_render_kernels(key: tuple) -> tuple[bool, bool]:
     """(the add-on's compiled kernels hold every kernel of a kernel_key, it ships any)."""
     from ..engine import shipped_kernels
-    from ..engine.renderer import expand_devices, session_kernels
+    from ..engine.devices import expand_devices
+    from ..engine.kernel_loading import session_kernels
 
     device, precision, variant, surfaces, isosurfaces = key
     covered = shipped_kernels.covers(session_kernels(variant, precision, surfaces, isosurfaces),

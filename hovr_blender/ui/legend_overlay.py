@@ -44,7 +44,7 @@ def covered_top(region, regions) -> int:
 def scene_legend(scene, view_layer, width: int, height: int, background, top: int = 0) -> Legend | None:
     """The legend of the active volume (else the scene's first) for a width x height image, or
     None without a volume; ValueError where its look cannot be drawn."""
-    from .render import legend_volume_inputs
+    from .snapshot import legend_volume_inputs
 
     active = view_layer.objects.active if view_layer is not None else None
     obj = active if active is not None and active.hovr.is_volume else None

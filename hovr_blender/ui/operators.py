@@ -5,10 +5,11 @@ on another volume's."""
 import bpy
 import numpy as np
 
-from ..engine.cache import LRUCache
+from ..engine.lru_cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
 from .scene import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_histogram, value_range
+from .snapshot import volume_source
 
 
 def field_range(mesh, samples: int = 9):
@@ -31,12 +32,6 @@ def _volume_object(context):
         return obj
     volumes = [o for o in context.scene.objects if o.hovr.is_volume]
     return volumes[0] if len(volumes) == 1 else None
-
-
-def volume_source(obj, scene):
-    """The volume's data (io.sources.VolumeSource) at the scene's frame."""
-    return VolumeSource.resolve(obj.hovr.source, obj.hovr.solution, obj.hovr.field, scene.frame_current,
-                                abspath=lambda p: bpy.path.abspath(p, library=obj.library), component=obj.hovr.component)
 
 
 def histogram_for(context, obj=None):
@@ -180,12 +175,11 @@ class HOVR_OT_fit_value_range(_OnVolume, bpy.types.Operator):
 # ------------------------------------------------------------------------------------ framing
 
 
-
 def volume_points(obj, scene):
     """World points that outline a volume: its elements' corners (from its data, read once and
     cached), or the corners of the object's own bounds when the data cannot be read."""
     from .framing import transform_points
-    from .render import volume_points as data_points
+    from .snapshot import volume_points as data_points
 
     M = np.array(obj.matrix_world)
     try:
@@ -200,7 +194,7 @@ def frame_volumes(context, objects, margin: float = 1.1):
     views' clip range and view follow. Returns the camera object."""
     from mathutils import Matrix
 
-    from .camera import ray_camera_from_blender
+    from .blender_camera import ray_camera_from_blender
     from .framing import DEFAULT_VIEW, clip_planes, fit_view, look_at_matrix
 
     scene = context.scene

@@ -1,6 +1,7 @@
 """Properties-editor panels for the HOVR engine, and the stock panels it reuses."""
 import bpy
 
+from ..engine.methods import takes_step
 from ..io import formats
 
 
@@ -33,8 +34,7 @@ def known_world_step(scene):
     """The world step a relative Step gives the scene's volumes, if all their sizes are known
     already (panels never load data: a volume not yet read or rendered leaves it unknown)."""
     from .framing import step_world_length, volume_diagonal
-    from .operators import volume_source
-    from .render import EXTENTS
+    from .snapshot import EXTENTS, volume_source
 
     diagonals = []
     for obj in scene.objects:
@@ -74,7 +74,7 @@ class HOVR_RENDER_PT_quadrature(HovrButtonsPanel, bpy.types.Panel):
         settings = context.scene.hovr
         layout.prop(settings, "method")
         col = layout.column(align=True)
-        col.active = settings.method != "split"  # Split needs no step
+        col.active = takes_step(settings.method)  # Split needs no step
         if settings.step_units == "WORLD":
             col.prop(settings, "h")
         else:

@@ -1,6 +1,6 @@
 """What the HOVR render engine does, as plain functions (engine.py's RenderEngine only calls
-these): snapshot the depsgraph into plain records, call the core, write pixels; the viewport's
-step and drawing.
+these): read the scene into plain records (snapshot.py), render the scene's Frame through the
+engine's one door (engine/frame.render_frame), write pixels; the viewport's step and drawing.
 
 No bpy.context and no operators during a final render, and nothing in the user's data is
 written. The core's renderer is imported lazily so that registering the add-on does not
@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from .camera import border_region, ray_camera_from_blender, ray_camera_from_view, render_size, sub_camera
-from ..engine.cache import LRUCache
-from ..io.sources import VolumeSource, cached_volume
+from .blender_camera import ray_camera_from_view
+from ..engine.lru_cache import LRUCache
+from ..io.sources import cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from . import compat
 from .compat import write_pass_pixels
 from .jobs import KERNELS, ProgressLines, kernel_key
-from .scene import combined_pass, depth_pass, flip_rows, render_background, transfer_function_from_ramp
+from .scene import combined_pass, depth_pass, flip_rows
+from .snapshot import (EXTENTS, POINTS, RenderJob, SceneInputs, render_job, resolve_units, scene_inputs,
+                       volume_extent)
 
 # Pixels per kernel launch between test_break() checks in F12. A CPU launch runs on one
 # thread: 256 pixels cost ~5 ms on the sphere and stay well under the 0.5 s cancel target
@@ -38,119 +40,12 @@ VIEW_BUDGET_SECONDS = 0.05
 VIEWPORTS = weakref.WeakSet()
 
 
-class SceneError(ValueError):
-    """The scene cannot be rendered by HOVR; the message tells the user what to fix."""
-
-
-@dataclass
-class VolumeInputs:
-    """One HOVR volume: its data, where it is, and its look as the contract's transfer function
-    still to be scaled: `density` in `density_units` (framing.density_per_world_unit)."""
-
-    name: str
-    source: VolumeSource
-    object_matrix: tuple
-    transfer_function: object  # TransferFunction with density scale 1 (ramp alpha)
-    density: float
-    density_units: str
-
-    @property
-    def data_key(self) -> tuple:
-        return (self.source.key, self.object_matrix)
-
-
-@dataclass
-class SceneInputs:
-    """What a final render and the viewport share: the volumes, settings, background."""
-
-    volumes: list  # [VolumeInputs], sorted by object name
-    background: np.ndarray
-    film_transparent: bool
-    options: object  # RenderOptions
-    warnings: list = field(default_factory=list)
-    transfer_functions: list | None = None  # per volume, per world unit: resolve_units() sets it
-    surfaces: list = field(default_factory=list)  # [engine.surfaces.SurfaceMesh] (ui/surfaces.py)
-    surface_mode: str = "NONE"  # Scene.hovr.surfaces: NONE, SHADED or HOLDOUT
-    surfaces_key: str = ""  # digest of the surfaces (blender/surfaces.surfaces_key)
-    # Scene.hovr's step: options.h is in world units once resolve_units() ran (a relative step
-    # needs the volumes' sizes, i.e. their data)
-    step_units: str = "WORLD"
-    steps_across: int = 0
-    isosurfaces: object = None  # engine.isosurfaces.Surfaces of the volumes (ui/surface_panels.py)
-
-    @property
-    def data_key(self) -> tuple:
-        return (tuple(v.data_key for v in self.volumes), self.options.device, self.surface_mode, self.surfaces_key)
-
-    @property
-    def transfer_function(self):
-        """The core's argument: one TransferFunction per volume (resolve_units first)."""
-        if self.transfer_functions is None:
-            raise RuntimeError("resolve_units() has not run")
-        return self.transfer_functions
-
-
-@dataclass
-class RenderJob:
-    width: int  # of the rendered region (the border's size under a render border)
-    height: int
-    camera: object  # RayCamera of the region
-    inputs: SceneInputs
-    region: tuple = (0, 0, 0, 0)  # (x0, y0 from the bottom, w, h) in the full frame
-
-    @property
-    def transfer_function(self):
-        return self.inputs.transfer_function
-
-    @property
-    def background(self):
-        return self.inputs.background
-
-    @property
-    def film_transparent(self):
-        return self.inputs.film_transparent
-
-    @property
-    def options(self):
-        return self.inputs.options
-
-    @property
-    def warnings(self):
-        return self.inputs.warnings
-
-
 # A new engine instance is created for every render, so uploaded meshes live here, keyed by
 # what determines them; two entries cover toggling an object transform, the device, or the
 # previous and current frame of an animation.
 RENDERERS = LRUCache(2)
-# The scene's surfaces uploaded for the ray cast (engine.surfaces.SurfaceScene), by geometry digest and device.
-SURFACES = LRUCache(2)
-# Object-space bounding boxes of loaded volumes, by source key (for relative density, framing).
-EXTENTS = LRUCache(16)
-
-
-def volume_extent(source: VolumeSource) -> tuple:
-    """(lo, hi) object-space bounding box of a volume's elements (their corner vertices)."""
-    def measure():
-        v = cached_volume(source).vertices.reshape(-1, 3)
-        return v.min(axis=0), v.max(axis=0)
-
-    return EXTENTS.get(source.key, measure)
-
-
-POINTS = LRUCache(8)
-MAX_FRAMING_POINTS = 50_000
-
-
-def volume_points(source: VolumeSource) -> np.ndarray:
-    """(n, 3) object-space element corners of a volume (at most ~MAX_FRAMING_POINTS, evenly
-    strided): what framing fits, tighter than the bounding box for round domains."""
-    def collect():
-        v = np.unique(cached_volume(source).vertices.reshape(-1, 3), axis=0)
-        step = max(1, len(v) // MAX_FRAMING_POINTS)
-        return v[::step]
-
-    return POINTS.get(source.key, collect)
+# The scene's opaque meshes uploaded for the ray cast (engine.opaque.OpaqueScene), by geometry digest and device.
+OPAQUE = LRUCache(2)
 
 
 def _renderer(volumes, device: str):
@@ -170,261 +65,86 @@ def _renderer(volumes, device: str):
     return RENDERERS.get((tuple(v.data_key for v in volumes), device), upload)
 
 
-def surface_scene(inputs: SceneInputs):
-    """The uploaded SurfaceScene of the scene's surfaces (cached), or None: surfaces off, or none there."""
-    if inputs.surface_mode == "NONE" or not inputs.surfaces:
+def opaque_scene(inputs: SceneInputs):
+    """The uploaded OpaqueScene of the scene's opaque meshes (cached), or None: off, or none there."""
+    if inputs.opaque_mode == "NONE" or not inputs.opaque_meshes:
         return None
     from ..engine.multi_device import expand_devices
-    from ..engine.surfaces import SurfaceScene
+    from ..engine.opaque import OpaqueScene
 
     device = expand_devices(inputs.options.device)[0]  # the ray cast runs on one device (the first)
-    return SURFACES.get((inputs.surfaces_key, device), lambda: SurfaceScene(inputs.surfaces, device))
+    return OPAQUE.get((inputs.opaque_key, device), lambda: OpaqueScene(inputs.opaque_meshes, device))
 
 
-def render_volume(renderer, inputs: SceneInputs, camera, **kwargs):
-    """The core render of the scene's volumes through `camera`, its surfaces stopping the rays
-    (engine.surfaces.render_with_surfaces; plain Renderer.render without surfaces)."""
-    from ..engine.surfaces import render_with_surfaces
+def scene_frame(inputs: SceneInputs, cache=None):
+    """The engine's Frame of the scene (resolve_units first): its looks, background, settings,
+    opaque meshes, isosurfaces and planes; `cache`, a SegmentSlot."""
+    from ..engine.frame import Frame
 
-    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
-    return render_with_surfaces(renderer, surface_scene(inputs), camera, inputs.transfer_function, inputs.background,
-                                inputs.options, mode=mode, isosurfaces=one_device_isosurfaces(renderer, inputs),
-                                **kwargs)
-
-
-def one_device_isosurfaces(renderer, inputs: SceneInputs):
-    """The scene's isosurfaces and planes, for a renderer of one device (SceneError for several)."""
-    from ..engine.renderer import Renderer
-
-    if inputs.isosurfaces and not isinstance(renderer, Renderer):
-        raise SceneError("isosurfaces and cut planes render on one device: set Render > Device to CPU or one GPU")
-    return inputs.isosurfaces
+    mode = inputs.opaque_mode if inputs.opaque_mode != "NONE" else "SHADED"
+    return Frame(inputs.transfer_function, inputs.background, inputs.options, opaque=opaque_scene(inputs),
+                 opaque_mode=mode, surfaces=inputs.surfaces or None, cache=cache)
 
 
 @dataclass
 class FinalCache:
-    """F12's element segments, kept on the device for the next F12 (engine.renderer.render_cached).
-    A view's segments are traced at its second F12 (the first renders plainly and only remembers
-    the view): a one-off render, or an animation whose frames change the data or the camera,
-    never pays for a trace it would not reuse; from then on, F12 after an edit of the look alone
-    (transfer function, density, colours, background, tolerance) shades from the cache."""
+    """F12's element segments, kept on the device for the next F12 (a Frame's SegmentSlot,
+    engine/frame.py). A view's segments are traced at its second F12 (the first renders plainly
+    and only remembers the view): a one-off render, or an animation whose frames change the data
+    or the camera, never pays for a trace it would not reuse; from then on, F12 after an edit of the
+    look alone (transfer function, density, colours, background, tolerance) shades from the cache."""
 
     view: tuple | None = None  # the last F12's view (Renderer.trace_key)
-    cache: object = None  # its core SegmentCache, or None
+    slot: object = None  # its SegmentSlot, once the view came twice
     refused: bool = False  # the view's cache did not fit the memory limit: not tried again
 
+    @property
+    def cache(self):
+        """The core SegmentCache kept, or None."""
+        return None if self.slot is None else self.slot.cache
+
     def clear(self):
-        self.view, self.cache, self.refused = None, None, False
+        self.view, self.slot, self.refused = None, None, False
 
 
 FINAL = FinalCache()
 
 
 def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixels=None):
-    """F12's render_volume through FINAL: shaded from the last F12's segments where they hold this
-    view, traced (and kept) where the last F12 had the same view, else a plain render."""
-    from ..engine.renderer import Renderer
-    from ..engine.surfaces import render_with_surfaces_cached
+    """F12's frame (scene_frame) through FINAL: shaded from the last F12's segments where they hold
+    this view, traced (and kept) where the last F12 had the same view, else a plain render."""
+    from ..engine.frame import Capability, SegmentSlot, render_frame
 
-    if not isinstance(renderer, Renderer):  # several devices keep no segments
+    frame = scene_frame(inputs)
+    if Capability.SEGMENT_CACHE not in renderer.capabilities:  # several devices keep no segments
         FINAL.clear()
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    surfaces = surface_scene(inputs)
-    surface_key = surfaces if surfaces is not None and not surfaces.empty else None
-    view = renderer.trace_key(camera, inputs.options, surface_key=surface_key)
+        return render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
+    view = renderer.trace_key(camera, inputs.options, surface_key=frame.opaque_meshes)
     if view != FINAL.view:
         FINAL.clear()
         FINAL.view = view  # a new view: its segments only if it comes again
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    if FINAL.refused:
-        return render_volume(renderer, inputs, camera, progress=progress, tile_pixels=tile_pixels)
-    mode = inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED"
-    old, FINAL.cache = FINAL.cache, None
-    if old is not None and not renderer.cache_fits(old, camera, inputs.transfer_function, inputs.options,
-                                                   surface_key=surface_key):
-        old = None  # another field frame: freed before the new trace allocates
-    result, FINAL.cache = render_with_surfaces_cached(renderer, surfaces, camera, inputs.transfer_function,
-                                                      inputs.background, inputs.options, mode=mode, cache=old,
-                                                      progress=progress, tile_pixels=tile_pixels,
-                                                      isosurfaces=inputs.isosurfaces)
-    FINAL.refused = "refused" in result.stats.get("segment_cache", {})
+    elif not FINAL.refused:
+        FINAL.slot = FINAL.slot or SegmentSlot()
+        frame = frame.with_(cache=FINAL.slot)
+    result = render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
+    if frame.cache is not None:
+        FINAL.refused = "refused" in result.stats.get("segment_cache", {})
     return result
-
-
-def world_diagonal(v: VolumeInputs) -> float:
-    """The volume's bounding-box diagonal in world units (its data read once and cached)."""
-    from .framing import volume_diagonal
-
-    lo, hi = volume_extent(v.source)
-    return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
-
-
-def renderer_variant(renderer) -> tuple:
-    """The kernel variant (engine.renderer.kernel_variant) of a Renderer or MultiDeviceRenderer."""
-    from ..engine.renderer import kernel_variant
-
-    return getattr(renderer, "kernel_variant", None) or kernel_variant([renderer.mesh])
 
 
 def render_kernel_key(renderer, inputs: SceneInputs) -> tuple:
     """The jobs.kernel_key of rendering the scene's volumes with `renderer`."""
-    return kernel_key(inputs.options.device, inputs.options.precision, renderer_variant(renderer),
-                      inputs.surface_mode != "NONE", bool(inputs.isosurfaces))
-
-
-def resolve_units(inputs: SceneInputs) -> SceneInputs:
-    """What is given relative to the volumes' sizes, in the render contract's absolute units:
-    each volume's transfer function per world unit (a relative density becomes density / the
-    volume's diagonal; inputs.transfer_functions) and the step h in world units (a relative
-    step: the smallest volume's diagonal / Steps Across; inputs.options.h). A view file means
-    what it always meant: only these numbers reach the core."""
-    from dataclasses import replace
-
-    from .framing import density_per_world_unit, step_world_length
-
-    tfs = []
-    for v in inputs.volumes:
-        diag = world_diagonal(v) if v.density_units != "WORLD" else 0.0
-        scale = density_per_world_unit(v.density, v.density_units, diag)
-        tf = v.transfer_function
-        tfs.append(replace(tf, density_tau=np.asarray(tf.density_tau, dtype=np.float64) * scale))
-    inputs.transfer_functions = tfs
-    if inputs.step_units != "WORLD":
-        try:
-            h = step_world_length(inputs.options.h, inputs.steps_across, inputs.step_units,
-                                  [world_diagonal(v) for v in inputs.volumes])
-        except ValueError as exc:
-            raise SceneError(str(exc)) from exc
-        inputs.options = replace(inputs.options, h=h)
-        inputs.step_units = "WORLD"  # resolved: options.h is the world step now
-    return inputs
+    return kernel_key(inputs.options.device, inputs.options.precision, renderer.kernel_variant,
+                      inputs.opaque_mode != "NONE", bool(inputs.surfaces))
 
 
 def clear_cache():
     RENDERERS.clear()
     FINAL.clear()
-    SURFACES.clear()
+    OPAQUE.clear()
     EXTENTS.clear()
     POINTS.clear()
     clear_mesh_cache()
-
-
-def _matrix_tuple(m) -> tuple:
-    return tuple(float(x) for row in m for x in row)
-
-
-def volume_objects(depsgraph, original: bool = False) -> list:
-    """The HOVR volumes the depsgraph shows, by name (a stable order: volume k of the merged mesh)."""
-    def hovr_of(o):
-        return o.original.hovr if original else o.hovr
-
-    return sorted((o for o in depsgraph.objects if hovr_of(o).is_volume), key=lambda o: o.name)
-
-
-def volume_inputs(obj, hovr, scene) -> VolumeInputs:
-    """One volume's record: its data source at the scene's frame and its look."""
-    from .versioning import volume_look
-
-    library = obj.original.library if obj.original is not None else None
-    if not hovr.source.strip():
-        raise SceneError(f"the HOVR volume {obj.name!r} has no source: set Object > HOVR Volume > Source")
-    source = VolumeSource.resolve(hovr.source, hovr.solution, hovr.field, scene.frame_current,
-                                  abspath=lambda p: bpy.path.abspath(p, library=library), component=hovr.component)
-    look = volume_look(hovr, scene)
-    texture = look.texture
-    if texture is None:
-        raise SceneError(f"the HOVR volume {obj.name!r} has no transfer function: create one in "
-                         "Object > HOVR Volume > Look")
-    if not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"transfer function texture {texture.name!r} of {obj.name!r} has no colour ramp enabled")
-    ramp = texture.color_ramp
-    try:
-        tf = transfer_function_from_ramp(
-            ramp.interpolation, ramp.color_mode,
-            [e.position for e in ramp.elements], [tuple(e.color) for e in ramp.elements],
-            1.0, look.value_min, look.value_max,
-        )
-    except ValueError as exc:
-        raise SceneError(f"{obj.name!r}: {exc}") from exc
-    if not (np.isfinite(look.density) and look.density >= 0):
-        raise SceneError(f"{obj.name!r}: density must be >= 0, got {look.density:.6g}")
-    return VolumeInputs(name=obj.name, source=source, object_matrix=_matrix_tuple(obj.matrix_world),
-                        transfer_function=tf, density=float(look.density), density_units=look.density_units)
-
-
-def legend_volume_inputs(obj, scene):
-    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
-    (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
-    from .versioning import volume_look
-
-    look = volume_look(obj.hovr, scene)
-    texture = look.texture
-    if texture is None or not texture.use_color_ramp or texture.color_ramp is None:
-        raise SceneError(f"{obj.name!r} has no transfer function ramp")
-    ramp = texture.color_ramp
-    tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
-                                     [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
-    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
-
-
-def scene_inputs(depsgraph, original: bool = False) -> SceneInputs:
-    """The volumes, their looks and the settings of the scene, as plain records.
-
-    F12 reads the evaluated scene of its freshly built render depsgraph. The viewport's
-    depsgraph is not re-evaluated when only add-on (Python-defined) properties change, so
-    it reads those from the original datablocks (`original=True`); object matrices always
-    come from the evaluated objects. Call resolve_units() before using the transfer functions or
-    the step (options.h)."""
-    from ..engine.view import RenderOptions
-
-    scene = depsgraph.scene if original else depsgraph.scene_eval
-    render = scene.render
-    settings = scene.hovr
-    objects = volume_objects(depsgraph, original)
-    if not objects:
-        raise SceneError("no HOVR volume in the scene: import one (File > Import > HOVR ...) or add one with "
-                         "Add > HOVR Sphere Volume")
-    volumes = [volume_inputs(o, o.original.hovr if original else o.hovr, scene) for o in objects]
-    world_color = tuple(scene.world.color) if scene.world is not None else None
-    options = RenderOptions(method=settings.method, h=settings.h, tolerance=settings.tolerance,
-                            min_transmittance=settings.min_transmittance, device=settings.device,
-                            precision=settings.precision)
-    from .surface_panels import plane_object_names, scene_isosurfaces
-
-    try:
-        isosurfaces = scene_isosurfaces(objects)
-    except ValueError as exc:
-        raise SceneError(str(exc)) from exc
-    mode = settings.surfaces
-    surfaces, key = [], ""
-    if mode != "NONE":
-        from .surfaces import scene_surfaces, surfaces_key
-
-        planes = plane_object_names(objects)  # cut planes are no opaque surfaces
-        surfaces = [m for m in scene_surfaces(depsgraph) if m.name.rpartition("[")[0] not in planes]
-        key = surfaces_key(surfaces)
-    return SceneInputs(volumes=volumes, background=render_background(world_color, render.film_transparent),
-                       film_transparent=bool(render.film_transparent), options=options, surfaces=surfaces,
-                       surface_mode=mode, surfaces_key=key, step_units=settings.step_units,
-                       steps_across=int(settings.steps_across), isosurfaces=isosurfaces)
-
-
-def snapshot(engine: bpy.types.RenderEngine, depsgraph) -> RenderJob:
-    """Everything render() needs, as plain data, read from the evaluated depsgraph. Adds
-    a warning for each volume the camera's clip planes hide in whole or in part."""
-    scene = depsgraph.scene_eval
-    render = scene.render
-    cam = engine.camera_override or scene.camera
-    if cam is None:
-        raise SceneError("no camera: set the scene's active camera (or use Frame Volume, which makes one)")
-    camera = ray_camera_from_blender(cam, depsgraph, render)
-    inputs = scene_inputs(depsgraph)
-    width, height = render_size(render)
-    x0, y0, w, h = border_region(width, height, render.use_border, render.border_min_x, render.border_max_x,
-                                 render.border_min_y, render.border_max_y)
-    if (w, h) != (width, height):
-        camera = sub_camera(camera, x0, height - y0 - h, w, h)  # sub_camera counts rows from the top
-    return RenderJob(width=w, height=h, camera=camera, inputs=inputs, region=(x0, y0, w, h))
 
 
 def clip_warnings(job: RenderJob, camera_name: str) -> list:
@@ -497,13 +217,12 @@ def viewport_request(context, depsgraph):
     inputs = scene_inputs(depsgraph, original=True)
     renderer, _n = _renderer(inputs.volumes, inputs.options.device)
     resolve_units(inputs)
-    request = ViewportRequest(camera=camera, transfer_function=inputs.transfer_function,
-                              background=inputs.background, options=inputs.options,
-                              film_transparent=inputs.film_transparent, data_key=inputs.data_key,
-                              surfaces=surface_scene(inputs),
-                              surface_mode=inputs.surface_mode if inputs.surface_mode != "NONE" else "SHADED",
-                              isosurfaces=one_device_isosurfaces(renderer, inputs))
-    return renderer, request
+    from ..engine.frame import check_frame
+
+    frame = scene_frame(inputs)
+    check_frame(renderer, frame)  # what this renderer cannot draw, said before any work
+    return renderer, ViewportRequest(camera=camera, frame=frame, film_transparent=inputs.film_transparent,
+                                     data_key=inputs.data_key)
 
 
 def viewport_step(state, context, depsgraph, budget=VIEW_BUDGET_SECONDS) -> ViewportFrame:
@@ -559,7 +278,7 @@ def final_render(engine, api, depsgraph):
     status = stage_reporter(api, bpy.app.background, compat.update_stats_printed_in_background())
     status("HOVR | reading scene")
     try:
-        job = snapshot(engine, depsgraph)
+        job = render_job(engine, depsgraph)
     except ValueError as exc:  # SceneError and the core's Camera/TransferFunction/Mesh/View errors
         fail(api, str(exc))
         return
@@ -667,12 +386,13 @@ def view_draw(engine, context, depsgraph):
     kernels' first use compiles them here (the status line says so first)."""
     try:
         renderer, request = viewport_request(context, depsgraph)
-        key = kernel_key(request.options.device, request.options.precision, renderer_variant(renderer),
-                         depsgraph.scene.hovr.surfaces != "NONE", bool(request.isosurfaces))
+        options = request.frame.options
+        key = kernel_key(options.device, options.precision, renderer.kernel_variant,
+                         depsgraph.scene.hovr.surfaces != "NONE", bool(request.frame.surfaces))
         if not KERNELS.is_ready(key):
             engine.update_stats("", f"HOVR | {KERNELS.stage(key)[0]}\u2026")
             KERNELS.compile_now(key)
-        frame = advance_viewport(engine.viewport, renderer, request)
+        shown = advance_viewport(engine.viewport, renderer, request)
         engine.viewport_error = None
     except Exception as exc:
         message = f"HOVR: {failure_text(exc)}"
@@ -681,15 +401,14 @@ def view_draw(engine, context, depsgraph):
             engine.report({'WARNING'}, message)
         draw_message(message)
         return
-    if not frame.converged:
+    if not shown.converged:
         engine.tag_redraw()  # keep view_draw coming until the final image is drawn
-    if frame.pixels is not None:
-        draw_pixels(engine, depsgraph.scene, context.region, frame)
+    if shown.pixels is not None:
+        draw_pixels(engine, depsgraph.scene, context.region, shown)
     text = engine.viewport.status_text()
     if text != getattr(engine, "viewport_status", None):
         engine.viewport_status = text
         engine.update_stats("", text)  # Blender shows it in the viewport's corner, as Cycles' samples
-
 
 
 def draw_pixels(engine, scene, region, frame):

@@ -60,7 +60,7 @@ def depth_pass(camera, t, alpha) -> np.ndarray:
     Blender's Depth (Cycles' camera_z_depth) is the distance along the view axis, so t is
     converted per pixel. Pixels whose opacity never reaches 0.5 (alpha < 0.5: T only
     decreases along a ray) get the far clip distance, where Cycles would write 1e10."""
-    from .camera import view_depth
+    from .blender_camera import view_depth
 
     far = camera.extra.get("clip", (0.0, camera.t_max))[1]
     z = view_depth(camera, t)
@@ -211,7 +211,7 @@ def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 2
         samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
     values = mesh.field_samples(samples_per_axis)
     values = values[np.isfinite(values)]
-    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/derived.py)
+    true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/magnitude.py)
     return values if true_range is None else np.clip(values, *true_range)
 
 

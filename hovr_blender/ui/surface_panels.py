@@ -3,7 +3,7 @@ the Surfaces panel under HOVR Volume, and the operators that edit them.
 
 Each volume keeps its own iso values (colour, opacity); cut planes are objects of the scene
 picked per volume (their world location and local +Z axis: a Blender Plane's normal), each with an
-opacity and a clip side. render.py turns them into the engine's Surfaces (scene_isosurfaces); the
+opacity and a clip side. snapshot.py turns them into the engine's Surfaces (scene_isosurfaces); the
 viewport re-renders when a plane object moves (the planes are part of its request's signature).
 The field chooser lists the file's fields and the derived fields they give (Q, vorticity, speed,
 |grad|: engine/derived_fields.derived_field_names) and sets the volume's Field.
@@ -13,6 +13,7 @@ from bpy.props import (CollectionProperty, EnumProperty, FloatProperty, FloatVec
                        PointerProperty)
 
 from ..engine.isosurfaces import CLIP_SIDES, MAX_ISOSURFACES, MAX_PLANES
+from ..engine.methods import samples_segments
 from .panels import VolumeSubPanel
 
 CLIP_ITEMS = (
@@ -49,37 +50,6 @@ class HovrSurfaceSettings(bpy.types.PropertyGroup):
     @classmethod
     def unregister(cls):
         del bpy.types.Object.hovr_surfaces
-
-
-def scene_isosurfaces(objects):
-    """The engine's Surfaces of the volumes `objects` (volume k: objects[k], render.volume_objects'
-    order): each one's isosurfaces, and the planes of all of them (one per plane object)."""
-    import numpy as np
-
-    from ..engine.isosurfaces import CutPlane, Isosurface, Surfaces
-
-    isos, planes, seen = [], [], set()
-    for k, obj in enumerate(objects):
-        settings = obj.original.hovr_surfaces if obj.original is not None else obj.hovr_surfaces
-        for item in settings.isosurfaces:
-            isos.append(Isosurface(float(item.value), tuple(float(c) for c in item.color), float(item.opacity), k))
-        for item in settings.planes:
-            plane = item.object
-            if plane is None or plane.name in seen:
-                continue
-            seen.add(plane.name)
-            m = np.array(plane.matrix_world)
-            planes.append(CutPlane.through(m[:3, 3], m[:3, 2], float(item.opacity), CLIP_SIDES[item.clip]))
-    return Surfaces(tuple(isos), tuple(planes))
-
-
-def plane_object_names(objects) -> set:
-    """The names of the objects the volumes use as cut planes (they are no opaque surfaces)."""
-    names = set()
-    for obj in objects:
-        settings = obj.original.hovr_surfaces if obj.original is not None else obj.hovr_surfaces
-        names |= {item.object.name for item in settings.planes if item.object is not None}
-    return names
 
 
 class HOVR_OT_isosurface_add(bpy.types.Operator):
@@ -164,7 +134,7 @@ def field_choices(obj, scene) -> list[str]:
     cannot be listed: the source's own error shows when it renders)."""
     from ..engine.derived_fields import derived_field_names
     from ..io import formats, isolation
-    from .operators import volume_source
+    from .snapshot import volume_source
 
     try:
         source = volume_source(obj, scene)
@@ -236,7 +206,7 @@ class HOVR_OBJECT_PT_surfaces(VolumeSubPanel, bpy.types.Panel):
             row.prop(item, "opacity", slider=True)
             row.prop(item, "clip", text="")
         layout.operator("hovr.plane_add", icon='MESH_PLANE')
-        if (settings.isosurfaces or settings.planes) and context.scene.hovr.method not in ("classified", "split"):
+        if (settings.isosurfaces or settings.planes) and not samples_segments(context.scene.hovr.method):
             layout.label(text="Needs the Classified or Split method", icon='ERROR')
 
 

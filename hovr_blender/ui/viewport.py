@@ -16,8 +16,9 @@ A change of the request's signature restarts at 1; the learned costs are kept. T
 display buffer is the region's (H, W, 4) scene-linear premultiplied RGBA with row 0 at the
 bottom, ready for a GPU texture.
 
-Each refinement band keeps its rays' element segments and their series on the device
-(engine.renderer.render_cached: a trace, then a shade). While the view stays (camera, data,
+Every picture is the request's Frame through engine/frame.render_frame. Each refinement band keeps
+its rays' element segments and their series on the device (the Frame's SegmentSlot: a trace,
+then a shade). While the view stays (camera, data,
 surfaces, precision, device), a change of the look alone (transfer function, density,
 colours, background, quadrature tolerance) restarts with the bands shaded from their caches:
 when they cover the region and the measured shading cost fits the first frame's time, the
@@ -33,10 +34,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .camera import sub_camera
+from .blender_camera import sub_camera
 from ..engine.camera import RayCamera
-from ..engine.surfaces import render_with_surfaces, render_with_surfaces_cached
-from ..engine.transfer_function import TransferFunction
+from ..engine.frame import Capability, Frame, SegmentSlot, render_frame
 from ..engine.view import RenderOptions
 
 # Seconds per pixel assumed before anything was measured (a CPU on a small scene).
@@ -49,33 +49,32 @@ class ViewportRequest:
     """Everything that determines the viewport image."""
 
     camera: RayCamera  # full region resolution
-    transfer_function: TransferFunction | list  # one per volume (core Renderer.render)
-    background: np.ndarray
-    options: RenderOptions
+    frame: Frame  # the look, background, settings, opaque meshes, isosurfaces and planes (engine/frame.py)
     film_transparent: bool
-    data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device) and surfaces
-    surfaces: object = None  # engine.surfaces.SurfaceScene that stops the rays, or None
-    surface_mode: str = "SHADED"
-    isosurfaces: object = None  # engine.isosurfaces.Surfaces: the look's isosurfaces and cut planes
+    data_key: tuple = ()  # identifies the uploaded mesh (source, frame file, object transform, device) and opaque meshes
+
+    @property
+    def options(self) -> RenderOptions:
+        return self.frame.options
 
     def signature(self) -> tuple:
-        c = self.camera
+        c, f = self.camera, self.frame
         cam = tuple(np.concatenate([c.o0, c.ou, c.ov, c.d0, c.du, c.dv]).tolist())
-        tf_list = self.transfer_function if isinstance(self.transfer_function, (list, tuple)) else [self.transfer_function]
+        tf_list = f.transfer_function if isinstance(f.transfer_function, (list, tuple)) else [f.transfer_function]
         tfs = tuple(tuple(np.concatenate([tf.color_s, tf.color_rgb.ravel(), tf.density_s, tf.density_tau]).tolist())
                     for tf in tf_list)
         return (cam, c.width, c.height, c.t_min, c.t_max, c.projection, tfs,
-                tuple(np.asarray(self.background, dtype=np.float64).tolist()),
-                tuple(sorted(self.options.as_dict().items())), self.film_transparent, self.data_key,
-                self.isosurfaces)
+                tuple(np.asarray(f.background, dtype=np.float64).tolist()),
+                tuple(sorted(f.options.as_dict().items())), self.film_transparent, self.data_key, f.surfaces,
+                f.opaque_mode)
 
     def cache_view(self) -> tuple:
         """What the bands' cached segments depend on besides the look: the camera, the data, the
-        surfaces, precision and device (the renderer's key checks the rest: Renderer.trace_key)."""
+        opaque meshes, precision and device (the renderer's key checks the rest: Renderer.trace_key)."""
         c = self.camera
         cam = tuple(np.concatenate([c.o0, c.ou, c.ov, c.d0, c.du, c.dv, c.clip_axis]).tolist())
         return (cam, c.width, c.height, c.t_min, c.t_max, c.clip_near, c.clip_far, c.projection, self.data_key,
-                self.surfaces, self.options.precision, self.options.device)
+                self.frame.opaque, self.options.precision, self.options.device)
 
 
 def preview_options(options: RenderOptions) -> RenderOptions:
@@ -182,15 +181,14 @@ class ProgressiveViewport:
             return deadline is None or self.clock() < deadline
 
         tile = max(camera.width, 256)
-        res = render_with_surfaces(self._renderer, req.surfaces, camera, req.transfer_function, req.background,
-                                   options, mode=req.surface_mode, isosurfaces=req.isosurfaces, progress=progress,
-                                   tile_pixels=tile)
+        res = render_frame(self._renderer, req.frame.with_(options=options), camera, progress=progress,
+                           tile_pixels=tile)
         return res, self.clock() - t0
 
     def _render_band(self, y0, rows, deadline):
         """(RenderResult, wall seconds, shaded from its cache) of the region's rows y0 .. y0 + rows,
-        through render_with_surfaces_cached with the band's cache (if it has one of these rows);
-        the cache that comes back is kept for the band."""
+        rendered with the band's cache (if it has one of these rows) in the frame's SegmentSlot; the
+        cache the slot holds afterwards is kept for the band."""
         req = self._request
         cam = sub_camera(req.camera, 0, y0, req.camera.width, rows)
         old = self._caches.pop(y0, None)
@@ -203,14 +201,11 @@ class ProgressiveViewport:
 
         tile = max(req.camera.width, 256)
         if self._cache_refused and cache is None:
-            res = render_with_surfaces(self._renderer, req.surfaces, cam, req.transfer_function, req.background,
-                                       req.options, mode=req.surface_mode, isosurfaces=req.isosurfaces,
-                                       progress=progress, tile_pixels=tile)
+            res = render_frame(self._renderer, req.frame, cam, progress=progress, tile_pixels=tile)
             return res, self.clock() - t0, False
-        res, kept = render_with_surfaces_cached(self._renderer, req.surfaces, cam, req.transfer_function,
-                                                req.background, req.options, mode=req.surface_mode,
-                                                isosurfaces=req.isosurfaces, cache=cache,
-                                                held_bytes=held, progress=progress, tile_pixels=tile)
+        slot = SegmentSlot(cache, held_bytes=held)
+        res = render_frame(self._renderer, req.frame.with_(cache=slot), cam, progress=progress, tile_pixels=tile)
+        kept = slot.cache
         self._cache_refused |= "refused" in res.stats.get("segment_cache", {})
         if kept is not None:
             self._caches[y0] = (rows, kept)
@@ -220,15 +215,16 @@ class ProgressiveViewport:
         """The caches' bands in order when they tile the whole region and hold its view, else None."""
         req = self._request
         W, H = req.camera.width, req.camera.height
-        fits = getattr(self._renderer, "cache_fits", None)
+        if Capability.SEGMENT_CACHE not in self._renderer.capabilities:
+            return None
         bands, y = [], 0
         while y < H:
             if y not in self._caches:
                 return None
             rows, cache = self._caches[y]
-            surface_key = req.surfaces if cache.surface_hits is not None else None
-            if fits is None or not fits(cache, sub_camera(req.camera, 0, y, W, rows), req.transfer_function,
-                                        req.options, surface_key=surface_key):
+            surface_key = req.frame.opaque if cache.opaque_hits is not None else None
+            if not self._renderer.cache_fits(cache, sub_camera(req.camera, 0, y, W, rows),
+                                             req.frame.transfer_function, req.options, surface_key=surface_key):
                 return None
             bands.append((y, rows))
             y += rows

@@ -82,6 +82,11 @@ def render_to_exr(scene, path) -> np.ndarray:
     scene.view_settings.look = 'None'
     scene.view_settings.exposure, scene.view_settings.gamma = 0.0, 1.0
     bpy.ops.render.render(write_still=True, scene=scene.name)  # this scene, whichever is the context's
+    return read_image(path)
+
+
+def read_image(path) -> np.ndarray:
+    """An image file's pixels as Blender reads them: (H, W, 4) float32 with row 0 at the top."""
     img = bpy.data.images.load(str(path), check_existing=False)
     try:
         w, h = img.size
@@ -128,7 +133,7 @@ def f12_and_engine(scene, obj, mesh, contract, width, height, density, folder, b
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.ui import scene as blender_scene
-    from hovr_blender.ui.camera import ray_camera_from_blender
+    from hovr_blender.ui.blender_camera import ray_camera_from_blender
 
     add_camera(scene)
     set_contract_camera(scene, contract, width, height)

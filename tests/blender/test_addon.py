@@ -10,7 +10,7 @@ pytestmark = pytest.mark.blender
 
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
-from hovr_blender.ui import compat, operators, panels  # noqa: E402
+from hovr_blender.ui import compat, operators, panels, snapshot  # noqa: E402
 from hovr_blender.ui.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
 
 from ..helpers import REPO  # noqa: E402
@@ -246,12 +246,12 @@ def test_panels_draw_existing_properties(scene, with_tf):
 def test_legend_overlay_layout_of_the_active_volume(scene):
     """Issue 30: the viewport legend is the active volume's look (ui/legend_overlay.py draws
     engine/legend.py's layout with gpu and blf; the window test sees it drawn)."""
-    from hovr_blender.ui import legend_overlay, render
+    from hovr_blender.ui import legend_overlay
 
     bpy.ops.hovr.add_sphere_volume()
     obj = bpy.context.active_object
     obj.hovr.field = "f"
-    tf, lo, hi, title = render.legend_volume_inputs(obj, scene)
+    tf, lo, hi, title = snapshot.legend_volume_inputs(obj, scene)
     assert (lo, hi) == (pytest.approx(obj.hovr.value_min), pytest.approx(obj.hovr.value_max)) and title == "f"
     from hovr_blender.engine.legend import legend_layout
 

@@ -17,7 +17,7 @@ bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not
 pytestmark = pytest.mark.blender
 
 from hovr_blender.ui import render  # noqa: E402
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.engine.renderer import Renderer  # noqa: E402
 from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.engine.view import RenderOptions  # noqa: E402

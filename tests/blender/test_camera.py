@@ -11,7 +11,7 @@ pytestmark = pytest.mark.blender
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 from mathutils import Vector  # noqa: E402
 
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 
 from .blender_helpers import add_camera  # noqa: E402
 

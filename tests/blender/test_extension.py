@@ -204,7 +204,7 @@ def test_platform_zip_works_in_a_blender_without_the_dependencies(tmp_path):
     dependency comes from the zip's wheels."""
     import sysconfig
 
-    from ..engine.test_nektar import hdf5_field
+    from ..io.test_nektar import hdf5_field
 
     zip_path = _platform_zip(tmp_path / "dist")
     venv_site = Path(sysconfig.get_paths()["purelib"])

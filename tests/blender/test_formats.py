@@ -1,6 +1,6 @@
 """A toy format (tests/toy_format.py, one module and one registry line) inside Blender: the add-on
 makes its File > Import operator and menu entry from the registry, the import makes a volume,
-and F12 renders it as the engine does. The engine's side is tests/engine/test_formats.py."""
+and F12 renders it as the engine does. The engine's side is tests/io/test_formats.py."""
 import numpy as np
 import pytest
 

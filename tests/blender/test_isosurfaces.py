@@ -1,5 +1,6 @@
 """Isosurfaces and cut planes in Blender (contract §7, ui/surface_panels.py): F12 of a volume with
-an isosurface and a clipping plane object equals `hovr render` of the same view file; moving the
+an isosurface and a clipping plane object equals `hovr render`, a render-series frame and
+render-blend of the same view (the one door, engine/frame.py); moving the
 plane object restarts the viewport, which converges to the moved cut; the settings survive
 save and reload; the field chooser lists the derived fields of a file."""
 import json
@@ -11,11 +12,11 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui import render  # noqa: E402
+from hovr_blender.ui import render, snapshot  # noqa: E402
 from hovr_blender.ui.viewport import ProgressiveViewport  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
-from .blender_helpers import render_to_exr  # noqa: E402
+from .blender_helpers import read_image, render_to_exr  # noqa: E402
 from .test_viewport import camera_view  # noqa: E402
 
 ISO = {"value": 1.5, "color": [1.0, 0.75, 0.25], "opacity": 0.75}
@@ -61,14 +62,34 @@ def _view_file(path, plane):
     return path
 
 
-def test_f12_equals_the_cli_for_the_same_view(scene, tmp_path):
+@pytest.mark.slow
+def test_one_door_every_path_draws_the_same_view(scene, tmp_path):
+    """One view with an isosurface and a clipping plane, through every way in (engine/frame.py's
+    render_frame behind each): `hovr render`, a render-series frame (distributed/series.py, as a
+    Dask worker runs it), F12 here, and render-blend's headless Blender of the saved .blend
+    (distributed/blender_frames.py, ui/batch.py). The series frame is the CLI's image bit for bit,
+    render-blend is F12's; F12 differs from the CLI only where Blender's float32 camera and plane
+    move a ray across an edge."""
+    import sys
+
     from hovr_blender import cli
+    from hovr_blender.distributed import blender_frames, series
 
     _vol, plane = _scene_with_surfaces(scene)
-    got = render_to_exr(scene, tmp_path / "f12.exr")
+    got = render_to_exr(scene, tmp_path / "f12.exr")  # first: the plane's matrix_world is evaluated now
+    view = _view_file(tmp_path / "view.json", plane)
     out = tmp_path / "cli.npy"
-    assert cli.main(["render", str(_view_file(tmp_path / "view.json", plane)), "-o", str(out)]) == 0
+    assert cli.main(["render", str(view), "-o", str(out)]) == 0
     want = np.load(out)
+    job = series.SeriesJob(view=str(view), frames=[1], output=str(tmp_path / "series_####.npy"), device="cpu")
+    assert series.write_frame(job, 1)["status"] == "written"
+    np.testing.assert_array_equal(np.load(tmp_path / "series_0001.npy"), want)  # isosurfaces and planes too
+    scene.render.filepath = "//blend_####.exr"  # render-blend's frame 1: blend_0001.exr beside the .blend
+    blend = tmp_path / "door.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    record = blender_frames.render_blend_frame(str(blend), 1, python=sys.executable)
+    assert record["status"] == "written", record
+    np.testing.assert_array_equal(read_image(record["output"]), got)
     assert want.shape == got.shape == (SPHERE.H, SPHERE.W, 4)
     covered = want[..., 3] > 0.74  # the isosurface (alpha 0.75) and the plane cover part of the frame
     assert 0.05 < covered.mean() < 0.95
@@ -108,7 +129,7 @@ def test_settings_survive_save_and_reload(scene, tmp_path):
     iso, item = vol.hovr_surfaces.isosurfaces[0], vol.hovr_surfaces.planes[0]
     assert (iso.value, tuple(iso.color), iso.opacity) == (ISO["value"], tuple(ISO["color"]), ISO["opacity"])
     assert item.object is not None and item.object.name == "Cut" and (item.opacity, item.clip) == (0.5, "front")
-    surfaces = render.scene_inputs(bpy.context.evaluated_depsgraph_get()).isosurfaces
+    surfaces = snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get()).surfaces
     assert len(surfaces.isosurfaces) == 1 and len(surfaces.planes) == 1
     normal = np.array([0.0, -math.sin(PLANE_TILT), math.cos(PLANE_TILT)])
     np.testing.assert_allclose(surfaces.planes[0].normal, normal, atol=1e-6)

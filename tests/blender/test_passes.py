@@ -10,7 +10,7 @@ pytestmark = pytest.mark.blender
 
 from hovr_blender.ui import compat  # noqa: E402
 from hovr_blender.ui import engine as render_engine  # noqa: E402
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.engine.renderer import Renderer  # noqa: E402
 from hovr_blender.engine.transfer_function import TransferFunction  # noqa: E402
 from hovr_blender.engine.view import RenderOptions  # noqa: E402

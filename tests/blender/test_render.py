@@ -6,8 +6,8 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui import render  # noqa: E402
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui import render, snapshot  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 
 from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import render_to_exr, volume  # noqa: E402
@@ -266,7 +266,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     scene.hovr.step_units, scene.hovr.steps_across = 'RELATIVE', 50
     h = _sphere_diagonal() / 50  # 0.133: coarse enough to show in the image
-    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    inputs = snapshot.resolve_units(snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
     assert inputs.options.h == pytest.approx(h, rel=1e-6)
     got = render_to_exr(scene, tmp_path / "relative.exr")
     want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False, h=h)
@@ -276,7 +276,7 @@ def test_relative_step_is_the_diagonal_over_steps_across(scene, tmp_path):
     _shrink_sphere_scene(scene, obj, s)
     obj.hovr.density *= 1 / s  # the look in world units follows the size by hand; the step by itself
     bpy.context.view_layer.update()
-    inputs = render.resolve_units(render.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
+    inputs = snapshot.resolve_units(snapshot.scene_inputs(bpy.context.evaluated_depsgraph_get(), original=True))
     assert inputs.options.h == pytest.approx(s * h, rel=1e-5)
     small = render_to_exr(scene, tmp_path / "small.exr")
     np.testing.assert_allclose(small, got, atol=2e-4)
@@ -381,13 +381,13 @@ def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_
     """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
     picture) and does not try to keep its segments again."""
     from hovr_blender.engine import limits
-    from hovr_blender.engine import renderer as renderer_module
+    from hovr_blender.engine import segment_cache
     from hovr_blender.engine.renderer import Renderer
 
     SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
     first = render_to_exr(scene, tmp_path / "1.exr")
-    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
+    monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
     traces, trace = [], Renderer.trace
     monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))
     with limits.using(limits.ResourceLimits(max_memory=1 << 30)):

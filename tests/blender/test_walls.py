@@ -12,10 +12,10 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui.camera import ray_camera_from_blender  # noqa: E402
+from hovr_blender.ui.blender_camera import ray_camera_from_blender  # noqa: E402
 from hovr_blender.engine import image_io  # noqa: E402
 from hovr_blender.engine import walls as core_walls  # noqa: E402
-from hovr_blender.engine.surfaces import SurfaceMesh, SurfaceScene  # noqa: E402
+from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io.nektar import mesh_boundaries, read_nektar  # noqa: E402
 
@@ -242,7 +242,7 @@ def test_hump3d_wall_in_cycles_under_the_exact_volume(scene, tmp_path):
     np.testing.assert_allclose(composed, hovr + (1.0 - hovr[..., 3:4]) * cycles, atol=1 / 255)
     # where the wall projects: the core's tessellation cast with the render's camera rays
     ray_camera = ray_camera_from_blender(scene.camera, bpy.context.evaluated_depsgraph_get(), scene.render)
-    hits = SurfaceScene([SurfaceMesh(expect.vertices, expect.triangles, name="wall")]).cast(ray_camera)
+    hits = OpaqueScene([OpaqueMesh(expect.vertices, expect.triangles, name="wall")]).cast(ray_camera)
     hit = hits.hit
     on_wall, off_wall = _eroded(hit), _eroded(~hit)
     assert on_wall.mean() > 0.5 and off_wall.mean() > 0.1

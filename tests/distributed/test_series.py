@@ -104,7 +104,7 @@ def test_series_on_two_workers_equals_serial_and_a_rerun_writes_nothing(tmp_path
     assert {f: os.stat(job.npy(f)).st_mtime_ns for f in FRAMES} == before
     assert len(_log(job)) == len(FRAMES)
     # even a frame submitted again by hand is not written twice
-    assert series.render_frame(job, 3)["status"] == "exists"
+    assert series.write_frame(job, 3)["status"] == "exists"
 
 
 def test_a_worker_killed_mid_run_still_gives_every_frame_once(tmp_path, cluster):
@@ -135,3 +135,26 @@ def test_a_worker_killed_mid_run_still_gives_every_frame_once(tmp_path, cluster)
     for f in FRAMES:
         assert np.array_equal(np.load(job.npy(f)), serial[f]), f
     client.wait_for_workers(2, timeout=60)  # the nanny restarted the killed worker
+
+
+def test_a_series_frame_draws_the_views_isosurfaces_and_planes(tmp_path):
+    """A frame of a series is `hovr render`'s image of the same view (both through
+    engine/frame.render_frame), isosurfaces and cut planes included: a series once dropped them."""
+    from hovr_blender import cli
+    from tests.helpers import REPO
+
+    view = json.loads((REPO / "examples" / "sphere_isosurface.json").read_text())
+    view["image"] = {"width": W, "height": H}
+    assert view["isosurfaces"] and view["planes"]
+    path = tmp_path / "view.json"
+    path.write_text(json.dumps(view))
+    assert cli.main(["render", str(path), "-o", str(tmp_path / "cli.npy")]) == 0
+    want = np.load(tmp_path / "cli.npy")
+    job = series.SeriesJob(view=str(path), frames=[3], output=str(tmp_path / "frame_####.npy"), device="cpu")
+    assert series.write_frame(job, 3)["status"] == "written"
+    got = np.load(tmp_path / "frame_0003.npy")
+    np.testing.assert_array_equal(got, want)
+    without = dict(view, isosurfaces=[], planes=[])
+    path.write_text(json.dumps(without))
+    assert cli.main(["render", str(path), "-o", str(tmp_path / "plain.npy")]) == 0
+    assert np.abs(np.load(tmp_path / "plain.npy") - got).max() > 0.05  # the surfaces show

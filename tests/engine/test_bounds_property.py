@@ -109,7 +109,7 @@ def near_collapse(shape, n, rng):
         half = n // 2
         eta[:half, 1] = 1.0 - 10.0 ** rng.uniform(-7, -2, half)
         eta[:half, 2] = rng.uniform(-1, 1, half)
-    return ex._uncollapse(shape, eta)
+    return ex.uncollapse(shape, eta)
 
 
 # -------------------------------------------------------------- (a) element field ranges

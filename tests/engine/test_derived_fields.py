@@ -10,7 +10,8 @@ import pytest
 from hovr_blender.engine import expansions as ex
 from hovr_blender.engine.derived_fields import (DerivedFieldError, derived_mesh, derived_values, parse_derived)
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, Surfaces
-from hovr_blender.engine.renderer import RenderError, Renderer
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import curved_cube, with_field
@@ -112,7 +113,7 @@ def test_grammar_errors(text, message):
 
 def test_grammar():
     assert parse_derived("p") is None
-    assert parse_derived("|u,v,w|") is None  # the magnitude fit's syntax (io/derived.py), not this one
+    assert parse_derived("|u,v,w|") is None  # the magnitude fit's syntax (io/magnitude.py), not this one
     spec = parse_derived(" vorticity( rhou, rhov ,rhow / rho ) ")
     assert spec.components == ("rhou", "rhov", "rhow") and spec.density == "rho"
     assert spec.name == "vorticity(rhou,rhov,rhow/rho)"
@@ -245,44 +246,6 @@ def test_concatenate_and_subset_carry_the_components(q_mesh, geometry):
     np.testing.assert_array_equal(derived_values(part, part.derived, [0], xi), derived_values(q_mesh, q_mesh.derived, [4], xi))
     with pytest.raises(DerivedFieldError, match="one derived field per scene"):
         concatenate([q_mesh, q_mesh])
-
-
-def test_cli_field_option(tmp_path, capsys):
-    """hovr render --field takes a derived field instead of the view's; Nektar++'s channel's
-    vorticity |1 - 2y| is at most 1; Q(p) (one scalar) is one line and exit code 2."""
-    import json
-
-    from hovr_blender import cli
-    from tests.helpers import data_file
-
-    mesh = data_file("nektar", "Tet_channel_m3.xml")
-    view = {"data": {"path": str(mesh), "solution": str(data_file("nektar", "Tet_channel_m3.fld")), "field": "w"},
-            "camera": {"projection": "perspective", "eye": [3.0, 2.5, 2.0], "target": [0.5, 0.5, 1.0],
-                       "up": [0, 0, 1], "fov_y_deg": 40},
-            "image": {"width": 12, "height": 9},
-            "transfer_function": {"color": [[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 0.0, 0.0]],
-                                  "density": [[0.0, 0.0], [1.0, 2.0]]},
-            "background": [0, 0, 0]}
-    p = tmp_path / "v.json"
-    p.write_text(json.dumps(view))
-    out = tmp_path / "o.npy"
-    assert cli.main(["render", str(p), "-o", str(out), "--field", "vorticity(u,v,w)"]) == 0
-    assert np.load(out)[..., 3].max() > 0.0
-    capsys.readouterr()
-    assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy"), "--field", "Q(p)"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not a velocity" in err[0], err
-
-
-def test_derived_mesh_leaves_the_reader_process(q_mesh):
-    """The reader process's encoding carries the components (io/isolation.py encode / decode)."""
-    from hovr_blender.io.isolation import decode, encode
-
-    arrays = []
-    back = decode(encode(q_mesh, arrays), arrays)
-    assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
-    for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
-        np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
 
 
 def test_derived_field_names():

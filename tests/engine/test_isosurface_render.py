@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, SurfaceError, Surfaces
-from hovr_blender.engine.renderer import RenderError, Renderer
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import curved_cube, with_field
@@ -181,43 +182,19 @@ def test_bad_surfaces_get_one_line_messages(ball_mesh):
 def test_shaded_from_the_segment_cache_equals_the_render(ball_mesh):
     """Surfaces are part of the look: a cached trace shaded with them is the fresh render (bitwise
     on the CPU), and changing the levels needs no new trace."""
-    from hovr_blender.engine.renderer import render_cached
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
 
     r = Renderer(ball_mesh, "cpu")
     cam = framing(ball_mesh, 12, 9)
     tf = TransferFunction(np.array([0.0, 0.5]), np.array([[0.1, 0.3, 0.9], [0.9, 0.3, 0.1]]), np.array([0.0, 0.5]),
                           np.array([0.5, 0.0]))
     opts = RenderOptions(precision="float64")
-    cache = None
+    slot, cache = SegmentSlot(), None
     for level, plane in ((0.09, None), (0.05, CutPlane.through((0.5, 0.5, 0.5), (0, 1, 0), 0.7, clip=-1))):
         surfaces = Surfaces((Isosurface(level, (1.0, 0.9, 0.2), 0.6),), () if plane is None else (plane,))
         fresh = r.render(cam, tf, np.zeros(3), opts, surfaces=surfaces)
-        shaded, new_cache = render_cached(r, cam, tf, np.zeros(3), opts, cache=cache, surfaces=surfaces)
-        assert cache is None or new_cache is cache  # the second look: no new trace
-        cache = new_cache
+        shaded = render_frame(r, Frame(tf, np.zeros(3), opts, surfaces=surfaces, cache=slot), cam)
+        assert cache is None or slot.cache is cache  # the second look: no new trace
+        cache = slot.cache
         assert np.array_equal(shaded.rgba, fresh.rgba)
         assert np.array_equal(shaded.depth, fresh.depth)
-
-
-def test_cli_renders_the_example_view_and_refuses_bad_surfaces(tmp_path, capsys):
-    """hovr render takes isosurfaces and planes from the view file (examples/sphere_isosurface.json);
-    a level outside the field's range is one line and exit code 2."""
-    import json
-
-    from hovr_blender import cli
-    from tests.helpers import REPO
-
-    view = json.loads((REPO / "examples" / "sphere_isosurface.json").read_text())
-    view["image"] = {"width": 24, "height": 18}
-    p = tmp_path / "v.json"
-    p.write_text(json.dumps(view))
-    out = tmp_path / "o.npy"
-    assert cli.main(["render", str(p), "-o", str(out)]) == 0
-    img = np.load(out)
-    assert (img[..., 3] == 1.0).any()  # the opaque level and the plane cover pixels
-    view["isosurfaces"][0]["value"] = 99.0  # f = x^2 + y^2 + z^2 <= 18 in the sphere's box
-    p.write_text(json.dumps(view))
-    capsys.readouterr()
-    assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "isosurface 0: value 99 is outside the field's range" in err[0], err

@@ -1,6 +1,7 @@
 """The layers hold: LAYERS below is who may import whom, for every folder of the package, and
 docs/architecture.md's table is made from it (test_the_architecture_doc_states_the_layers); the
-sources' imports are checked against it row by row; hovr_blender.engine imports no reader and no
+sources' imports are checked against it row by row, and no layer's modules import one another in
+a loop; hovr_blender.engine imports no reader and no
 Blender module even at run time, the add-on package imports without bpy, and no module of the
 package edits sys.path.
 
@@ -84,7 +85,7 @@ def test_addon_package_and_its_bpy_free_modules_import_without_bpy():
     """The add-on's package imports bpy only inside register(): the package, the Blender layer's
     bpy-free helpers (camera and scene conversions), the renderer and a reader load without it."""
     code = (
-        "import sys, hovr_blender, hovr_blender.ui.camera, hovr_blender.ui.scene, "
+        "import sys, hovr_blender, hovr_blender.ui.blender_camera, hovr_blender.ui.scene, "
         "hovr_blender.ui.framing, hovr_blender.ui.viewport, hovr_blender.ui.dependencies, "
         "hovr_blender.ui.jobs, "
         "hovr_blender.engine.renderer, hovr_blender.io.builtin, hovr_blender.ui; "
@@ -196,20 +197,104 @@ def test_each_layer_is_imported_only_by_the_rows_that_may():
     assert bad == [], "\n".join(bad)
 
 
+def _imported_modules(tree, package, modules):
+    """The modules of `modules` an import statement names (those inside functions too): `from . import
+    x` names the module x where there is one, else the package."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name in modules:
+                    yield alias.name
+        elif isinstance(node, ast.ImportFrom):
+            base = package.split(".")[: len(package.split(".")) - (node.level - 1)] if node.level else []
+            mod = ".".join(base + ([node.module] if node.module else [])) if node.level else node.module
+            for alias in node.names:
+                name = f"{mod}.{alias.name}" if f"{mod}.{alias.name}" in modules else mod
+                if name in modules:
+                    yield name
+
+
+def _layer_graph() -> dict:
+    """{module: the modules of its own layer (LAYERS' row) it imports}."""
+    modules = {name: (package, tree) for _, name, package, tree in _modules(PACKAGE)}
+    return {name: {m for m in _imported_modules(tree, package, modules) if m != name and _layer_of(m) is _layer_of(name)}
+            for name, (package, tree) in modules.items()}
+
+
+def circles(graph: dict) -> list:
+    """The import circles of `graph` ({module: modules it imports}): each set of modules that reach
+    one another (a strongly connected component of more than one), sorted (Tarjan's algorithm)."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+def test_no_layer_imports_itself_in_a_circle():
+    """Within a layer, no modules import one another in a loop (imports inside functions count: a
+    circle hidden behind a function-level import is still one). What two modules both need goes
+    to a module below them (engine/mesh_base.py, io/reader_protocol.py, io/volume_source.py,
+    ui/snapshot.py)."""
+    found = circles(_layer_graph())
+    assert found == [], "modules of one layer that import one another in a loop (move what they share below " \
+                        "them):\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_the_circle_check_sees_a_circle():
+    assert circles({"a": {"b"}, "b": {"c"}, "c": {"a", "d"}, "d": set(), "e": {"a"}}) == [["a", "b", "c"]]
+    assert circles({"a": {"b"}, "b": set()}) == []
+    # the package's own graph with one import inside a function added (mesh_base's of mesh)
+    graph = _layer_graph()
+    graph["hovr_blender.engine.mesh_base"] = graph["hovr_blender.engine.mesh_base"] | {"hovr_blender.engine.mesh"}
+    assert ["hovr_blender.engine.mesh", "hovr_blender.engine.mesh_base"] in circles(graph)
+    tree = ast.parse("def f():\n    from .mesh import VolumeMesh\n")
+    assert list(_imported_modules(tree, "hovr_blender.engine", {"hovr_blender.engine.mesh"})) == \
+        ["hovr_blender.engine.mesh"]
+
+
+# the renderer's modules, split by job (engine/renderer.py's docstring): the CLI and the add-on
+# import them only when they render
+RENDERER_MODULES = tuple(f"hovr_blender.engine.{m}" for m in ("renderer", "devices", "kernel_loading", "launch_args",
+                                                              "segment_cache", "shipped_kernels"))
+
+
 def test_warp_is_imported_at_module_level_only_by_the_renderer_and_the_kernels():
     """Elsewhere in the engine Warp is imported inside the functions that launch, so that the view,
     the readers and the Blender layer's bpy-free parts load without it (the shipped kernels' loader
-    is the renderer's: it is imported at module level by the renderer alone)."""
+    is the renderer's: it is imported at module level by the devices and the kernel loading alone)."""
     top = sorted(str(path.relative_to(REPO)) for path, name, _, tree in _modules(ENGINE)
                  for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
                  and any(n.split(".")[0] == "warp" for n in ([a.name for a in node.names] if isinstance(node, ast.Import)
                                                              else [node.module or ""]))
                  and not name.startswith("hovr_blender.engine.kernels")
-                 and name not in ("hovr_blender.engine.renderer", "hovr_blender.engine.shipped_kernels"))
+                 and name not in RENDERER_MODULES)
     assert top == []
     importers = sorted(name for path, name, _, tree in _modules(PACKAGE) for node in tree.body
                        if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("shipped_kernels"))
-    assert importers == ["hovr_blender.engine.renderer"]
+    assert importers == ["hovr_blender.engine.devices", "hovr_blender.engine.kernel_loading"]
 
 
 def test_only_compat_asks_which_blender_this_is():
@@ -299,17 +384,67 @@ def _private_imports(tree, package):
                     yield node.lineno, f"{'.' * node.level}{node.module or ''}.{alias.name}"
 
 
-# the one left, in the traversal's code (issue 27's kernel-side part removes it with the renderer's split)
-PRIVATE_IMPORTS_LEFT = {("hovr_blender/engine/surfaces.py", ".renderer._camera_args")}
-
-
 def test_no_module_imports_another_modules_private_names():
     found = [f"{path.relative_to(REPO)}:{line}: {name}"
              for root in (PACKAGE, REPO / "bench", REPO / "scripts")
-             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)
-             if (str(path.relative_to(REPO)), name) not in PRIVATE_IMPORTS_LEFT]
+             for path, _, package, tree in _modules(root) for line, name in _private_imports(tree, package)]
     assert found == [], "private names used across modules (make them public with a name that says what they " \
                         "are, or move them):\n" + "\n".join(found)
+
+
+# file names more than one module of the package has, each for the same job in parallel places:
+# every data format's own error, reader and declaration (io/nektar/, io/vtu/), and its files and
+# element spaces (io/pyfr/, io/mfem/)
+SHARED_FILE_NAMES = {"__init__.py", "errors.py", "reader.py", "format.py", "files.py", "elements.py"}
+
+
+def test_no_two_modules_share_a_file_name_for_different_jobs():
+    """A file name names one job (engine/opaque.py's meshes are not engine/isosurfaces.py's
+    surfaces): no two modules of the package share one, but for SHARED_FILE_NAMES."""
+    by_name = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        by_name.setdefault(path.name, []).append(str(path.relative_to(REPO)))
+    shared = {name: paths for name, paths in by_name.items() if len(paths) > 1 and name not in SHARED_FILE_NAMES}
+    assert shared == {}, f"modules sharing a file name: {shared}"
+
+
+# Another library's private names the package reads, each in one place and with why (no public
+# name does what it needs): {(file, expression): why}
+PRIVATE_USES = {
+    **{(f, "os._exit"): "the standard library's exit without cleanup, for a child process or Blender's exit"
+       for f in ("hovr_blender/engine/processes.py", "hovr_blender/io/reader_process.py", "hovr_blender/ui/compat.py")},
+    ("hovr_blender/engine/shipped_kernels.py", "module._get_compile_output_name"):
+        "Warp names a CPU object after its LLVM version and target triple, which no public function gives; "
+        "the store of shipped kernels must find the object by that very name",
+}
+
+
+def _private_attributes(tree):
+    """(line, expression) of every `x._name` read where x is not self or cls (a private name of
+    another module or object)."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__") \
+                and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")):
+            yield node.lineno, ast.unparse(node)
+
+
+def test_no_module_reads_another_modules_private_names():
+    """Nothing in the package, bench/ or scripts/ reads a private name through another module or
+    object (ex._basis, renderer._upload), but for the few of other libraries in PRIVATE_USES."""
+    found, used = [], set()
+    for root in (PACKAGE, REPO / "bench", REPO / "scripts"):
+        for path, _, _, tree in _modules(root):
+            if path.name.startswith("test_"):
+                continue
+            rel = str(path.relative_to(REPO))
+            for line, expression in _private_attributes(tree):
+                if (rel, expression) in PRIVATE_USES:
+                    used.add((rel, expression))
+                else:
+                    found.append(f"{rel}:{line}: {expression}")
+    assert found == [], "private names read across modules (make them public with a name that says what they " \
+                        "are, or move them):\n" + "\n".join(found)
+    assert used == set(PRIVATE_USES), f"PRIVATE_USES names uses that are gone: {sorted(set(PRIVATE_USES) - used)}"
 
 
 @pytest.mark.parametrize("source,expect", [

@@ -11,7 +11,10 @@ import pytest
 
 from hovr_blender.engine.mesh import subset
 from hovr_blender.engine.multi_device import MultiDeviceRenderer, balanced_rows
-from hovr_blender.engine.renderer import Renderer, RenderError, cpu_cores, expand_devices
+from hovr_blender.engine.devices import expand_devices
+from hovr_blender.engine.limits import cpu_cores
+from hovr_blender.engine.render_result import RenderError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.sort_last import SortLastRenderer, serves, slab_partition
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io import synthetic
@@ -262,3 +265,42 @@ def test_a_device_process_that_dies_at_start_is_reported_within_seconds(monkeypa
     with pytest.raises(RenderError, match="cpu: UnpicklingError"):
         multi_device.start_processes([mesh], ["cpu"])
     assert time.monotonic() - t0 < 60
+
+
+def test_a_frame_a_renderer_cannot_draw_is_refused_in_one_line():
+    """The door (engine/frame.py) asks each renderer's capabilities: isosurfaces and planes are
+    drawn on one device only, refused for a device list before any process starts, and for the
+    sort-last renderer (which draws the volume alone) before it renders; opaque meshes go over
+    several devices but not sort-last; a segment cache is only saved work, so a renderer that
+    keeps none renders the frame plainly."""
+    from hovr_blender.engine.frame import Capability, Frame, SegmentSlot, UnsupportedFrame, render_frame
+    from hovr_blender.engine.isosurfaces import Isosurface, Surfaces
+    from hovr_blender.engine.multi_device import make_renderer
+    from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    cam = camera(16, 12)
+    lo, hi = np.percentile(mesh.field_samples(3), [10, 90])
+    iso = Frame(tf, BACKGROUND, RenderOptions(), surfaces=Surfaces((Isosurface(0.5 * (lo + hi), (1, 1, 0)),)))
+    started = []
+    original = MultiDeviceRenderer.__init__
+    try:
+        MultiDeviceRenderer.__init__ = lambda self, *a, **k: started.append(a) or original(self, *a, **k)
+        with pytest.raises(UnsupportedFrame, match=r"^isosurfaces and planes: not drawn when rendering over several "
+                                                   r"devices; render on one device$"):
+            make_renderer(mesh, "cpu,cpu", frame=iso)
+    finally:
+        MultiDeviceRenderer.__init__ = original
+    assert started == []
+    assert Capability.OPAQUE in MultiDeviceRenderer.capabilities and Renderer.capabilities == frozenset(Capability)
+    plane = OpaqueScene([OpaqueMesh([[-1, -1, 0.5], [2, -1, 0.5], [2, 2, 0.5]], [[0, 1, 2]])])
+    sl = SortLastRenderer(mesh, ["cpu", "cpu"], processes=False)
+    for frame in (iso, iso.with_(surfaces=None, opaque=plane)):
+        with pytest.raises(UnsupportedFrame, match="sort-last"):
+            render_frame(sl, frame, cam)
+    with pytest.raises(UnsupportedFrame, match="a band of rows"):
+        render_frame(sl, iso.with_(surfaces=None), cam, rows=(0, 4))
+    slot = SegmentSlot()
+    plain = render_frame(sl, iso.with_(surfaces=None, cache=slot), cam)
+    assert slot.cache is None
+    np.testing.assert_array_equal(plain.rgba, sl.render(cam, tf, BACKGROUND, RenderOptions()).rgba)

@@ -184,7 +184,7 @@ def test_float32_overflow_is_named_and_float64_renders(device):
     renders stop with a clear error naming the element (not inf pixels); the float64 kernels
     render the same data. A transfer function at the field's own scale (1e300) is refused by the
     transfer function's own bound (+-1e30, engine/transfer_function.py)."""
-    from hovr_blender.engine.renderer import RenderError
+    from hovr_blender.engine.render_result import RenderError
     from hovr_blender.engine.transfer_function import TransferFunctionError
 
     mesh = mixed_cube(2, 2, lambda x, y, z: 0 * x + 1.0e300)

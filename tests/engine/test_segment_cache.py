@@ -1,9 +1,9 @@
-"""Transfer-function edits from cached segments (Renderer.trace / shade, render_cached): the image
+"""Transfer-function edits from cached segments (Renderer.trace / shade, a Frame's SegmentSlot): the image
 shaded from a trace equals a fresh render through the new transfer function, for split and
 classified, float32 and float64, on a curved and an affine mesh, with transfer functions that
 empty segments and stop rays early; the cache is refused where it does not hold the view (camera,
 rows, field, precision, method family, surfaces, another field frame) and re-traced by
-render_cached; the memory limit refuses it and render_cached then renders plainly.
+the door (engine/frame.render_frame); the memory limit refuses it and the frame then renders plainly.
 
 Equality is bitwise on the CPU: the shade kernel hands integrate_segment the same element, t0,
 t1, degree, flags, tail and series values (copied, not recomputed) in the same order as the
@@ -20,8 +20,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hovr_blender.engine import limits
-from hovr_blender.engine import renderer as renderer_module
-from hovr_blender.engine.renderer import Renderer, SegmentCacheError, render_cached
+from hovr_blender.engine import segment_cache
+from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+from hovr_blender.engine.render_result import SegmentCacheError
+from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io.synthetic import cube_field, curved_cube, mixed_cube
@@ -154,10 +156,17 @@ def test_a_new_field_invalidates_the_cache():
         r.shade(cache, tf, BACKGROUND, opts)
 
 
+def cached(r, cam, tf, opts, cache=None, opaque=None, mode="SHADED", rows=None, **how):
+    """(result, the cache its SegmentSlot holds afterwards): the door with a slot holding `cache`."""
+    slot = SegmentSlot(cache)
+    res = render_frame(r, Frame(tf, BACKGROUND, opts, opaque=opaque, opaque_mode=mode, cache=slot), cam, rows=rows,
+                       **how)
+    return res, slot.cache
+
 def test_another_frame_traces_again():
     """A transfer function whose breakpoint band moves far maps the field into another frame
     (engine/field_frame.py): the cached series are in the old one, so shade refuses and
-    render_cached traces again; its image is still the fresh render's."""
+    the door traces again; its image is still the fresh render's."""
     r, cam, tf = scene("curved", "cpu")
     opts = RenderOptions(method="split")
     cache = r.trace(cam, tf, opts)
@@ -165,11 +174,11 @@ def test_another_frame_traces_again():
     assert r.frame_key(wide) != cache.frame_key and not r.cache_fits(cache, cam, wide, opts)
     with pytest.raises(SegmentCacheError, match="frame"):
         r.shade(cache, wide, BACKGROUND, opts)
-    res, new = render_cached(r, cam, wide, BACKGROUND, opts, cache=cache)
+    res, new = cached(r, cam, wide, opts, cache=cache)
     assert new is not cache and new.frame_key == r.frame_key(wide)
     assert_same_image(r.render(cam, wide, BACKGROUND, opts), res, "cpu")
     # and back: the first frame's field is uploaded again for the old cache
-    res, again = render_cached(r, cam, tf, BACKGROUND, opts, cache=cache)
+    res, again = cached(r, cam, tf, opts, cache=cache)
     assert again is cache
     assert_same_image(r.render(cam, tf, BACKGROUND, opts), res, "cpu")
 
@@ -178,7 +187,7 @@ def test_rows_tiles_growth_and_surfaces(monkeypatch):
     """A trace of some rows, in several launch tiles, with a per-pixel far limit (an opaque
     surface's t), and with the cache's arrays starting tiny so they grow (and are copied) many
     times, is still the render of the same rows and limit."""
-    monkeypatch.setattr(renderer_module, "CACHE_MIN_SEGMENTS", 8)
+    monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", 8)
     r, cam, tf = scene("curved", "cpu")
     opts = RenderOptions(method="split")
     o, d = cam.rays()
@@ -189,8 +198,8 @@ def test_rows_tiles_growth_and_surfaces(monkeypatch):
     cache = r.trace(cam, tf, opts, rows=rows, surface_t=surface_t, progress=lambda f: fractions.append(f) or True,
                     tile_pixels=50)
     assert len(fractions) > 3 and fractions[-1] == 1.0 and cache.rays == 9 * W
-    assert r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=renderer_module.surface_digest(surface_t))
-    assert not r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=renderer_module.surface_digest(surface_t + 1))
+    assert r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=segment_cache.surface_digest(surface_t))
+    assert not r.cache_fits(cache, cam, tf, opts, rows=rows, surface_key=segment_cache.surface_digest(surface_t + 1))
     for edit in (tf, edits(tf)["opaque"]):
         fresh = r.render(cam, edit, BACKGROUND, opts, rows=rows, surface_t=surface_t)
         shaded = r.shade(cache, edit, BACKGROUND, opts, progress=lambda f: True, tile_pixels=37)
@@ -205,11 +214,11 @@ def test_cancelled_trace_is_not_used():
     assert not cache.complete and not r.cache_fits(cache, cam, tf, opts)
     with pytest.raises(SegmentCacheError, match="cancelled"):
         r.shade(cache, tf, BACKGROUND, opts)
-    res, kept = render_cached(r, cam, tf, BACKGROUND, opts, progress=lambda f: False, tile_pixels=100)
+    res, kept = cached(r, cam, tf, opts, progress=lambda f: False, tile_pixels=100)
     assert res.cancelled and kept is None
 
 
-def test_memory_limit_refuses_the_cache_and_render_cached_renders_plainly():
+def test_memory_limit_refuses_the_cache_and_the_frame_renders_plainly():
     r, cam, tf = scene("curved", "cpu")
     opts = RenderOptions(method="split")
     full = r.trace(cam, tf, opts)
@@ -218,7 +227,7 @@ def test_memory_limit_refuses_the_cache_and_render_cached_renders_plainly():
     with limits.using(limits.ResourceLimits(max_memory=image_bytes + full.nbytes // 2)):
         with pytest.raises(limits.ResourceLimitError, match="segment cache of a 24x18 image"):
             r.trace(cam, tf, opts)
-        res, cache = render_cached(r, cam, tf, BACKGROUND, opts)
+        res, cache = cached(r, cam, tf, opts)
         assert cache is None and "memory limit" in res.stats["segment_cache"]["refused"]
         assert_same_image(r.render(cam, tf, BACKGROUND, opts), res, "cpu")
         # what a viewport holds in its other caches counts too
@@ -232,7 +241,7 @@ def test_cache_size_is_reported(monkeypatch):
     cache = r.trace(cam, tf, opts)
     info = cache.describe()
     segments, chunks, coefficients = cache.counts
-    assert info["segments"] == segments > 0 and chunks >= segments / renderer_module.SEGMENTS_PER_ROUND
+    assert info["segments"] == segments > 0 and chunks >= segments / segment_cache.SEGMENTS_PER_ROUND
     assert info["bytes"] == cache.nbytes and info["bytes_per_ray"] == pytest.approx(cache.nbytes / (W * H))
     # shrunk to fit: each segment its 28-byte record, its series (degree + 3 floats) and a chunk's share
     series = 4 * coefficients / segments
@@ -240,12 +249,12 @@ def test_cache_size_is_reported(monkeypatch):
     res = r.shade(cache, tf, BACKGROUND, opts)
     assert res.stats["segment_cache"] == info
     # the counters summed on the device, many rows a thread, as one row a thread
-    monkeypatch.setattr(renderer_module, "SUM_THREADS", 7)
+    monkeypatch.setattr(segment_cache, "SUM_THREADS", 7)
     few = r.shade(cache, tf, BACKGROUND, opts).stats
     assert {k: few[k] for k in COUNTERS} == {k: res.stats[k] for k in COUNTERS}
     assert res.stats["segments"] == segments and res.stats["restriction_evaluations"] > 0
-    # render_cached reports the trace and the shade as one render
-    res, _ = render_cached(r, cam, tf, BACKGROUND, opts)
+    # the door reports the trace and the shade as one render
+    res, _ = cached(r, cam, tf, opts)
     assert res.stats["render_seconds"] >= res.stats["segment_cache"]["trace_seconds"]
 
 
@@ -281,36 +290,35 @@ def test_random_transfer_functions_shade_as_they_render(data):
 
 
 def test_surfaces_keep_their_hits_with_the_cache(monkeypatch):
-    """render_with_surfaces_cached: the surfaces' hits are cast once and kept with the cache; a
-    look change composites the shaded volume over them exactly as render_with_surfaces does, in
+    """A frame's opaque meshes with a segment cache: their hits are cast once and kept with the
+    cache; a look change composites the shaded volume over them exactly as a fresh render does, in
     both modes and for a band of rows."""
-    from hovr_blender.engine.surfaces import SurfaceMesh, SurfaceScene, render_with_surfaces, render_with_surfaces_cached
+    from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene
 
     r, cam, tf = scene("curved", "cpu")
-    plane = SurfaceMesh(np.array([[-1.0, -1.0, 0.45], [2.0, -1.0, 0.55], [2.0, 2.0, 0.6], [-1.0, 2.0, 0.5]]),
+    plane = OpaqueMesh(np.array([[-1.0, -1.0, 0.45], [2.0, -1.0, 0.55], [2.0, 2.0, 0.6], [-1.0, 2.0, 0.5]]),
                         [[0, 1, 2], [0, 2, 3]], (0.75, 0.5, 0.25))
-    surfaces = SurfaceScene([plane])
+    surfaces = OpaqueScene([plane])
     opts = RenderOptions(method="split")
-    res, cache = render_with_surfaces_cached(r, surfaces, cam, tf, BACKGROUND, opts)
-    assert cache is not None and cache.surface_hits is not None and 0 < res.stats["surface_pixels"] < W * H
-    cast, casts = SurfaceScene.cast, []
-    monkeypatch.setattr(SurfaceScene, "cast", lambda self, camera: casts.append(camera) or cast(self, camera))
+    res, cache = cached(r, cam, tf, opts, opaque=surfaces)
+    assert cache is not None and cache.opaque_hits is not None and 0 < res.stats["surface_pixels"] < W * H
+    cast, casts = OpaqueScene.cast, []
+    monkeypatch.setattr(OpaqueScene, "cast", lambda self, camera: casts.append(camera) or cast(self, camera))
     for mode in ("SHADED", "HOLDOUT"):
         for edit in (edits(tf)["colours"], edits(tf)["opaque"]):
-            shaded, again = render_with_surfaces_cached(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode,
-                                                        cache=cache)
+            shaded, again = cached(r, cam, edit, opts, opaque=surfaces, mode=mode, cache=cache)
             assert again is cache
-            fresh = render_with_surfaces(r, surfaces, cam, edit, BACKGROUND, opts, mode=mode)
+            fresh = render_frame(r, Frame(edit, BACKGROUND, opts, opaque=surfaces, opaque_mode=mode), cam)
             np.testing.assert_array_equal(shaded.rgba, fresh.rgba)
             np.testing.assert_array_equal(shaded.depth, fresh.depth)
     assert len(casts) == 4  # the fresh renders' casts only
     # other surfaces (another scene object): traced again
-    other = SurfaceScene([plane])
-    _, new = render_with_surfaces_cached(r, other, cam, tf, BACKGROUND, opts, cache=cache)
+    other = OpaqueScene([plane])
+    _, new = cached(r, cam, tf, opts, opaque=other, cache=cache)
     assert new is not cache
     # a band of rows
-    band, band_cache = render_with_surfaces_cached(r, surfaces, cam, tf, BACKGROUND, opts, rows=(3, 11))
-    fresh = render_with_surfaces(r, surfaces, cam, tf, BACKGROUND, opts, rows=(3, 11))
+    band, band_cache = cached(r, cam, tf, opts, opaque=surfaces, rows=(3, 11))
+    fresh = render_frame(r, Frame(tf, BACKGROUND, opts, opaque=surfaces), cam, rows=(3, 11))
     np.testing.assert_array_equal(band.rgba, fresh.rgba)
     assert band_cache.rows == (3, 11)
 

@@ -12,9 +12,11 @@ import textwrap
 import numpy as np
 import pytest
 
+from hovr_blender.engine.kernel_loading import KernelVariant
+
 from ..helpers import REPO, SPHERE
 
-SPHERE_VARIANT = (False, 3, False)  # the built-in sphere's kernel_variant (tested below)
+SPHERE_VARIANT = KernelVariant(False, 3, False)  # the built-in sphere's kernel_variant (tested below)
 
 CHILD = textwrap.dedent("""
     import json, os, sys, time
@@ -22,10 +24,11 @@ CHILD = textwrap.dedent("""
     sys.path.insert(0, sys.argv[1]); sys.path.insert(0, sys.argv[2])
     import numpy as np
     from helpers import SPHERE
-    from hovr_blender.engine import renderer
+    from hovr_blender.engine.devices import resolve_device
+    from hovr_blender.engine.kernel_loading import KernelVariant, load_kernels
     import warp as wp
-    renderer.resolve_device("cpu")
-    report = renderer.load_kernels(tuple(json.loads(sys.argv[3])), "cpu")
+    resolve_device("cpu")
+    report = load_kernels(KernelVariant.from_key(sys.argv[3]), "cpu")
     loaded = time.perf_counter()
     rgba = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
     np.save(sys.argv[4], rgba)
@@ -39,14 +42,14 @@ CHILD = textwrap.dedent("""
 def store(tmp_path_factory):
     """A store of the sphere's kernels on the CPU, built by scripts/build_extension.py's build step
     (CPU objects only: no PTX, to keep the test short)."""
-    from hovr_blender.engine.renderer import kernel_variant
+    from hovr_blender.engine.kernel_loading import kernel_variant
     from hovr_blender.io import builtin
     from scripts import build_extension
 
     assert kernel_variant([builtin.sphere()]) == SPHERE_VARIANT
     root = tmp_path_factory.mktemp("kernel_binaries")
     built = build_extension.compile_kernels_here({"store": str(root), "cpu": True, "ptx": False, "cubin_archs": [],
-                                                  "variants": [SPHERE_VARIANT], "precisions": ["float32"]})
+                                                  "variants": [SPHERE_VARIANT.key], "precisions": ["float32"]})
     assert built["files"] and all(os.path.exists(f) for f in built["files"])
     return root
 
@@ -56,9 +59,12 @@ def test_the_build_steps_variants_are_kernel_variants():
     them holds the kernels a render of such a file loads."""
     from scripts import build_extension
 
-    assert build_extension.parse_variants("affine:3,curved:0-2") == ((False, 3, False), (True, 0, False),
-                                                                    (True, 2, False))
-    assert SPHERE_VARIANT in build_extension.DEFAULT_KERNEL_VARIANTS
+    assert build_extension.parse_variants("affine:3,curved:0-2") == ("affine:3", "curved:0", "curved:2")
+    assert [KernelVariant.from_key(k) for k in ("affine:3", "curved:0")] == [KernelVariant(False, 3), KernelVariant(True, 0)]
+    assert SPHERE_VARIANT.key in build_extension.DEFAULT_KERNEL_VARIANTS
+    assert KernelVariant.from_key("curved:0:derived") == KernelVariant(True, 0, True)
+    with pytest.raises(ValueError, match="not a kernel variant"):
+        KernelVariant.from_key("bent:3")
 
 
 def _run_child(tmp_path, store_root):
@@ -66,7 +72,7 @@ def _run_child(tmp_path, store_root):
     cache.mkdir()
     env = dict(os.environ, WARP_CACHE_PATH=str(cache), HOVR_KERNEL_BINARIES=str(store_root))
     out = tmp_path / "rgba.npy"
-    proc = subprocess.run([sys.executable, "-c", CHILD, str(REPO), str(REPO / "tests"), json.dumps(SPHERE_VARIANT),
+    proc = subprocess.run([sys.executable, "-c", CHILD, str(REPO), str(REPO / "tests"), SPHERE_VARIANT.key,
                            str(out)], env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1]), np.load(out)
@@ -88,12 +94,13 @@ def test_a_store_of_other_kernel_source_is_not_used(store, tmp_path):
     compiles as without a store, the others are still loaded from it, the report says so."""
     import warp as wp
 
-    from hovr_blender.engine import renderer, shipped_kernels
+    from hovr_blender.engine import shipped_kernels
+    from hovr_blender.engine.kernel_loading import session_kernels
 
     other = tmp_path / "store"
     shutil.copytree(store, other)
     folder = other / f"warp-{wp.config.version}"
-    search = renderer.session_kernels(SPHERE_VARIANT)[0].module  # the smallest module: quick to compile
+    search = session_kernels(SPHERE_VARIANT)[0].module  # the smallest module: quick to compile
     key = shipped_kernels._key(search, wp.get_device("cpu"))
     for f in folder.glob(key + ".*"):
         f.rename(f.with_name("0" * len(key) + f.name[len(key):]))
@@ -112,32 +119,23 @@ def test_the_hash_does_not_depend_on_where_the_package_lives(tmp_path):
         sys.path.insert(0, sys.argv[1])
         from hovr_blender.engine.bootstrap import import_package
         import_package("bl_ext.user_default.hovr_blender", sys.argv[2])
-        from bl_ext.user_default.hovr_blender.engine import renderer, shipped_kernels
+        from bl_ext.user_default.hovr_blender.engine import devices, kernel_loading, shipped_kernels
         import warp as wp
-        renderer.resolve_device("cpu")
-        kernels = renderer.session_kernels(tuple(json.loads(sys.argv[3])))
+        devices.resolve_device("cpu")
+        kernels = kernel_loading.session_kernels(kernel_loading.KernelVariant.from_key(sys.argv[3]))
         print(json.dumps(sorted(shipped_kernels._key(k.module, wp.get_device("cpu")) for k in kernels)))
     """)
     copy = tmp_path / "elsewhere" / "hovr_blender"
     shutil.copytree(REPO / "hovr_blender", copy, ignore=shutil.ignore_patterns("__pycache__"))
-    proc = subprocess.run([sys.executable, "-c", script, str(REPO), str(copy), json.dumps(SPHERE_VARIANT)],
+    proc = subprocess.run([sys.executable, "-c", script, str(REPO), str(copy), SPHERE_VARIANT.key],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     import warp as wp
 
-    from hovr_blender.engine import renderer, shipped_kernels
-
-    renderer.resolve_device("cpu")
-    here = sorted(shipped_kernels._key(k.module, wp.get_device("cpu")) for k in renderer.session_kernels(SPHERE_VARIANT))
-    assert json.loads(proc.stdout.strip().splitlines()[-1]) == here
-
-
-def test_blenders_first_f12_knows_whether_the_store_holds_its_kernels(store, tmp_path, monkeypatch):
     from hovr_blender.engine import shipped_kernels
-    from hovr_blender.ui import jobs
+    from hovr_blender.engine.devices import resolve_device
+    from hovr_blender.engine.kernel_loading import session_kernels
 
-    key = jobs.kernel_key("cpu", "float32", SPHERE_VARIANT, False)
-    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(store))
-    assert jobs.shipped_render_kernels(key) == (True, True)
-    monkeypatch.setenv(shipped_kernels.STORE_ENV, str(tmp_path))  # no store for this Warp
-    assert jobs.shipped_render_kernels(key)[1] is False
+    resolve_device("cpu")
+    here = sorted(shipped_kernels._key(k.module, wp.get_device("cpu")) for k in session_kernels(SPHERE_VARIANT))
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == here

@@ -19,10 +19,10 @@ def test_tile_follows_memory_limit_and_keeps_pixels():
     r = Renderer(mesh, "cpu")
     prec = r._upload("float32").precision
     whole = r.render(cam, tf, np.zeros(3), RenderOptions())
-    small = limits.ResourceLimits(max_memory=int(6000 * r._ray_bytes(prec)))  # tiles of ~3000 rays
+    small = limits.ResourceLimits(max_memory=int(6000 * r.tile_bytes_per_ray(prec)))  # tiles of ~3000 rays
     with limits.using(small):
         tile = r._tile_limit(prec)
-        assert tile * r._ray_bytes(prec) <= 0.5 * small.max_memory
+        assert tile * r.tile_bytes_per_ray(prec) <= 0.5 * small.max_memory
         assert tile < cam.width * cam.height  # the 96x64 image takes several tiles
         tiled = r.render(cam, tf, np.zeros(3), RenderOptions())
     np.testing.assert_array_equal(tiled.rgba, whole.rgba)
@@ -36,7 +36,7 @@ def test_gpu_tiles_follow_device_memory_not_the_host_limit(monkeypatch):
 
     r = Renderer(curved_cube(1), "cpu")
     prec = r._upload("float32").precision
-    ray_bytes = r._ray_bytes(prec)
+    ray_bytes = r.tile_bytes_per_ray(prec)
 
     class Card:
         is_cuda = True

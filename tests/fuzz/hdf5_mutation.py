@@ -18,7 +18,7 @@ limit of --seconds); --cli of them (every one the reader died or was stopped on,
 as `hovr render` commands, judged like the hostile suite (exit 0 or 2, one `hovr: error:` line,
 no hang); --bpy of them are imported in bpy (a fresh Blender-as-a-module process: its import
 operator reports, the scene keeps its datablocks, the process exits normally). Results:
-bench/results/hdf5_mutation.json. tests/engine/test_isolation.py runs a small sample.
+bench/results/hdf5_mutation.json. tests/io/test_isolation.py runs a small sample.
 """
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ a NektarError naming the file, within a time bound; never another exception, nev
 
 (from the repository root) writes bench/results/nektar_mutation.json (counts per mutation kind and
 outcome; with --scaleho also the load time and peak memory of scaleHO.xml and hump3D, which live
-in ../shared/data only). tests/engine/test_nektar.py runs the same generator on fewer cases. The
+in ../shared/data only). tests/io/test_nektar.py runs the same generator on fewer cases. The
 source files are found as the tests find them (tests/helpers.find_data: tests/data, then
 ../shared/data).
 """

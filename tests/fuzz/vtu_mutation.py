@@ -7,7 +7,7 @@ another exception, never read_vtu's catch-all ("unreadable (...)"), never a cras
 
 Each variant is read by read_vtu in a fresh subprocess limited to CASE_SECONDS of wall time and
 CASE_MEMORY bytes of address space (RLIMIT_AS). Writes bench/results/vtu_mutation.json (counts
-per mutation kind and outcome, every failure with its message). tests/engine/test_vtu_mutation.py
+per mutation kind and outcome, every failure with its message). tests/io/test_vtu_mutation.py
 runs a small deterministic sample of the same generator in-process.
 
 The corruptions are made on the decoded arrays where that matters (wrong counts, out-of-range

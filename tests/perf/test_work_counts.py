@@ -4,7 +4,8 @@ tests/perf/work_counts.py). Counts, not times: they are the same on every run an
 import numpy as np
 import pytest
 
-from hovr_blender.engine.renderer import Renderer, work_counts
+from hovr_blender.engine.renderer import Renderer
+from hovr_blender.engine.work_counts import work_counts
 from hovr_blender.engine.view import RenderOptions
 
 from ..helpers import BACKGROUND, curved_mixed_scene

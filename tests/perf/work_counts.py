@@ -4,7 +4,7 @@ measured on the CPU where it is deterministic, against budgets committed beside 
 Each scene is a real or paper-scale dataset at 96x54, seen from the benchmarks' oblique direction
 (tests/helpers.framing) through three tents over its field's 2..98 % range, rendered at the user's
 defaults (classified, its own step per segment). Per scene and precision the budget file holds each
-counter's mean per ray and its divergence (engine/renderer.work_counts: over 32-ray blocks, the
+counter's mean per ray and its divergence (engine/work_counts.py: over 32-ray blocks, the
 largest count over the block's mean). tests/perf/test_work_counts.py fails where a count passes its
 budget by more than TOLERANCE.
 
@@ -97,8 +97,10 @@ _RENDERERS = {}
 
 
 def measure(scene: Scene, precision: str, method: str = "classified") -> dict:
-    """The scene's work counts (engine/renderer.work_counts) in `precision`, on the CPU."""
-    from hovr_blender.engine.renderer import Renderer, work_counts
+    """The scene's work counts (engine/work_counts.work_counts) in `precision`, on the CPU."""
+    from hovr_blender.engine.renderer import Renderer
+    from hovr_blender.engine.kernels.precision import Precision
+    from hovr_blender.engine.work_counts import work_counts
     from hovr_blender.engine.view import RenderOptions
 
     if scene.name not in _RENDERERS:
@@ -110,7 +112,7 @@ def measure(scene: Scene, precision: str, method: str = "classified") -> dict:
     camera = framing(renderer.mesh, *SIZE)
     res = renderer.render(camera, tf, np.zeros(3), RenderOptions(method=method, precision=precision, device="cpu"),
                           ray_counts=True)
-    return work_counts(renderer._upload(precision).precision.kernels, res.ray_counts)
+    return work_counts(Precision.named(precision).kernels, res.ray_counts)
 
 
 def diagonal(mesh) -> float:

@@ -12,7 +12,7 @@ from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDAT
                    STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, SegmentCache, Segments, TransferArgs)
 from .integrate import integrate_counted, integrate_counted_surfaces, no_tally, pixel_values, segment_step_terms
-from .quadrature import METHOD_CLASSIFIED, RayIntegral
+from .quadrature import METHOD_CLASSIFIED, RayIntegral, samples_segments
 from .rays import MAX_REGISTERS, camera_ray
 from .walk import density_transparent, element_transparent
 
@@ -122,7 +122,7 @@ def make_shade_kernel(ISOSURFACES: bool):
         state.error = 0.0
         tally = no_tally()
         skip_transparent = int(0)
-        if q.method >= METHOD_CLASSIFIED:
+        if samples_segments(q.method) != 0:
             skip_transparent = 1
         n_seg = int(0)
         n_skipped = int(0)

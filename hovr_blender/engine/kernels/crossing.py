@@ -18,17 +18,22 @@ from ..shapes import MAX_FACES
 from . import element
 from . import geometry
 from .args import MeshArgs
-from .tolerances import INSIDE_TOL, NEWTON_STEP_TOL
+from .tolerances import INSIDE_TOL, NEWTON_STEP_TOL, SHARED_FACE_TOL
 
 wp.set_module_options({"enable_backward": False})
 
 POLISH_ITERATIONS = 12  # Newton steps on a face at most (from within the bound: 2-4)
-NEAR_BOUNDS = 4.0  # a triangle is a candidate where the ray passes this many bounds from it (in its plane)
-GRAZING_COS = 0.25  # ... and every triangle whose box it crosses at a shallower angle than this (cosine)
+GRAZING_COS = 0.25  # every triangle whose box the ray crosses at a shallower angle than this (cosine) is a candidate
+# ... and every other where the ray meets its plane within this many bounds of it: the curved face's
+# crossing p lies within one bound of a point q of the triangle, so the ray meets the plane within
+# the bound of q in the plane plus the bound times tan(angle) <= sqrt(1/GRAZING_COS^2 - 1) = 3.873
+# beyond (tests/engine/test_entry_regressions.py checks the derivation)
+NEAR_BOUNDS = 4.9
 SLACK_BOUNDS = 8.0  # a candidate can polish to a crossing up to this many bounds before its triangle's t
 WANT_ENTRY = 0  # next_crossing: entries only, exits only, or the first crossing either way
 WANT_EXIT = 1
 WANT_ANY = 2
+NEAR_EDGE = 2  # polish's `ok`: converged on the face's surface just beyond an edge (within SHARED_FACE_TOL)
 STALLED = -2  # next_crossing's skip: every crossing at or before t_from + eps (a ray searching again where it was)
 
 
@@ -122,8 +127,9 @@ def triangle_start(mesh: MeshArgs, tri: int, o: wp.vec3, d: wp.vec3, t: float) -
 @wp.func
 def polish(mesh: MeshArgs, e: int, f: int, o: wp.vec3, d: wp.vec3, xi_start: wp.vec3, t_start: float):
     """Newton on (u, v, t) for x(xi(u, v)) = o + t d with xi(u, v) on reference face f of curved
-    element e, from xi_start (on the face) and t_start: (xi, t, converged within the face), the
-    reference velocity dxi/dt there and the iterations (each a map evaluation with its Jacobian).
+    element e, from xi_start (on the face) and t_start: (xi, t, ok: 1 converged within the face,
+    NEAR_EDGE converged just beyond one of its edges, 0 not), the reference velocity dxi/dt there
+    and the iterations (each a map evaluation with its Jacobian).
     Beyond an edge where the map folds no point has a usable preimage, but the face itself is a
     regular patch."""
     shape = mesh.shape[e]
@@ -138,7 +144,9 @@ def polish(mesh: MeshArgs, e: int, f: int, o: wp.vec3, d: wp.vec3, xi_start: wp.
     xs = xi_start + ((pl[3] - wp.dot(n, xi_start)) / wp.dot(n, n)) * n
     u = float(0.0)
     v = float(0.0)
-    t = t_start
+    # in the element's own frame, t_start + dt along the ray (geometry.local_ray_point)
+    p0 = geometry.local_ray_point(mesh, e, o, d, t_start)
+    dt = float(0.0)
     ok = int(0)
     its = int(0)
     J = wp.identity(n=3, dtype=float)
@@ -146,7 +154,7 @@ def polish(mesh: MeshArgs, e: int, f: int, o: wp.vec3, d: wp.vec3, xi_start: wp.
     for it in range(POLISH_ITERATIONS):
         its += 1
         xi = xs + u * a + v * b
-        x, Jx = geometry.geometry_with_jacobian(mesh, e, xi)
+        x, Jx = geometry.local_geometry_with_jacobian(mesh, e, xi)
         J = Jx
         ca = J * a
         cb = J * b
@@ -154,32 +162,45 @@ def polish(mesh: MeshArgs, e: int, f: int, o: wp.vec3, d: wp.vec3, xi_start: wp.
         if wp.abs(wp.determinant(M)) < 1.0e-30:
             break
         Minv = wp.inverse(M)
-        s = Minv * (x - o - t * d)
+        s = Minv * (x - p0 - dt * d)
         u = wp.clamp(u - s[0], -3.0, 3.0)
         v = wp.clamp(v - s[1], -3.0, 3.0)
-        t = t - s[2]
+        dt = dt - s[2]
         step = wp.length(s)
+        mn = float(0.0)  # |M^-1| (rows' sums): how far the rounding of x moves (u, v, t)
+        for r in range(3):
+            mn = wp.max(mn, wp.abs(Minv[r, 0]) + wp.abs(Minv[r, 1]) + wp.abs(Minv[r, 2]))
         converged = int(0)
         if step < NEWTON_STEP_TOL:
             converged = 1
-        elif step < geometry.NEWTON_NOISE_MAX:
+        elif step < geometry.NEWTON_NOISE_MAX and step < mn * mesh.geo_err[e]:
             # a step within the map's rounding floor is as converged as it gets (geometry.solved_margin)
-            mn = float(0.0)
-            for r in range(3):
-                mn = wp.max(mn, wp.abs(Minv[r, 0]) + wp.abs(Minv[r, 1]) + wp.abs(Minv[r, 2]))
-            if step < mn * mesh.geo_err[e]:
-                converged = 1
+            converged = 2
+        if ok == 1:
+            xi = xs + u * a + v * b
+            break
         if converged == 1:
             xi = xs + u * a + v * b
             ok = 1
             break
+        if converged == 2:
+            # one more step on the rounding floor (a face by a degenerate edge, a map whose
+            # coefficients cancel): its steps are the rounding's, and the last one is as good a
+            # sample of it as the first that met the floor
+            ok = 1
+    t = t_start + dt
     vel = wp.vec3(0.0, 0.0, 0.0)
     if ok == 1:
-        # within the face: inside every other face's plane
+        # within the face: inside every other face's plane (by an edge, within SHARED_FACE_TOL: NEAR_EDGE)
+        off = float(0.0)
         for g in range(element.num_faces(shape)):
             q = element.face_plane(shape, g)
-            if g != f and q[3] - (q[0] * xi[0] + q[1] * xi[1] + q[2] * xi[2]) < -INSIDE_TOL:
-                ok = 0
+            if g != f:
+                off = wp.max(off, (q[0] * xi[0] + q[1] * xi[1] + q[2] * xi[2]) - q[3])
+        if off > SHARED_FACE_TOL:
+            ok = 0
+        elif off > INSIDE_TOL:
+            ok = NEAR_EDGE
         if wp.abs(wp.determinant(J)) > 1.0e-30:
             vel = wp.inverse(J) * d
         else:
@@ -206,13 +227,31 @@ def allowed(e: int, t: float, skip: int, t_from: float, eps: float) -> int:
     return 1
 
 
+PASSED_MAX = 8  # elements a search may set aside at its start (the elements that meet at a vertex)
+PassedSet = wp.types.vector(length=PASSED_MAX, dtype=wp.int32)
+
+
+@wp.func
+def passed_at(e: int, t: float, passed: PassedSet, t_from: float, eps: float) -> int:
+    """1 for a crossing at or before t_from + eps of an element in `passed` (-1: an empty place):
+    elements the search has set aside there (left again by t_from: a sliver by an edge; touched
+    at a vertex or an edge only)."""
+    if t > t_from + eps:
+        return 0
+    for k in range(PASSED_MAX):
+        if passed[k] == e:
+            return 1
+    return 0
+
+
 @wp.func
 def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: float, t_to: float, eps: float,
-                  want: int, skip: int):
+                  want: int, skip: int, passed: PassedSet):
     """The first crossing beyond t_from (less eps; an entry less the bound) and before t_to of a curved element's face
     among the triangles under `root` (-1: all; a group root: one element's faces): entries (want
     WANT_ENTRY), exits (WANT_EXIT) or either (WANT_ANY: at one t an entry comes before an exit),
-    none of element `skip`'s crossings at or before t_from + eps (allowed); and the work: (polishes, Newton
+    none of element `skip`'s crossings at or before t_from + eps (allowed), nor those of the
+    elements in `passed` (passed_at; -1: none); and the work: (polishes, Newton
     iterations, candidates). Affine elements are left out (their crossings are their clips: the
     callers')."""
     slack = SLACK_BOUNDS * mesh.face_bound
@@ -223,7 +262,10 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
     n_cand = int(0)
     query = wp.bvh_query_ray(mesh.bvh, o + q0 * d, d, root)
     tri = int(0)
-    while wp.bvh_query_next(query, tri, best.t + slack - q0):
+    # the query's reach may only shrink (Warp never revisits a subtree it has cut)
+    reach = float(1.0e30)
+    while wp.bvh_query_next(query, tri, reach):
+        reach = wp.min(reach, best.t + slack - q0)
         n_cand += 1
         owner = mesh.face_owner[tri]
         e = owner // MAX_FACES
@@ -255,15 +297,20 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
             xi, t, ok, vel, its = polish(mesh, e, f, o, d, start, t_start)
             polishes += 1
             newton += its
-            if ok == 0:
+            if ok != 1:
                 break
             enters = entering(mesh, e, f, vel)
             across = mesh.neighbour[e * MAX_FACES + f]  # the element on the face's other side
             # one crossing: within eps, or a shared face's two sides (each element's map fits the
             # face on its own: their t differ by that fit, 1e-8 of the chord on the curved cube)
             tie = int(0)
-            if best.element >= 0 and (wp.abs(t - best.t) <= eps or (across == best.element and wp.abs(t - best.t) <= slack)):
-                tie = 1
+            if best.element >= 0:
+                if wp.abs(t - best.t) <= eps:
+                    tie = 1
+                elif across == best.element and wp.abs(t - best.t) <= slack:
+                    # only the face they share: best's face must lead back to e
+                    if mesh.neighbour[best.element * MAX_FACES + best.face] == e:
+                        tie = 1
             # at one crossing: at the start the ray goes on into the element entered there;
             # beyond it, it was inside the element that it leaves there
             first = int(0)
@@ -288,7 +335,7 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
             lower = t_from - eps
             if enters == 1 and skip >= 0 and across == skip:
                 lower = t_from - slack
-            if first == 1 and t >= lower and allowed(e, t, skip, t_from, eps) == 1:
+            if first == 1 and t >= lower and allowed(e, t, skip, t_from, eps) == 1 and passed_at(e, t, passed, t_from, eps) == 0:
                 best.element = e
                 best.face = f
                 best.t = wp.max(t, wp.min(t_from, t + slack))
@@ -306,11 +353,17 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
 
 
 @wp.func
+def solution_at_xi(mesh: MeshArgs, e: int, xi: wp.vec3) -> wp.vec4:
+    """The walk's record of a point xi on a face of element e: (xi, margin + INSIDE_TOL)
+    (geometry.curved_inside's convention), the margin held above 0 (the point is on the face)."""
+    m = geometry.margin_and_face(mesh.shape[e], xi)
+    return wp.vec4(xi[0], xi[1], xi[2], wp.max(m[0] + INSIDE_TOL, 0.5 * INSIDE_TOL))
+
+
+@wp.func
 def solution_at(mesh: MeshArgs, c: Crossing) -> wp.vec4:
-    """The walk's record of a crossing's solution: (xi, margin + INSIDE_TOL) (geometry.curved_inside's
-    convention), the margin held above 0 (the point is on the element's face)."""
-    m = geometry.margin_and_face(mesh.shape[c.element], c.xi)
-    return wp.vec4(c.xi[0], c.xi[1], c.xi[2], wp.max(m[0] + INSIDE_TOL, 0.5 * INSIDE_TOL))
+    """solution_at_xi of a crossing."""
+    return solution_at_xi(mesh, c.element, c.xi)
 
 
 @wp.func

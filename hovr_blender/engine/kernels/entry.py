@@ -25,7 +25,23 @@ from .tolerances import INSIDE_TOL, STRETCH_RTOL
 wp.set_module_options({"enable_backward": False})
 
 BACK_STEPS = 4  # elements an entry may be moved back through (shared faces) to one the triangles missed
-SEARCH_ATTEMPTS = 3  # crossing queries of one search (an exit or an entry before t_from found first: on past it)
+SEARCH_ATTEMPTS = 8  # crossing queries of one search (an exit, an entry before t_from or a passed sliver found first: on past it)
+UNDECIDED = -2  # Entry.element: the search set aside every crossing it met; the next round searches on from Entry.t
+
+
+@wp.func
+def no_passed() -> crossing.PassedSet:
+    return crossing.PassedSet(-1, -1, -1, -1, -1, -1, -1, -1)
+
+
+@wp.func
+def set_aside(passed: crossing.PassedSet, n: int, e: int):
+    """`passed` with element e added (while there is room) and its count."""
+    out = passed
+    if n < crossing.PASSED_MAX:
+        out[n] = e
+        return out, n + 1
+    return out, n
 
 
 @wp.struct
@@ -84,7 +100,7 @@ def curved_start(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: flo
     crossing behind may be the domain's exit, and an entry behind it one of an element left since)."""
     found = no_entry(t_from)
     work = work_in
-    back, w = crossing.next_crossing(mesh, -1, o, -d, -t_from, 1.0e30, eps, crossing.WANT_EXIT, -1)
+    back, w = crossing.next_crossing(mesh, -1, o, -d, -t_from, 1.0e30, eps, crossing.WANT_EXIT, -1, no_passed())
     work += w
     if back.element < 0:
         return found, work
@@ -118,12 +134,13 @@ def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: cross
     the element's own triangles (its group in the BVH; a grazing ray's entry through the face it
     leaves by too), and the last entry among the crossings of the element's other faces, each
     polished from the exit's point (a thin re-entry after a dip outside, whose triangles'
-    starts polish to the crossing before the dip). It may lie before the search's start: a
+    starts polish to the crossing before the dip); failing both, the walk's own exit search
+    (geometry.curved_exit) along the reversed ray from just inside the exit. It may lie before the search's start: a
     walk's exit is a bracket on the margin, so the face it crossed and the next element's entry
     differ by its rounding, and more where the ray passes by an edge."""
     e = exit.element
     back, work = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, e), o, -d, -exit.t, 1.0e30, eps,
-                                        crossing.WANT_EXIT, -1)
+                                        crossing.WANT_EXIT, -1, no_passed())
     found = crossing.no_crossing(-1.0e30)
     if back.element == e and -back.t <= exit.t + eps:
         found.element = e
@@ -146,6 +163,31 @@ def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: cross
                 found.xi = xi
                 found.v = vel
                 found.enters = 1
+    if found.element < 0:
+        # the ray is inside e just before its exit: the walk's own exit search along the reversed
+        # ray finds where it came in (a grazing clip entering and leaving by one face: both its
+        # triangles' polishes, and the mirrored ones, converge to the exit)
+        back_r = crossing.solution_at(mesh, exit)
+        back_dv = -crossing.velocity_at(mesh, exit)
+        span = geometry.box_interval(mesh, e, o, -d)
+        ex, r_b, dv_b, its_b = geometry.curved_exit(mesh, e, o, -d, -exit.t, back_r, back_dv, span[1])
+        polishes += 1
+        newton += its_b
+        if ex[1] >= 0.0 and -ex[0] < exit.t:
+            found.element = e
+            found.face = int(ex[1])
+            found.t = -ex[0]
+            found.xi = wp.vec3(r_b[0], r_b[1], r_b[2])
+            found.v = -wp.vec3(dv_b[0], dv_b[1], dv_b[2])
+            found.enters = 1
+            # the bracket's end lies in the band outside the face: the crossing itself, polished from it
+            xi, t, ok, vel, its = crossing.polish(mesh, e, found.face, o, d, found.xi, found.t)
+            polishes += 1
+            newton += its
+            if ok == 1 and t < exit.t and crossing.entering(mesh, e, found.face, vel) == 1:
+                found.t = t
+                found.xi = xi
+                found.v = vel
     return found, wp.vec3i(polishes, newton, work[2])
 
 
@@ -189,8 +231,10 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
     r = wp.vec4(0.0, 0.0, 0.0, -1.0)
     dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
     work = wp.vec3i(0, 0, 0)
+    passed = no_passed()
+    n_passed = int(0)
     for attempt in range(SEARCH_ATTEMPTS):
-        c, w = crossing.next_crossing(mesh, -1, o, d, t_q, t_query, eps, crossing.WANT_ANY, skip)
+        c, w = crossing.next_crossing(mesh, -1, o, d, t_q, t_query, eps, crossing.WANT_ANY, skip, passed)
         work += w
         if c.element < 0 or (c.enters == 1 and c.t >= t_to):
             return crossing.no_crossing(t_to), r, dv, work
@@ -206,8 +250,10 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
                 return crossing.no_crossing(t_to), r, dv, work
             # (a stalled search takes it: the ray is inside it beyond t_from, up to its exit)
             if c.element < 0 or (skip != crossing.STALLED and crossing.allowed(c.element, c.t, skip, t_q, eps) == 0):
-                t_q = t_out  # not found: on from that exit
-                skip = e_out
+                t_q = t_out  # not found (touched at a vertex or an edge): on from that exit, without it
+                passed, n_passed = set_aside(passed, n_passed, e_out)
+                if t_q > t_from + eps:
+                    skip = -1  # skip_in holds at t_from only: beyond it, the element left is met again
                 c = crossing.no_crossing(t_to)
                 continue
         # an entry through a shared face was an exit from the element beyond it first
@@ -227,6 +273,16 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
             if prev.element < 0 or crossing.allowed(n, prev.t, skip, t_q, eps) == 0:
                 break
             c = prev
+        if c.t <= t_q + eps:
+            # entered at the search's start, perhaps before it (by an edge, the ray crosses slivers of
+            # several elements within eps): taken only where its own exit lies beyond the start
+            out, w3 = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, c.element), o, d, c.t, 1.0e30, eps,
+                                             crossing.WANT_EXIT, -1, no_passed())
+            work += w3
+            if out.element == c.element and out.t <= t_q + eps:
+                passed, n_passed = set_aside(passed, n_passed, c.element)
+                c = crossing.no_crossing(t_to)
+                continue
         r = crossing.solution_at(mesh, c)
         dv = crossing.velocity_at(mesh, c)
         if c.t >= t_from - eps:
@@ -242,8 +298,11 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
         if exit_first == 1:
             r = wp.vec4(y[0], y[1], y[2], 0.5 * INSIDE_TOL)
             return c, r, dv, work
-        skip = c.element  # its stretch ended before t_from: on without it
+        passed, n_passed = set_aside(passed, n_passed, c.element)  # its stretch ended before t_from: on without it
         c = crossing.no_crossing(t_to)
+    # every crossing met was set aside: undecided, the next round searches on from t_q
+    c = crossing.no_crossing(t_q)
+    c.element = UNDECIDED
     return c, r, dv, work
 
 
@@ -251,7 +310,7 @@ def make_search_entry(CURVED: bool):
     @wp.func
     def search_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_end: float, left: int, stalled: int):
         """The element the ray is in or enters first beyond t_from (an Entry, element -1: none before
-        t_end) and the work: (polishes and locations, Newton iterations, BVH candidates). `left`:
+        t_end; UNDECIDED: search again from its t) and the work: (polishes and locations, Newton iterations, BVH candidates). `left`:
         the element the ray has just left (-1: the ray's first search, which looks behind its start),
         not entered again at t_from; `stalled` 1: the ray searches again where its last search was
         (its walk made no progress), so no element is entered at t_from."""
@@ -279,6 +338,9 @@ def make_search_entry(CURVED: bool):
                 best.t = wp.max(c.t, t_from)
                 best.r = r
                 best.dv = dv
+            elif c.element == UNDECIDED and c.t < best.t:
+                best.element = UNDECIDED
+                best.t = wp.max(c.t, t_from)
         return best, work
 
     return search_entry
@@ -304,7 +366,9 @@ def make_search_kernel(CURVED: bool):
         rays.stats[pixel, STAT_LOCATES] += work[0]
         rays.stats[pixel, STAT_NEWTON_SEARCH] += work[1]
         rays.stats[pixel, STAT_BVH_CANDIDATES] += work[2]
-        if entry.element < 0:
+        if entry.element == UNDECIDED:
+            rays.t_cur[i] = wp.max(rays.t_cur[i], entry.t)  # searched again next round, from there
+        elif entry.element < 0:
             rays.phase[i] = 1
         else:
             rays.next_element[i] = entry.element

@@ -42,9 +42,27 @@ def legendre_next(n: int, x: float, p: float, pm: float, dp: float, dpm: float) 
 
 
 @wp.func
-def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
-    """x(xi) and dx/dxi (columns d/dxi_k) of curved element e, in one pass. The Legendre
-    values run as recurrences inside the loops (no arrays: they would live in local memory)."""
+def local_ray_point(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float) -> wp.vec3:
+    """o + t d - the element's centre, summed in float64 and rounded once: a point of the ray in
+    the frame local_geometry_with_jacobian works in, rounded to its own size (the element's), not
+    to the size of o and t d (the camera's distance). A ray that grazes a face has its crossing
+    there to that rounding over the sine of the angle."""
+    return wp.vec3(wp.vec3d(o) - wp.vec3d(mesh.geo_centre[e]) + wp.float64(t) * wp.vec3d(d))
+
+
+@wp.func
+def geometry_with_jacobian(mesh: MeshArgs, e: int, xi: wp.vec3):
+    """x(xi) and dx/dxi (columns d/dxi_k) of curved element e (local_geometry_with_jacobian
+    and the element's centre)."""
+    x, J = local_geometry_with_jacobian(mesh, e, xi)
+    return x + mesh.geo_centre[e], J
+
+
+@wp.func
+def local_geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
+    """x(xi) - the element's centre and dx/dxi (columns d/dxi_k) of curved element e, in one pass.
+    The Legendre values run as recurrences inside the loops (no arrays: they would live in local
+    memory)."""
     sh = mesh.shape[e]
     xi = xi_in
     if sh == element.PYR:
@@ -111,7 +129,7 @@ def geometry_with_jacobian(mesh: MeshArgs, e: int, xi_in: wp.vec3):
         g2 = g2 * iw2
         g3 = (g3 + x * w) * iw2
     J = wp.mat33(g1[0], g2[0], g3[0], g1[1], g2[1], g3[1], g1[2], g2[2], g3[2])
-    return x + mesh.geo_centre[e], J
+    return x, J
 
 
 @wp.func
@@ -467,6 +485,9 @@ def curved_exit(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t_in: float, r_i
             if br.done == 1:
                 break
     if stepping == 1:
-        return wp.vec3(t, -1.0, 0.0), r, dv, newton
+        # out of steps short of t_end (a ray grazing a face steps along it in the band): the walk
+        # goes on through the nearest face, where the neighbour's own Newton checks the ray is inside
+        mf_last = margin_and_face(shape, wp.vec3(r[0], r[1], r[2]))
+        return wp.vec3(t, mf_last[1], 0.0), r, dv, newton
     mf = margin_and_face(shape, wp.vec3(br.rb[0], br.rb[1], br.rb[2]))
     return wp.vec3(br.b, mf[1], 0.0), br.rb, br.dvb, newton

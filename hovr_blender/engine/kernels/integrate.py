@@ -15,7 +15,7 @@ from . import restriction
 from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_SMOOTH, CameraArgs, MeshArgs, QuadArgs, RayState,
                    Segments, TransferArgs)
-from .quadrature import METHOD_CLASSIFIED, METHOD_RIEMANN, METHOD_SPLIT, RayIntegral
+from .quadrature import METHOD_RIEMANN, METHOD_SPLIT, RayIntegral, samples_segments
 from .rays import MAX_REGISTERS, camera_ray
 
 wp.set_module_options({"enable_backward": False})
@@ -92,7 +92,7 @@ def integrate_segment(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e: int, o: 
     emitting = int(1)
     if q.method == METHOD_RIEMANN:
         trapezoid = 0
-    elif q.method >= METHOD_CLASSIFIED:
+    elif samples_segments(q.method) != 0:
         cls = classify(mesh, tf, q, e, flags, coeffs, base, deg)
         emitting = int(cls[2])
         counts[2] = cls[3]

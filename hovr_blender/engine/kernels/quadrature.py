@@ -28,6 +28,16 @@ METHOD_TRAPEZOID = METHOD_IDS["trapezoid"]
 METHOD_CLASSIFIED = METHOD_IDS["classified"]
 METHOD_SPLIT = METHOD_IDS["split"]
 
+
+@wp.func
+def samples_segments(method: int) -> int:
+    """1 for the methods that integrate each segment's series, else 0: engine/methods.py's
+    samples_segments (SAMPLING_METHODS) on the device."""
+    if method == METHOD_CLASSIFIED or method == METHOD_SPLIT:
+        return 1
+    return 0
+
+
 INNER_SPECTRAL = 0
 INNER_TRAPEZOID = 1
 

@@ -1,5 +1,5 @@
 """The ray kernels: render contract §3-4, one thread per pixel of a tile, in rounds; this module is
-what the host (engine/renderer.py) takes of them: the kernels by name (kernel_table, the one list),
+what the host (engine/renderer.py) takes of them: the kernels as handles (kernel_table, the one list),
 the walk's kernels specialised per mesh (walk_kernels), and the structs and counters they share.
 
 A render of a tile runs init_rays once (kernels/rays.py), then rounds of
@@ -31,24 +31,65 @@ docs/traversal.md: the traversal's invariant and its work counts (kernels/args.p
 """
 from __future__ import annotations
 
-# what the host reads of the kernels besides the table: the structs, counters and sizes
+from dataclasses import dataclass, fields
+
+# what the host reads of the kernels besides the table: the structs, counters, sizes and the
+# derived fields' operation ids (kernels/derived.py)
 from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDATES, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK, STAT_PIECEWISE,
                    STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, DerivedArgs,
                    MeshArgs, QuadArgs, RayState, SegmentCache, Segments, SurfaceArgs, TransferArgs)
 from .cache import make_shade_kernel, sum_counts, trace_ends, trace_reserve, trace_write
+from .derived import FIELD, OPERATION_IDS, PER_DENSITY
 from .entry import make_search_kernel
 from .integrate import finalize, make_integrate_kernel, step_terms
 from .rays import camera_ray, init_rays, regroup_keys
 from .walk import coefficients, make_sample_kernel, make_traverse_kernel, pyramid_piece_end, refine
 
-# The kernels by name, the one list: the renderer loads, launches and times them by these names
-# (kernel_table), a render, a trace and a shade each launching their own.
-RENDER_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "step_terms", "integrate",
-                  "regroup_keys", "finalize")
-TRACE_KERNELS = ("init_rays", "search", "traverse", "sample", "refine", "coefficients", "trace_reserve", "trace_write",
-                 "regroup_keys", "trace_ends")
-SHADE_KERNELS = ("shade", "sum_counts")
+# The kernels as handles (KernelTable), the one list: the renderer names each at its launch
+# (launch(table.search, ...)), loads a render's, a trace's and a shade's (their *_kernels), and
+# times them by their field names.
+
+
+@dataclass(frozen=True)
+class KernelTable:
+    """Every kernel of a render, a trace and a shade, the walk's specialised for a mesh and integrate
+    and shade for a look (kernel_table)."""
+
+    init_rays: object
+    search: object
+    traverse: object
+    sample: object
+    refine: object
+    coefficients: object
+    step_terms: object
+    integrate: object
+    regroup_keys: object
+    finalize: object
+    trace_reserve: object
+    trace_write: object
+    trace_ends: object
+    shade: object
+    sum_counts: object
+
+    def render_kernels(self) -> tuple:
+        """What Renderer.render launches."""
+        return (self.init_rays, self.search, self.traverse, self.sample, self.refine, self.coefficients,
+                self.step_terms, self.integrate, self.regroup_keys, self.finalize)
+
+    def trace_kernels(self) -> tuple:
+        """What Renderer.trace launches."""
+        return (self.init_rays, self.search, self.traverse, self.sample, self.refine, self.coefficients,
+                self.trace_reserve, self.trace_write, self.regroup_keys, self.trace_ends)
+
+    def shade_kernels(self) -> tuple:
+        """What Renderer.shade launches."""
+        return (self.shade, self.sum_counts)
+
+    def named(self) -> dict:
+        """{field name: kernel}: every kernel by the name the stats and reports give it."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
 
 _WALK = {}
 _SAMPLE = {}
@@ -79,15 +120,12 @@ def integrate_kernels(isosurfaces: bool = False):
     return _INTEGRATE[key]
 
 
-def kernel_table(curved: bool, modes: int = 0, derived: bool = False, isosurfaces: bool = False) -> dict:
-    """Every kernel of RENDER_KERNELS, TRACE_KERNELS and SHADE_KERNELS by name, the walk's
-    specialised as walk_kernels(curved, modes, derived) (the renderer's kernel_variant), integrate
-    and shade as integrate_kernels(isosurfaces)."""
+def kernel_table(curved: bool, modes: int = 0, derived: bool = False, isosurfaces: bool = False) -> KernelTable:
+    """The KernelTable, the walk's kernels specialised as walk_kernels(curved, modes, derived) (the
+    renderer's KernelVariant), integrate and shade as integrate_kernels(isosurfaces)."""
     search, traverse, sample = walk_kernels(curved, modes, derived)
     integrate, shade = integrate_kernels(isosurfaces)
-    table = {"init_rays": init_rays, "search": search, "traverse": traverse, "sample": sample, "refine": refine,
-             "coefficients": coefficients, "step_terms": step_terms, "integrate": integrate, "finalize": finalize,
-             "trace_reserve": trace_reserve, "trace_write": trace_write, "trace_ends": trace_ends, "shade": shade,
-             "sum_counts": sum_counts, "regroup_keys": regroup_keys}
-    assert set(table) == set(RENDER_KERNELS + TRACE_KERNELS + SHADE_KERNELS)
-    return table
+    return KernelTable(init_rays=init_rays, search=search, traverse=traverse, sample=sample, refine=refine,
+                       coefficients=coefficients, step_terms=step_terms, integrate=integrate,
+                       regroup_keys=regroup_keys, finalize=finalize, trace_reserve=trace_reserve,
+                       trace_write=trace_write, trace_ends=trace_ends, shade=shade, sum_counts=sum_counts)

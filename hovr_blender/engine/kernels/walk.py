@@ -14,6 +14,7 @@ from __future__ import annotations
 import warp as wp
 
 from ..shapes import MAX_FACES
+from . import crossing
 from . import derived
 from . import element
 from . import geometry
@@ -22,7 +23,7 @@ from . import restriction
 from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_NEWTON_SAMPLE, STAT_NEWTON_WALK, STAT_ROUNDS, STAT_SEGMENTS, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, Segments, TransferArgs)
-from .quadrature import METHOD_CLASSIFIED
+from .quadrature import samples_segments
 from .rays import MAX_REGISTERS, SAMPLE_MAX_REGISTERS, affine_stretch, camera_ray, walk_options
 from .tolerances import SHARED_FACE_TOL, STRETCH_RTOL
 
@@ -113,14 +114,28 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     newton += its
     b = wp.max(a, ex[0])
     shift_b = float(0.0)
-    if ex[1] >= 0.0 and dv_b[3] < 0.0 and r_b[3] < geometry.INSIDE_TOL:
-        if mesh.neighbour[e * MAX_FACES + int(ex[1])] < 0:
+    if ex[1] >= 0.0 and mesh.neighbour[e * MAX_FACES + int(ex[1])] < 0:
+        # the domain's boundary: the segment ends on the face itself, its crossing polished from
+        # the bracket's end (which lies in the band outside it); else moved along the margin's tangent
+        xi_f, t_f, ok, vel, its_f = crossing.polish(mesh, e, int(ex[1]), o, d, wp.vec3(r_b[0], r_b[1], r_b[2]), b)
+        newton += its_f
+        leaving = int(0)
+        if ok >= 1 and t_f <= b and crossing.entering(mesh, e, int(ex[1]), vel) == 0:
+            leaving = 1
+        if leaving == 1 and t_f > a:
+            shift_b = t_f - b
+            r_b = crossing.solution_at_xi(mesh, e, xi_f)
+            pl = element.face_plane(mesh.shape[e], int(ex[1]))
+            dv_b = wp.vec4(vel[0], vel[1], vel[2], -(pl[0] * vel[0] + pl[1] * vel[1] + pl[2] * vel[2]))
+        elif leaving == 1:
+            # the ray left through the boundary before a: it was in e only within the margin's
+            # tolerance (SHARED_FACE_TOL, a ray by the edge it shares with the element before)
+            shift_b = a - b
+        elif dv_b[3] < 0.0 and r_b[3] < geometry.INSIDE_TOL:
             shift_b = wp.max((geometry.INSIDE_TOL - r_b[3]) / dv_b[3], -0.5 * (b - a))
     shift_a = wp.min(shift_a, 0.5 * (b - a))
     if shift_a > 0.0:
         r_a = to_face(r_a, dv_a, shift_a)
-    if shift_b < 0.0:
-        r_b = to_face(r_b, dv_b, shift_b)
     return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b, newton
 
 
@@ -208,7 +223,7 @@ def make_traverse_kernel(CURVED: bool):
         r_entry = rays.entry_r[i]  # the search's solution in a curved e at t (margin > 0: valid)
         dv_entry = rays.entry_dv[i]
         uses_restriction = int(0)  # classified and split integrate the restriction; skip empty elements
-        if q.method >= METHOD_CLASSIFIED:
+        if samples_segments(q.method) != 0:
             uses_restriction = 1
         n_field = int(0)
         n_seg = int(0)

@@ -19,9 +19,9 @@ Modules, each importing only those above it:
   composites the COMPOSITE section and the CONDITIONS' boundary regions; a face composite's
              faces as (element, face) for the walls (read_boundaries, after read_mesh)
   domain     the DOMAIN's elements through its composites
-  mesh       NektarMesh and read_mesh: the above together
+  mesh_file  NektarMesh and read_mesh: the above together
   topology   an element's local vertices, edges and faces from the mesh's
-  geometry   element geometry as modal coefficients, each certified valid (engine/validity.py)
+  element_geometry  element geometry as modal coefficients, each certified valid (engine/validity.py)
   blocks     a field file's blocks, format-free, sizes checked against the mesh
   hdf5       HDF5 field files, and safe access to HDF5 objects (imports h5py)
   fields     field files and directories -> FieldFile; one field's coefficients

@@ -256,7 +256,7 @@ class Boundaries:
 
 
 def read_boundaries(mesh, conditions_path=None) -> Boundaries:
-    """The Boundaries of a read mesh (io/nektar/mesh.py's NektarMesh): its file read again for the
+    """The Boundaries of a read mesh (io/nektar/mesh_file.py's NektarMesh): its file read again for the
     COMPOSITE section, and the CONDITIONS of `conditions_path` (a session file) or else of the
     mesh file itself."""
     path = Path(mesh.path)

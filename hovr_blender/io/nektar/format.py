@@ -1,6 +1,6 @@
 """The Nektar++ format as the registry (io/formats.py) sees it: a mesh .xml whose fields are in
 solution files beside it (.fld/.chk/.rst, XML or HDF5), composites and boundary regions for the
-walls; a field "|a,b,c|" is the magnitude of fields a, b, c (io/derived.py)."""
+walls; a field "|a,b,c|" is the magnitude of fields a, b, c (io/magnitude.py)."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,8 +9,8 @@ import numpy as np
 
 from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
-from ..derived import component_reads, magnitude_mesh, parse_magnitude
-from ..format import XML_PACKAGE, Format
+from ..magnitude import component_reads, magnitude_mesh, parse_magnitude
+from ..format_base import XML_PACKAGE, Format
 from .errors import NektarError
 from .fields import FieldFile, read_field_file
 from .reader import find_solution, list_fields, mesh_boundaries, pick_solution, read_nektar

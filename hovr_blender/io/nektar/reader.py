@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from ...engine import expansions as ex
-from ...engine.cache import LRUCache
+from ...engine.lru_cache import LRUCache
 from ...engine.mesh import MeshError, VolumeMesh
 from ...engine.shapes import NAMES
 from .composites import Boundaries, read_boundaries
 from .errors import NektarError, guard
 from .fields import read_field_file
-from .geometry import mesh_geometry
-from .mesh import NektarMesh, read_mesh
+from .element_geometry import mesh_geometry
+from .mesh_file import NektarMesh, read_mesh
 
 SOLUTION_EXTENSIONS = (".fld", ".chk", ".rst")
 NO_FIELD = "(none)"  # the field name of a mesh read without a field file

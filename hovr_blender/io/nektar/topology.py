@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from ...engine.shapes import EDGES, FACES, HEX, NAMES, PRISM, PYR, TET
 from .errors import NektarError
-from .mesh import NektarMesh
+from .mesh_file import NektarMesh
 
 # local vertex i = the mesh vertex common to these three faces (positions in the entry)
 VERTEX_FACES = {

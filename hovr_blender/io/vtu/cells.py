@@ -3,7 +3,7 @@ indices (parameters = index / degree).
 
 Node orders are derived from VTK's documented rules (corners, edges, faces, interior; recursive
 "onion" order for tetrahedra; the wedge's triangle faces are row-by-row) and checked against
-vtk's own cells in tests/engine/test_vtu.py. Hexahedra in files older than version 2.1 use the
+vtk's own cells in tests/io/test_vtu.py. Hexahedra in files older than version 2.1 use the
 VTK 8 order (last two vertical edges swapped), as vtkXMLUnstructuredDataReader converts them
 (it renumbers only when the file version is < 2.1; 2.1 and 2.2 are both the VTK 9 order).
 """

@@ -1,12 +1,12 @@
 """The VTU format as the registry (io/formats.py) sees it: a VTK XML unstructured grid of
 Lagrange or Bezier cells whose point-data arrays are the fields; a vector array renders one
-component or its magnitude, derived from the exact component polynomials (io/derived.py)."""
+component or its magnitude, derived from the exact component polynomials (io/magnitude.py)."""
 from __future__ import annotations
 
 from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import VolumeMesh
-from ..derived import component_reads, magnitude_mesh
-from ..format import XML_PACKAGE, Format
+from ..magnitude import component_reads, magnitude_mesh
+from ..format_base import XML_PACKAGE, Format
 from .errors import VtuError
 from .reader import list_fields, read_vtu
 

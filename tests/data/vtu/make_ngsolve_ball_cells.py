@@ -2,8 +2,8 @@
 (../shared/data/vtu/ngsolve_ball_poisson_hex_p6.vtu, 512 curved order-6 hexahedra), as the
 VTU reader turns them into modal expansions (engine/expansions), for the watertightness
 regressions in tests/engine/test_watertight_real.py. The cells are those the regression rays
-cross where the traversal lost length; several meet the sphere along an edge where their
-Jacobian vanishes.
+cross where the traversal lost length (and, for issue 36's rays, every cell whose box they
+cross); several meet the sphere along an edge where their Jacobian vanishes.
 
     python tests/data/vtu/make_ngsolve_ball_cells.py
 """
@@ -11,7 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-CELLS = [4, 5, 6, 7, 15, 63, 199, 263, 391, 447, 455]
+CELLS = [4, 5, 6, 7, 15, 63, 199, 263, 391, 447, 455,
+         # issue 36: the cells whose boxes the entry regressions' rays cross
+         252, 253, 309, 317, 318, 351, 358, 359, 365, 366, 367, 371, 372, 373, 374, 381, 382, 402, 403, 410, 411,
+         415, 418, 419, 422, 423, 426, 430, 431, 434, 435, 436, 437, 438, 439, 442, 443, 444, 446, 450, 451, 458,
+         459, 466, 467, 474, 475, 479, 487, 490, 494, 495, 498, 502, 503, 506, 511,
+         408, 409, 456, 457, 464, 465, 472]
 
 if __name__ == "__main__":
     import sys
