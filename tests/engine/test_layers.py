@@ -144,7 +144,7 @@ LAYERS = (
     ("ui", "hovr_blender.ui", ("engine", "io", "package"), ("numpy",) + BLENDER, ("package",)),
     ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed", "dask"), ("cli",)),
     ("cli", "hovr_blender.cli", ("engine", "io", "distributed"), ("distributed",), ()),
-    ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk"), ()),
+    ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk", "vtkmodules"), ()),
     ("package", "hovr_blender", ("ui",), (), ("ui",)),
 )
 
