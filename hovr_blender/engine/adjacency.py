@@ -4,7 +4,7 @@ every element's world -> reference map.
 
 Faces are numbered as the kernels' element.face_plane numbers them (shapes.FACE_PLANES;
 tests/engine/test_adjacency.py checks the two agree). Two faces are the same when
-their corner vertices coincide (to 1e-9 of the mesh's size); a face met by more or fewer than
+their corner vertices coincide (to 1e-9 of the mesh's size: corner_ids); a face met by more or fewer than
 two elements has no neighbour, and the traversal searches the BVH there instead of walking.
 Matching corners only is enough: a wrong match (two curved faces with the same corners but
 different shapes) costs the kernel one failed inside test, never a wrong segment.
@@ -15,24 +15,56 @@ import numpy as np
 
 from .shapes import FACE_PLANES, MAX_FACES, VERTICES, plane_vertices
 
+def corner_ids(mesh) -> np.ndarray:
+    """(N, V) int64: each element's corner vertices numbered so that coincident ones share a
+    number (-1 past a shape's corners). Coincident: equal when rounded to 1e-9 of the mesh's size
+    on one of the 8 grids shifted by half a cell per axis (two points closer than half a cell in
+    every axis share a cell on one of them; one grid alone splits the pairs that straddle its
+    cells' walls: two of the NGSolve post's elements lost their shared face so), joined
+    transitively."""
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    ncorner = np.array([len(VERTICES[s]) for s in range(4)])[mesh.shape]
+    real = np.arange(V.shape[1])[None, :] < ncorner[:, None]
+    pts = V[real]
+    lo = pts.min(axis=0)
+    scaled = (pts - lo) / (max(float(np.ptp(pts, axis=0).max()), 1e-300) * 1e-9)
+    labels = np.arange(len(pts))
+    shifts = [np.array([(k >> a) & 1 for a in range(3)]) * 0.5 for k in range(8)]
+    while True:
+        before = labels.copy()
+        for shift in shifts:
+            cell = np.floor(scaled + shift).astype(np.int64)
+            order = np.lexsort(cell.T[::-1])
+            new_cell = np.ones(len(order), bool)
+            new_cell[1:] = np.any(cell[order[1:]] != cell[order[:-1]], axis=1)
+            inv = np.empty(len(order), np.int64)
+            inv[order] = np.cumsum(new_cell) - 1
+            low = np.full(inv.max() + 1, len(pts))
+            np.minimum.at(low, inv, labels)
+            labels = low[inv]
+        while not np.array_equal(labels[labels], labels):
+            labels = labels[labels]
+        if np.array_equal(labels, before):
+            break
+    out = np.full(V.shape[:2], -1, np.int64)
+    out[real] = labels
+    return out
+
+
 def face_neighbours(mesh) -> np.ndarray:
     """(N * MAX_FACES,) int32: the element across face f of element e at e * MAX_FACES + f, -1 if none."""
     n = mesh.num_elements
     out = np.full(n * MAX_FACES, -1, np.int32)
-    pts = mesh.vertices.reshape(-1, 3)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    quantum = max(float(np.max(hi - lo)), 1e-300) * 1e-9
+    ids = corner_ids(mesh)
     keys, slots = [], []
     for shape in np.unique(mesh.shape):
         elems = np.nonzero(mesh.shape == shape)[0]
         for f, idx in enumerate(plane_vertices(int(shape))):
-            corners = np.round((mesh.vertices[elems][:, idx] - lo) / quantum).astype(np.int64)  # (m, k, 3)
-            # a face's key: its corners sorted (lexicographically), padded to four
-            order = np.lexsort((corners[..., 2], corners[..., 1], corners[..., 0]), axis=-1)
-            corners = np.take_along_axis(corners, order[..., None], axis=1)
+            # a face's key: its corners' numbers sorted, padded to four
+            corners = np.sort(ids[elems][:, idx], axis=1)
             if corners.shape[1] == 3:
-                corners = np.concatenate([corners, np.full((len(elems), 1, 3), -1, np.int64)], axis=1)
-            keys.append(corners.reshape(len(elems), 12))
+                corners = np.concatenate([np.full((len(elems), 1), -1, np.int64), corners], axis=1)
+            keys.append(corners)
             slots.append(elems * MAX_FACES + f)
     keys = np.concatenate(keys)
     slots = np.concatenate(slots)
