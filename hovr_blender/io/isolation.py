@@ -233,6 +233,7 @@ def _take() -> _Worker:
 
 def _give_back(worker: _Worker):
     with _LOCK:
+        _IDLE[:] = [w for w in _IDLE if w.alive()]  # a dead idle reader must not turn a live one away
         if not _IDLE and worker.alive():
             _IDLE.append(worker)
             return
