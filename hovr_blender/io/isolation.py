@@ -674,10 +674,21 @@ def read_volume(source, **progress):
     return wait(read_volume_request(source), **progress)
 
 
+def read_files(path, solution=None, field=None, component=None, **progress):
+    """A format package's public reading door (io.nektar.read_nektar, io.pyfr.read_pyfr,
+    io.mfem.read_mfem): read_volume of its files, named by absolute paths (the warm reader process
+    keeps the working folder it was started in)."""
+    from .volume_source import VolumeSource
+
+    return read_volume(VolumeSource(os.path.abspath(path), os.path.abspath(solution) if solution else "", field or "",
+                                    (), "" if component is None else str(component)), **progress)
+
+
 def list_fields_request(format_name: str, path):
     """list_fields started in a reader process (start)."""
-    return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                 what=str(path), cap=LIST_SECONDS)
+    path = os.path.abspath(path)
+    return start("list_fields", {"format_name": format_name, "path": path, "extra_formats": _extra_formats()},
+                 what=path, cap=LIST_SECONDS)
 
 
 def list_fields(format_name: str, path, **progress):
