@@ -2,7 +2,8 @@
 library (libhdf5, expat, zlib) ends that process, never Blender or the `hovr` command.
 
 Every parse of a data file (io.sources.load_volume, the field listing behind the import dialog,
-a Nektar++ mesh's composites for the walls) is a task of `reader_process.py`, run by `call` in a
+a Nektar++ mesh's composites for the walls, the format packages' read_nektar, read_pyfr and
+read_mfem (read_files) and their list_fields) is a task of `reader_process.py`, run by `call` in a
 reader process of this package: `python -I -c BOOT` on this interpreter (Blender's own Python, not
 Blender: `interpreter`), with this process's module path, loading this package from its folder
 under this process's name for it (the extension's `bl_ext.<repo>.hovr_blender`) as the render
