@@ -32,12 +32,12 @@ from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
 from ..io import formats, isolation
-from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, parse_component
+from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, choose_steps, parse_component
 from . import compat, operators
 from .jobs import Job, Listings, summarise_warnings
 from .render import failure_text
 from .snapshot import volume_extent, volume_points, volume_source
-from .scene import field_samples
+from ..engine.looks import field_samples
 
 
 def _relative_wanted() -> bool:
@@ -114,32 +114,6 @@ class ImportRead:
     walls: object = None  # engine.walls.Walls (Walls as Mesh)
 
 
-class _Unlisted(Exception):
-    """Format.choose needs the fields of a file not listed yet (_choose lists it, then asks again)."""
-
-    def __init__(self, path):
-        super().__init__(path)
-        self.path = path
-
-
-def _choose(data_format, request: ImportRequest):
-    """data_format.choose's defaults for the request, a file's fields listed in the reader
-    process: a generator that yields the listing's request (read_import)."""
-    listed = {}
-
-    def list_fields(path):
-        if path not in listed:
-            raise _Unlisted(path)
-        return listed[path]
-
-    while True:
-        try:
-            return data_format.choose(request.path, request.solution, request.field, request.component,
-                                      list_fields=list_fields)
-        except _Unlisted as missing:
-            listed[missing.path] = yield isolation.list_fields_request(data_format.name, missing.path)
-
-
 def read_import(request: ImportRequest, step=lambda stage: None):
     """Everything an import reads and computes, with no bpy: the solution and field, the data
     (kept in io.sources' cache for the first render), its extent and corner points (the panel's
@@ -150,7 +124,7 @@ def read_import(request: ImportRequest, step=lambda stage: None):
     data_format = formats.named(request.kind)
     if data_format.components:
         parse_component(request.component)  # a bad entry is reported before the file is read
-    choice = yield from _choose(data_format, request)
+    choice = yield from choose_steps(data_format, request.path, request.solution, request.field, request.component)
     step("reading the data")
     source = VolumeSource.resolve(request.path, choice.solution, choice.field, request.frame,
                                   component=choice.component)
@@ -209,11 +183,9 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
             warnings.append(f"walls not made: {failure_text(exc)}")
         context.view_layer.objects.active = obj
     if read.values is not None and read.values.size:
-        warning = operators.fit_value_range(obj, context.scene, read.values)[3]
+        warning = operators.give_first_look(obj, context.scene, read.values)  # the first picture's look
         if warning:  # a constant field keeps the smooth ramp: there is no structure to place a look by
             warnings.append(warning)
-        else:
-            operators.apply_look(obj, read.values)  # the first picture's look, chosen from the data
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart

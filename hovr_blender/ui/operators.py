@@ -8,7 +8,9 @@ import numpy as np
 from ..engine.lru_cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
-from .scene import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_histogram, value_range
+from ..engine.first_view import FRAME_MARGIN, first_look
+from ..engine.looks import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_range
+from .scene import value_histogram
 from .snapshot import volume_source
 
 
@@ -188,14 +190,14 @@ def volume_points(obj, scene):
         return transform_points(np.array([tuple(c) for c in obj.bound_box]), M)
 
 
-def frame_volumes(context, objects, margin: float = 1.1):
+def frame_volumes(context, objects, margin: float = FRAME_MARGIN):
     """Point the scene camera (made if there is none) at `objects` from its current direction,
     near enough that they fill the frame, with clip start/end set from their size; the 3D
     views' clip range and view follow. Returns the camera object."""
     from mathutils import Matrix
 
     from .blender_camera import ray_camera_from_blender
-    from .framing import DEFAULT_VIEW, clip_planes, fit_view, look_at_matrix
+    from ..engine.first_view import FACTORY_FORWARD, camera_pose, clip_planes, fit_view, frame_tangents, look_at_matrix
 
     scene = context.scene
     corners = np.concatenate([volume_points(o, scene) for o in objects])
@@ -204,7 +206,7 @@ def frame_volumes(context, objects, margin: float = 1.1):
         cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
         scene.collection.objects.link(cam)
         scene.camera = cam
-        forward = np.array(DEFAULT_VIEW, float)
+        forward = np.array(FACTORY_FORWARD, float)  # as Blender's factory camera
         cam.matrix_world = Matrix(look_at_matrix(np.zeros(3), forward, (0, 0, 1)).tolist())
     else:
         forward = -np.array(cam.matrix_world.to_3x3().col[2])
@@ -212,14 +214,17 @@ def frame_volumes(context, objects, margin: float = 1.1):
     cam.data.clip_start, cam.data.clip_end = 1e-3, 1e3  # any valid range: only the angles are read
     depsgraph.update()
     rays = ray_camera_from_blender(cam, depsgraph, scene.render)
-    aspect = rays.width / rays.height
     ortho = rays.projection == "orthographic"
-    basis = (rays.ou, rays.ov) if ortho else (rays.du, rays.dv)
-    tan_x, tan_y = float(np.linalg.norm(basis[0])) * aspect, float(np.linalg.norm(basis[1]))
+    tan_x, tan_y = frame_tangents(rays)
     eye, height, near, far = fit_view(corners, forward, (0, 0, 1), tan_x, tan_y, ortho, margin)
     if ortho:
         cam.data.ortho_scale *= height / (2.0 * tan_y)
-    cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
+    location, euler, _ = camera_pose(eye, forward, (0, 0, 1))
+    if cam.parent is None and cam.rotation_mode == 'XYZ' and not any(cam.delta_location) and \
+            not any(cam.delta_rotation_euler) and tuple(cam.delta_scale) == (1.0, 1.0, 1.0):
+        cam.location, cam.rotation_euler = location, euler  # as `hovr render FILE` frames it, to the bit
+    else:
+        cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
     cam.data.clip_start, cam.data.clip_end = clip_planes(near, far)
     size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
     cam.data.display_size = max(0.2 * size, 1e-4)  # the default 1 m wire camera would dwarf a 2 cm volume
@@ -255,7 +260,7 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
     bl_label = "Frame HOVR Volume"
     bl_options = {'REGISTER', 'UNDO'}
 
-    margin: bpy.props.FloatProperty(name="Margin", default=1.1, min=1.0, soft_max=3.0,
+    margin: bpy.props.FloatProperty(name="Margin", default=FRAME_MARGIN, min=1.0, soft_max=3.0,
                                     description="Room around the volumes (1: they touch the frame's edge)")
 
     @classmethod
@@ -275,15 +280,29 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
         return {'FINISHED'}
 
 
-def apply_look(obj, values, look: str = FIRST_LOOK):
-    """Give the volume a look chosen from its field's samples (scene.FIRST_LOOKS) over its Value
-    Min/Max: the ramp's stops and Density (across the volume)."""
-    stops, density = FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max)
+def set_look(obj, stops, density: float):
+    """The volume's ramp stops and Density (across the volume)."""
     if obj.hovr.transfer_function is None:
         obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
     obj.hovr.transfer_function.use_color_ramp = True
     set_ramp_stops(obj.hovr.transfer_function.color_ramp, stops)
     obj.hovr.density, obj.hovr.density_units = density, 'RELATIVE'
+
+
+def apply_look(obj, values, look: str = FIRST_LOOK):
+    """Give the volume a look chosen from its field's samples (looks.FIRST_LOOKS) over its Value
+    Min/Max: the ramp's stops and Density (across the volume)."""
+    set_look(obj, *FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max))
+
+
+def give_first_look(obj, scene, values=None) -> str | None:
+    """An import's Fit Value Range: the volume's Value Min/Max and look from its field's samples
+    (engine/first_view.first_look, what `hovr render FILE` renders too); returns the warning of a
+    field constant up to rounding (it keeps the smooth ramp)."""
+    look = first_look(volume_samples(obj, scene, values))
+    obj.hovr.value_min, obj.hovr.value_max = look.value_min, look.value_max
+    set_look(obj, look.stops, look.density)
+    return look.warning
 
 
 # The fixed ramps, then the looks chosen from the data (placed by the field's samples over Value

@@ -11,7 +11,7 @@ pytestmark = pytest.mark.blender
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 from hovr_blender.ui import compat, operators, panels, snapshot  # noqa: E402
-from hovr_blender.ui.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
+from hovr_blender.engine.looks import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
 
 from ..helpers import REPO  # noqa: E402
 

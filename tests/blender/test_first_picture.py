@@ -82,7 +82,7 @@ def test_an_import_gets_the_look_chosen_from_its_data(factory_scene):
     and 90 % quantiles) placed by the field's own samples, with its Density; the smooth ramp of
     before stays a preset, and the other looks from the data are presets too."""
     from hovr_blender.ui import operators
-    from hovr_blender.ui.scene import FIRST_LOOK, FIRST_LOOKS, TF_PRESETS
+    from hovr_blender.engine.looks import FIRST_LOOK, FIRST_LOOKS, TF_PRESETS
 
     assert FIRST_LOOK == "QUANTILE_TENTS"
     assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", "Tet_channel_m3.xml")), field="w") \
@@ -104,7 +104,7 @@ def test_an_import_gets_the_look_chosen_from_its_data(factory_scene):
 
 def test_a_constant_field_keeps_the_smooth_ramp(factory_scene):
     """No structure to place shells by: wss_3D_periodic's rho (constant) keeps the smooth ramp."""
-    from hovr_blender.ui.scene import TF_PRESETS
+    from hovr_blender.engine.looks import TF_PRESETS
 
     path = data_file("nektar", "wss_3D_periodic.xml")
     assert bpy.ops.import_scene.hovr_nektar(filepath=str(path), field="rho") == {'FINISHED'}

@@ -54,7 +54,7 @@ def test_cli_options_override_view(tmp_path):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda v: v.pop("camera"), "camera"),
+    (lambda v: v.pop("data"), "data"),
     (lambda v: v["camera"].update(projection="fisheye"), "projection"),
     (lambda v: v["camera"].pop("fov_y_deg"), "fov_y_deg"),
     (lambda v: v["camera"].update(up=[7, 5.5, 7]), "parallel"),
@@ -249,12 +249,12 @@ def test_memory_limit_refuses_a_huge_image_before_allocating(tmp_path, capsys):
 
 
 def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, capsys, monkeypatch):
-    from hovr_blender import io
+    from hovr_blender.io import sources
 
-    def bug(view):
+    def bug(source):
         raise KeyError("boom")
 
-    monkeypatch.setattr(io, "load_view_data", bug)
+    monkeypatch.setattr(sources, "load_volume", bug)
     p = write_view(tmp_path)
     assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
     err = capsys.readouterr().err

@@ -1,29 +1,30 @@
-"""The bpy-free numbers of a first picture (hovr_blender/ui/framing.py) and the Nektar++
+"""The bpy-free numbers of a first picture (hovr_blender/ui/framing.py, engine/first_view.py) and the Nektar++
 importer's solution discovery (io/nektar/reader.py): density and step relative to the volume's
 size, a camera that sees every point, clip planes around them, and the words for an empty, faint or
 clipped render."""
 import numpy as np
 import pytest
 
+from hovr_blender.engine import first_view
 from hovr_blender.ui import framing
 from hovr_blender.io import nektar
 
 
 def test_relative_density_is_optical_depth_along_the_diagonal():
     lo, hi = (0.0, 0.0, 0.0), (0.02, 0.01, 0.005)
-    diag = framing.volume_diagonal(lo, hi)
+    diag = first_view.volume_diagonal(lo, hi)
     assert diag == pytest.approx(np.sqrt(0.02**2 + 0.01**2 + 0.005**2))
-    assert framing.density_per_world_unit(4.0, "RELATIVE", diag) * diag == pytest.approx(4.0)
-    assert framing.density_per_world_unit(4.0, "WORLD", diag) == 4.0
+    assert first_view.density_per_world_unit(4.0, "RELATIVE", diag) * diag == pytest.approx(4.0)
+    assert first_view.density_per_world_unit(4.0, "WORLD", diag) == 4.0
     # the object's matrix: rotation keeps the diagonal, scale scales it
     c, s = np.cos(0.7), np.sin(0.7)
     rot = np.array([[c, -s, 0, 5], [s, c, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-    assert framing.volume_diagonal(lo, hi, rot) == pytest.approx(diag)
-    assert framing.volume_diagonal(lo, hi, np.diag([3.0, 3.0, 3.0, 1.0])) == pytest.approx(3 * diag)
+    assert first_view.volume_diagonal(lo, hi, rot) == pytest.approx(diag)
+    assert first_view.volume_diagonal(lo, hi, np.diag([3.0, 3.0, 3.0, 1.0])) == pytest.approx(3 * diag)
     with pytest.raises(ValueError, match="no extent"):
-        framing.density_per_world_unit(1.0, "RELATIVE", 0.0)
+        first_view.density_per_world_unit(1.0, "RELATIVE", 0.0)
     with pytest.raises(ValueError):
-        framing.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
+        first_view.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
 
 
 def test_relative_step_is_the_smallest_diagonal_over_steps_across():
@@ -48,8 +49,8 @@ def test_fit_view_sees_every_corner_and_clip_planes_hold_them(scale, forward):
     W, H, fov = 96, 54, 40.0
     ty = np.tan(np.radians(fov) / 2)
     tx = ty * W / H
-    eye, _, near, far = framing.fit_view(corners, forward, (0, 0, 1), tx, ty, margin=1.1)
-    f, r, u = framing._axes(forward, (0, 0, 1))
+    eye, _, near, far = first_view.fit_view(corners, forward, (0, 0, 1), tx, ty, margin=1.1)
+    f, r, u = first_view._axes(forward, (0, 0, 1))
     rel = corners - eye
     z = rel @ f
     assert np.all(z > 0)
@@ -57,14 +58,14 @@ def test_fit_view_sees_every_corner_and_clip_planes_hold_them(scale, forward):
     assert max(px.max(), py.max()) <= 1 / 1.1 + 1e-9  # inside the frame, with the margin
     assert max(px.max(), py.max()) == pytest.approx(1 / 1.1, rel=1e-6)  # and as large as that allows
     assert (near, far) == pytest.approx((z.min(), z.max()))
-    start, end = framing.clip_planes(near, far)
+    start, end = first_view.clip_planes(near, far)
     assert 0 < start < near and end > far
     assert framing.clip_warning(corners, eye, f, start, end) is None
 
 
 def test_fit_view_orthographic_height():
     corners = framing.box_corners((-1, -1, -1), (1, 1, 1))
-    eye, height, near, far = framing.fit_view(corners, (0, 1, 0), (0, 0, 1), 1.0, 0.5, orthographic=True, margin=1.0)
+    eye, height, near, far = first_view.fit_view(corners, (0, 1, 0), (0, 0, 1), 1.0, 0.5, orthographic=True, margin=1.0)
     assert height == pytest.approx(2.0 * max(1.0, 1.0 * 0.5 / 1.0))  # z extent 1 vs x extent 1 at aspect 2
     assert near > 0 and far - near == pytest.approx(2.0)
 

@@ -71,9 +71,8 @@ def test_volume_sources():
 
 # --- numbered series, passes, presets, histogram ------------------------------------------
 
-from hovr_blender.ui.scene import (  # noqa: E402
-    TF_PRESETS, depth_pass, field_samples, flip_rows, value_histogram,
-)
+from hovr_blender.engine.looks import TF_PRESETS, field_samples  # noqa: E402
+from hovr_blender.ui.scene import depth_pass, flip_rows, value_histogram  # noqa: E402
 from hovr_blender.engine.camera import RayCamera  # noqa: E402
 
 
@@ -103,7 +102,7 @@ def test_volume_source_key_follows_the_frames_file(tmp_path):
 
 
 def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():
-    from hovr_blender.ui.blender_camera import clipped
+    from hovr_blender.engine.camera_matrices import clipped
 
     cam = clipped(RayCamera.from_contract({"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0],
                                            "fov_y_deg": 60}, 4, 3, ), 0.1, 20.0)
@@ -140,7 +139,7 @@ def test_field_samples_and_histogram_on_the_sphere():
 
 def test_value_range_of_a_field_constant_up_to_rounding():
     """Issue 30: round-off is not shown as structure, and a constant field gets a usable range."""
-    from hovr_blender.ui.scene import value_range
+    from hovr_blender.engine.looks import value_range
 
     rng = np.random.default_rng(0)
     # Tet_channel_m3's u: zero up to +-1.7e-16
@@ -163,7 +162,7 @@ def test_value_range_of_a_field_constant_up_to_rounding():
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
 
-from hovr_blender.ui.scene import (  # noqa: E402
+from hovr_blender.engine.looks import (  # noqa: E402
     FIRST_LOOK, FIRST_LOOKS, LOOK_MIN_GAP, look_quantile_tents, ramp_positions, value_range,
 )
 
@@ -206,9 +205,9 @@ def test_the_import_look_is_one_of_the_first_looks_and_today_stays_a_preset():
 
 
 def test_value_range_comes_from_the_true_magnitudes(kinked):
-    """Issue 30: what Fit Value Range and the histogram read (ui/scene.field_samples) lies within
+    """Issue 30: what Fit Value Range and the histogram read (engine/looks.field_samples) lies within
     the range of the exact magnitudes sampled while fitting, never at the fit's own dips."""
-    from hovr_blender.ui.scene import field_samples
+    from hovr_blender.engine.looks import field_samples
 
     _, mag = kinked
     true_min, true_max = mag.true_range
@@ -226,7 +225,7 @@ def test_pyfr_velocity_magnitude_has_no_negative_value_min():
     """Issue 30's PyFR |Velocity|: the fit dips below zero near the velocity's zeros (Value Min
     was -0.0058); the range now comes from the true magnitudes, and the report says where the
     fit's error is."""
-    from hovr_blender.ui.scene import field_samples, value_range
+    from hovr_blender.engine.looks import field_samples, value_range
 
     mag = read_vtu_field(shared_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu"), "Velocity")
     assert mag.field_samples(9).min() < 0  # the fit's dip
