@@ -141,6 +141,7 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
             layout.prop(hovr, "field")
             if data_format is not None and data_format.components:
                 layout.prop(hovr, "component")
+        layout.prop(hovr, "units")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')
         row = layout.row(align=True)

@@ -139,6 +139,9 @@ class HovrObjectSettings(bpy.types.PropertyGroup):
     component: StringProperty(name="Component", default="",
                               description="VTU vector arrays: empty or \"magnitude\" renders the vector's magnitude, "
                                           "an index (0, 1, 2, ...) that component")
+    units: StringProperty(name="Units", default="",
+                          description="The field's units, shown after its name in the colour legend (e.g. kg/m^3); "
+                                      "none of the readers' formats states them")
     # Python cannot define a ColorRamp property, so a Blend texture owns the ramp.
     transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
                                        description="Texture whose colour ramp (RGB, alpha) is this volume's transfer "

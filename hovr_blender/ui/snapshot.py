@@ -207,7 +207,7 @@ def volume_inputs(obj, hovr, scene) -> VolumeInputs:
 
 
 def legend_volume_inputs(obj, scene):
-    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
+    """(transfer function, Value Min, Value Max, title, units) of a volume's look, for its legend
     (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
     from .versioning import volume_look
 
@@ -218,7 +218,7 @@ def legend_volume_inputs(obj, scene):
     ramp = texture.color_ramp
     tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
                                      [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
-    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
+    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name, obj.hovr.units.strip()
 
 
 def scene_isosurfaces(objects):

@@ -329,50 +329,35 @@ def test_png_pixels_recompose_the_contract_image():
 
 
 def test_png_legend_shows_the_ramp_and_its_values(tmp_path):
-    """Issue 30: --legend draws the transfer function's bar, its values and the field's name at the
-    PNG's right edge (engine/legend.py, the layout Blender's viewport overlay draws too)."""
+    """Issue 30, 40: --legend draws the transfer function's bar, its density, round values and the
+    field's name and units at the PNG's right edge (engine/legend.py, the layout Blender's viewport
+    overlay and F12 draw too), and nothing else."""
     from PIL import Image
 
     from hovr_blender.engine.image_io import srgb_encode
     from hovr_blender.engine.legend import legend_layout, tf_value_range
+    from hovr_blender.engine.legend_text import text_width
 
     p = write_view(tmp_path, dict(VIEW, image={"width": 160, "height": 120}))
     plain, legend = tmp_path / "plain.png", tmp_path / "legend.png"
     out = str(tmp_path / "o.npy")
     assert cli.main(["render", str(p), "-o", out, "--png", str(plain)]) == 0
-    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--legend"]) == 0
+    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--legend", "--units", "m^2"]) == 0
     a = np.asarray(Image.open(plain), dtype=int)
     b = np.asarray(Image.open(legend), dtype=int)
     view = View.load(p)
     layout = legend_layout(view.transfer_function, *tf_value_range(view.transfer_function), "f", 160, 120,
-                           view.background)
+                           view.background, units="m^2")
     x0, y0, x1, y1 = layout.bar
+    left = min(t.x - (text_width(t.text, layout.font_px) if t.anchor == "right" else 0) for t in layout.texts)
     changed = np.abs(a - b).max(axis=2) > 0
-    assert changed[:, : x0 - 6 * layout.font_px].sum() == 0  # the picture itself is untouched
-    assert changed[y0, x0:x1].all() and changed[:, x0 - 4 * layout.font_px: x0].any()  # the bar, its labels
-    # the bar's top row is the largest value's colour over the background by its opacity
-    want = np.round(srgb_encode(layout.bar_rgb[0]) * 255)
+    assert changed[:, : int(left) - 2].sum() == 0  # the picture itself is untouched
+    assert changed[y0, x0:x1].all() and changed[y0:y1, int(left):layout.curve[0]].any()  # the bar, its labels
+    assert changed[: y0 - 1].any() and "f [m^2]" in [t.text for t in layout.texts]  # the title
+    want = np.round(srgb_encode(layout.bar_rgb[0]) * 255)  # the largest value's colour, at full strength
     np.testing.assert_allclose(b[y0, (x0 + x1) // 2], want, atol=1)
-    with pytest.raises(ValueError, match="legend: Value Max"):
-        legend_layout(view.transfer_function, 1.0, 1.0, "f", 40, 30)
     assert cli.main(["render", str(p), "-o", out, "--legend"]) == 2  # it needs --png
-
-
-def test_legend_layout_labels_the_range_and_units():
-    from hovr_blender.engine.legend import legend_layout
-    from hovr_blender.engine.transfer_function import TransferFunction
-
-    tf = TransferFunction.from_rgba_ramp([0.0, 1.0], [(0, 0, 1, 0), (1, 0, 0, 1)], 2.0, -0.5, 2.5)
-    layout = legend_layout(tf, -0.5, 2.5, "p", 640, 480, background=(1, 1, 1), units="Pa")
-    texts = [t.text for t in layout.texts]
-    assert texts == ["2.5", "1.75", "1", "0.25", "-0.5", "p [Pa]"]
-    assert layout.text_rgb == (0.0, 0.0, 0.0)  # black on a light background
-    np.testing.assert_allclose(layout.bar_rgb[-1], [1, 1, 1], atol=0.01)  # the transparent end fades out
-    np.testing.assert_allclose(layout.bar_rgb[0], [1, 0, 0], atol=0.01)
-    x0, y0, x1, y1 = layout.bar
-    assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)
-    moved = legend_layout(tf, -0.5, 2.5, "p", 640, 480, top=26)  # below a viewport's tool header
-    assert moved.bar[1] == y0 + 26 and moved.texts[-1].y == layout.texts[-1].y + 26 and moved.bar[3] <= 480
+    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--units", "Pa"]) == 2  # and --legend
 
 
 def test_cli_renders_the_example_view_and_refuses_bad_surfaces(tmp_path, capsys):
