@@ -28,6 +28,7 @@ import time
 import traceback
 
 from .engine.methods import METHODS
+from .engine.words import plural
 
 EXIT_ERROR = 2
 DEFAULT_SIZE = (960, 540)  # a data file's image without --size: half Blender's default 1920 x 1080
@@ -284,9 +285,11 @@ def _first_view(view: dict, mesh):
 
 
 def _load_view(args):
-    """(View, its object, mesh, notes) of the command line's data file or view file (_view_object,
-    _first_view)."""
+    """(View, its object, mesh) of the command line's data file or view file (_view_object,
+    _first_view); what the data's choice, its reader and its first look have to say goes to stderr,
+    as Blender's import reports it."""
     from .engine.view import View, data_spec
+    from .engine.words import summarise_warnings
     from .io.sources import VolumeSource, load_volume
 
     d, base_dir, notes = _view_object(args)
@@ -295,7 +298,11 @@ def _load_view(args):
     view = View.from_dict(d, base_dir)
     if camera is not None:
         view.camera = camera
-    return view, d, mesh, notes + warnings
+    for note in notes + getattr(mesh, "notes", []):
+        print(f"hovr: {note}", file=sys.stderr)
+    for warning in summarise_warnings(getattr(mesh, "warnings", [])) + warnings:
+        print(f"hovr: warning: {warning}", file=sys.stderr)
+    return view, d, mesh
 
 
 def _run_view(args) -> str:
@@ -306,10 +313,7 @@ def _run_view(args) -> str:
         from .io import isolation
 
         isolation.prestart()
-    _, d, _, notes = _load_view(args)
-    for note in notes:
-        print(f"hovr: {note}", file=sys.stderr)
-    return view_json(d)
+    return view_json(_load_view(args)[1])
 
 
 def view_json(view: dict) -> str:
@@ -350,10 +354,8 @@ def _run(args) -> str:
         lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
         t0 = time.perf_counter()
-        view, _, mesh, notes = _load_view(args)  # the data is read before Warp loads: most hostile files are
-        load_s = time.perf_counter() - t0        # refused by their reader
-        for note in notes:
-            print(f"hovr: {note}", file=sys.stderr)
+        view, _, mesh = _load_view(args)  # the data is read before Warp loads: most hostile files are
+        load_s = time.perf_counter() - t0  # refused by their reader
         if args.command == "render":
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
@@ -474,7 +476,7 @@ def _run_blend(args) -> str:
                                                   progress=_progress_bar(t0), timeout=args.frame_timeout,
                                                   output=args.output)
     written = sum(1 for r in records if r["status"] == "written")
-    return (f"hovr: {written} frames written, {len(records) - written} were already there, in "
+    return (f"hovr: {plural(written, 'frame')} written, {len(records) - written} were already there, in "
             f"{time.perf_counter() - t0:.1f} s")
 
 
@@ -515,7 +517,7 @@ def _run_series(args) -> str:
     seconds = time.perf_counter() - t0
     written = [r for r in records if r["status"] == "written"]
     load = sum(r["load_seconds"] for r in written) / max(len(written), 1)
-    return (f"hovr: {len(written)} frames written ({len(frames) - len(todo)} were already there) in {seconds:.1f} s, "
+    return (f"hovr: {plural(len(written), 'frame')} written ({len(frames) - len(todo)} were already there) in {seconds:.1f} s, "
             f"{len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> {os.path.dirname(job.npy(frames[0]))}")
 
 

@@ -75,7 +75,7 @@ def look_cells(key: str, device: str, width: int, height: int, looks, out_json: 
     solution, default = default_field(path)
     field = field or default
     mesh = load_volume(VolumeSource.resolve(str(path), solution, field, 1))
-    values = field_samples(mesh)
+    values, weights = field_samples(mesh, weights=True)
     warning = value_range(values)[2]
     diag = first_view.mesh_diagonal(mesh)
     camera, _ = first_view.factory_camera(first_view.framing_points(mesh), width, height)
@@ -84,7 +84,7 @@ def look_cells(key: str, device: str, width: int, height: int, looks, out_json: 
     options = RenderOptions(method="classified", h=diag / first_view.DEFAULT_STEPS_ACROSS, device=device)
     cells = []
     for look in looks:
-        first = first_view.first_look(values, look)
+        first = first_view.first_look(values, look, weights)
         stops, density = first.stops, first.density
         tf = first_view.look_transfer_function(first, diag)
         t0 = time.perf_counter()

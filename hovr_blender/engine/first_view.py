@@ -65,15 +65,15 @@ class FirstLook:
     warning: str | None = None
 
 
-def first_look(values, look: str = FIRST_LOOK) -> FirstLook:
-    """The volume's first look from its field's sampled values (looks.field_samples), each number as
-    Blender's float32 properties keep it."""
+def first_look(values, look: str = FIRST_LOOK, weights=None) -> FirstLook:
+    """The volume's first look from its field's sampled values and the volume each stands for
+    (looks.field_samples(..., weights=True)), each number as Blender's float32 properties keep it."""
     lo, hi, warning = value_range(values)
     lo, hi = _f32(lo), _f32(hi)
     if warning:
         stops, density = TF_PRESETS[DEFAULT_PRESET][2], DEFAULT_DENSITY
     else:
-        stops, density = FIRST_LOOKS[look][2](values, lo, hi)
+        stops, density = FIRST_LOOKS[look][2](values, lo, hi, weights)
     stops = tuple((_f32(p), tuple(_f32(c) for c in rgba)) for p, rgba in stops)
     return FirstLook(lo, hi, stops, _f32(density), warning)
 
@@ -261,7 +261,8 @@ def default_view(mesh, data: dict, width: int, height: int) -> FirstView:
     at DEFAULT_STEPS_ACROSS steps across the volume; the warnings an import reports of the look (a
     field constant up to rounding)."""
     diagonal = mesh_diagonal(mesh)
-    look = first_look(field_samples(mesh))
+    values, weights = field_samples(mesh, weights=True)
+    look = first_look(values, weights=weights)
     rays, camera = factory_camera(framing_points(mesh), width, height)
     view = {"data": dict(data), "image": {"width": int(width), "height": int(height)}, "camera": camera,
             "transfer_function": look_transfer_function(look, diagonal).to_contract(),

@@ -13,7 +13,8 @@ What render_frame does with a frame, in order:
 - opaque meshes (engine/opaque.py) are cast first: the volume is rendered up to each pixel's
   first hit over black and composited over the hit's shading (or left transparent there:
   holdout);
-- isosurfaces and cut planes (contract §7) go to the kernels with the volume;
+- isosurfaces and cut planes (contract §7) go to the kernels with the volume; an isosurface that
+  meets no ray of the whole image is said so in stats["warnings"] (Surfaces.unseen);
 - with a segment cache (SegmentSlot), the view is shaded from the slot's cache where it holds
   this view's segments (Renderer.cache_fits), else traced anew and kept in the slot; where the
   memory limit or the device refuses the cache the frame renders plainly and
@@ -150,6 +151,14 @@ def render_frame(renderer, frame: Frame, camera, rows: tuple[int, int] | None = 
         how["ray_counts"] = True
     if frame.surfaces:
         how["surfaces"] = frame.surfaces
+    result = _render(renderer, frame, camera, rows, how)
+    if frame.surfaces and rows is None and not result.cancelled:  # said of the whole image only
+        result.stats["warnings"] = list(result.stats.get("warnings", [])) + renderer.surface_misses(camera,
+                                                                                                    frame.surfaces)
+    return result
+
+
+def _render(renderer, frame: Frame, camera, rows, how: dict) -> RenderResult:
     opaque = frame.opaque_meshes
     slot = frame.cache
     if slot is not None and Capability.SEGMENT_CACHE in renderer.capabilities:

@@ -51,10 +51,21 @@ def _cool_to_warm(t: float) -> tuple:
     return tuple(float(x + u * (y - x)) for x, y in zip(lo, hi))
 
 
-def ramp_positions(values, value_min: float, value_max: float, quantiles) -> np.ndarray:
-    """The ramp positions (0..1 over Value Min..Max) of the values' `quantiles`."""
-    q = np.quantile(np.asarray(values, dtype=np.float64), quantiles)
-    return np.clip((q - value_min) / (value_max - value_min), 0.0, 1.0)
+def quantiles(values, qs, weights=None) -> np.ndarray:
+    """The values' quantiles `qs`; with `weights` (the volume each value stands for:
+    field_samples(..., weights=True)), quantiles over the volume rather than over the samples."""
+    values = np.asarray(values, dtype=np.float64)
+    if weights is None:
+        return np.quantile(values, qs)
+    order = np.argsort(values, kind="stable")
+    w = np.asarray(weights, dtype=np.float64)[order]
+    cum = np.cumsum(w)
+    return np.interp(np.asarray(qs, dtype=np.float64) * cum[-1], cum - 0.5 * w, values[order])
+
+
+def ramp_positions(values, value_min: float, value_max: float, qs, weights=None) -> np.ndarray:
+    """The ramp positions (0..1 over Value Min..Max) of the values' quantiles `qs` (quantiles)."""
+    return np.clip((quantiles(values, qs, weights) - value_min) / (value_max - value_min), 0.0, 1.0)
 
 
 # The narrowest ramp feature a look from the data makes: float32 resolves it on fields whose
@@ -62,14 +73,16 @@ def ramp_positions(values, value_min: float, value_max: float, quantiles) -> np.
 LOOK_MIN_GAP = 0.01
 
 
-def _tents_at(centres, colours, peaks, spacing_share: float, max_width: float):
+def _tents_at(centres, colours, peaks, spacing_share: float, max_width: float, widths=None,
+              min_width: float = LOOK_MIN_GAP):
     """Tents (alpha `peaks`) at ramp positions `centres`, each as wide as a share of the gap to its
-    neighbours (so tents never overlap) and between LOOK_MIN_GAP and `max_width`, alpha 0
-    elsewhere. A tent that crosses an end of the ramp is cut there (the stop keeps the tent's
-    value), one whose peak is within half its width of an end peaks at the end."""
+    neighbours (so tents never overlap; narrower where `widths` asks) and between `min_width` and
+    `max_width`, alpha 0 elsewhere. A tent that crosses an end of the ramp is cut there (the stop
+    keeps the tent's value), one whose peak is within half its width of an end peaks at the end."""
     c = np.asarray(centres, dtype=np.float64)
     gaps = np.diff(np.concatenate([[c[0] - 2 * max_width], c, [c[-1] + 2 * max_width]]))
-    widths = np.clip(spacing_share * np.minimum(gaps[:-1], gaps[1:]), LOOK_MIN_GAP, max_width)
+    widths = np.minimum(spacing_share * np.minimum(gaps[:-1], gaps[1:]), np.inf if widths is None else widths)
+    widths = np.clip(widths, min_width, max_width)
     stops = []
     for x, w, rgb, peak in zip(c, widths, colours, peaks):
         x = 0.0 if x < 0.5 * w else 1.0 if x > 1.0 - 0.5 * w else float(x)
@@ -103,35 +116,66 @@ def _monotone(stops, min_gap: float = LOOK_MIN_GAP):
     return out
 
 
-def look_quantile_tents(values, value_min, value_max):
-    """Three shells at the 10, 50 and 90 % quantiles of the field (cool, neutral, warm), the two
-    lower half as opaque, so the outer ones show what they wrap."""
-    qs = (0.1, 0.5, 0.9)
-    centres = ramp_positions(values, value_min, value_max, qs)
-    return _tents_at(centres, [_cool_to_warm(q) for q in qs], (0.5, 0.5, 1.0), 0.4, 0.06), 16.0
+# a quantile shell holds the values within this share of the volume either side of its quantile,
+# and is at least SHELL_MIN_WIDTH of the ramp wide: float32 resolves it on fields whose rounding is
+# up to 2.5e-6 of their range (PyFR's Taylor-Green density: 1.5e-6)
+SHELL_SHARE = 0.03
+SHELL_MIN_WIDTH = 0.025
 
 
-def look_median_shell(values, value_min, value_max):
-    """One thin tent at the median: an isosurface-like shell through the middle of the values."""
-    (centre,) = ramp_positions(values, value_min, value_max, (0.5,))
+def _volume_share(values, weights, lo: float, hi: float) -> float:
+    """The share of the volume (of the samples, without weights) whose values lie in [lo, hi]."""
+    inside = (values >= lo) & (values <= hi)
+    return float(inside.mean() if weights is None else weights[inside].sum() / weights.sum())
+
+
+def look_quantile_tents(values, value_min, value_max, weights=None):
+    """Three shells at the 10, 50 and 90 % quantiles of the field over the volume (cool, neutral,
+    warm), each as thick as the 3 % of the volume either side of it; the two lower half as opaque,
+    so the outer ones show what they wrap. A shell that still holds more of the volume (its tent at
+    the narrowest float32 resolves, on a plateau of nearly equal values: hump3D's free stream) is
+    fainter in proportion, so it is no fog that hides the rest."""
+    values = np.asarray(values, dtype=np.float64)
+    qs = np.array([0.1, 0.5, 0.9])
+    centres = ramp_positions(values, value_min, value_max, qs, weights)
+    lower = ramp_positions(values, value_min, value_max, qs - SHELL_SHARE, weights)
+    upper = ramp_positions(values, value_min, value_max, qs + SHELL_SHARE, weights)
+    stops = _tents_at(centres, [_cool_to_warm(q) for q in qs], (0.5, 0.5, 1.0), 0.4, 0.06,
+                      widths=0.5 * (upper - lower), min_width=SHELL_MIN_WIDTH)
+    peaks = [k for k, (_, rgba) in enumerate(stops) if rgba[3] > 0 and
+             all(rgba[3] >= stops[j][1][3] for j in (max(k - 1, 0), min(k + 1, len(stops) - 1)))]
+    for k in peaks:
+        a, b = stops[max(k - 1, 0)][0], stops[min(k + 1, len(stops) - 1)][0]
+        span = value_max - value_min
+        share = _volume_share(values, weights, value_min + a * span, value_min + b * span)
+        fade = min(1.0, 2 * SHELL_SHARE / share) if share > 0 else 1.0
+        p, rgba = stops[k]
+        stops[k] = (p, (*rgba[:3], rgba[3] * fade))
+    return stops, 40.0
+
+
+def look_median_shell(values, value_min, value_max, weights=None):
+    """One thin tent at the median over the volume: an isosurface-like shell through the middle of
+    the values."""
+    (centre,) = ramp_positions(values, value_min, value_max, (0.5,), weights)
     return _tents_at([centre], [(1.0, 0.45, 0.1)], (1.0,), 0.4, 0.03), 24.0
 
 
-def look_rising(values, value_min, value_max):
+def look_rising(values, value_min, value_max, weights=None):
     """ParaView's default: Cool to Warm, opacity rising linearly from Value Min to Value Max."""
     return [(t, (*_cool_to_warm(t), t)) for t in (0.0, 0.5, 1.0)], 4.0
 
 
-def look_quantile_ramp(values, value_min, value_max):
-    """Opacity rising with the value's quantile (the ramp equalised over the values): Cool to
-    Warm by quantile, alpha the quantile squared, so the largest tenth of the values is the
-    densest wherever the range's extremes lie."""
+def look_quantile_ramp(values, value_min, value_max, weights=None):
+    """Opacity rising with the value's quantile over the volume (the ramp equalised over the
+    values): Cool to Warm by quantile, alpha the quantile squared, so the largest tenth of the
+    values is the densest wherever the range's extremes lie."""
     qs = np.array([0.0, 0.25, 0.5, 0.75, 0.9, 0.97, 1.0])
-    pos = ramp_positions(values, value_min, value_max, qs)
+    pos = ramp_positions(values, value_min, value_max, qs, weights)
     return _monotone([(x, (*_cool_to_warm(q), q * q)) for x, q in zip(pos, qs)]), 6.0
 
 
-def look_smooth(values, value_min, value_max):
+def look_smooth(values, value_min, value_max, weights=None):
     """Today's look before issue 30: TF_PRESETS' smooth ramp at Density 4, whatever the data."""
     return TF_PRESETS["SMOOTH"][2], 4.0
 
@@ -146,16 +190,38 @@ FIRST_LOOKS = {
 }
 
 
-def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 200_000) -> np.ndarray:
-    """Field values on a lattice of reference points inside every element (for the value
-    range and the histogram); the lattice shrinks for big meshes to keep this under ~max_values."""
-    n = mesh.num_elements
+def sample_lattice(mesh, max_values: int = 200_000) -> int:
+    """field_samples' lattice: points per axis of an element, ~max_values in all (2..9)."""
+    return int(np.clip(np.cbrt(max_values / max(mesh.num_elements, 1)), 2, 9))
+
+
+def sampled_ranges(mesh) -> list[tuple[float, float]]:
+    """(least, greatest) of field_samples' values per volume (VolumeMesh.volume): the field's range
+    over the data, as the import's Fit Value Range sees it (within the certified bounds)."""
+    from .mesh import element_volumes
+
+    lo, hi = mesh.element_sample_ranges(sample_lattice(mesh))
+    true_range = getattr(mesh, "true_range", None)
+    if true_range is not None:
+        lo, hi = np.clip(lo, *true_range), np.clip(hi, *true_range)
+    volume = element_volumes(mesh)
+    return [(float(np.nanmin(lo[volume == k])), float(np.nanmax(hi[volume == k]))) for k in range(int(volume.max()) + 1)]
+
+
+def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 200_000, weights: bool = False):
+    """Field values on a lattice of reference points inside every element (for the value range,
+    the histogram and the looks); the lattice shrinks for big meshes to keep this under
+    ~max_values. weights=True: (values, the volume each stands for), for quantiles over the
+    volume (fine elements near a wall would otherwise outnumber the rest)."""
     if samples_per_axis is None:
-        samples_per_axis = int(np.clip(np.cbrt(max_values / max(n, 1)), 2, 9))
+        samples_per_axis = sample_lattice(mesh, max_values)
     values = mesh.field_samples(samples_per_axis)
-    values = values[np.isfinite(values)]
+    finite = np.isfinite(values)
+    values = values[finite]
     true_range = getattr(mesh, "true_range", None)  # a fitted derived field's exact range (io/magnitude.py)
-    return values if true_range is None else np.clip(values, *true_range)
+    if true_range is not None:
+        values = np.clip(values, *true_range)
+    return (values, mesh.field_sample_weights(samples_per_axis)[finite]) if weights else values
 
 
 # A field varies by less than this, relative to its magnitude, only by rounding: it is constant.

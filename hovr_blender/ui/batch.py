@@ -13,7 +13,8 @@ lies under ROOT (the .blend's own folder). A compositor File Output node writing
 output path outside ROOT, is refused naming the path (`HOVR-ERROR <message>`, exit status 2).
 
 Prints `HOVR-EXISTS {"out": ...}` when the frame's output (scene.render.frame_path, as
-`blender -b -a` names it) exists already, else renders and prints
+`blender -b -a` names it, but iso_q0001.png for an output path iso_q.png: frame_file) exists
+already, else renders and prints
 `HOVR-RENDERED {"tmp": ..., "out": ...}`.
 """
 import json
@@ -49,9 +50,27 @@ def _file_output_paths(scene):
                     yield node.name, bpy.path.abspath(value)
 
 
+def frame_file(scene, frame: int) -> str:
+    """The file `blender -b -a` writes frame `frame` to (RenderSettings.frame_path), except that an
+    output path ending in the image format's own extension, with no '#' (//iso_q.png), numbers the
+    frame before the extension (iso_q0001.png) where Blender numbers it after (iso_q.png0001.png)."""
+    r = scene.render
+    name = os.path.basename(r.filepath)
+    ext = r.file_extension
+    if not (r.use_file_extension and ext and "#" not in name and name.lower().endswith(ext.lower())
+            and len(name) > len(ext)):
+        return r.frame_path(frame=frame)
+    saved = r.filepath
+    try:
+        r.filepath = saved[:-len(ext)]
+        return r.frame_path(frame=frame)
+    finally:
+        r.filepath = saved
+
+
 def output_path(scene, frame: int, root: str, mode: str) -> str:
     """Where frame `frame` goes: confined to `root` (module doc); Refused otherwise."""
-    out = os.path.abspath(bpy.path.abspath(scene.render.frame_path(frame=frame)))
+    out = os.path.abspath(bpy.path.abspath(frame_file(scene, frame)))
     if mode == "into":
         out = os.path.join(os.path.abspath(root), os.path.basename(out))
     elif not _inside(out, root):

@@ -31,10 +31,11 @@ from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
+from ..engine.words import plural, summarise_warnings
 from ..io import formats, isolation
 from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, choose_steps, parse_component
 from . import compat, operators
-from .jobs import Job, Listings, summarise_warnings
+from .jobs import Job, Listings
 from .render import failure_text
 from .snapshot import volume_extent, volume_points, volume_source
 from ..engine.looks import field_samples
@@ -110,7 +111,7 @@ class ImportRead:
     component: str
     notes: list = dc_field(default_factory=list)
     warnings: list = dc_field(default_factory=list)
-    values: object = None  # sampled field values (Fit Value Range)
+    values: object = None  # sampled field values and their volumes (Fit Value Range: looks.field_samples)
     walls: object = None  # engine.walls.Walls (Walls as Mesh)
 
 
@@ -135,7 +136,7 @@ def read_import(request: ImportRequest, step=lambda stage: None):
     values = walls = None
     if request.fit_range:
         step("sampling the field")
-        values = field_samples(mesh)
+        values = field_samples(mesh, weights=True)
     if request.walls:
         step("tessellating the walls")
         faces_read = wall_faces_request(request.path, request.walls_from)
@@ -182,13 +183,14 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         except Exception as exc:  # the volume itself was imported
             warnings.append(f"walls not made: {failure_text(exc)}")
         context.view_layer.objects.active = obj
-    if read.values is not None and read.values.size:
+    if read.values is not None and read.values[0].size:
         warning = operators.give_first_look(obj, context.scene, read.values)  # the first picture's look
         if warning:  # a constant field keeps the smooth ramp: there is no structure to place a look by
             warnings.append(warning)
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart
+    notes += getattr(mesh, "notes", [])  # a derived field's fit, where it is as good as exact
     if frame_camera:
         try:
             operators.frame_volumes(context, [o for o in context.scene.objects
@@ -196,7 +198,8 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         except Exception as exc:  # framing is a convenience: the import itself succeeded
             notes.append(f"camera not framed: {failure_text(exc)}")
     label = f" field {mesh.field_name}" if mesh.field_name else ""
-    op.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}" + "".join(f"; {n}" for n in notes))
+    op.report({'INFO'}, f"HOVR: {obj.name}: {plural(mesh.num_elements, 'element')},{label}"
+              + "".join(f"; {n}" for n in notes))
     for w in warnings:
         op.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
     return {'FINISHED'}
@@ -379,7 +382,8 @@ def tessellate_walls(mesh, faces, relative_tolerance: float):
 def walls_report(walls, selection: str):
     """(note, warning or None) for the report of a walls mesh."""
     what = f" of {selection.strip()}" if selection.strip() else ""
-    note = f"walls{what}: {len(walls.element)} faces, {len(walls.triangles)} triangles within {walls.tolerance:.3g}"
+    note = (f"walls{what}: {plural(len(walls.element), 'face')}, {plural(len(walls.triangles), 'triangle')} within "
+            f"{walls.tolerance:.3g}")
     warning = None
     if walls.cap_hit:
         warning = (f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "

@@ -20,8 +20,8 @@ def field_range(mesh, samples: int = 9):
     return float(values.min()), float(values.max())
 
 
-# Field samples per volume source key (never stored in the .blend): the histogram is drawn
-# from here, so panels never load data while drawing.
+# Field samples and their volumes (looks.field_samples) per volume source key (never stored in the
+# .blend): the histogram is drawn from here, so panels never load data while drawing.
 SAMPLES = LRUCache(4)
 HISTOGRAM_BINS = 16
 
@@ -45,9 +45,10 @@ def histogram_for(context, obj=None):
         key = volume_source(obj, context.scene).key
     except ValueError:
         return None
-    values = SAMPLES.get(key)
-    if values is None:
+    samples = SAMPLES.get(key)
+    if samples is None:
         return None
+    values = samples[0]
     h = obj.hovr
     return value_histogram(values, h.value_min, h.value_max, HISTOGRAM_BINS)
 
@@ -130,24 +131,24 @@ class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
         return {'FINISHED'}
 
 
-def volume_samples(obj, scene, values=None):
-    """The volume's sampled field values (kept in SAMPLES for the histogram): `values` where the
-    caller has them, else the cached ones, else sampled now."""
+def volume_samples(obj, scene, samples=None):
+    """(values, volumes) of the volume's sampled field (looks.field_samples, kept in SAMPLES for the
+    histogram): `samples` where the caller has them, else the cached ones, else sampled now."""
     source = volume_source(obj, scene)
-    if values is None:
-        values = SAMPLES.get(source.key)
-    if values is None:
-        values = field_samples(cached_volume(source))
-    if values.size == 0:
+    if samples is None:
+        samples = SAMPLES.get(source.key)
+    if samples is None:
+        samples = field_samples(cached_volume(source), weights=True)
+    if samples[0].size == 0:
         raise ValueError(f"{obj.name!r} has no finite field values")
-    SAMPLES.put(source.key, values)
-    return values
+    SAMPLES.put(source.key, samples)
+    return samples
 
 
-def fit_value_range(obj, scene, values=None):
-    """Set the volume's Value Min/Max to its field's sampled range (scene.value_range: a field
+def fit_value_range(obj, scene, samples=None):
+    """Set the volume's Value Min/Max to its field's sampled range (looks.value_range: a field
     constant up to rounding gets a range around its value); returns (lo, hi, samples, warning)."""
-    values = volume_samples(obj, scene, values)
+    values = volume_samples(obj, scene, samples)[0]
     lo, hi, warning = value_range(values)
     obj.hovr.value_min, obj.hovr.value_max = lo, hi
     return lo, hi, values.size, warning
@@ -289,17 +290,19 @@ def set_look(obj, stops, density: float):
     obj.hovr.density, obj.hovr.density_units = density, 'RELATIVE'
 
 
-def apply_look(obj, values, look: str = FIRST_LOOK):
-    """Give the volume a look chosen from its field's samples (looks.FIRST_LOOKS) over its Value
-    Min/Max: the ramp's stops and Density (across the volume)."""
-    set_look(obj, *FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max))
+def apply_look(obj, samples, look: str = FIRST_LOOK):
+    """Give the volume a look chosen from its field's samples, (values, volumes) (looks.FIRST_LOOKS),
+    over its Value Min/Max: the ramp's stops and Density (across the volume)."""
+    values, weights = samples
+    set_look(obj, *FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max, weights))
 
 
-def give_first_look(obj, scene, values=None) -> str | None:
-    """An import's Fit Value Range: the volume's Value Min/Max and look from its field's samples
-    (engine/first_view.first_look, what `hovr render FILE` renders too); returns the warning of a
-    field constant up to rounding (it keeps the smooth ramp)."""
-    look = first_look(volume_samples(obj, scene, values))
+def give_first_look(obj, scene, samples=None) -> str | None:
+    """An import's Fit Value Range: the volume's Value Min/Max and look from its field's samples,
+    (values, volumes) (engine/first_view.first_look, what `hovr render FILE` renders too); returns
+    the warning of a field constant up to rounding (it keeps the smooth ramp)."""
+    values, weights = volume_samples(obj, scene, samples)
+    look = first_look(values, weights=weights)
     obj.hovr.value_min, obj.hovr.value_max = look.value_min, look.value_max
     set_look(obj, look.stops, look.density)
     return look.warning

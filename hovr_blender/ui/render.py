@@ -17,6 +17,7 @@ import numpy as np
 
 from .blender_camera import ray_camera_from_view
 from ..engine.lru_cache import LRUCache
+from ..engine.words import plural
 from ..io.sources import cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from . import compat
@@ -187,8 +188,7 @@ def tile_pixels(device: str) -> int:
 
 def render_stats(stats: dict, n_elements: int, seconds: float, device: str, load_seconds: float = 0.0) -> str:
     """Status-line text: elements, samples per ray, time (tracing, and reading if it took long)."""
-    n = int(stats.get("elements", n_elements))
-    parts = [f"{n} element{'s' if n != 1 else ''}"]
+    parts = [plural(int(stats.get("elements", n_elements)), "element")]
     if "samples_per_ray" in stats:
         parts.append(f"{stats['samples_per_ray']:.1f} samples/ray")
     if "field_evaluations" in stats:
@@ -310,7 +310,7 @@ def final_render(engine, api, depsgraph):
             stage, note = KERNELS.stage(key)
             if note:
                 api.report({'WARNING'}, f"HOVR: {note}")
-            status(f"HOVR | {n_elements} elements | {stage}\u2026")
+            status(f"HOVR | {plural(n_elements, 'element')} | {stage}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -321,7 +321,7 @@ def final_render(engine, api, depsgraph):
 
     def progress(fraction):
         api.update_progress(fraction)
-        status(f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
+        status(f"HOVR | {plural(n_elements, 'element')} | tracing rays {100 * fraction:.0f}% | "
                f"{time.perf_counter() - t1:.1f} s", fraction)
         return not api.test_break()
 

@@ -276,6 +276,10 @@ def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, ca
     assert err.startswith("hovr: warning: ") and "precision float64" in err
     assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
     assert capsys.readouterr().err == ""
+    view["transfer_function"]["density"] = [[5, 0], [5.000002, 0]]  # issue 40: every alpha zero, nothing to resolve
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "c.npy")]) == 0
+    assert "precision float64" not in capsys.readouterr().err
 
 
 def test_png_is_flattened_on_the_view_background_unless_asked_otherwise(tmp_path):

@@ -7,7 +7,7 @@ import pytest
 
 from hovr_blender.engine import first_view
 from hovr_blender.ui import framing
-from hovr_blender.io import nektar
+from hovr_blender.io import formats, nektar
 
 
 def test_relative_density_is_optical_depth_along_the_diagonal():
@@ -148,7 +148,8 @@ def test_missing_dependencies_are_named_with_what_to_do():
     lines = dependencies.report_lines(absent, python="/blender/python")
     assert "warp-lang is missing" in lines[0] and "will not work" in lines[0]
     assert "h5py is missing" in lines[1] and "HDF5" in lines[1] and "is unavailable" in lines[1]
-    assert '"/blender/python" -m pip install warp-lang h5py' in lines[-1] and "extension zip" in lines[-1]
+    # issue 40: Warp pinned at the version the add-on needs (an unpinned install takes the newest)
+    assert '"/blender/python" -m pip install warp-lang==1.19.0 h5py' in lines[-1] and "extension zip" in lines[-1]
 
 
 def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
@@ -160,3 +161,10 @@ def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
     checked = {package for _, package, *_ in dependencies.dependencies()}
     bundled = {requirement.split("==")[0] for requirement in build_extension.RUNTIME_REQUIREMENTS}
     assert checked == bundled == {"warp-lang", "h5py", "defusedxml"}
+    # one pin of Warp: the add-on's, the zips' and the package's own
+    pyproject = (build_extension.REPO / "pyproject.toml").read_text()
+    assert f'"warp-lang=={dependencies.WARP_VERSION}"' in pyproject
+    assert f"warp-lang=={dependencies.WARP_VERSION}" in build_extension.RUNTIME_REQUIREMENTS
+    # issue 40: the VTU reader needs defusedxml (the user guide said it needed nothing)
+    assert ("defusedxml", "defusedxml") in {(m, p) for m, p, *_ in dependencies.dependencies()}
+    assert any(p == "defusedxml" for _, p, _ in formats.named("vtu").packages)
