@@ -18,7 +18,8 @@ What render_frame does with a frame, in order:
 - with a segment cache (SegmentSlot), the view is shaded from the slot's cache where it holds
   this view's segments (Renderer.cache_fits), else traced anew and kept in the slot; where the
   memory limit or the device refuses the cache the frame renders plainly and
-  stats["segment_cache"]["refused"] says why.
+  stats["segment_cache"]["refused"] says why. stats["segment_cache"]["use"] says what was done
+  ("traced": its stats count the trace's work too; "shaded": no field was evaluated).
 
 Warp is imported only when a frame is rendered (by the renderers), so the UI's bpy-free parts
 import this module without it.
@@ -172,6 +173,23 @@ def _render(renderer, frame: Frame, camera, rows, how: dict) -> RenderResult:
     return composite_hits(res, hits, frame.background, frame.opaque_mode, rows)
 
 
+TRACE_COUNTS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
+                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations")
+
+
+def _add_trace(stats: dict, trace: dict):
+    """A traced and shaded frame's stats: the trace's time and work added to the shade's (the trace
+    evaluated the field, the shade integrated what it kept), and stats["segment_cache"]["use"]."""
+    stats["render_seconds"] += trace["trace_seconds"]
+    for k in TRACE_COUNTS:
+        if k in trace and k in stats:
+            stats[k] += trace[k]
+    r0, r1 = stats.get("rows", (0, int(stats["height"])))
+    pixels = int(stats["width"]) * (r1 - r0)
+    stats["samples_per_ray"] = (stats["field_evaluations"] + stats["restriction_evaluations"]) / max(pixels, 1)
+    stats["segment_cache"] = {**stats.get("segment_cache", {}), "use": "traced"}
+
+
 def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, how: dict) -> RenderResult:
     """render_frame through the slot's segment cache (the module's docstring). The cache keeps
     the opaque meshes' hits beside the segments (they stopped its rays), so an image shaded from
@@ -188,6 +206,7 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
     if fits:
         res = renderer.shade(old, tf, background, options, progress=progress, tile_pixels=tile_pixels,
                              surfaces=surfaces)
+        res.stats["segment_cache"] = {**res.stats.get("segment_cache", {}), "use": "shaded"}
     else:
         surface_t = None if hits is None else hits.t
         try:
@@ -209,7 +228,7 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
         slot.cache = cache
         res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
                              surfaces=surfaces)
-        res.stats["render_seconds"] += cache.stats["trace_seconds"]  # this call traced and shaded
+        _add_trace(res.stats, cache.stats)
     if hits is None or res.cancelled:
         return res
     return composite_hits(res, hits, frame.background, frame.opaque_mode, rows)

@@ -101,7 +101,16 @@ def render_scene_frame(frame: int, root: str, mode: str):
     print("HOVR-RENDERED", json.dumps({"tmp": tmp, "out": out}), flush=True)
 
 
+def _one_off_renders():
+    """Each frame is rendered in a Blender of its own: F12 keeps no segments for a next render that
+    never comes (ui/render.FINAL.once), whichever name the add-on has here (bl_ext.<repo>.hovr_blender)."""
+    for name, module in list(sys.modules.items()):
+        if name.endswith("hovr_blender.ui.render") and hasattr(module, "FINAL"):
+            module.FINAL.once = True
+
+
 def _run(frame: str, root: str, mode: str) -> int:
+    _one_off_renders()
     try:
         render_scene_frame(int(frame), root, mode)
     except Refused as exc:
