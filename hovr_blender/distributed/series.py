@@ -409,11 +409,15 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
     except ImportError as exc:
         raise RuntimeError(f"a local cluster needs the cryptography package for its TLS keys ({exc})") from None
     no_http = {} if dashboard else {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+    # Dask's scheduler starts an HTTP listener whatever it is asked (on 8787, else another port, with
+    # a warning): without a dashboard it gets a free port on 127.0.0.1, serves nothing, and is closed
+    # once the client connects (cluster_client)
+    quiet_http = {} if dashboard else {"scheduler_kwargs": {"dashboard": False, "dashboard_address": "127.0.0.1:0"}}
     with dask.config.set(no_http):
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, protocol="tls",
                                host="127.0.0.1", security=security, dashboard_address=dashboard,
                                worker_dashboard_address=None,
-                               silence_logs=logging.CRITICAL if quiet else logging.WARN)
+                               silence_logs=logging.CRITICAL if quiet else logging.WARN, **quiet_http)
     cluster.hovr_dashboard = dashboard
     return cluster
 

@@ -76,6 +76,12 @@ def test_f12_over_every_cpu_core_equals_one_core(scene, tmp_path, capfd):
     np.testing.assert_allclose(edited, render_to_exr(scene, tmp_path / "one_edited.exr"), atol=1e-6)
 
 
+def test_the_status_line_counts_in_words():
+    """Issue 40: a one-element volume's status line says '1 element'."""
+    assert render.render_stats({"elements": 1}, 1, 0.5, "cpu").startswith("HOVR | 1 element | ")
+    assert render.render_stats({"elements": 1760}, 1760, 0.5, "cpu").startswith("HOVR | 1,760 elements | ")
+
+
 def test_renderer_is_cached_per_object_transform(scene, tmp_path):
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()

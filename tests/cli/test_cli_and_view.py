@@ -1,5 +1,6 @@
 """The `hovr` command line and view-file validation (render contract §1, §5)."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +9,8 @@ from hovr_blender import cli
 from hovr_blender.engine.camera import CameraError, RayCamera
 from hovr_blender.engine.transfer_function import TransferFunction, TransferFunctionError
 from hovr_blender.engine.view import View, ViewError
+
+REPO_DATA = Path(__file__).resolve().parents[1] / "data"
 
 VIEW = {
     "data": {"builtin": "sphere"},
@@ -413,3 +416,27 @@ def test_cli_field_option(tmp_path, capsys):
     assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy"), "--field", "Q(p)"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a velocity" in err[0], err
+
+
+def test_a_derived_field_of_a_scalar_is_a_users_error_in_one_line(tmp_path, capsys):
+    """Issue 40: Q(Pressure) on PyFR's output came back from the reader process as 'unexpected
+    DerivedFieldError ... (a bug: please report it)'; it is the user's error, said in one line."""
+    path = REPO_DATA / "pyfr" / "shell_lagrange_p2.vtu"
+    assert cli.main(["render", str(path), "--field", "Q(Pressure)", "--png", str(tmp_path / "q.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hovr: error: Q(Pressure): 'Pressure' has 1 component, not a "
+                                               "velocity") and "bug" not in err[0] and "unexpected" not in err[0]
+    assert not (tmp_path / "q.png").exists()
+
+
+def test_a_derived_fields_exact_fit_is_a_note_not_a_warning(capsys):
+    """Issue 40: Q's fit (for ranges and normals; the render samples Q exactly) within 1e-3 of its
+    largest value is reported as a note; the CLI prints it without 'warning'."""
+    from hovr_blender.engine.derived_fields import FIT_WARNING
+    from hovr_blender.io.sources import VolumeSource, load_volume
+
+    path = REPO_DATA / "pyfr" / "shell_lagrange_p2.vtu"
+    mesh = load_volume(VolumeSource.resolve(str(path), "", "Q(Velocity)"))
+    assert mesh.derived_error["relative"] <= FIT_WARNING
+    assert mesh.notes == [mesh.fit_report] and mesh.fit_report not in mesh.warnings
+    assert "sampled exactly in the render" in mesh.fit_report

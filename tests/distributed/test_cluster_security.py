@@ -182,3 +182,36 @@ def test_scheduler_option_connects_with_the_users_tls_files(cluster, tmp_path):
     with pytest.raises(RuntimeError, match="encryption required"):  # a plain tcp address is refused
         series.remote_client(cluster.scheduler_address.replace("tls://", "tcp://"), str(files["ca"]),
                              str(files["cert"]), str(files["key"]))
+
+
+def test_a_taken_dashboard_port_is_never_tried():
+    """Issue 40: Dask's scheduler starts an HTTP listener whatever one asks, on 8787 (else another
+    port, warning 'Port 8787 is already in use ... Hosting the HTTP server on port ...'). A local
+    cluster without a dashboard binds it to a free port on 127.0.0.1 that serves nothing, with no
+    warning, and closes it once the client connects."""
+    import warnings
+
+    taken = socket.socket()
+    taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        taken.bind(("127.0.0.1", 8787))
+        taken.listen()
+    except OSError:
+        pass  # taken already: the case itself
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        cluster = series.local_cluster(1, "cpu")
+    try:
+        assert not [w for w in seen if "8787" in str(w.message)]
+        http = cluster.scheduler.http_server
+        ports = {s.getsockname() for s in http._sockets.values()}
+        assert ports and all(host == "127.0.0.1" and port != 8787 for host, port in ports), ports
+        client = series.cluster_client(cluster)
+        try:
+            listening = {port for _, port in _listening(_tree())}
+            assert not {port for _, port in ports} & listening
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+        taken.close()

@@ -125,3 +125,11 @@ def test_draw_legend_changes_only_the_legends_corner():
     assert changed[:, :left].sum() == 0 and changed.sum() > 200
     x0, y0, x1, y1 = layout.bar
     np.testing.assert_allclose(out[y0:y1, x0:x1, :3], np.broadcast_to(layout.bar_rgb[:, None], (y1 - y0, x1 - x0, 3)))
+
+
+def test_counts_in_words():
+    """Issue 40: '1 element', not '1 elements'."""
+    from hovr_blender.engine.words import plural
+
+    assert plural(1, "element") == "1 element" and plural(1760, "element") == "1,760 elements"
+    assert plural(0, "frame") == "0 frames" and plural(2, "vertex", "vertices") == "2 vertices"

@@ -152,6 +152,38 @@ def test_missing_dependencies_are_named_with_what_to_do():
     assert '"/blender/python" -m pip install warp-lang==1.19.0 h5py' in lines[-1] and "extension zip" in lines[-1]
 
 
+def test_the_readme_and_the_guide_name_the_zips_the_build_writes():
+    """Issue 40: the README named the zip ...-linux-x64.zip; the build writes ...-linux_x64.zip."""
+    import re
+
+    from scripts import build_extension
+
+    _, manifest = build_extension._load_manifest()
+    written = {build_extension.zip_name(manifest)} | {build_extension.zip_name(manifest, p)
+                                                      for p in build_extension.DEFAULT_PLATFORMS}
+    tails = {name[len(f"{manifest['id']}-{manifest['version']}"):] for name in written}  # "-linux_x64.zip", ...
+    for doc in ("README.md", "docs/user-guide.md"):
+        text = (build_extension.REPO / doc).read_text(encoding="utf-8")
+        named = re.findall(r"hovr_blender-[0-9.]+[-\w]*\.zip", text)
+        assert named and set(named) <= written, (doc, named)
+        assert set(re.findall(r"`(-[a-z]+[-_][a-z0-9]+\.zip)`", text)) <= tails, doc
+
+
+def test_the_guide_names_the_packages_each_reader_needs():
+    """Issue 40: the user guide said the VTU reader needs no package; every package the add-on
+    checks is named there, Warp with its one version."""
+    from hovr_blender.ui import dependencies
+
+    text = (formats.__file__.rsplit("/hovr_blender/", 1)[0] + "/docs/user-guide.md")
+    with open(text, encoding="utf-8") as fh:
+        guide = fh.read()
+    requirements = guide[guide.index("- **Python packages**"):guide.index("- Warp's console messages")]
+    assert f"warp-lang {dependencies.WARP_VERSION}" in requirements and "no package" not in requirements
+    for _, package, *_ in dependencies.dependencies():
+        assert package in requirements
+    assert "VTU" in requirements[requirements.index("defusedxml"):]
+
+
 def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
     """What the add-on checks at enable time (Warp and the formats' packages, io/formats.py) is
     what the platform zips bundle (scripts/build_extension.py), and nothing the product does not import."""
