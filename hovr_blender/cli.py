@@ -32,8 +32,6 @@ from .engine.words import plural
 
 EXIT_ERROR = 2
 DEFAULT_SIZE = (960, 540)  # a data file's image without --size: half Blender's default 1920 x 1080
-# the keys a view may leave out: a data file's first view (engine/first_view.default_view) gives them
-FIRST_VIEW_KEYS = ("image", "camera", "transfer_function", "background", "render")
 
 
 class OutputError(ValueError):
@@ -238,7 +236,7 @@ def _data_of_file(path: str, field: str | None) -> tuple[dict, list]:
     _, choice = choose_data(path, field=field or "", settings=("--field", "give a view file's data.solution"))
     data = {"path": path, **{k: v for k, v in (("solution", choice.solution), ("field", choice.field),
                                                 ("component", choice.component)) if v}}
-    return data, [*choice.notes, *choice.warnings]
+    return data, [*choice.notes, *(f"warning: {w}" for w in choice.warnings)]
 
 
 def _view_object(args) -> tuple[dict, str, list]:
@@ -307,8 +305,6 @@ def _load_view(args):
 
 def _run_view(args) -> str:
     """hovr view: the completed view on stdout, as JSON (the notes on stderr)."""
-    import json
-
     if _reads_a_file(args.view):
         from .io import isolation
 

@@ -173,8 +173,9 @@ def _render(renderer, frame: Frame, camera, rows, how: dict) -> RenderResult:
     return composite_hits(res, hits, frame.background, frame.opaque_mode, rows)
 
 
-TRACE_COUNTS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
-                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations")
+# the work a trace does and a shade does not (both count the segments: the shade's are the trace's)
+TRACE_COUNTS = ("field_evaluations", "restriction_evaluations", "curved_locates", "walks", "bvh_candidates",
+                "newton_iterations")
 
 
 def _add_trace(stats: dict, trace: dict):

@@ -440,3 +440,31 @@ def test_a_derived_fields_exact_fit_is_a_note_not_a_warning(capsys):
     assert mesh.derived_error["relative"] <= FIT_WARNING
     assert mesh.notes == [mesh.fit_report] and mesh.fit_report not in mesh.warnings
     assert "sampled exactly in the render" in mesh.fit_report
+
+
+def test_a_data_file_needs_no_view_file(tmp_path, capsys):
+    """Issue 40: `hovr render FILE` renders a data file's first view (engine/first_view.py, Blender's
+    import's); `hovr view FILE` writes that view, which renders within float32's rounding of the
+    camera of it; a view file with only its data (and image) is the same first view; bad sizes and
+    missing outputs are one line."""
+    direct, partial, edited = (tmp_path / f"{k}.npy" for k in ("direct", "partial", "edited"))
+    assert cli.main(["render", "builtin:sphere", "--size", "40x30", "-o", str(direct)]) == 0
+    capsys.readouterr()
+    assert cli.main(["view", "builtin:sphere", "--size", "40x30"]) == 0
+    view = json.loads(capsys.readouterr().out)
+    assert set(view) == {"data", "image", "camera", "transfer_function", "background", "render"}
+    assert view["image"] == {"width": 40, "height": 30} and view["render"]["method"] == "classified"
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(edited)]) == 0
+    a, b = np.load(direct), np.load(edited)
+    assert a[..., 3].max() > 0.1 and np.abs(a - b).max() < 1e-4
+    q = tmp_path / "partial.json"
+    q.write_text(json.dumps({"data": {"builtin": "sphere"}, "image": {"width": 40, "height": 30}}))
+    assert cli.main(["render", str(q), "-o", str(partial)]) == 0
+    np.testing.assert_array_equal(np.load(partial), a)  # the first view's own camera: the same rays
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as usage:  # argparse's usage error
+        cli.main(["render", "builtin:sphere", "--size", "40"])
+    assert usage.value.code == 2 and "WxH" in capsys.readouterr().err
+    assert cli.main(["render", "builtin:sphere"]) == 2
+    assert capsys.readouterr().err.strip() == "hovr: error: give -o out.npy, --png out.png or both"
