@@ -34,7 +34,8 @@ def measure(path: str, device: str, width: int, height: int) -> dict:
         scene.render.engine = "HOVR"
         scene.hovr.device = device
         scene.render.resolution_percentage = 100
-        op = {"xml": "hovr_nektar", "vtu": "hovr_vtu", "pyfrm": "hovr_pyfr", "mesh": "hovr_mfem"}[path.rsplit(".", 1)[1]]
+        importers = {"xml": "hovr_nektar", "vtu": "hovr_vtu", "pyfrm": "hovr_pyfr", "mesh": "hovr_mfem"}
+        op = importers[path.rsplit(".", 1)[1]]
         getattr(bpy.ops.import_scene, op)(filepath=path)
         obj = bpy.context.active_object
         lines = []

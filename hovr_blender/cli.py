@@ -513,8 +513,9 @@ def _run_series(args) -> str:
     seconds = time.perf_counter() - t0
     written = [r for r in records if r["status"] == "written"]
     load = sum(r["load_seconds"] for r in written) / max(len(written), 1)
-    return (f"hovr: {plural(len(written), 'frame')} written ({len(frames) - len(todo)} were already there) in {seconds:.1f} s, "
-            f"{len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> {os.path.dirname(job.npy(frames[0]))}")
+    return (f"hovr: {plural(len(written), 'frame')} written ({len(frames) - len(todo)} were already there) in "
+            f"{seconds:.1f} s, {len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> "
+            f"{os.path.dirname(job.npy(frames[0]))}")
 
 
 def _terminate(signum, frame):

@@ -185,7 +185,9 @@ def euler_matrix(euler) -> np.ndarray:
     i, j, h = (float(np.float32(a)) for a in euler)
     ci, cj, ch, si, sj, sh = math.cos(i), math.cos(j), math.cos(h), math.sin(i), math.sin(j), math.sin(h)
     cc, cs, sc, ss = ci * ch, ci * sh, si * ch, si * sh
-    r = np.array([[cj * ch, sj * sc - cs, sj * cc + ss], [cj * sh, sj * ss + cc, sj * cs - sc], [-sj, cj * si, cj * ci]])
+    r = np.array([[cj * ch, sj * sc - cs, sj * cc + ss],
+                  [cj * sh, sj * ss + cc, sj * cs - sc],
+                  [-sj, cj * si, cj * ci]])
     return r.astype(np.float32).astype(np.float64)
 
 
@@ -223,9 +225,9 @@ def factory_camera(points, width: int, height: int) -> tuple[RayCamera, dict]:
     """(rays, contract camera): Frame Camera (ui/operators.frame_volumes) on Blender's factory camera
     for these world points at width x height, with Blender's arithmetic: the angles read at clip
     1e-3..1e3, the eye fitted, the matrix and clip planes kept in float32, the projection Blender
-    computes from them (camera_pose, perspective_matrix). `rays` is F12's camera to its last bit; the contract camera (eye, target,
-    up, field of view) the same camera in a view file's terms, whose float64 arithmetic rounds it
-    apart by ~1e-7."""
+    computes from them (camera_pose, perspective_matrix). `rays` is F12's camera to its last bit;
+    the contract camera (eye, target, up, field of view) the same camera in a view file's terms,
+    whose float64 arithmetic rounds it apart by ~1e-7."""
     f32 = np.float32
     factory = np.array(FACTORY_MATRIX)
     probe = ray_camera_from_matrices(perspective_matrix(width, height, FACTORY_LENS_MM, FACTORY_SENSOR_MM,

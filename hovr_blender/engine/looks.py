@@ -205,7 +205,8 @@ def sampled_ranges(mesh) -> list[tuple[float, float]]:
     if true_range is not None:
         lo, hi = np.clip(lo, *true_range), np.clip(hi, *true_range)
     volume = element_volumes(mesh)
-    return [(float(np.nanmin(lo[volume == k])), float(np.nanmax(hi[volume == k]))) for k in range(int(volume.max()) + 1)]
+    return [(float(np.nanmin(lo[volume == k])), float(np.nanmax(hi[volume == k])))
+            for k in range(int(volume.max()) + 1)]
 
 
 def field_samples(mesh, samples_per_axis: int | None = None, max_values: int = 200_000, weights: bool = False):

@@ -475,7 +475,8 @@ class MultiDeviceRenderer:
                    "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
                    "ray_rounds")}
         pixels = int(camera.width) * int(camera.height)
-        stats = {**summed, "samples_per_ray": (summed["field_evaluations"] + summed["restriction_evaluations"]) / pixels,
+        samples = summed["field_evaluations"] + summed["restriction_evaluations"]
+        stats = {**summed, "samples_per_ray": samples / pixels,
                  "trace_seconds": time.perf_counter() - t0, "device": self.device}
         cache = MultiDeviceCache(cache_id, key, self.frame_key(tf), camera, bands, all(r["complete"] for r in replies),
                                  int(sum(r["nbytes"] for r in replies)), counts, stats)
