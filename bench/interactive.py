@@ -17,7 +17,7 @@ tents over the field's 2..98 % range). Times are the best of --repeats renders a
 render, each waited for (Renderer.render synchronises); the profile is one more render with every
 kernel launch waited for and timed (its total is a little above the plain time).
 
---cold: for each kernel-compile setting (parallel modules, one after another), a fresh Python
+--cold: for each kernel-compile setting (--cold-rows: parallel modules, one after another), a fresh Python
 process with an empty Warp kernel cache (a new temporary WARP cache folder) and the CUDA driver's
 compute cache off (CUDA_CACHE_DISABLE=1) loads hump3D, builds the renderer and renders one
 1920x1080 frame; reported: the process's wall time to the image, and the render call's (what F12
@@ -79,6 +79,7 @@ SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
 METHODS = ("split", "classified")
 TARGET_1080 = {"paper_scale": 0.060}  # seconds; every other dataset 0.100
 TARGET_512_FPS = 60.0
+COLD_ROWS = ("parallel", "serial", "shipped")  # --cold's rows: modules compiled side by side, one at a time, shipped
 
 
 def _camera(mesh, W, H):
@@ -302,6 +303,7 @@ def run_cold(args, out):
 
     rows = []
     settings = [("parallel modules", "0", None), ("one module at a time", "1", None), ("shipped kernels", "0", "store")]
+    settings = [s for s, name in zip(settings, COLD_ROWS) if name in args.cold_rows.split(",")]
     device = wp.get_device(resolve_device(args.device))
     # the binaries the extension's zip holds for this device: the CPU's objects, or the CUBIN of the
     # device's major arch that shipped_kernels takes (PTX where none is)
@@ -442,6 +444,7 @@ def main(argv=None):
     ap.add_argument("--cold", action="store_true")
     ap.add_argument("--cold-dataset", default="hump3D")
     ap.add_argument("--cold-child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--cold-rows", default=",".join(COLD_ROWS), help="--cold: the rows to run (default %(default)s)")
     ap.add_argument("--kernel-store", default=None,
                     help="--cold: the shipped kernels' store to use and keep (binaries missing there are built into it "
                          "first; default: a temporary one)")
