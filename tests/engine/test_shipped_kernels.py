@@ -203,3 +203,41 @@ def test_the_hash_does_not_depend_on_where_the_package_lives(tmp_path):
     resolve_device("cpu")
     here = sorted(shipped_kernels._key(k.module, wp.get_device("cpu")) for k in session_kernels(SPHERE_VARIANT))
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == here
+
+
+class _FakeGPU:
+    """What shipped_kernels reads of a CUDA device: its arch and the output format Warp would
+    compile for it (CUBIN where the driver is older than Warp's NVRTC)."""
+    is_cpu = False
+
+    def __init__(self, arch, output):
+        self.arch, self.output = arch, output
+
+    def get_cuda_output_format(self, preferred=None):
+        return self.output
+
+
+def test_a_gpu_takes_the_cubin_of_its_arch_family_else_ptx_where_its_driver_reads_it(tmp_path):
+    """Issue 37: on the H200 (driver 13.0, Warp's NVRTC 13.4) Warp compiles CUBIN and a PTX-only
+    store was never used. A GPU takes the CUBIN of its major arch not above its own (sm_80's on
+    sm_86), and PTX only where Warp would load PTX itself."""
+    from hovr_blender.engine import shipped_kernels
+    from hovr_blender.engine.devices import resolve_device
+    from hovr_blender.engine.kernel_loading import session_kernels
+
+    resolve_device("cpu")
+    module = session_kernels(SPHERE_VARIANT)[0].module
+    key = module.get_module_hash(int(module.options["block_dim"])).hex()[:shipped_kernels.HASH_CHARS]
+    for name in (f"{key}.meta", f"{key}.sm80.cubin", f"{key}.sm90.cubin", f"{key}.sm120.cubin", f"{key}.sm75.ptx"):
+        (tmp_path / name).write_bytes(b"")
+
+    def chosen(arch, output):
+        found = shipped_kernels._binary(tmp_path, module, _FakeGPU(arch, output))
+        return found and (found[0].name[len(key) + 1:], found[1])
+
+    assert chosen(90, "cubin") == ("sm90.cubin", 90)  # the H200
+    assert chosen(86, "cubin") == chosen(89, "ptx") == ("sm80.cubin", 80)  # RTX 30 / 40: sm_80's machine code
+    assert chosen(121, "cubin") == ("sm120.cubin", 120)
+    assert chosen(100, "cubin") is None  # no sm_10x CUBIN, and a driver that refuses Warp's PTX: compile
+    assert chosen(100, "ptx") == ("sm75.ptx", 75)  # a driver as new as Warp's NVRTC: the PTX
+    assert chosen(75, "cubin") is None
