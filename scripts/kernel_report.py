@@ -27,7 +27,7 @@ are what its compile time is spent on, and one call site each (or --noinline) wo
 with those Warp functions kept out of line (what @wp.func(inline=False), CUDA's __noinline__,
 would do: one copy, called from each site), without editing the source: its times beside the
 default's show what the decorator would save (its cost at run time is the GPU's to measure).
---out FILE writes the times and the inlining as JSON.
+--out FILE writes the times and the inlining as JSON, after each module.
 """
 from __future__ import annotations
 
@@ -66,15 +66,15 @@ def _ptxas(ptxas: str, ptx: str, arch: int, tmp: str):
 
 
 def inlining(cuda_source: str, noinline=()) -> dict:
-    """What the kernel of a module's generated CUDA source is made of once NVRTC inlines every
-    function at every call site: {"lines": the kernel's lines with every copy, "source_lines": the
+    """What the kernels of a module's generated CUDA source are made of once NVRTC inlines every
+    function at every call site: {"lines": the kernels' lines with every copy, "source_lines": the
     functions' own lines, once each, "functions": [{name, copies, own_lines, lines (its copies with
     all they inline), repeated_share (of "lines": all copies but one), called_from}], the largest
     repeated share first}. Functions named in `noinline` (Warp's names, without the "_0" suffix)
     count once, as out-of-line code."""
     starts = [(m.start(), m.group(1)) for m in FUNCTION.finditer(cuda_source)]
     body = {name: cuda_source[a:b] for (a, name), (b, _) in zip(starts, starts[1:] + [(len(cuda_source), "")])}
-    kernel = next(n for n in body if n.endswith("_cuda_kernel_forward"))
+    kernels = [n for n in body if n.endswith("_cuda_kernel_forward")]
     funcs = [n for n in body if not n.startswith("adj_")]  # the reverse functions: empty without backward
     own = {n: sum(1 for ln in body[n].splitlines() if ln.strip() and not ln.strip().startswith("//")) for n in funcs}
     calls = {g: {f: c for f in funcs if f != g and (c := len(re.findall(rf"\b{re.escape(f)}\(", body[g])))}
@@ -90,7 +90,8 @@ def inlining(cuda_source: str, noinline=()) -> dict:
             elif copies[f] == 0:  # out of line: one copy, whoever calls it
                 visit(f, 1)
 
-    visit(kernel, 1)
+    for kernel in kernels:
+        visit(kernel, 1)
     expanded = {}
 
     def lines(g):  # g's code with all it inlines, once
@@ -99,11 +100,15 @@ def inlining(cuda_source: str, noinline=()) -> dict:
         return expanded[g]
 
     reached = [f for f in copies if copies[f]]
-    total = lines(kernel) + sum(lines(f) for f in reached if f in out_of_line)
-    rows = [{"name": f.removesuffix("_0"), "copies": copies[f], "own_lines": own[f], "lines": copies[f] * lines(f),
+    total = sum(lines(k) for k in kernels) + sum(lines(f) for f in reached if f in out_of_line)
+
+    def named(f):
+        return f.removesuffix("_cuda_kernel_forward").removesuffix("_0")
+
+    rows = [{"name": named(f), "copies": copies[f], "own_lines": own[f], "lines": copies[f] * lines(f),
              "repeated_share": (copies[f] - 1) * lines(f) / total,
-             "called_from": {g.removesuffix("_0"): calls[g][f] for g in reached if f in calls[g]}}
-            for f in reached if f != kernel]
+             "called_from": {named(g): calls[g][f] for g in reached if f in calls[g]}}
+            for f in reached if f not in kernels]
     return {"lines": total, "source_lines": sum(own[f] for f in reached),
             "functions": sorted(rows, key=lambda r: -r["repeated_share"])}
 
@@ -211,14 +216,14 @@ def main(argv=None):
                 elif "registers" in line or "spill" in line:
                     print("       ", line.replace("ptxas info    : ", ""))
         report["modules"].append(row)
+        if args.out:  # after each module: a run cut short keeps what it measured
+            with open(args.out, "w", encoding="utf-8") as f:
+                json.dump(report, f, indent=1)
     shutil.rmtree(tmp, ignore_errors=True)
     if report["modules"]:
         slowest = max(report["modules"], key=lambda r: max(r.get(f"{fmt}_seconds", 0.0) for fmt in args.formats))
         print(f"largest compile: {slowest['kernels']} (" + ", ".join(
             f"{fmt.upper()} {slowest[f'{fmt}_seconds']:.1f} s" for fmt in args.formats) + ")")
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as f:
-            json.dump(report, f, indent=1)
 
 
 def _print_inlining(info: dict, top: int = 8):
