@@ -56,6 +56,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -285,6 +286,10 @@ def cold_child(args):
                       "shipped": len(report.shipped), "cached": report.cached, "compiled": report.compiled}), flush=True)
 
 
+def _files(folder) -> set:
+    return {str(f) for f in Path(folder).rglob("*") if f.is_file()}
+
+
 def _cold_mesh(name):
     if name == "sphere":
         from hovr_blender.io.builtin import sphere
@@ -314,13 +319,15 @@ def run_cold(args, out):
         for label, workers, shipped in settings:
             extra = {}
             if shipped:
+                before = _files(store)
                 t0 = time.perf_counter()
                 build_extension.compile_kernels(build_extension.host_platform(),
                                                 variants=[kernel_variant([_cold_mesh(args.cold_dataset)]).key],
                                                 precisions=("float32",), isosurfaces=(False,),
-                                                store=build_extension.Path(store), **build)
+                                                store=Path(store), **build)
                 extra = {"HOVR_KERNEL_BINARIES": store}
                 build_seconds = time.perf_counter() - t0
+                built = len(_files(store) - before)  # 0: the store held every binary already (--kernel-store)
             with tempfile.TemporaryDirectory() as cache:
                 env = dict(os.environ, WARP_CACHE_PATH=cache, CUDA_CACHE_DISABLE="1", HOVR_COMPILE_WORKERS=workers,
                            HOVR_COLD_T0=repr(time.time()))
@@ -335,11 +342,12 @@ def run_cold(args, out):
             row = {"setting": label, "HOVR_COMPILE_WORKERS": workers, **json.loads(lines[-1])}
             if shipped:
                 row["build_seconds"] = build_seconds
-                row["store"] = {"cubin_archs": build["cubin_archs"], "ptx_archs": build["ptx_archs"], "cpu": build["cpu"]}
+                row["store"] = {"cubin_archs": build["cubin_archs"], "ptx_archs": build["ptx_archs"], "cpu": build["cpu"],
+                                "files_built": built}
             rows.append(row)
             print(f"cold ({label}): render call {row['render_call_seconds']:.1f} s, process {row['process_seconds']:.1f} s,"
                   f" {row['shipped']} modules shipped, {len(row['compiled'])} compiled"
-                  + (f" (store built in {build_seconds:.1f} s)" if shipped else ""), flush=True)
+                  + (f" (store: {built} files built, {build_seconds:.1f} s)" if shipped else ""), flush=True)
     out["cold"] = {"dataset": args.cold_dataset, "size": args.size, "method": "classified", "rows": rows,
                    "target_seconds": 5.0}
     _write(args.out, out)
