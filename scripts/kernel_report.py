@@ -27,12 +27,13 @@ are what its compile time is spent on, and one call site each (or --noinline) wo
 with those Warp functions kept out of line (what @wp.func(inline=False), CUDA's __noinline__,
 would do: one copy, called from each site), without editing the source: its times beside the
 default's show what the decorator would save (its cost at run time is the GPU's to measure).
---out FILE writes the times and the inlining as JSON, after each module.
+--out FILE writes the times and the inlining as JSON, after each module. --jobs N compiles N
+modules at once (a thread each; NVRTC uses one core), each still timed on its own: on a machine of
+many cores the whole table in about its largest module's time.
 """
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import os
 import re
@@ -42,6 +43,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 
 FUNCTION = re.compile(r'^(?:static (?:WP_\w+ )?CUDA_CALLABLE|extern "C" __global__)(?:[^(]*WP_MAXNREG\(\d+\))?[^(]*?\b(\w+)\(', re.M)
 
@@ -145,6 +147,8 @@ def main(argv=None):
     ap.add_argument("--noinline", default="", type=lambda v: [x for x in v.split(",") if x],
                     help="Warp functions to compile out of line (names, comma-separated)")
     ap.add_argument("--out", default=None, help="write the times (and the inlining) as JSON")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="modules compiled at once, each timed on its own (NVRTC is one thread: up to a core each)")
     args = ap.parse_args(argv)
     if args.cache and args.noinline:
         ap.error("--noinline compiles other code than the source: not into a kernel cache")
@@ -187,38 +191,43 @@ def main(argv=None):
     ptxas = os.environ.get("PTXAS") or shutil.which("ptxas")
     tmp = tempfile.mkdtemp()
     report = {"arch": args.arch, "precision": args.precision, "noinline": args.noinline, "modules": []}
-    for name, kern in kernels:
+    def compile_module(name, kern):
+        """One module compiled in each format, timed; its generated source and PTX kept."""
         row = {"kernels": name, "module": kern.module.name}
         folder = None if args.cache else tempfile.mkdtemp(dir=tmp)
-        ptx = None
         for fmt in args.formats:
             t0 = time.perf_counter()
             paths = wp.compile_aot_module(kern.module, arch=args.arch, use_ptx=fmt == "ptx", module_dir=folder)
             row[f"{fmt}_seconds"] = time.perf_counter() - t0
             row[f"{fmt}_bytes"] = os.path.getsize(paths[0])
-            ptx = str(paths[0]) if fmt == "ptx" else ptx
-        print(f"{name}: NVRTC " + ", ".join(f"{fmt.upper()} {row[f'{fmt}_seconds']:.1f} s" for fmt in args.formats))
-        if args.inlining:
-            source = glob.glob(os.path.join(folder or os.path.dirname(ptx or paths[0]),
-                                            kern.module.get_module_identifier() + ".cu"))
-            if source:
-                with open(source[0], encoding="utf-8") as f:
-                    row["inlining"] = inlining(f.read(), args.noinline)
-                _print_inlining(row["inlining"])
-        if ptxas and ptx:
-            r = _ptxas(ptxas, ptx, args.arch, tmp)
-            if r.returncode != 0:
-                print("    ptxas:", r.stderr.strip().splitlines()[0] if r.stderr.strip() else f"exit {r.returncode}")
-            for line in r.stderr.splitlines():
-                line = line.strip()
-                if "Compiling entry" in line:
-                    print("   ", line.split("'")[1].split("_cuda_kernel")[0].split("__locals__")[-1])
-                elif "registers" in line or "spill" in line:
-                    print("       ", line.replace("ptxas info    : ", ""))
-        report["modules"].append(row)
-        if args.out:  # after each module: a run cut short keeps what it measured
-            with open(args.out, "w", encoding="utf-8") as f:
-                json.dump(report, f, indent=1)
+            row[f"{fmt}_path"] = str(paths[0])
+        return row
+
+    with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+        for (name, kern), row in zip(kernels, pool.map(lambda nk: compile_module(*nk), kernels)):
+            ptx = row.pop("ptx_path", None)
+            binary = row.pop("cubin_path", None) or ptx
+            print(f"{name}: NVRTC " + ", ".join(f"{fmt.upper()} {row[f'{fmt}_seconds']:.1f} s" for fmt in args.formats))
+            if args.inlining:
+                source = os.path.join(os.path.dirname(binary), kern.module.get_module_identifier() + ".cu")
+                if os.path.exists(source):
+                    with open(source, encoding="utf-8") as f:
+                        row["inlining"] = inlining(f.read(), args.noinline)
+                    _print_inlining(row["inlining"])
+            if ptxas and ptx:
+                r = _ptxas(ptxas, ptx, args.arch, tmp)
+                if r.returncode != 0:
+                    print("    ptxas:", r.stderr.strip().splitlines()[0] if r.stderr.strip() else f"exit {r.returncode}")
+                for line in r.stderr.splitlines():
+                    line = line.strip()
+                    if "Compiling entry" in line:
+                        print("   ", line.split("'")[1].split("_cuda_kernel")[0].split("__locals__")[-1])
+                    elif "registers" in line or "spill" in line:
+                        print("       ", line.replace("ptxas info    : ", ""))
+            report["modules"].append(row)
+            if args.out:  # after each module: a run cut short keeps what it measured
+                with open(args.out, "w", encoding="utf-8") as f:
+                    json.dump(report, f, indent=1)
     shutil.rmtree(tmp, ignore_errors=True)
     if report["modules"]:
         slowest = max(report["modules"], key=lambda r: max(r.get(f"{fmt}_seconds", 0.0) for fmt in args.formats))
