@@ -111,9 +111,7 @@ def write_views(size: str, out: str) -> list[str]:
     W, H = map(int, size.split("x"))
     os.makedirs(out, exist_ok=True)
     written = []
-    for name, spec in audit.DATASETS.items():
-        if spec.get("synthetic") not in (None, "paper_scale"):
-            continue
+    for name in audit.SHARED_DATASETS:
         try:
             mesh, data = audit.load(name)
         except FileNotFoundError as exc:

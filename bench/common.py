@@ -98,6 +98,20 @@ def row_of(res, **extra):
             "empty_fraction": s["segments_empty"] / max(s["segments"], 1), "curved_locates": s["curved_locates"]}
 
 
+def compile_all(meshes, device, precisions=("float32", "float64")) -> float:
+    """Compile every kernel module renders of `meshes` use in `precisions`, side by side
+    (engine/kernel_loading.load_modules: HOVR_COMPILE_WORKERS threads), before the first frame:
+    seconds. On a GPU each module's first compile takes tens of seconds; one after another they add up."""
+    from hovr_blender.engine import kernel_loading as kl
+    from hovr_blender.engine.devices import resolve_device
+
+    t0 = time.perf_counter()
+    kernels = [k for mesh in meshes for precision in precisions
+               for k in kl.render_kernels(kl.kernel_variant([mesh]), precision)]
+    kl.load_modules(kernels, resolve_device(device))
+    return time.perf_counter() - t0
+
+
 def compiled_renderer(mesh, device):
     """(Renderer, seconds of its first render): the first render compiles the kernel (or loads
     it from Warp's cache), so timed renders after it measure the kernel alone."""

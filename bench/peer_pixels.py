@@ -51,7 +51,6 @@ def trace(dataset, i, j, size=(1920, 1080), view="oblique", device="cpu", offset
           log=print):
     from hovr_blender.audit import chords
     from hovr_blender.audit import vtk_reference as R
-    from hovr_blender.engine import shapes
     from hovr_blender.engine.camera import RayCamera
     from hovr_blender.engine.reference import pixel_exact_reference
     from hovr_blender.engine.view import RenderOptions
@@ -71,7 +70,7 @@ def trace(dataset, i, j, size=(1920, 1080), view="oblique", device="cpu", offset
     grid, why = vtk_grid(dataset, mesh, data)
     ind = R.IndependentReference(grid, tf.color_s, tf.color_rgb, tf.density_s, tf.density_tau, tol=1e-10) \
         if grid is not None else None
-    boundary = chords.Boundary(mesh) if np.all(mesh.shape == shapes.HEX) else None
+    boundary = chords.Boundary(mesh)
 
     def independent(di, dj, colour=True):
         """(independent RGBA and its error estimate, or None; its inside stretches; exact chord)."""

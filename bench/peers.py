@@ -331,13 +331,9 @@ def independent_sample(grid, camera_dict, W, H, tf, ref, k, seed, log):
 
 def exact_chords(mesh):
     """chord(o, d): the exact length of the ray inside the mesh (audit/chords.py, from the
-    boundary patches alone), or None where the mesh is not all hexahedra. The boundary is fitted
-    on the first call."""
+    boundary faces alone; NaN where undecided). The boundary is fitted on the first call."""
     from hovr_blender.audit import chords
-    from hovr_blender.engine import shapes
 
-    if not np.all(mesh.shape == shapes.HEX):
-        return None
     boundary = []
 
     def chord(o, d):

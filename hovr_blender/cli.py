@@ -25,6 +25,7 @@ import tempfile
 import time
 import traceback
 
+from .engine import scratch
 from .engine.methods import METHODS
 
 EXIT_ERROR = 2
@@ -143,13 +144,16 @@ def _png_background(text: str):
 
 def _output_path(path: str, suffix: str, what: str) -> str:
     """The absolute path to write `what` to: it ends with `suffix`, its folder exists, and if it
-    exists already it is a regular file (never a folder, FIFO or device)."""
+    exists already it is a regular file (never a folder, FIFO or device), not a link (replacing a
+    link would quietly write elsewhere than the user may think; limits.open_output refuses them too)."""
     if not path.lower().endswith(suffix):
         raise OutputError(f"{what} {path!r} must end with {suffix}")
     path = os.path.abspath(path)
     folder = os.path.dirname(path)
     if not os.path.isdir(folder):
         raise OutputError(f"{what} {path}: folder {folder} does not exist")
+    if os.path.islink(path):
+        raise OutputError(f"{what} {path} is a symbolic link; refused (outputs never follow links)")
     if os.path.lexists(path) and not os.path.isfile(path):
         raise OutputError(f"{what} {path} exists and is not a regular file")
     return path
@@ -387,7 +391,8 @@ def main(argv=None) -> int:
     on_sigterm = threading.current_thread() is threading.main_thread()  # signal handlers live there only
     previous = signal.signal(signal.SIGTERM, _terminate) if on_sigterm else None
     try:
-        message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
+        with scratch.adopted():  # every temporary file of the run, its children's included, in a private folder
+            message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
     except KeyboardInterrupt:
         _end_progress_line()
         print("hovr: interrupted", file=sys.stderr)

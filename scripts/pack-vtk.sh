@@ -13,11 +13,57 @@
 # which OpenGL libraries VTK can use there (EGL needs libEGL.so.1 and NVIDIA's EGL vendor
 # library). While the machine stays up, later commands only need
 #   export PYTHONPATH=/tmp/site-vtk:$PYTHONPATH
+#
+# VTK_SUBSET=reference packs instead, in ONE part (.gpu/vtk-reference, ~18 MB), only what the
+# independent reference imports (hovr_blender/audit/vtk_volume.import_vtk: vtkCommonCore,
+# vtkCommonDataModel, vtkIOXML, the libraries they need by their ELF NEEDED entries, and
+# vtkmodules' Python files): enough for scripts/audit.py gpu, not for rendering. There:
+#   source .gpu/vtk-reference/install.sh        (with .gpu/vtk-reference carried; same /tmp/site-vtk)
 set -euo pipefail
 root=$(git rev-parse --show-toplevel)
 ver=${VTK_VERSION:-9.7.2}
 out=$root/.gpu
 part_mb=${VTK_PART_MB:-36}
+if [ "${VTK_SUBSET:-}" = reference ]; then
+  d=$out/vtk-reference
+  if [ -f "$d/VERSION" ] && [ "$(cat "$d/VERSION")" = "$ver" ]; then echo "already packed: $d"; exit 0; fi
+  tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
+  python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 \
+    -d "$tmp" "vtk==$ver"
+  mkdir "$tmp/x" && (cd "$tmp/x" && python3 -m zipfile -e "$tmp"/vtk-*.whl .)
+  # the three Python modules and, transitively, every library of the wheel they name as NEEDED and
+  # that library's own Python module
+  (cd "$tmp/x/vtkmodules" && python3 - > "$tmp/files" <<'EOP'
+import glob, os, re, subprocess
+todo = [glob.glob(m + ".cpython-*.so")[0] for m in ("vtkCommonCore", "vtkCommonDataModel", "vtkIOXML")]
+need = set()
+while todo:
+    f = todo.pop()
+    if f in need:
+        continue
+    need.add(f)
+    for lib in re.findall(r"\(NEEDED\).*\[(.+?)\]", subprocess.run(["readelf", "-d", f], capture_output=True, text=True).stdout):
+        if os.path.exists(lib):
+            todo.append(lib)
+            # a wrapped module imports the wrappers of the libraries it links (vtkCommonMath ...)
+            todo += glob.glob(re.sub(r"^lib(vtk[A-Za-z0-9]+)\.so.*", r"\1", lib) + ".cpython-*.so")
+need.update(glob.glob("**/*.py", recursive=True))
+print("\n".join(sorted(need)))
+EOP
+  )
+  rm -rf "$d"; mkdir -p "$d"
+  (cd "$tmp/x" && sed 's#^#vtkmodules/#' "$tmp/files" | tar -cf - -T - vtk-*.dist-info) | xz -T0 -9 > "$d/vtk-reference.tar.xz"
+  echo "$ver" > "$d/VERSION"
+  cat > "$d/install.sh" <<'EOS'
+# source me: unpacks the reference's VTK subset into /tmp/site-vtk and exports PYTHONPATH
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+[ -f /tmp/site-vtk/vtkmodules/__init__.py ] || { mkdir -p /tmp/site-vtk && tar -xJf "$here/vtk-reference.tar.xz" -C /tmp/site-vtk; }
+export PYTHONPATH=/tmp/site-vtk${PYTHONPATH:+:$PYTHONPATH}
+python3 -c 'from vtkmodules import vtkCommonDataModel, vtkIOXML; print("vtk reference subset ready in /tmp/site-vtk")'
+EOS
+  du -sh "$d"; exit 0
+fi
 if ls "$out"/vtk-*/VERSION >/dev/null 2>&1 && [ "$(cat "$out"/vtk-*/VERSION)" = "$ver" ]; then
   echo "already packed: vtk $ver under $out"; ls -d "$out"/vtk-*; exit 0
 fi

@@ -203,3 +203,22 @@ def stopped_warm_reader() -> int:
     pid = isolation._IDLE[0].proc.pid
     os.kill(pid, signal.SIGSTOP)
     return pid
+
+
+def tree_listing(folder, skip=()) -> dict:
+    """Everything under `folder` but the folders in `skip`: relative path -> (file type, size,
+    mtime, link target), to compare a tree before and after a run (what a hostile input wrote)."""
+    import os
+
+    out = {}
+    skip = {Path(s) for s in skip}
+    for dirpath, dirnames, filenames in os.walk(folder):
+        dirnames[:] = [d for d in dirnames if Path(dirpath, d) not in skip]
+        for name in dirnames + filenames:
+            p = Path(dirpath, name)
+            st = p.lstat()
+            plain = not p.is_dir() or p.is_symlink()
+            out[str(p.relative_to(folder))] = (st.st_mode >> 12, st.st_size if plain else 0,
+                                               st.st_mtime_ns if plain else 0,
+                                               os.readlink(p) if p.is_symlink() else None)
+    return out

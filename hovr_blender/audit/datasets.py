@@ -30,6 +30,10 @@ DATASETS = {
     "curved_mixed_cube": {"synthetic": "curved_mixed_cube"},
 }
 
+# the shared datasets of the GPU audit (scripts/audit.py gpu, issue 36) and of bench.commits'
+# views: every real file and the paper-scale channel (curved_mixed_cube is the benchmark suite's)
+SHARED_DATASETS = tuple(n for n, spec in DATASETS.items() if spec.get("synthetic") in (None, "paper_scale"))
+
 
 # the velocity's Q-criterion of the CFD datasets (contract §8), and the level drawn of it
 Q_FIELDS = {"pyfr_tgv": "Q(Velocity)", "hump3D": "Q(rhou,rhov,rhow/rho)"}

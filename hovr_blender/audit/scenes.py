@@ -1,7 +1,8 @@
 """The scenes the tests, bench/ and scripts/ share, so that each has one definition: the
 framing camera, the benchmark scenes' background, colours and tent transfer functions, the
-constant field and density of the watertightness checks, a pressure field far from zero and the
-curved mixed-shape cube of the benchmark suite. Not used by the product.
+constant field and density of the watertightness checks, a pressure field far from zero, the
+curved mixed-shape cube of the benchmark suite and the same cube carrying a field whose level sets
+are spheres (the isosurfaces'). Not used by the product.
 """
 from __future__ import annotations
 
@@ -77,3 +78,22 @@ def curved_mixed_scene(cells: int):
     mesh = curved_cube(cells)
     lo, hi = np.percentile(mesh.field_samples(4), [2, 98])
     return mesh, tents(lo, hi, COLORS, 12.0), lambda w, h: framing(mesh, w, h)
+
+
+BALL_CENTRE = np.array([0.5, 0.5, 0.45])
+BALL_RADIUS = 0.3
+
+
+def ball_field(x, y, z):
+    """|x - BALL_CENTRE|^2: its level BALL_RADIUS^2 is a sphere inside the curved cube."""
+    return (x - BALL_CENTRE[0]) ** 2 + (y - BALL_CENTRE[1]) ** 2 + (z - BALL_CENTRE[2]) ** 2
+
+
+def ball_mesh() -> VolumeMesh:
+    """io/synthetic.curved_cube(2) carrying ball_field: curved elements of all four shapes whose
+    level sets are exact spheres (f(x(xi)) has degree 4 in xi on curved_cube's quadratic
+    elements: 5 modes hold it exactly). The isosurface tests' scene (contract §7) and the tangency
+    band's (audit/isosurface_band.py)."""
+    from ..io.synthetic import curved_cube, with_field
+
+    return with_field(curved_cube(2), ball_field, 5)

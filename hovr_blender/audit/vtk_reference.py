@@ -62,14 +62,18 @@ class IndependentReference:
     """The reference for one volume (a vtkUnstructuredGrid with point array FIELD) and one
     transfer function (arrays of breakpoints)."""
 
-    def __init__(self, grid, color_s, color_rgb, density_s, density_tau, tol: float = 1e-10):
+    def __init__(self, grid, color_s, color_rgb, density_s, density_tau, tol: float = 1e-10, pyramids=None):
+        """grid may be None (no VTK cells); pyramids (pyramids.AffinePyramids): cells after the
+        grid's, decided by their exact affine inverse (pyramids.py)."""
         vtk = import_vtk()
-        from vtk.util.numpy_support import vtk_to_numpy
+        from vtkmodules.util.numpy_support import vtk_to_numpy
 
         self.grid = grid
-        self.values = vtk_to_numpy(grid.GetPointData().GetArray(FIELD)).astype(np.float64)
-        points = vtk_to_numpy(grid.GetPoints().GetData()).astype(np.float64)
-        self.n_cells = grid.GetNumberOfCells()
+        self.pyramids = pyramids
+        if grid is not None and grid.GetNumberOfCells():
+            self.values = vtk_to_numpy(grid.GetPointData().GetArray(FIELD)).astype(np.float64)
+            points = vtk_to_numpy(grid.GetPoints().GetData()).astype(np.float64)
+        self.n_cells = grid.GetNumberOfCells() if grid is not None else 0
         self.cells = []
         boxes = np.zeros((self.n_cells, 6))
         for c in range(self.n_cells):
@@ -82,6 +86,10 @@ class IndependentReference:
         size = np.maximum(boxes[:, 1::2] - boxes[:, 0::2], 0.0).max(axis=1, keepdims=True)
         self.lo = boxes[:, 0::2] - 0.1 * size
         self.hi = boxes[:, 1::2] + 0.1 * size
+        if pyramids is not None and len(pyramids):  # affine: their vertices' box holds them
+            pad = 1e-9 * np.ptp(pyramids.hi - pyramids.lo, axis=1, keepdims=True)
+            self.lo = np.concatenate([self.lo, pyramids.lo - pad])
+            self.hi = np.concatenate([self.hi, pyramids.hi + pad])
         self.color_s, self.color_rgb = np.asarray(color_s, float), np.asarray(color_rgb, float)
         self.density_s, self.density_tau = np.asarray(density_s, float), np.asarray(density_tau, float)
         self.levels = np.unique(np.concatenate([self.color_s, self.density_s]))
@@ -99,8 +107,10 @@ class IndependentReference:
         """(inside cell c, field of cell c's interpolant) at world point x. Inside is decided on
         the polished parametric coordinates with a tolerance of 1e-12 (VTK's own status
         allows 1e-3)."""
-        cell, ids, w, dw, nodes = self.cells[c]
         self.evaluations += 1
+        if c >= self.n_cells:
+            return self.pyramids.at(c - self.n_cells, x)
+        cell, ids, w, dw, nodes = self.cells[c]
         x = np.asarray(x, dtype=np.float64)
         cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         cell.GetParametricCenter(self._center)
@@ -152,8 +162,7 @@ class IndependentReference:
         """Parametric coordinates of x by Newton on VTK's shape functions from pc, or None."""
         for _ in range(NEWTON_STEPS):
             cell.InterpolateFunctions(list(pc), w)
-            J = self._jacobian(cell, pc, w, dw, nodes)
-            cell.InterpolateFunctions(list(pc), w)
+            J = self._jacobian(cell, pc, w, dw, nodes)  # leaves w at pc
             try:
                 step = np.linalg.solve(J.T, np.asarray(w) @ nodes - x)
             except np.linalg.LinAlgError:
@@ -173,8 +182,12 @@ class IndependentReference:
         return np.stack([np.interp(s, self.color_s, self.color_rgb[:, k]) for k in range(3)], axis=-1)
 
     # ------------------------------------------------------------------ 1. the stretches
-    def stretches(self, o, d, t0, t1):
-        """Sorted (a, b, cell) where the ray o + t d, t in [t0, t1], lies in a cell."""
+    def stretches(self, o, d, t0, t1, cover=None):
+        """Sorted (a, b, cell) where the ray o + t d, t in [t0, t1], lies in a cell. cover: the
+        intervals [(a, b)] where the ray is known to be inside the domain (the exact chords'
+        crossings, audit/chords.py, along the same o and d): a part of them that no stretch
+        covers, such as a cell clipped before the first stretch or after the last (no gap
+        brackets those), is sampled again at its own scale."""
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = 1.0 / d
             ta = (self.lo - o) * inv
@@ -198,6 +211,10 @@ class IndependentReference:
         for g0, g1 in gaps:
             for c in hits[(tmin[hits] < g1) & (tmax[hits] > g0)]:
                 # (not the neighbours' own ends again: runs at the gap's ends that round to inside)
+                out += [r for r in self._runs(c, o, d, max(g0, tmin[c]), min(g1, tmax[c]), eps) if r[1] - r[0] > 2.0 * eps]
+        out.sort()
+        for g0, g1 in uncovered(cover or [], out, 2.0 * eps):
+            for c in hits[(tmin[hits] < g1) & (tmax[hits] > g0)]:
                 out += [r for r in self._runs(c, o, d, max(g0, tmin[c]), min(g1, tmax[c]), eps) if r[1] - r[0] > 2.0 * eps]
         out.sort()
         return out
@@ -276,11 +293,12 @@ class IndependentReference:
                 stack.append((mid, hi))  # right half after the left one: front to back
                 stack.append((lo, mid))
 
-    def pixel(self, o, d, background, t0=0.0, t1=np.inf) -> PixelResult:
+    def pixel(self, o, d, background, t0=0.0, t1=np.inf, cover=None) -> PixelResult:
+        """The pixel of the ray o + t d (d is normalised; cover, for a unit d: see stretches)."""
         o, d = np.asarray(o, float), np.asarray(d, float)
         d = d / np.linalg.norm(d)
         self.evaluations = 0
-        stretches = self.stretches(o, d, t0, t1)
+        stretches = self.stretches(o, d, t0, t1, cover)
         state = [np.zeros(3), 0.0, 0.0, 0]
         notes = []
         end = -np.inf
@@ -342,6 +360,21 @@ class IndependentReference:
             if inside:
                 return value
         return float("nan")
+
+
+def uncovered(cover, stretches, tol):
+    """The parts of the intervals `cover` [(a, b)] that no stretch (a, b, cell) covers, longer than tol."""
+    out = []
+    for a, b in cover:
+        for s0, s1, _ in sorted(stretches):
+            if s1 <= a or s0 >= b:
+                continue
+            if s0 - a > tol:
+                out.append((a, s0))
+            a = max(a, s1)
+        if b - a > tol:
+            out.append((a, b))
+    return out
 
 
 def contract_ray(camera: dict, width: int, height: int, i: int, j: int):

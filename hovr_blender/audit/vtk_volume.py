@@ -24,9 +24,18 @@ class AuditError(ValueError):
 
 
 def import_vtk():
-    import vtk  # a test and audit dependency only: the product never imports it
+    """The VTK the reference uses: its data model, XML files and core (vtkmodules, not the `vtk`
+    package that loads every module), so that a GPU machine needs only those
+    (scripts/pack-vtk.sh's reference subset). A test and audit dependency only: the product never
+    imports it."""
+    from types import SimpleNamespace
 
-    return vtk
+    from vtkmodules import vtkCommonCore, vtkCommonDataModel, vtkIOXML
+
+    names = {}
+    for module in (vtkCommonCore, vtkCommonDataModel, vtkIOXML):
+        names.update({k: getattr(module, k) for k in dir(module) if not k.startswith("_")})
+    return SimpleNamespace(**names)
 
 
 def read_vtu(path: str, field: str, component: int | None = None):
@@ -39,7 +48,7 @@ def read_vtu(path: str, field: str, component: int | None = None):
     arr = grid.GetPointData().GetArray(field)
     if arr is None:
         raise AuditError(f"{path}: no point array {field!r}")
-    from vtk.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 
     values = vtk_to_numpy(arr).astype(np.float64)
     if values.ndim == 2:
@@ -109,7 +118,7 @@ def _geometry(mesh: VolumeMesh, e: int, xi: np.ndarray) -> np.ndarray:
 def from_mesh(mesh: VolumeMesh):
     """vtkUnstructuredGrid of VTK Lagrange cells holding exactly the mesh's geometry and field."""
     vtk = import_vtk()
-    from vtk.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+    from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
 
     if np.any(mesh.shape == shapes.PYR):
         raise AuditError("pyramids have no VTK Lagrange counterpart in the same polynomial space")

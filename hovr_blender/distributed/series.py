@@ -18,8 +18,8 @@ through a link: the log is opened with O_NOFOLLOW, and a frame whose .npy, .png 
 
 A local cluster is its owner's only (local_cluster): the scheduler, nannies and workers speak TLS
 with certificates made for this run (distributed.security.Security.temporary), so connecting
-needs the run's key; Dask's HTTP servers are closed unless a dashboard is asked for; its workers
-end with the process that started them. A frame that fails is not retried (a refusal is
+needs the run's key; Dask's HTTP servers are never started unless a dashboard is asked for; its
+scratch is a private folder of the run; its workers end with the process that started them. A frame that fails is not retried (a refusal is
 deterministic): the run ends with that frame's one-line error. A lost worker's frames are
 rerun by the scheduler (distributed.scheduler.allowed-failures times).
 """
@@ -38,7 +38,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..engine import limits, strict_json
+from ..engine import limits, scratch, strict_json
 from ..engine.camera import RayCamera
 from ..engine.frame import Frame, render_frame
 from ..engine.image_io import png_pixels, write_json, write_npy, write_png
@@ -385,12 +385,15 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
     one worker process per CUDA device (worker k renders on cuda:k), or without one (or for
     device "cpu") one per CPU core, within the process limit (limits.check_processes); each
     worker runs one task at a time. `dashboard`: an address for Dask's (unauthenticated) HTTP
-    dashboard; None: no HTTP server at all. `quiet`: Dask's own log lines (a failed task's
-    traceback, worker shutdowns) are not printed; the run reports the error itself. Connect with
-    cluster_client(cluster)."""
+    dashboard; None: no HTTP server at all, not even for a moment (local_workers.PrivateCluster). Dask's scratch (the scheduler's `temporary-directory`, the workers'
+    `local_directory` with its lock files, and the workers' TMPDIR) is a private folder of this
+    run (engine/scratch.py), never the shared temporary folder. `quiet`: Dask's own log lines (a
+    failed task's traceback, worker shutdowns) are not printed; the run reports the error itself.
+    Connect with cluster_client(cluster)."""
     import dask
-    from distributed import LocalCluster
     from distributed.security import Security
+
+    from .local_workers import PrivateCluster
 
     if workers is None:
         workers = 1
@@ -408,29 +411,27 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
         security = Security.temporary()  # a CA and certificates for this run only, in memory
     except ImportError as exc:
         raise RuntimeError(f"a local cluster needs the cryptography package for its TLS keys ({exc})") from None
-    no_http = {} if dashboard else {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
-    with dask.config.set(no_http):
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, protocol="tls",
-                               host="127.0.0.1", security=security, dashboard_address=dashboard,
-                               worker_dashboard_address=None,
-                               silence_logs=logging.CRITICAL if quiet else logging.WARN)
+    folder = scratch.private_folder("dask-")
+    with dask.config.set({"temporary-directory": folder}):  # the scheduler's own scratch, and the workers'
+        cluster = PrivateCluster(n_workers=workers, threads_per_worker=1, processes=True, protocol="tls",
+                                 host="127.0.0.1", security=security, dashboard_address=dashboard,
+                                 worker_dashboard_address=None, local_directory=folder,
+                                 env={"TMPDIR": folder, "TEMP": folder, "TMP": folder},
+                                 silence_logs=logging.CRITICAL if quiet else logging.WARN, http=bool(dashboard))
     cluster.hovr_dashboard = dashboard
     return cluster
 
 
 def cluster_client(cluster):
     """A Client of a local_cluster, with its run's certificates; the workers confined
-    (LocalWorkerConfinement) and, without a dashboard, the scheduler's HTTP listener closed."""
+    (LocalWorkerConfinement)."""
     from distributed import Client
 
-    from .local_workers import LocalWorkerConfinement, close_http
+    from .local_workers import LocalWorkerConfinement
 
     client = Client(cluster, security=cluster.security)
     try:
-        no_http = not getattr(cluster, "hovr_dashboard", None)
-        if no_http:
-            client.run_on_scheduler(close_http)
-        client.register_plugin(LocalWorkerConfinement(no_http))
+        client.register_plugin(LocalWorkerConfinement())
     except BaseException:
         client.close()
         raise

@@ -200,6 +200,7 @@ def tile_buffers(prec: Precision, tile: int, stats) -> TileBuffers:
     rays = kernels.RayState()
     rays.color_t = zeros(tile, prec.vec4)
     rays.depth_err = zeros(tile, prec.vec2)
+    rays.surface_end = zeros(tile, prec.vec2)
     rays.t_cur = zeros(tile, prec.scalar)
     rays.t_end = zeros(tile, prec.scalar)
     rays.t_search = zeros(tile, prec.scalar)

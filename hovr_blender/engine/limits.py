@@ -15,8 +15,8 @@ user's unsaved scene, so every reader and the renderer go through this one modul
   output goes can neither redirect it nor create the link's target.
 
 Limits are read from the environment (HOVR_MAX_MEMORY, e.g. "8G"; HOVR_MAX_SAMPLES_PER_RAY;
-HOVR_MAX_INFLATE_RATIO; HOVR_MAX_READ_SECONDS, one read's wall time in the reader process;
-HOVR_MAX_PROCESSES) and can be overridden for a block of code with `using(ResourceLimits(...))`
+HOVR_MAX_INFLATE_RATIO; HOVR_MAX_READ_SECONDS, a flat wall time for one read in the reader process
+instead of read_seconds' rule; HOVR_MAX_PROCESSES) and can be overridden for a block of code with `using(ResourceLimits(...))`
 (the CLI's --max-memory and --max-samples-per-ray do this).
 """
 from __future__ import annotations
@@ -38,9 +38,16 @@ DEFAULT_MAX_SAMPLES_PER_RAY = 100_000  # fixed-step methods: (data diagonal) / h
 # sizes agree with each other is still refused when they are far beyond what its bytes can hold.
 DEFAULT_MAX_INFLATE_RATIO = 100
 INFLATE_FLOOR = 64 << 20
-# One read of a file (io/isolation.py's reader process stops it after this): hump3D takes ~1 s,
-# scaleHO ~10 s on a laptop core; minutes mean a hang (libhdf5 loops on some damaged files).
-DEFAULT_MAX_READ_SECONDS = 600.0
+# One read in the reader process (io/isolation.py) may use READ_BASE_SECONDS plus
+# READ_SECONDS_PER_MB of processor time for each MB (10^6 bytes) of the files it opens, and is
+# stopped when it uses READ_STALL_SECONDS of processor time without progress (libhdf5 loops without
+# end on some damaged files). Processor time, because a loaded machine stretches an honest read's
+# wall time (scaleHO: 4.4 s at load 6, more than 13 s at load 10, on this 2-core machine; 4.5 s
+# between two progress reports at load 9) but not its processor time (scaleHO 0.65 s a MB, 0.23 s
+# at most between two reports). Measured: bench/read_rate.py, docs/limits.md has the table.
+READ_BASE_SECONDS = 5.0
+READ_SECONDS_PER_MB = 2.0
+READ_STALL_SECONDS = 2.0
 
 
 def cpu_cores() -> int:
@@ -91,14 +98,14 @@ class ResourceLimits:
     max_memory: int = DEFAULT_MAX_MEMORY
     max_samples_per_ray: int = DEFAULT_MAX_SAMPLES_PER_RAY
     max_inflate_ratio: int = DEFAULT_MAX_INFLATE_RATIO
-    max_read_seconds: float = DEFAULT_MAX_READ_SECONDS
+    max_read_seconds: float | None = None  # a flat limit a read (HOVR_MAX_READ_SECONDS); None: read_seconds
     max_processes: int = 0  # 0: default_max_processes() of the machine it runs on
 
     def __post_init__(self):
         if int(self.max_memory) <= 0 or int(self.max_samples_per_ray) <= 0 or int(self.max_inflate_ratio) <= 0 \
                 or int(self.max_processes) < 0:
             raise ValueError("resource limits must be positive")
-        if not float(self.max_read_seconds) > 0:
+        if self.max_read_seconds is not None and not float(self.max_read_seconds) > 0:
             raise ValueError("resource limits must be positive")
 
     @classmethod
@@ -141,8 +148,39 @@ def using(limits: ResourceLimits):
         _CURRENT.reset(token)
 
 
+def read_seconds(nbytes: int, cap: float | None = None, limits: ResourceLimits | None = None) -> float:
+    """The time one read of files of `nbytes` in all may take: the flat limit where one is set
+    (HOVR_MAX_READ_SECONDS: wall time), else READ_BASE_SECONDS + READ_SECONDS_PER_MB a MB of
+    processor time; at most `cap`."""
+    flat = (limits or current()).max_read_seconds
+    seconds = float(flat) if flat is not None else READ_BASE_SECONDS + READ_SECONDS_PER_MB * max(0, nbytes) / 1e6
+    return seconds if cap is None else min(seconds, float(cap))
+
+
+def read_stall_seconds(limits: ResourceLimits | None = None) -> float | None:
+    """How long a read may make no progress (progress()) before it is stopped; None under a flat
+    limit (the user's HOVR_MAX_READ_SECONDS for a genuine file a library reads in one long call)."""
+    return READ_STALL_SECONDS if (limits or current()).max_read_seconds is None else None
+
+
+_PROGRESS = 0
+
+
+def progress():
+    """Reading moves on (a file opened, a block inflated, a batch of elements parsed or checked):
+    the reader process reports that its count changed (io/reader_process.py), and a read whose
+    count stands still for READ_STALL_SECONDS is stopped. Costs an increment."""
+    global _PROGRESS
+    _PROGRESS += 1
+
+
+def progress_count() -> int:
+    return _PROGRESS
+
+
 def check_bytes(nbytes, what: str) -> int:
     """Refuse an allocation of `nbytes` for `what` beyond the memory limit, before it is made."""
+    progress()
     limit = current().max_memory
     if not nbytes <= limit:  # also refuses NaN
         raise ResourceLimitError(
@@ -211,6 +249,7 @@ OPEN_OBSERVERS: list = []
 def open_regular(path, what: str = "data file"):
     """A binary file object for a regular file. Opened without blocking and checked on the open
     descriptor, so a FIFO swapped in after a check cannot hold the process."""
+    progress()
     for observe in OPEN_OBSERVERS:
         observe(path, what)
     check_regular(path, what)
@@ -239,7 +278,10 @@ def read_regular(path, what: str = "data file", max_bytes: int | None = None) ->
             raise ResourceLimitError(f"{what} {path} is {format_size(size)}; at most {format_size(max_bytes)} "
                                      f"is accepted")
         check_bytes(size, f"reading {what} {path}")
-        data = fh.read(size + 1)
+        try:
+            data = fh.read(size + 1)
+        except OSError as exc:  # a regular file that cannot be read: /proc/self/mem
+            raise UnsafeFileError(f"{what} {path}: cannot be read ({exc.strerror or exc})") from None
     if len(data) > size:
         raise UnsafeFileError(f"{what} {path} grew while it was read; refused")
     return data
@@ -369,6 +411,7 @@ def inflate(data, max_bytes: int, what: str, codec: str = "zlib", exact: bool = 
     out, unused = [], []
     produced = 0
     for chunk in chunks:
+        progress()
         if d.eof:
             unused.append(bytes(chunk))
             continue

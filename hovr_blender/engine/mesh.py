@@ -14,9 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import expansions as ex
+from . import limits
 from .expansions import MODIFIED_A
 from .mesh_base import TOLERANCE, DerivedFieldError, MeshError
 from .shapes import HEX, MAX_MODES, NAMES, VERTICES
+
+_AFFINE_BATCH = 2048  # elements a call of _affine_maps: a reader reports progress between calls
 
 
 def affine_from_hex_vertices(v: np.ndarray, element: int = 0, rtol: float = 1e-9):
@@ -55,7 +58,7 @@ def _affine_maps(shape: int, gmodes, G: np.ndarray):
     good = np.isfinite(det) & (extent > 0) & (np.abs(det) > 1e-12 * extent**3)
     pts = ex.fit_points(shape, gmodes)
     B = ex.basis_matrix(shape, gmodes, pts)
-    dev = np.abs(np.einsum("pk,mkc->mpc", B, G) - (V[:, None, 0] + np.einsum("pd,mcd->mpc", pts + 1.0, J))).max(axis=(1, 2))
+    dev = np.abs(np.matmul(B, G) - (V[:, None, 0] + np.einsum("pd,mcd->mpc", pts + 1.0, J))).max(axis=(1, 2))
     ok = good & (dev <= 1e-12 * (extent + np.abs(V).max(axis=(1, 2))))
     maps = np.zeros((len(G), 3, 4))
     if ok.any():
@@ -118,6 +121,7 @@ class VolumeMesh:
                             f"{len(geom_coeffs_per_element)} geometry blocks")
         flat, gflat = [], []
         for e in range(n):  # validate every block (cheap), then do the geometry per group
+            limits.progress()
             sh = int(shapes[e])
             if sh not in NAMES:
                 raise MeshError(f"element {e}: unknown shape id {sh}")
@@ -141,9 +145,11 @@ class VolumeMesh:
         keys = np.concatenate([shapes[:, None], geom_modes], axis=1)
         for key in np.unique(keys, axis=0):
             sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
-            idx = np.nonzero((keys == key).all(axis=1))[0]
-            G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
-            vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
+            group = np.nonzero((keys == key).all(axis=1))[0]
+            for idx in np.array_split(group, -(-group.size // _AFFINE_BATCH)):  # each element on its own
+                limits.progress()
+                G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
+                vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
         sizes = np.array([f.size for f in flat], dtype=np.int64)
         gsizes = np.array([g.shape[0] for g in gflat], dtype=np.int64)
         out = cls(

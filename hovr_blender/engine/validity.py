@@ -50,6 +50,7 @@ import numpy as np
 from numpy.polynomial import chebyshev
 
 from . import expansions as ex
+from . import limits
 from .mesh_base import TOLERANCE, MeshError
 from .shapes import CENTROIDS, HEX, NAMES, PRISM, PYR, TET
 
@@ -271,10 +272,12 @@ def _roots(shape, modes, G, centre, sizes, column_bound=False) -> _Roots:
     S = int(np.prod(sizes))
     out = _Roots(np.empty((n, *sizes)), np.empty(n), np.empty(n), np.empty(n), np.empty((n, 3)),
                  np.empty(n, bool), np.empty((n, 3)) if column_bound else None)
+    limits.progress()
     e = s.entry_rounding(G, centre).sum(axis=1)  # (n, 3) column 1-norm bounds of the rounding
     lebesgue = np.prod([a.lebesgue for a in s.axes])
     step = max(1, _CHUNK // (9 * S))
     for i0 in range(0, n, step):
+        limits.progress()
         sl = slice(i0, min(n, i0 + step))
         cols = s.columns(G[sl])
         m = cols[0].shape[1]
@@ -362,6 +365,7 @@ def jacobian_validity(shape, modes, G, tolerance: float = TOLERANCE, max_boxes: 
         return out
     with np.errstate(all="ignore"):
         Gc, centre = _centred(shape, modes, G)
+        limits.progress()
         todo = np.arange(n)
         if modes != _STRAIGHT and min(modes) >= 2:
             bounds = _mode_gradient_bounds(shape, modes)
@@ -398,6 +402,7 @@ def _full_pass(shape, modes, G, centre, tolerance, max_boxes, out, index):
     coeffs, allowance, element = r.coeffs, r.allowance.copy(), np.arange(n)  # the open boxes
     lo, hi = np.full((n, 3), -1.0), np.full((n, 3), 1.0)
     while coeffs.shape[0]:
+        limits.progress()
         _lowest_of_boxes(shape, coeffs, lo, hi, element, axes, lowest, where)
         bad = (status < 0) & (lowest <= tolerance * scale)
         status[bad] = np.where(lowest[bad] < -tolerance * scale[bad], INVERTED, DEGENERATE)

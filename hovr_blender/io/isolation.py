@@ -11,8 +11,14 @@ arguments and result travel as JSON, its arrays as raw bytes of whitelisted dtyp
 process reads into arrays it allocates after checking their sizes against the memory limit.
 
 Limits of each task, in the reader process: its address space may grow by the memory limit
-(engine/limits.py, RLIMIT_AS; Linux), its wall time is the read time limit (this process kills it;
-an alarm in it ends it anyway should this process be gone). A reader process ends with this one:
+(engine/limits.py, RLIMIT_AS; Linux); its processor time may be the read time limit, a base and
+a rate for each MB of the files it opens (limits.read_seconds: this process counts their sizes as
+the reader names them; processor time, so a loaded machine does not refuse an honest read), and it
+is stopped when it reports no progress for limits.READ_STALL_SECONDS of wall time (the reader
+reports, with its processor time, whenever limits.progress() was called since its last report:
+libhdf5 looping on a damaged file reports nothing). HOVR_MAX_READ_SECONDS makes it a flat limit on
+the wall time, without the progress check. This process kills it; a timer in it (SIGPROF, or
+SIGALRM for a flat limit) ends it anyway should this process be gone. A reader process ends with this one:
 a parent-death signal (Linux), the end of its request pipe (everywhere). It ignores SIGINT: Ctrl-C
 reaches this process, which stops it.
 
@@ -29,15 +35,16 @@ import atexit
 import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
-from ..engine import limits
+from ..engine import limits, scratch
 from .reader_protocol import ARRAY_DTYPES, HEADER, ReaderFailure, array_specs, decode, send
 
 ENV_SWITCH = "HOVR_ISOLATION"
@@ -46,6 +53,13 @@ START_SECONDS = 120.0  # for a reader process to start (import numpy, the reader
 ADDRESS_SLACK = 256 << 20  # beyond the memory limit: the interpreter's own allocations during a task
 MAX_MESSAGE = 16 << 20  # a JSON message (arrays travel beside it)
 ALARM_GRACE = 5.0  # the reader ends itself this long after its deadline, should nobody stop it
+MAX_FILES_COUNTED = 10_000  # files a read's time limit counts (a multi-part field folder has one a rank)
+# A reader that makes no progress and uses no processor time (blocked: a file system that never
+# answers) is stopped after this long; one that uses processor time after READ_STALL_SECONDS of it.
+READ_BLOCKED_SECONDS = 60.0
+STALL_WALL_SECONDS = 15.0  # the stall check in wall time, where the reader's processor time is not known
+CHECK_SECONDS = 0.1
+BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")  # the reader's: one each
 
 # The package is loaded as the render devices' processes load it (engine/bootstrap.py, run from
 # its file: nothing of the package is importable before), under this process's name for it.
@@ -87,6 +101,33 @@ def interpreter() -> str:
 
 # ----------------------------------------------------------------------------- the process
 
+def process_cpu_seconds(proc) -> float | None:
+    """The processor time (user and system) a child process has used, where this platform tells
+    (Linux: /proc; Windows: GetProcessTimes; elsewhere psutil, where installed); None otherwise, or
+    once it is gone."""
+    try:
+        if sys.platform.startswith("linux"):
+            with open(f"/proc/{proc.pid}/stat", "rb") as fh:
+                fields = fh.read().rsplit(b")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        if os.name == "nt":
+            import ctypes
+            from ctypes import wintypes
+
+            times = [wintypes.FILETIME() for _ in range(4)]
+            if not ctypes.windll.kernel32.GetProcessTimes(int(proc._handle), *[ctypes.byref(t) for t in times]):
+                return None
+            return sum((t.dwHighDateTime << 32 | t.dwLowDateTime) for t in times[2:]) / 1e7
+        import psutil
+
+        used = psutil.Process(proc.pid).cpu_times()
+        return used.user + used.system
+    except (OSError, ValueError, IndexError, AttributeError, ImportError):
+        return None
+    except Exception:  # noqa: BLE001  (psutil's NoSuchProcess, AccessDenied)
+        return None
+
+
 def _package_dir() -> Path:
     return Path(__file__).resolve().parents[1]
 
@@ -122,9 +163,12 @@ class _Worker:
                   "parent": os.getpid(), "alarm_grace": ALARM_GRACE,
                   "address_slack": ADDRESS_SLACK, "death_signal": threading.current_thread() is threading.main_thread()}
         self.owner = os.getpid()
-        self.log = tempfile.TemporaryFile(prefix="hovr-reader-")  # its stderr: kept for HOVR_DEBUG, never shown
+        private = scratch.run_folder()  # its temporary files too: never the shared temporary folder
+        self.log = tempfile.TemporaryFile(prefix="hovr-reader-", dir=private)  # its stderr, for HOVR_DEBUG
+        env = scratch.child_env(private)
+        env.update(dict.fromkeys(BLAS_THREADS, "1"))  # no spinning BLAS threads: its processor time is the read's
         self.proc = subprocess.Popen([interpreter(), "-I", "-c", BOOT, json.dumps(config)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True)
+                                     stdout=subprocess.PIPE, stderr=self.log, bufsize=0, close_fds=True, env=env)
         self.stdin = self.proc.stdin.fileno()
         self.stdout = self.proc.stdout
 
@@ -244,15 +288,22 @@ class Request:
     """One task in a reader process: `poll()` until it is done (then `value()`), or `cancel()`.
     `stage` is what the reader is doing, in words ("reading flow.fld")."""
 
-    def __init__(self, task: str, args: dict, seconds: float, what: str = ""):
-        self.task, self.what, self.seconds = task, what, float(seconds)
+    def __init__(self, task: str, args: dict, seconds: float | None = None, what: str = "",
+                 cap: float | None = None):
+        self.task, self.what = task, what
         self.stage = "starting the reader"
         self.done = False
         self._result = self._error = None
         self._file = what
         self._limits = limits.current()
-        self._worker = _take()
+        if seconds is not None:  # a flat limit for this task (no progress check), as HOVR_MAX_READ_SECONDS
+            self._limits = replace(self._limits, max_read_seconds=float(seconds))
+        self._cap = cap
+        self._opened: dict = {}  # the files the reader opened -> their sizes (stat here): the time limit's MB
         self._deadline = time.monotonic() + START_SECONDS  # then the time limit, from its "started"
+        self._progressed = None  # when the reader last reported progress (its first stage starts the clock)
+        self._cpu = 0.0  # the processor time the reader has used on the task, as far as known
+        self._cpu_start = self._cpu_progressed = None  # its processor time (process_cpu_seconds) then
         self._pending = bytearray(HEADER.size)  # what is being read: a length, a message or an array
         self._got = 0
         self._on_filled = self._length_read
@@ -260,11 +311,82 @@ class Request:
         self._specs: list = []
         self._reply = None
         self._started = False
+        self.on_message = None  # called as each message of the reader's arrives (bench/read_rate.py times them)
+        self._worker = _take()
         try:
-            send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits),
-                                      "seconds": self.seconds})
+            send(self._worker.stdin, {"task": task, "args": args, "limits": asdict(self._limits), "cap": cap})
         except OSError:  # it died before the request: a broken start
             self._fail_dead()
+
+    @property
+    def seconds(self) -> float:
+        """The time limit of this read as it stands (processor time; wall time for a flat limit):
+        it grows with the files the reader opens."""
+        return limits.read_seconds(self.opened_bytes, self._cap, self._limits)
+
+    @property
+    def opened_bytes(self) -> int:
+        """The sizes of the files the reader has opened, in all: what the time limit's MB count."""
+        return sum(self._opened.values())
+
+    @property
+    def cpu_seconds(self) -> float:
+        """The processor time the reader has used on the task, as far as known here."""
+        return self._cpu
+
+    def reader_cpu_seconds(self) -> float | None:
+        """The reader process's processor time now (process_cpu_seconds), None where not known."""
+        return None if self._worker is None else process_cpu_seconds(self._worker.proc)
+
+    @property
+    def _flat(self) -> bool:
+        return self._limits.max_read_seconds is not None
+
+    def _time_limit(self) -> str:
+        """What passed the time limit, in words."""
+        if self._flat:
+            return (f"reading took longer than the limit of {self.seconds:.3g} s and was stopped (raise it with "
+                    "HOVR_MAX_READ_SECONDS if the file is genuine)")
+        mb = self.opened_bytes / 1e6
+        return (f"reading used more than its limit of {self.seconds:.3g} s of processor time "
+                f"({limits.READ_BASE_SECONDS:g} s + {limits.READ_SECONDS_PER_MB:g} s a MB of the {mb:.3g} MB read) "
+                "and was stopped (HOVR_MAX_READ_SECONDS sets a flat limit instead, if the file is genuine)")
+
+    def _limit_reached(self, now: float) -> str | None:
+        """Why the task must stop now, or None."""
+        if not self._started:
+            return (f"the reader process did not start within {START_SECONDS:g} s" if now >= self._deadline
+                    else None)
+        if self._flat:
+            return self._time_limit() if now >= self._deadline + self.seconds else None
+        cpu = self.reader_cpu_seconds()
+        if cpu is not None and self._cpu_start is not None:
+            self._cpu = max(self._cpu, cpu - self._cpu_start)
+        if self._cpu > self.seconds:
+            return self._time_limit()
+        stall = limits.read_stall_seconds(self._limits)
+        if cpu is not None and self._cpu_progressed is not None:  # processor time: a loaded machine slows both
+            looping = cpu - self._cpu_progressed >= stall
+        else:  # where the reader's processor time is not known: wall time, with room for a loaded machine
+            looping = now >= self._progressed + STALL_WALL_SECONDS
+        if looping:
+            return (f"the reader made no progress for {stall:g} s of processor time and was stopped (a damaged "
+                    "file can make a library loop without end; if the file is genuine, HOVR_MAX_READ_SECONDS "
+                    "sets a flat limit)")
+        if now >= self._progressed + READ_BLOCKED_SECONDS:
+            return f"the reader made no progress for {READ_BLOCKED_SECONDS:g} s and was stopped"
+        return None
+
+    def _next_check(self) -> float:
+        if not self._started:
+            return self._deadline
+        if self._flat:
+            return self._deadline + self.seconds
+        return time.monotonic() + CHECK_SECONDS  # the reader's processor time is looked at this often
+
+    def _progress_reported(self):
+        self._progressed = time.monotonic()
+        self._cpu_progressed = self.reader_cpu_seconds()
 
     @property
     def pid(self) -> int | None:
@@ -278,12 +400,11 @@ class Request:
         end = time.monotonic() + max(timeout, 0.0)
         while not self.done:
             now = time.monotonic()
-            if now >= self._deadline:
-                self._stop(f"reading took longer than the limit of {self.seconds:g} s and was stopped (raise it "
-                           "with HOVR_MAX_READ_SECONDS if the file is genuine)" if self._started else
-                           f"the reader process did not start within {START_SECONDS:g} s")
+            why = self._limit_reached(now)
+            if why is not None:
+                self._stop(why)
                 break
-            wait = min(end, self._deadline) - now
+            wait = min(end, self._next_check()) - now
             if not _wait_readable(self._worker.stdout.fileno(), max(wait, 0.0)):
                 if time.monotonic() >= end:
                     break
@@ -295,6 +416,8 @@ class Request:
             if not n:
                 self._fail_dead()
                 break
+            if self._started:  # a long reply is progress too
+                self._progress_reported()
             self._got += n
             if self._got == len(self._pending):
                 self._on_filled()
@@ -315,17 +438,25 @@ class Request:
         self._expect(size, self._message_read)
 
     def _message_read(self):
+        if self.on_message is not None:
+            self.on_message()
         try:
             message = json.loads(bytes(self._pending))
         except ValueError:
             self._stop("the reader process sent a malformed message")
             return
-        if "stage" in message:
-            if not self._started:
+        if "stage" in message or "progress" in message:
+            self._progress_reported()
+            if not self._started:  # the time limit runs from here (_deadline: when it started)
                 self._started = True
-                self._deadline = time.monotonic() + self.seconds
-            self.stage = _one_line(message["stage"], 200)
-            self._file = _one_line(message.get("file", self._file), 1000)
+                self._deadline, self._cpu_start = self._progressed, self._cpu_progressed
+            if isinstance(message.get("cpu"), (int, float)):
+                self._cpu = float(message["cpu"])
+            if "stage" in message:
+                self.stage = _one_line(message["stage"], 200)
+                self._file = _one_line(message.get("file", self._file), 1000)
+                if "file" in message:
+                    self._count_file(str(message["file"]))
             self._expect(HEADER.size, self._length_read)
         elif "error" in message:
             self._reply = message
@@ -350,6 +481,15 @@ class Request:
                 self._stop("the reader process sent a malformed result")
                 return
             self._next_array()
+
+    def _count_file(self, path: str):
+        """A file the reader opened counts towards the time limit by its size, as this process sees it."""
+        if path not in self._opened and len(self._opened) < MAX_FILES_COUNTED:
+            try:
+                st = os.stat(path)
+                self._opened[path] = st.st_size if stat.S_ISREG(st.st_mode) else 0
+            except (OSError, ValueError):
+                self._opened[path] = 0
 
     def _next_array(self):
         import numpy as np
@@ -406,8 +546,8 @@ class Request:
                 name = signal.Signals(-code).name
             except ValueError:
                 name = f"signal {-code}"
-            if -code == getattr(signal, "SIGALRM", None):
-                why = f"reading took longer than the limit of {self.seconds:g} s and was stopped"
+            if -code in (getattr(signal, "SIGALRM", None), getattr(signal, "SIGPROF", None)):
+                why = self._time_limit()
             elif -code == signal.SIGKILL:
                 why = "the reader process was killed (SIGKILL, perhaps out of memory) while reading it; refused"
             else:
@@ -467,17 +607,17 @@ class Finished:
         return self._result
 
 
-def start(task: str, args: dict, seconds: float | None = None, what: str = ""):
+def start(task: str, args: dict, seconds: float | None = None, what: str = "", cap: float | None = None):
     """reader_process.TASKS[task](**args) started in a reader process: a Request to poll (or a
-    Finished one where isolation is off). `what`: the file named by failures before the reader
-    says which it opened."""
+    Finished one where isolation is off). `seconds`: a flat time limit instead of the resource
+    policy's (limits.read_seconds: by the size of what is read, and no progress for a few seconds
+    stops it); `cap`: at most this long. `what`: the file named by failures before the reader says
+    which it opened."""
     if not enabled():
         from .reader_process import TASKS
 
         return Finished(lambda: TASKS[task](**args))
-    if seconds is None:
-        seconds = limits.current().max_read_seconds
-    return Request(task, args, seconds, what)
+    return Request(task, args, seconds, what, cap)
 
 
 def wait(request, on_stage=None, cancelled=None):
@@ -497,10 +637,11 @@ def wait(request, on_stage=None, cancelled=None):
     return request.value()
 
 
-def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None):
+def call(task: str, args: dict, seconds: float | None = None, what: str = "", on_stage=None, cancelled=None,
+         cap: float | None = None):
     """Run reader_process.TASKS[task](**args) in a reader process and return its result (start,
     then wait)."""
-    return wait(start(task, args, seconds, what), on_stage, cancelled)
+    return wait(start(task, args, seconds, what, cap), on_stage, cancelled)
 
 
 # ----------------------------------------------------------------------------- the tasks, called here
@@ -536,7 +677,7 @@ def read_volume(source, **progress):
 def list_fields_request(format_name: str, path):
     """list_fields started in a reader process (start)."""
     return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(path))
+                 what=str(path), cap=LIST_SECONDS)
 
 
 def list_fields(format_name: str, path, **progress):
@@ -550,7 +691,7 @@ def wall_choices_request(format_name: str, mesh_path):
     (lists: wall_choices makes them tuples)."""
     return start("wall_choices", {"format_name": format_name, "path": str(mesh_path),
                                   "extra_formats": _extra_formats()},
-                 seconds=min(LIST_SECONDS, limits.current().max_read_seconds), what=str(mesh_path))
+                 what=str(mesh_path), cap=LIST_SECONDS)
 
 
 def wall_choices(format_name: str, mesh_path, **progress) -> list:

@@ -13,6 +13,8 @@ import json
 import os
 import signal
 import sys
+import threading
+import time
 
 from ..engine import limits
 from . import formats, volume_source
@@ -59,6 +61,8 @@ def _wall_faces(format_name, path, selection, extra_formats=()):
     return formats.named(format_name).boundaries(path).select(selection)
 
 
+HEARTBEAT_SECONDS = 0.25  # how often the reader reports that it progressed (the parent's stall check)
+
 TASKS = {"read_volume": _read_volume, "list_fields": _list_fields, "wall_choices": _wall_choices,
          "wall_faces": _wall_faces}
 
@@ -88,21 +92,100 @@ def _read_exact(fd: int, n: int) -> bytes | None:
     return bytes(out)
 
 
-def _stage_reporter(fd: int):
-    def opened(path, what):
-        send(fd, {"stage": f"reading {os.path.basename(str(path))}", "file": str(path)})
-    return opened
+class _Task:
+    """The task running now, as the reader's threads see it: its limits, the files it opened (their
+    sizes make its time limit) and whether it is running; `lock` orders the messages on the pipe."""
+
+    def __init__(self, out: int, grace: float):
+        self.out, self.grace = out, grace
+        self.lock = threading.Lock()
+        self.running = False
+        self.limits = limits.ResourceLimits()
+        self.cap = None
+        self.opened: dict = {}
+        self.started = self.cpu = 0.0
+
+    def send(self, message: dict, arrays=()):
+        with self.lock:
+            send(self.out, message, arrays)
+
+    def begin(self, request: dict):
+        self.limits = limits.ResourceLimits(**request["limits"])
+        self.cap = request.get("cap")
+        self.opened = {}
+        self.started, self.cpu = time.monotonic(), time.process_time()
+        with self.lock:
+            self.running = True
+            send(self.out, {"stage": "reading"})  # the parent's time limit starts now
+        self.arm_alarm()
+
+    def end(self, message: dict, arrays):
+        """The reply, and no progress message after it."""
+        with self.lock:
+            self.running = False
+            send(self.out, message, arrays)
+        if hasattr(signal, "setitimer"):
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.setitimer(signal.ITIMER_PROF, 0)
+
+    def cpu_seconds(self) -> float:
+        """The processor time the task has used (every thread of this process)."""
+        return time.process_time() - self.cpu
+
+    def arm_alarm(self):
+        """The task's time limit for the files opened so far, and a grace, enforced here too should
+        the parent be gone: SIGPROF when its processor time passes it (the policy's rule), SIGALRM
+        when the wall time passes a flat limit; the default action of both ends the process, C
+        loops included."""
+        if not hasattr(signal, "setitimer"):
+            return
+        seconds = limits.read_seconds(sum(self.opened.values()), self.cap, self.limits) + self.grace
+        if self.limits.max_read_seconds is None:
+            signal.setitimer(signal.ITIMER_PROF, max(seconds - self.cpu_seconds(), 0.001))
+        else:
+            signal.setitimer(signal.ITIMER_REAL, max(self.started + seconds - time.monotonic(), 0.001))
+
+    def opening(self, path, what):
+        """limits.OPEN_OBSERVERS: the stage and the file (the parent counts its size), the alarm moved."""
+        path = str(path)
+        if path not in self.opened:
+            try:
+                self.opened[path] = os.stat(path).st_size
+            except (OSError, ValueError):
+                self.opened[path] = 0
+            self.arm_alarm()
+        self.send({"stage": f"reading {os.path.basename(path)}", "file": path})
+
+    def heartbeat(self):
+        """A thread: every HEARTBEAT_SECONDS in which limits.progress() was called, one progress
+        message with the processor time used so far. A library looping in C (holding the
+        interpreter, or not calling back) sends none."""
+        seen = None
+        while True:
+            time.sleep(HEARTBEAT_SECONDS)
+            count = limits.progress_count()
+            with self.lock:
+                if self.running and count != seen:
+                    send(self.out, {"progress": count, "cpu": round(self.cpu_seconds(), 3)})
+                seen = count
 
 
-def _run(request: dict, out: int, config: dict):
-    send(out, {"stage": "reading"})  # the parent's time limit starts now
+class _ImportProgress:
+    """A finder of no module, first on sys.meta_path: each import a task makes (h5py's, at a first
+    HDF5 file: seconds on a loaded machine) counts as progress."""
+
+    @staticmethod
+    def find_spec(name, path=None, target=None):
+        limits.progress()
+        return None
+
+
+def _run(request: dict, task_state: _Task, config: dict):
     task = TASKS[request["task"]]
-    lim = limits.ResourceLimits(**request["limits"])
-    limits.cap_address_space(lim.max_memory + int(config["address_slack"]))
-    if hasattr(signal, "setitimer"):  # SIGALRM's default action ends the process, C loops included
-        signal.setitimer(signal.ITIMER_REAL, float(request["seconds"]) + float(config["alarm_grace"]))
+    task_state.begin(request)
+    limits.cap_address_space(task_state.limits.max_memory + int(config["address_slack"]))
     try:
-        with limits.using(lim):
+        with limits.using(task_state.limits):
             value = task(**request["args"])
         arrays: list = []
         result = encode(value, arrays)
@@ -111,9 +194,6 @@ def _run(request: dict, out: int, config: dict):
         return {"error": {"kind": "MemoryError", "message": "out of memory"}}, []
     except Exception as exc:  # noqa: BLE001  (every failure goes back as one line)
         return {"error": {"kind": type(exc).__name__, "message": str(exc)}}, []
-    finally:
-        if hasattr(signal, "setitimer"):
-            signal.setitimer(signal.ITIMER_REAL, 0)
 
 
 def main(config: dict):
@@ -123,7 +203,10 @@ def main(config: dict):
     _die_with_parent(int(config["parent"]), bool(config["death_signal"]))
     out = os.dup(1)
     os.dup2(2, 1)
-    limits.OPEN_OBSERVERS.append(_stage_reporter(out))
+    task_state = _Task(out, float(config["alarm_grace"]))
+    limits.OPEN_OBSERVERS.append(task_state.opening)
+    sys.meta_path.insert(0, _ImportProgress)
+    threading.Thread(target=task_state.heartbeat, name="hovr-reader-heartbeat", daemon=True).start()
     header = HEADER
     while True:
         raw = _read_exact(0, header.size)
@@ -132,6 +215,6 @@ def main(config: dict):
         body = _read_exact(0, header.unpack(raw)[0])
         if body is None:
             break
-        message, arrays = _run(json.loads(body), out, config)
-        send(out, message, arrays)
+        message, arrays = _run(json.loads(body), task_state, config)
+        task_state.end(message, arrays)
     os._exit(0)

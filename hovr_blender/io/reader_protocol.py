@@ -2,6 +2,11 @@
 parent, io/reader_process.py in the reader): each message is HEADER (its length) and a JSON body,
 then the raw bytes of the arrays it names, in order, each of a dtype in ARRAY_DTYPES; `encode`
 turns a task's result into that JSON (its arrays appended beside it) and `decode` turns it back.
+
+The messages: a request {"task", "args", "limits", "cap"}; while it runs, {"stage", "file"} (a
+file opened: the parent counts its size towards the time limit) and {"progress", "cpu"} (the
+reader's limits.progress() count moved; the processor time it used), the parent's stall check;
+then one reply, {"result"} or {"error": {"kind", "message"}}.
 """
 from __future__ import annotations
 

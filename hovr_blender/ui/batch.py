@@ -3,18 +3,30 @@
 A script, not imported by the add-on:
 
     python batch.py FILE.blend FRAME ROOT MODE             (bpy as a Python module: registers the add-on)
-    blender -b --disable-autoexec FILE.blend --python-exit-code 2 --python batch.py -- FRAME ROOT MODE
+    blender -b --disable-autoexec --python-exit-code 2 --python batch.py -- FRAME ROOT MODE FILE.blend
                                                            (a Blender with the add-on enabled)
 
-The .blend is opened without running its scripts (`--disable-autoexec`; `use_scripts=False` for
-the module). Its outputs are confined to ROOT: MODE "into" writes each frame into the folder ROOT
-under the file name the .blend gives it; MODE "under" keeps the .blend's output path only if it
-lies under ROOT (the .blend's own folder). A compositor File Output node writing elsewhere, or an
-output path outside ROOT, is refused naming the path (`HOVR-ERROR <message>`, exit status 2).
+The .blend is untrusted. Before it is opened (opening it evaluates its scene: a fluid domain
+writes its cache folder then), its datablocks are linked in, not evaluated, and those that make
+Blender write while it renders are checked (`write_paths`): a fluid domain's cache folder, a
+point cache on disk (particles, cloth, soft bodies, dynamic paint, rigid bodies: written as
+frames are simulated) and the compositor's File Output nodes (inside node groups too) must lie in
+ROOT, or the .blend is refused naming the path (`HOVR-ERROR <message>`, exit status 2). Bakes,
+exports (Alembic, USD) and sequencer proxies are written only by their operators, which this
+script never runs. On Linux, Blender's writes are also confined by the operating system to ROOT
+and its private temporary folder (engine/landlock.py, set up by the task that starts Blender),
+so what this list misses is refused by the kernel.
 
-Prints `HOVR-EXISTS {"out": ...}` when the frame's output (scene.render.frame_path, as
-`blender -b -a` names it) exists already, else renders and prints
-`HOVR-RENDERED {"tmp": ..., "out": ...}`.
+Then the .blend is opened without running its scripts (`--disable-autoexec`; `use_scripts=False`
+for the module). MODE "into" writes each frame into the folder ROOT under the file name the
+.blend gives it; MODE "under" keeps the .blend's output path only if it lies under ROOT (the
+.blend's own folder).
+
+Its reports go to the task alone, a JSON line each on the file descriptor HOVR_RESULT_FD (a pipe
+the task made; never stdout, where an object's name can print anything): `{"status": "exists",
+"out": ...}` when the frame's output (scene.render.frame_path, as `blender -b -a` names it)
+exists already; else `{"status": "rendering", "out": ..., "tmp": ...}` before it renders to
+`.<name>.<pid>.tmp` beside it, and `{"status": "rendered", ...}` after.
 """
 import json
 import os
@@ -23,6 +35,7 @@ import sys
 import bpy
 
 EXIT_REFUSED = 2
+RESULT_FD = "HOVR_RESULT_FD"
 
 
 class Refused(Exception):
@@ -36,17 +49,78 @@ def _inside(path: str, root: str) -> bool:
     return os.path.commonpath([real, top]) == top
 
 
-def _file_output_paths(scene):
-    """The folders the scene's compositor File Output nodes write to."""
-    tree = getattr(scene, "compositing_node_group", None) or getattr(scene, "node_tree", None)
-    if tree is None:
+def _nodes(tree, seen=None):
+    """The nodes of a node tree and of the node groups inside it, each group once."""
+    seen = set() if seen is None else seen
+    if tree is None or tree.name_full in seen:
         return
+    seen.add(tree.name_full)
     for node in tree.nodes:
+        yield node
+        yield from _nodes(getattr(node, "node_tree", None), seen)
+
+
+def _file_output_paths(scene):
+    """(name, folder) of the scene's compositor File Output nodes (those in node groups included)."""
+    tree = getattr(scene, "compositing_node_group", None) or getattr(scene, "node_tree", None)
+    for node in _nodes(tree):
         if node.bl_idname == "CompositorNodeOutputFile":
             for attr in ("base_path", "directory"):
                 value = getattr(node, attr, None)
                 if value:
-                    yield node.name, bpy.path.abspath(value)
+                    yield f"the compositor's File Output node {node.name!r}", _absolute(value, scene)
+
+
+def _absolute(path: str, datablock) -> str:
+    """A datablock's path made absolute: a // path from the .blend it comes from."""
+    return os.path.abspath(bpy.path.abspath(path, library=getattr(datablock, "library", None)))
+
+
+def _point_caches(ob):
+    """(what, point cache) of an object's simulations."""
+    for psys in getattr(ob, "particle_systems", ()):
+        yield f"particle system {psys.name!r}", psys.point_cache
+    for mod in getattr(ob, "modifiers", ()):
+        if getattr(mod, "point_cache", None) is not None:
+            yield f"modifier {mod.name!r}", mod.point_cache
+        for surface in getattr(getattr(mod, "canvas_settings", None), "canvas_surfaces", ()) or ():
+            yield f"dynamic paint surface {surface.name!r}", surface.point_cache
+
+
+def write_paths(objects, scenes, blend: str):
+    """(what, path) of every place the datablocks make Blender write while it renders (module doc)."""
+    disk_cache = os.path.join(os.path.dirname(os.path.abspath(blend)),
+                              "blendcache_" + os.path.splitext(os.path.basename(blend))[0])
+    for ob in objects:
+        for mod in getattr(ob, "modifiers", ()):
+            if mod.type == "FLUID" and mod.fluid_type == "DOMAIN":
+                yield f"the fluid cache folder of object {ob.name!r}", _absolute(mod.domain_settings.cache_directory, ob)
+        for what, cache in _point_caches(ob):
+            if cache is not None and cache.use_disk_cache and not cache.use_external:
+                yield f"the disk cache of object {ob.name!r}'s {what}", disk_cache
+    for scene in scenes:
+        world = getattr(scene, "rigidbody_world", None)
+        cache = getattr(world, "point_cache", None)
+        if cache is not None and cache.use_disk_cache and not cache.use_external:
+            yield f"the rigid body disk cache of scene {scene.name!r}", disk_cache
+        yield from _file_output_paths(scene)
+
+
+def check_datablocks(blend: str, root: str):
+    """Refused if a datablock of `blend` would make Blender write outside `root` (write_paths),
+    looked at before the .blend is opened: its objects and scenes linked into this empty file,
+    where nothing evaluates them."""
+    with bpy.data.libraries.load(blend, link=True) as (src, dst):
+        dst.objects = list(src.objects)
+        dst.scenes = list(src.scenes)
+    try:
+        for what, path in write_paths([o for o in dst.objects if o is not None],
+                                      [s for s in dst.scenes if s is not None], blend):
+            if not _inside(path, root):
+                raise Refused(f"{what} is {path}, outside {root} (Blender writes there while it renders); refused")
+    finally:
+        for library in list(bpy.data.libraries):
+            bpy.data.libraries.remove(library)
 
 
 def output_path(scene, frame: int, root: str, mode: str) -> str:
@@ -57,17 +131,22 @@ def output_path(scene, frame: int, root: str, mode: str) -> str:
     elif not _inside(out, root):
         raise Refused(f"the .blend's output path {out} is outside its own folder {root}; refused "
                       f"(give render-blend -o FOLDER to write the frames there)")
-    for name, path in _file_output_paths(scene):
+    for what, path in _file_output_paths(scene):
         if not _inside(path, root):
-            raise Refused(f"the compositor's File Output node {name!r} writes to {path}, outside {root}; refused")
+            raise Refused(f"{what} writes to {path}, outside {root}; refused")
     return out
+
+
+def _report(report: dict):
+    """One line to the task alone (the pipe HOVR_RESULT_FD names)."""
+    os.write(int(os.environ[RESULT_FD]), (json.dumps(report) + "\n").encode())
 
 
 def render_scene_frame(frame: int, root: str, mode: str):
     scene = bpy.context.scene
     out = output_path(scene, frame, root, mode)
     if os.path.lexists(out):
-        print("HOVR-EXISTS", json.dumps({"out": out}), flush=True)
+        _report({"status": "exists", "out": out})
         return
     os.makedirs(os.path.dirname(out), exist_ok=True)
     if not _inside(os.path.dirname(out), root):  # a link among the folders just made
@@ -76,25 +155,28 @@ def render_scene_frame(frame: int, root: str, mode: str):
     tmp = os.path.join(os.path.dirname(out), f".{os.path.basename(out)}.{os.getpid()}.tmp")
     if os.path.lexists(tmp):
         os.unlink(tmp)
+    _report({"status": "rendering", "tmp": tmp, "out": out})  # the task removes it, whatever happens next
     scene.render.filepath = tmp
     scene.render.use_file_extension = False
     bpy.ops.render.render(write_still=True)
-    print("HOVR-RENDERED", json.dumps({"tmp": tmp, "out": out}), flush=True)
+    _report({"status": "rendered", "tmp": tmp, "out": out})
 
 
-def _run(frame: str, root: str, mode: str) -> int:
+def _run(blend: str, frame: str, root: str, mode: str) -> int:
     try:
+        check_datablocks(blend, root)
+        bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)
         render_scene_frame(int(frame), root, mode)
     except Refused as exc:
-        print("HOVR-ERROR", exc, flush=True)
+        print("HOVR-ERROR", " ".join(str(exc).split()), flush=True)
         return EXIT_REFUSED
     return 0
 
 
 def main():
-    if "--" in sys.argv:  # inside a Blender: the .blend is open (scripts not run), the add-on enabled
-        frame, root, mode = sys.argv[sys.argv.index("--") + 1:][:3]
-        code = _run(frame, root, mode)
+    if "--" in sys.argv:  # inside a Blender started without the .blend: the add-on is enabled
+        frame, root, mode, blend = sys.argv[sys.argv.index("--") + 1:][:4]
+        code = _run(blend, frame, root, mode)
         if code:
             sys.exit(code)  # with --python-exit-code, Blender exits with it
         return
@@ -102,8 +184,7 @@ def main():
     import hovr_blender
 
     hovr_blender.register()
-    bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)
-    code = _run(frame, root, mode)
+    code = _run(blend, frame, root, mode)
     hovr_blender.unregister()
     from hovr_blender.ui import compat
 

@@ -6,7 +6,7 @@ renders; agreement within 1e-6 in depth and in value."""
 import numpy as np
 import pytest
 
-vtk = pytest.importorskip("vtk", reason="the vtk package (the independent reference's engine) is not installed")
+pytest.importorskip("vtkmodules.vtkIOXML", reason="the vtk package (the independent reference's engine) is not installed")
 
 from hovr_blender.audit import vtk_reference as R  # noqa: E402
 from hovr_blender.audit import vtk_volume  # noqa: E402

@@ -2,6 +2,7 @@
 run code on the scheduler nor on a worker (TLS with keys made for the run), the only ports open
 are the Dask comm ports that require those keys (no HTTP: no dashboard, no health or metrics
 pages), and the workers end when the process that made the cluster dies."""
+import json
 import os
 import signal
 import socket
@@ -182,3 +183,53 @@ def test_scheduler_option_connects_with_the_users_tls_files(cluster, tmp_path):
     with pytest.raises(RuntimeError, match="encryption required"):  # a plain tcp address is refused
         series.remote_client(cluster.scheduler_address.replace("tls://", "tcp://"), str(files["ca"]),
                              str(files["cert"]), str(files["key"]))
+
+
+def _answers_http(port) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+            raw.sendall(b"GET /health HTTP/1.0\r\n\r\n")
+            raw.settimeout(2)
+            return raw.recv(16).startswith(b"HTTP")
+    except OSError:
+        return False
+
+
+def test_no_port_answers_http_during_a_whole_run(tmp_path):
+    """`hovr render-series` on 2 workers, its process tree's listening sockets sampled from start to
+    end (every ~20 ms): the scheduler's, the nannies' and the workers' TLS ports only, 5 in all, and
+    each new one asked for HTTP at once. Dask's HTTP servers used to answer for ~5 s (scheduler)
+    and ~1 s (worker) before they were closed; now they never start."""
+    view = {"data": {"builtin": "sphere"}, "image": {"width": 16, "height": 12},
+            "camera": {"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0], "fov_y_deg": 40},
+            "transfer_function": {"color": [[0, 1, 1, 1], [1, 1, 0, 0]], "density": [[0, 1], [1, 5]]},
+            "background": [0, 0, 0]}
+    (tmp_path / "view.json").write_text(json.dumps(view))
+    (tmp_path / "out").mkdir()
+    proc = subprocess.Popen([sys.executable, "-m", "hovr_blender.cli", "render-series", str(tmp_path / "view.json"),
+                             "-o", str(tmp_path / "out" / "f_####.npy"), "--frames", "1-6", "--workers", "2",
+                             "--device", "cpu"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=dict(os.environ, PYTHONPATH=REPO))
+    seen, http, samples = set(), [], 0
+    root = psutil.Process(proc.pid)
+    while proc.poll() is None:
+        try:
+            tree = [root] + root.children(recursive=True)
+        except psutil.NoSuchProcess:
+            break
+        for p in tree:
+            try:
+                ports = {c.laddr.port for c in p.net_connections(kind="inet") if c.status == psutil.CONN_LISTEN}
+            except (psutil.NoSuchProcess, psutil.AccessDenied):
+                continue
+            for port in ports - seen:
+                seen.add(port)
+                if _answers_http(port):
+                    http.append(port)
+        samples += 1
+        time.sleep(0.02)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err.decode()[-2000:]
+    assert len(list((tmp_path / "out").glob("f_*.npy"))) == 6
+    assert samples > 20 and not http, (samples, seen, http)
+    assert len(seen) == 5, seen  # scheduler, 2 nannies, 2 workers: TLS all

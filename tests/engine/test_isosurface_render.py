@@ -1,31 +1,29 @@
 """Isosurfaces and cut planes in whole renders (contract §7) against analytic answers: a
 polynomial field on curved elements of all four shapes whose level set is a sphere (depth within
-1e-6 of the exact ray-sphere intersection in float64; float32 within a stated bound), a thin
-shell that a linearised contour misses, planes coloured by the field at the crossing, clipping,
-and the bad-input messages."""
+1e-6 of the exact ray-sphere intersection in float64; float32 within a stated bound; near
+tangency, nothing outside the band of audit/isosurface_band.py, and the rays of the 1920x1080
+frame that float32 got wrong), a thin shell that a linearised contour misses, planes coloured by
+the field at the crossing, clipping, and the bad-input messages."""
 import numpy as np
 import pytest
 
+from hovr_blender.audit import isosurface_band
+from hovr_blender.audit.scenes import BALL_CENTRE as CENTRE
+from hovr_blender.audit.scenes import BALL_RADIUS as RADIUS
+from hovr_blender.audit.scenes import ball_field as _ball
+from hovr_blender.audit.scenes import ball_mesh as _ball_mesh
+from hovr_blender.engine.camera import RayCamera
 from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, SurfaceError, Surfaces
 from hovr_blender.engine.render_result import RenderError
 from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
-from hovr_blender.io.synthetic import curved_cube, with_field
 from tests.helpers import framing
-
-CENTRE = np.array([0.5, 0.5, 0.45])
-RADIUS = 0.3
-
-
-def _ball(x, y, z):
-    return (x - CENTRE[0]) ** 2 + (y - CENTRE[1]) ** 2 + (z - CENTRE[2]) ** 2
 
 
 @pytest.fixture(scope="module")
 def ball_mesh():
-    # f(x(xi)) has degree 4 in xi on curved_cube's quadratic elements: 5 modes hold it exactly
-    return with_field(curved_cube(2), _ball, 5)
+    return _ball_mesh()
 
 
 def _clear_tf():
@@ -78,6 +76,94 @@ def test_sphere_depth_float32_bound(ball_mesh, device):
     hit = disc.reshape(res.depth.shape) > 1e-3
     err = np.abs(res.depth[hit] - t.reshape(res.depth.shape)[hit])
     assert err.max() < 2e-4, err.max()
+
+
+def _clear_render(mesh, device, cam, precision, alpha=0.5):
+    """The sphere level alone (opacity alpha, no volume) through camera cam."""
+    iso = Surfaces((Isosurface(RADIUS ** 2, (1.0, 1.0, 1.0), alpha),))
+    return Renderer(mesh, device).render(cam, _clear_tf(), np.zeros(3), RenderOptions(precision=precision, device=device),
+                                         surfaces=iso)
+
+
+def _silhouette_sweep(direction, normal, spacing, width):
+    """An orthographic camera of one row of `width` parallel rays along `direction`, their
+    origins `spacing` apart along `normal` (perpendicular to it), the middle one tangent to the
+    sphere: closest approaches from -width/2 to width/2 spacings off the surface."""
+    z = np.zeros(3)
+    o0 = CENTRE + RADIUS * normal - 3.0 * direction
+    return RayCamera(width, 1, o0, 0.5 * spacing * normal, z, direction, z, z, projection="orthographic")
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_nothing_outside_the_tangency_band(ball_mesh, device, precision):
+    """Rays across the sphere's silhouette at eight places (random directions, so the tangent
+    points fall in different elements and shapes), 1/16 of float32's band eta apart over +-8 eta:
+    outside the band (audit/isosurface_band.py, contract §7) a ray that misses draws nothing and
+    one that crosses meets the sphere twice (opacity 0.75 at 0.5 each), its depth within the
+    stated tolerance; and a frame of the scene at 128x72. float64 takes the same rays, all far
+    outside its own band."""
+    r = Renderer(ball_mesh, device)
+    map_error = isosurface_band.device_map_error(ball_mesh, isosurface_band.near_sphere(CENTRE, RADIUS))
+    eps32, eps = (isosurface_band.level_rounding(r, p, RADIUS ** 2, 2.0 * RADIUS, map_error)
+                  for p in ("float32", precision))
+    spacing = (2.0 * eps32 / (2.0 * RADIUS)) / 16.0
+    rng = np.random.default_rng(36)
+    in_band = 0
+    for _ in range(8):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        n = rng.normal(size=3)
+        n -= (n @ d) * d
+        n /= np.linalg.norm(n)
+        cam = _silhouette_sweep(d, n, spacing, 256)
+        res = _clear_render(ball_mesh, device, cam, precision)
+        o, dd = cam.rays()
+        got = isosurface_band.classify(res.rgba[0], res.depth[0], o[0], dd[0], CENTRE, RADIUS, eps, precision)
+        assert got["hits_outside_band"] > 64 and got["misses_outside_band"] > 64, got
+        assert got["outside_band"] == 0, got["failures"][:3]
+        in_band += got["in_band"]
+    if precision == "float32":
+        assert in_band > 100  # the sweeps do reach into the band
+    cam = framing(ball_mesh, 128, 72)
+    res = _clear_render(ball_mesh, device, cam, precision)
+    o, dd = cam.rays()
+    got = isosurface_band.classify(res.rgba, res.depth, o, dd, CENTRE, RADIUS, eps, precision)
+    assert got["hits_outside_band"] > 500 and got["outside_band"] == 0, got["failures"][:3]
+
+
+# Rays of the frame framing(ball_mesh, 1920, 1080) that float32 got wrong on the CPU (ffccdbf),
+# each as the 1x1 camera whose ray is the pixel's float32 ray bit for bit there (its origin and
+# unnormalised direction as the CPU kernel computes them; the kernel normalises it the same way).
+# On a GPU the frame's rays differ in their last bits (fused multiply-adds): there these are rays
+# like the frame's, checked all the same.
+EYE = [2.192173719406128, -0.8287389278411865, 1.6870216131210327]
+FRAME_RAYS = {
+    # passes at 0.67 R from the centre: its entry into the sphere fell in the gap of 5e-6 the
+    # traversal leaves between a tetrahedron's exit (element 15) and a prism's entry (element 2),
+    # so no segment's series held it; the exit, 0.443 deeper, was drawn
+    "entry_between_two_segments_1099_638": [-0.6236416697502136, 0.5875585079193115, -0.5225192308425903],
+    # tangency, both inside the band (eta = 1.1e-4) but decided by the field_err of the samples
+    # (2.9e-5) where the series' own rounding decides now: misses by 1.0e-5 and was drawn ...
+    "miss_drawn_913_340": [-0.7366781234741211, 0.5597941279411316, -0.39276933670043945],
+    # ... and crosses 4.8e-5 deep and was drawn at its tangent point, 5.4e-3 behind its entry
+    "pair_at_its_extremum_846_809": [-0.6702863574028015, 0.46410563588142395, -0.5969730615615845],
+}
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("case", sorted(FRAME_RAYS))
+def test_frame_rays_float32_got_wrong(ball_mesh, device, case, precision):
+    z = np.zeros(3)
+    cam = RayCamera(1, 1, np.array(EYE), z, z, np.array(FRAME_RAYS[case]), z, z)
+    res = _clear_render(ball_mesh, device, cam, precision)
+    o, d = cam.rays()
+    delta, _, t1, _ = isosurface_band.sphere_rays(o[0, 0], d[0, 0], CENTRE, RADIUS)
+    alpha = float(res.rgba[0, 0, 3])
+    if delta > 0:
+        assert alpha == 0.0, f"drawn at {res.depth[0, 0]:.6f}, the ray misses by {delta:.2e}"
+    else:
+        assert alpha == 0.75, f"alpha {alpha}: the sphere met {'once' if alpha == 0.5 else 'not twice'}"
+        assert abs(res.depth[0, 0] - t1) < 2e-6, f"depth {res.depth[0, 0]:.7f}, exact {t1:.7f}"
 
 
 def _bump(x, y, z):

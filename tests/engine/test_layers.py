@@ -139,11 +139,12 @@ LAYERS = (
      ("engine/kernels", "io", "ui", "distributed", "cli", "audit")),
     ("engine/kernels", "hovr_blender.engine.kernels", ("hovr_blender.engine.shapes", "hovr_blender.engine.methods"),
      ("numpy", "warp"), ("engine", "audit")),
-    ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py", "defusedxml"), ("ui", "distributed", "cli", "audit")),
+    ("io", "hovr_blender.io", ("engine",), ("numpy", "h5py", "defusedxml", "psutil"),
+     ("ui", "distributed", "cli", "audit")),
     ("ui", "hovr_blender.ui", ("engine", "io", "package"), ("numpy",) + BLENDER, ("package",)),
     ("distributed", "hovr_blender.distributed", ("engine", "io"), ("numpy", "distributed", "dask"), ("cli",)),
     ("cli", "hovr_blender.cli", ("engine", "io", "distributed"), ("distributed",), ()),
-    ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk"), ()),
+    ("audit", "hovr_blender.audit", ("engine", "engine/kernels", "io"), ("numpy", "warp", "vtk", "vtkmodules"), ()),
     ("package", "hovr_blender", ("ui",), (), ("ui",)),
 )
 
@@ -416,6 +417,13 @@ PRIVATE_USES = {
     ("hovr_blender/engine/shipped_kernels.py", "module._get_compile_output_name"):
         "Warp names a CPU object after its LLVM version and target triple, which no public function gives; "
         "the store of shipped kernels must find the object by that very name",
+    ("hovr_blender/distributed/local_workers.py", "super()._start"):
+        "Dask's LocalCluster always makes its scheduler of Dask's own Scheduler class; its _start, where the "
+        "scheduler is made from scheduler_spec, is the one place to make it a scheduler without an HTTP server",
+    ("hovr_blender/io/isolation.py", "proc._handle"):
+        "on Windows a child's processor time comes from GetProcessTimes, which needs the process handle that "
+        "subprocess.Popen keeps only as _handle: the child's for certain, where one opened by its id names "
+        "whatever process has that id once the child has ended",
 }
 
 

@@ -13,31 +13,24 @@ wss_3D_periodic and Tet_channel_m3. Each mutant changes one byte (xor 0xFF, zero
 or one bit) at a random position; the hostile suite's three named mutants (a vlen string type's
 class bits: SIGSEGV; a global heap object of size 0: loops; a 4 GiB string length) come first.
 
-Every mutant is loaded here through io.sources.load_volume (the reader process, a read time
-limit of --seconds); --cli of them (every one the reader died or was stopped on, then others) run
-as `hovr render` commands, judged like the hostile suite (exit 0 or 2, one `hovr: error:` line,
-no hang); --bpy of them are imported in bpy (a fresh Blender-as-a-module process: its import
-operator reports, the scene keeps its datablocks, the process exits normally). Results:
-bench/results/hdf5_mutation.json. tests/io/test_isolation.py runs a small sample.
+Every mutant is loaded here through io.sources.load_volume (the reader process, at the policy's
+read time limits, or a flat limit of --seconds); --cli of them (every one the reader died or was
+stopped on, then others) run as `hovr render` commands, --bpy of them are imported in bpy, each
+judged as tests/fuzz/campaign.py says. Results: bench/results/hdf5_mutation.json.
+tests/io/test_isolation.py runs a small sample.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import os
-import subprocess
 import sys
 import tempfile
-import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
 
-from tests.helpers import REPO, find_data
-from tests.hostile import cases, harness
+from tests.fuzz.campaign import Campaign, Written
+from tests.helpers import find_data
+from tests.hostile import cases
 
-RESULT = REPO / "bench" / "results" / "hdf5_mutation.json"
 SOURCES = [("Hex_01_01_01_03Modes_x2_Offset3", "p"), ("Hex_CurvedFace", "u"), ("wss_3D_periodic", "rho"),
            ("Tet_channel_m3", "w")]
 NAMED = [("vlen string type bits", cases.VLEN_TYPE_BITS), ("global heap object of size 0", cases.HEAP_OBJECT_SIZE),
@@ -78,158 +71,27 @@ def mutants(rng, srcs, count, folder: Path):
     return out
 
 
-def classify(exc: BaseException | None) -> str:
-    from hovr_blender.io import isolation
-
-    if exc is None:
-        return "loaded"
-    text = str(exc)
-    if isinstance(exc, isolation.ReaderFailure):
-        if "crashed" in text:
-            return "reader crashed"
-        if "longer than the limit" in text:
-            return "reader stopped (time limit)"
-        if "killed" in text:
-            return "reader killed"
-        return "unexpected" if "unexpected" in text else "reader failed"
-    if isinstance(exc, (ValueError, OSError, ImportError)):
-        return "unexpected" if "unexpected" in text else "refused"
-    return "unexpected"
+def write(folder: Path, mutant) -> Written:
+    """The mutant as folder/m.fld; its mesh is the source's own file."""
+    _, mesh, data, field = mutant
+    (folder / "m.fld").write_bytes(data)
+    return Written(Path(mesh), folder / "m.fld", field)
 
 
-def run_here(items, folder: Path, seconds: float) -> dict:
-    """Each mutant loaded by this process through the reader process."""
-    from hovr_blender.engine import limits
-    from hovr_blender.io.sources import VolumeSource, load_volume
-
-    summary = {"mutants": 0, "outcomes": {}, "problems": [], "max_seconds": 0.0, "reader_died_or_stopped": []}
-    with limits.using(limits.ResourceLimits(max_read_seconds=seconds)):
-        for label, mesh, data, field in items:
-            path = folder / "m.fld"
-            path.write_bytes(data)
-            t0 = time.perf_counter()
-            error = None
-            try:
-                load_volume(VolumeSource(str(mesh), str(path), field))
-            except Exception as exc:  # noqa: BLE001  (classified: what the user would be told)
-                error = exc
-            dt = time.perf_counter() - t0
-            outcome = classify(error)
-            summary["mutants"] += 1
-            summary["outcomes"][outcome] = summary["outcomes"].get(outcome, 0) + 1
-            summary["max_seconds"] = max(summary["max_seconds"], round(dt, 2))
-            if outcome.startswith("reader ") and outcome != "reader failed":
-                summary["reader_died_or_stopped"].append(label)
-            message = "" if error is None else str(error)
-            if outcome == "unexpected" or "\n" in message or (error is not None and "m.fld" not in message
-                                                               and Path(mesh).name not in message):
-                summary["problems"].append(f"{label}: {type(error).__name__}: {message[:300]}")
-            if dt > seconds + 30:
-                summary["problems"].append(f"{label}: took {dt:.0f} s")
-    return summary
+CAMPAIGN = Campaign("hdf5_mutation", "hovr_nektar", write)
 
 
-def run_cli(items, folder: Path, seconds: float) -> dict:
-    """Each mutant through `hovr render`, judged as the hostile suite judges."""
-    out = {"mutants": 0, "exit_codes": {}, "problems": [], "max_seconds": 0.0, "max_peak_mb": 0.0}
-    for label, mesh, data, field in items:
-        (folder / "m.xml").write_bytes(Path(mesh).read_bytes())
-        (folder / "m.fld").write_bytes(data)
-        args = cases.render_args(folder, cases.base_view({"path": "m.xml", "solution": "m.fld", "field": field}))
-        o = harness.run_hovr(args, folder, {"HOVR_MAX_READ_SECONDS": str(seconds)})
-        out["mutants"] += 1
-        out["exit_codes"][str(o.returncode)] = out["exit_codes"].get(str(o.returncode), 0) + 1
-        out["max_seconds"] = max(out["max_seconds"], round(o.seconds, 2))
-        out["max_peak_mb"] = max(out["max_peak_mb"], round(o.peak_mb, 1))
-        lines = [ln for ln in o.stderr.splitlines() if ln.strip()]
-        if o.timed_out or o.returncode not in (0, 2) or "Traceback" in o.stderr or (
-                o.returncode == 2 and (len(lines) != 1 or not lines[0].startswith("hovr: error: "))):
-            out["problems"].append(f"{label}: exit {o.returncode}{' (hung)' if o.timed_out else ''}: {o.stderr[-300:]!r}")
-    return out
-
-
-_BPY = textwrap.dedent("""
-    import json, sys
-    import bpy
-    import hovr_blender
-    items = json.loads(sys.stdin.read())
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    hovr_blender.register()
-    def counts():
-        return {k: len(getattr(bpy.data, k)) for k in ("objects", "meshes", "materials", "cameras")}
-    out = []
-    for mesh, fld, field in items:
-        before = counts()
-        try:
-            bpy.ops.import_scene.hovr_nektar(filepath=mesh, solution=fld, field=field, fit_range=False, frame=False)
-            outcome = "imported"
-            for obj in [o for o in bpy.data.objects if o.hovr.is_volume]:
-                bpy.data.objects.remove(obj)
-        except RuntimeError as exc:
-            outcome = "reported" if counts() == before else "reported, scene changed"
-            if "\\n" in str(exc).strip():
-                outcome += ", several lines"
-        out.append(outcome)
-    print("RESULT " + json.dumps(out), flush=True)
-""")
-
-
-def run_bpy(items, folder: Path, seconds: float) -> dict:
-    """The mutants imported by bpy's File > Import operator in one fresh process."""
-    payload = []
-    for k, (label, mesh, data, field) in enumerate(items):
-        (folder / f"b{k}.fld").write_bytes(data)
-        payload.append((str(mesh), str(folder / f"b{k}.fld"), field))
-    env = dict(os.environ, PYTHONPATH=str(REPO), HOVR_MAX_READ_SECONDS=str(seconds))
-    t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", _BPY], input=json.dumps(payload), capture_output=True, text=True,
-                       env=env, timeout=60 + len(items) * (seconds + 30))
-    line = next((ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")), None)
-    outcomes = json.loads(line[7:]) if line else []
-    problems = [] if p.returncode == 0 and line else [f"bpy process exit {p.returncode}: {p.stderr[-400:]!r}"]
-    problems += [f"{label}: {o}" for (label, *_), o in zip(items, outcomes) if o not in ("imported", "reported")]
-    return {"mutants": len(outcomes), "outcomes": {o: outcomes.count(o) for o in set(outcomes)}, "problems": problems,
-            "exit_code": p.returncode, "seconds": round(time.perf_counter() - t0, 1)}
-
-
-def run(count=2000, seed=29, cli=40, bpy=12, seconds=5.0) -> dict:
+def run(count=2000, seed=29, cli=40, bpy=12, seconds=None) -> dict:
     rng = np.random.default_rng(seed)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         srcs = sources(tmp)
         items = mutants(rng, srcs, count, tmp)
-        t0 = time.perf_counter()
-        here = run_here(items, tmp, seconds)
-        result = {"date": time.strftime("%Y-%m-%d"), "seed": seed, "read_seconds_limit": seconds,
-                  "sources": {name: len(data) for name, _, data, _ in srcs}, "in_process": here,
-                  "in_process_seconds": round(time.perf_counter() - t0, 1)}
-        died = set(here["reader_died_or_stopped"])
-        order = [it for it in items if it[0] in died] + [it for it in items if it[0] not in died]
-        if cli:
-            result["cli"] = run_cli(order[:cli], tmp, seconds)
-        if bpy:
-            result["bpy"] = run_bpy(order[:bpy], tmp, seconds)
-    result["passed"] = not (here["problems"] or result.get("cli", {}).get("problems")
-                            or result.get("bpy", {}).get("problems"))
-    return result
+        return CAMPAIGN.run(items, tmp, seed, {name: len(data) for name, _, data, _ in srcs}, cli, bpy, seconds)
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mutants", type=int, default=2000)
-    ap.add_argument("--seed", type=int, default=29)
-    ap.add_argument("--cli", type=int, default=40, help="mutants also run as `hovr render` (0: none)")
-    ap.add_argument("--bpy", type=int, default=12, help="mutants also imported in bpy (0: none)")
-    ap.add_argument("--seconds", type=float, default=5.0, help="the reader's time limit per mutant")
-    ap.add_argument("--out", type=Path, default=RESULT)
-    args = ap.parse_args(argv)
-    result = run(args.mutants, args.seed, args.cli, args.bpy, args.seconds)
-    result["command"] = "python -m tests.fuzz.hdf5_mutation " + " ".join(argv if argv is not None else sys.argv[1:])
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
-    print(json.dumps({k: v for k, v in result.items() if k != "in_process"} | {
-        "in_process": {k: v for k, v in result["in_process"].items() if k != "reader_died_or_stopped"}}, indent=1))
-    return 0 if result["passed"] else 1
+    return CAMPAIGN.main(argv, __doc__, run, seed=29, seconds=None)
 
 
 if __name__ == "__main__":

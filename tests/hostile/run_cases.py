@@ -12,12 +12,15 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import shutil
 import subprocess
 import sys
 import unittest
 from pathlib import Path
 
 import numpy as np
+
+from tests.helpers import tree_listing
 
 from .cases import base_view, nektar_field, nektar_mesh, render_args
 from .harness import Case, write_view
@@ -160,12 +163,39 @@ def _no_marker(folder, outcome):
     return ["the .blend's registered text block ran"] if (folder / "marker").exists() else []
 
 
+_TREES: dict = {}  # folder -> its tree once the hostile .blend was made
+
+
+def _writing_blend(kind):
+    """make_blend.py's `kind`, whose datablocks name ./elsewhere (a folder of the user's, with a
+    file in it) or the .blend's own folder, rendered with -o ./out: nothing outside ./out may change."""
+    def build(folder):
+        args = _blend(kind, "--frames", "1-2", "-o", "{d}/out", marker="elsewhere")(folder)
+        for leftover in ("elsewhere", "scene/blendcache_s"):  # what making the .blend wrote
+            shutil.rmtree(folder / leftover, ignore_errors=True)
+        (folder / "out").mkdir()
+        (folder / "elsewhere").mkdir()
+        (folder / "elsewhere" / "notes.txt").write_text("the user's")
+        _TREES[str(folder)] = tree_listing(folder, [folder / "out"])
+        return args
+    return build
+
+
+def _nothing_outside_out(folder, outcome):
+    before = _TREES.pop(str(folder))
+    after = tree_listing(folder, [folder / "out"])
+    changed = sorted(set(before.items()) ^ set(after.items()))
+    return [f"wrote outside -o: {changed[:6]}"] if changed else []
+
+
 RUN_CASES = [
     # one resource budget per run
     Case('view "device": 18 x cpu', "run budget", _devices(18), expect=("18 processes", "HOVR_MAX_PROCESSES")),
     Case("sparse 3.9 GB view file", "run budget", _sparse_view, expect=("view file", "at most")),
     Case("render-series --workers 64", "run budget", _series("1", "--workers", "64"), expect=("64 processes",)),
     Case("--camera-path a FIFO", "run budget", _camera_path(os.mkfifo), expect=("FIFO",)),
+    Case("--camera-path /proc/self/mem", "run budget", _camera_path(lambda p: os.symlink("/proc/self/mem", p)),
+         expect=("cams.json", "cannot be read")),
     Case("--camera-path /dev/zero", "run budget", _camera_path(lambda p: os.symlink("/dev/zero", p)),
          expect=("device",)),
     Case("--camera-path with a key twice", "run budget",
@@ -199,4 +229,14 @@ RUN_CASES = [
          max_seconds=CLUSTER_SECONDS),
     Case("render-blend: -o a missing folder", "render-blend", _blend("plain", "--frames", "1", "-o", "{d}/none"),
          expect=("no such folder",)),
+    # render-blend: datablocks that write (Landlock confines Blender on Linux, ui/batch.py refuses first)
+    Case("render-blend: fluid cache folder elsewhere", "render-blend writes", _writing_blend("fluid"),
+         expect=("fluid cache folder", "elsewhere", "refused"), after=_nothing_outside_out,
+         max_seconds=CLUSTER_SECONDS),
+    Case("render-blend: point cache on disk beside the .blend", "render-blend writes", _writing_blend("pointcache"),
+         expect=("disk cache", "blendcache_s", "refused"), after=_nothing_outside_out, max_seconds=CLUSTER_SECONDS),
+    Case("render-blend: ocean bake folder elsewhere", "render-blend writes", _writing_blend("ocean"), expect_rc=0,
+         after=_nothing_outside_out, max_seconds=CLUSTER_SECONDS, max_peak_mb=BLENDER_RENDER_PEAK_MB),
+    Case("render-blend: Alembic exporter to elsewhere", "render-blend writes", _writing_blend("alembic"), expect_rc=0,
+         after=_nothing_outside_out, max_seconds=CLUSTER_SECONDS, max_peak_mb=BLENDER_RENDER_PEAK_MB),
 ]

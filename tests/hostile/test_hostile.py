@@ -11,7 +11,7 @@ CASES = READER_CASES + RUN_CASES  # the readers' inputs, then issue 29's runs
 
 
 SLOW = {"VTU 3 GiB zlib bomb in one block", 'field ID="0-9999999", matching zlib stream',
-        "VTU 512 MiB LZMA bomb in one block"}  # seconds each (building the input included)
+        "VTU 512 MiB LZMA bomb in one block", "mesh with a 1 GiB attribute"}  # seconds each (building the input included)
 SLOW |= {c.name for c in RUN_CASES if c.max_seconds > 5.0}  # a Dask cluster, or Blender, starts first
 
 

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from hovr_blender.audit.datasets import DATASETS
 from hovr_blender.engine import limits
 from hovr_blender.io import isolation, nektar, reader_protocol, vtu
 from hovr_blender.io.sources import SourceError, VolumeSource, load_volume, read_volume
@@ -109,6 +110,105 @@ def test_the_time_limit_comes_from_the_resource_limits(monkeypatch):
     monkeypatch.setenv("HOVR_MAX_READ_SECONDS", "0.001")
     with pytest.raises(isolation.ReaderFailure, match="longer than the limit of 0.001 s"):
         load_volume(_tet())
+
+
+_SLOW_FORMAT = """
+import time
+from hovr_blender.engine import limits
+from hovr_blender.io.format_base import Format
+from hovr_blender.io.synthetic import brick
+
+def read(path, solution=None, field=None, component=None):
+    kind, seconds = limits.read_regular(path, "slow file").decode().split()
+    end = time.monotonic() + float(seconds)
+    while time.monotonic() < end:  # busy, as a reader is: reporting progress, or a library looping in C
+        if kind == "progress":
+            limits.progress()
+    return brick((0, 0, 0), (1, 1, 1), (1, 1, 1), 2, lambda x, y, z: x, field_name="x")
+
+FORMAT = Format(name="slow", label="Slow", extensions=(".slow",), sniff=lambda head: False, read=read,
+                list_fields=lambda path: ["x"])
+"""
+
+
+@pytest.fixture
+def slow_format(tmp_path, monkeypatch):
+    """A format whose read is busy for the seconds its file names, reporting progress or not; the
+    stall limit here 1 s of the reader's processor time (the parent enforces it)."""
+    import importlib.util
+
+    from hovr_blender.io import formats
+
+    (tmp_path / "slow_format.py").write_text(_SLOW_FORMAT)
+    spec = importlib.util.spec_from_file_location("slow_format", tmp_path / "slow_format.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "slow_format", module)  # the reader finds a format's module by it
+    spec.loader.exec_module(module)
+    formats.register(module.FORMAT)
+    monkeypatch.setattr(limits, "READ_STALL_SECONDS", 1.0)
+    try:
+        yield tmp_path
+    finally:
+        formats.unregister("slow")
+
+
+def test_a_read_that_reports_progress_runs_past_the_stall_limit(slow_format):
+    (slow_format / "m.slow").write_text("progress 3")
+    assert load_volume(VolumeSource(str(slow_format / "m.slow"))).num_elements == 1
+
+
+def test_a_read_without_progress_is_stopped_at_the_stall_limit(slow_format):
+    (slow_format / "m.slow").write_text("busy 30")
+    t0 = time.monotonic()
+    with pytest.raises(isolation.ReaderFailure, match=r"m.slow: the reader made no progress for 1 s"):
+        load_volume(VolumeSource(str(slow_format / "m.slow")))
+    assert time.monotonic() - t0 < 20.0  # 1 s of processor time: longer on a loaded machine
+
+
+def test_a_flat_limit_turns_the_stall_check_off(slow_format, monkeypatch):
+    monkeypatch.setenv("HOVR_MAX_READ_SECONDS", "20")
+    (slow_format / "m.slow").write_text("busy 2")
+    assert load_volume(VolumeSource(str(slow_format / "m.slow"))).num_elements == 1
+
+
+def test_the_time_limit_grows_with_the_megabytes_read():
+    mesh, rst = data_file("nektar", "hump3D_GLL.xml"), data_file("nektar", "hump3D.rst")
+    request = isolation.read_volume_request(VolumeSource.resolve(str(mesh), str(rst), "rho"))
+    assert request.seconds == limits.READ_BASE_SECONDS
+    isolation.wait(request)
+    mb = (os.path.getsize(mesh) + os.path.getsize(rst)) / 1e6
+    assert request.seconds == pytest.approx(limits.READ_BASE_SECONDS + limits.READ_SECONDS_PER_MB * mb)
+    assert limits.read_seconds(200e6, cap=30.0) == 30.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n, d in DATASETS.items() if "path" in d])
+def test_no_shared_dataset_is_refused_by_the_default_time_limits(name, monkeypatch):
+    """Each real dataset reads in a fresh reader process within the default limits (5 s + 2 s a
+    MB of processor time, stopped after 2 s of it without progress): the limits refuse hangs, not honest files."""
+    monkeypatch.delenv("HOVR_MAX_READ_SECONDS", raising=False)
+    data = {k: str(data_file(*v.split("/", 1))) if k in ("path", "solution") else v for k, v in DATASETS[name].items()}
+    isolation.shutdown()  # a cold reader: its geometry cache empty, its imports to make
+    assert load_volume(VolumeSource.from_view_data(data)).num_elements > 0
+
+
+def test_a_huge_xml_attribute_is_refused_after_the_token_limit(tmp_path):
+    """expat 2.5 rescans an unfinished token with each piece fed: a 1 GiB attribute took 10 minutes.
+    Here one twice the token limit is refused, reading little more than the limit."""
+    from hovr_blender.io import safe_xml
+
+    head = b'<?xml version="1.0"?>\n<NEKTAR><GEOMETRY X="'
+    with open(tmp_path / "m.xml", "wb") as fh:
+        fh.write(head + b"x" * (2 * safe_xml.MAX_TOKEN_BYTES) + b'"/></NEKTAR>')
+    t0 = time.monotonic()
+    with pytest.raises(nektar.NektarError, match=r"m.xml: an XML token .* runs beyond 16 MiB from byte 30"):
+        read_volume(VolumeSource(str(tmp_path / "m.xml")))
+    assert time.monotonic() - t0 < 5.0
+    comment = '<?xml version="1.0" encoding="UTF-16"?><a><!--' + "y" * safe_xml.MAX_TOKEN_BYTES + "--></a>"
+    with pytest.raises(safe_xml.XmlRefused, match="runs beyond"):  # in UTF-16 expat's byte index counts 2 a char
+        safe_xml.parse(comment.encode("utf-16"))
+    text = b"<a>" + b"z" * (2 * safe_xml.MAX_TOKEN_BYTES) + b"</a>"  # text is no token: parsed as it comes
+    assert len(safe_xml.parse(text).text) == 2 * safe_xml.MAX_TOKEN_BYTES
 
 
 def test_cancel_kills_the_reader():
@@ -231,7 +331,7 @@ def test_reader_processes_end_with_their_parent():
     assert _gone(busy), "the stuck reader outlived its parent"
 
 
-_BARE_READ = "import sys; from hovr_blender.io.nektar import list_fields; list_fields(sys.argv[1])"
+_BARE_READ = "import sys; from hovr_blender.io.nektar.reader import list_fields; list_fields(sys.argv[1])"
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals")
@@ -257,13 +357,27 @@ def test_the_hostile_hdf5_mutants_crash_or_hang_libhdf5_itself(tmp_path, mutant,
             isolation.list_fields("nektar", tmp_path / "m.fld")
 
 
+def test_the_packages_reading_functions_read_in_a_reader_process(tmp_path):
+    """io.nektar.list_fields and read_nektar called directly from Python: the damaged HDF5 file that
+    crashes libhdf5 (above) is one error naming it, and this process lives on."""
+    from tests.hostile import cases
+
+    cases.VLEN_TYPE_BITS(tmp_path / "m.fld")
+    mesh = data_file("nektar", "Hex_01_01_01_03Modes_x2_Offset3.xml")
+    with pytest.raises(isolation.ReaderFailure, match=r"m.fld: the reader process crashed \(SIGSEGV\)"):
+        nektar.list_fields(tmp_path / "m.fld")
+    with pytest.raises(isolation.ReaderFailure, match=r"m.fld: the reader process crashed \(SIGSEGV\)"):
+        nektar.read_nektar(mesh, tmp_path / "m.fld", "p")
+    assert nektar.read_nektar(mesh).num_elements == 1  # the next read works
+
+
 def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):
     """tests/fuzz/hdf5_mutation.py on 30 mutants, the hostile suite's three first: each loads or
     is refused with one line naming the file; this process lives on."""
     from tests.fuzz import hdf5_mutation as fuzz
 
     items = fuzz.mutants(np.random.default_rng(7), fuzz.sources(tmp_path), 30, tmp_path)
-    summary = fuzz.run_here(items, tmp_path, seconds=2.0)
+    summary = fuzz.CAMPAIGN.run_here(items, tmp_path, seconds=2.0)
     assert summary["mutants"] == 30 and not summary["problems"], summary
     assert summary["outcomes"].get("reader crashed", 0) >= 1, summary  # the SIGSEGV mutant, contained
     assert summary["outcomes"].get("reader stopped (time limit)", 0) >= 1, summary  # the heap loop, stopped

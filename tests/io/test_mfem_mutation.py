@@ -11,6 +11,6 @@ def test_a_sample_of_the_mfem_fuzzer(tmp_path):
     from tests.fuzz import mfem_mutation as fuzz
 
     items = fuzz.mutants(np.random.default_rng(3), fuzz.sources(), 60)
-    summary = fuzz.run_here(items, tmp_path, seconds=5.0)
+    summary = fuzz.CAMPAIGN.run_here(items, tmp_path, seconds=5.0)
     assert summary["mutants"] == 60 and not summary["problems"], summary
     assert summary["outcomes"].get("refused", 0) >= 30 and summary["outcomes"].get("loaded", 0) >= 1, summary

@@ -18,7 +18,8 @@ from hovr_blender.engine import expansions as ex
 from hovr_blender.engine import shapes
 from hovr_blender.io import nektar as nk
 from hovr_blender.io.nektar import element_geometry, mesh_file as nektar_mesh, points, topology
-from hovr_blender.io.nektar import NektarError, list_fields, read_nektar
+from hovr_blender.io.nektar import NektarError
+from hovr_blender.io.nektar.reader import list_fields, read_nektar  # the parser itself, in this process
 
 from ..helpers import data_dir
 

@@ -10,6 +10,6 @@ def test_a_sample_of_the_pyfr_fuzzer(tmp_path):
     from tests.fuzz import pyfr_mutation as fuzz
 
     items = fuzz.mutants(np.random.default_rng(3), fuzz.sources(), 40)
-    summary = fuzz.run_here(items, tmp_path, seconds=5.0)
+    summary = fuzz.CAMPAIGN.run_here(items, tmp_path, seconds=5.0)
     assert summary["mutants"] == 40 and not summary["problems"], summary
     assert summary["outcomes"].get("refused", 0) >= 3, summary

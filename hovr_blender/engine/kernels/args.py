@@ -24,6 +24,7 @@ wp.set_module_options({"enable_backward": False})
 MAX_SAMPLES = 48
 assert 3 * (MAX_MODES - 1) + 2 + 1 + 2 <= MAX_SAMPLES, "MAX_SAMPLES does not hold shapes.MAX_MODES"
 SEGMENTS_PER_ROUND = 8
+NO_SURFACE_END = -1.0e30  # RayState.surface_end's t before a ray's first segment
 
 # per-ray counters (stats)
 STAT_FIELD_EVALS = 0  # full element field evaluations
@@ -218,6 +219,9 @@ class RayState:
     color_t: wp.array(dtype=wp.vec4)  # C.rgb, T
     # depth: t where 1 - T first reaches 0.5 (-1 until then); error: summed a-posteriori estimates
     depth_err: wp.array(dtype=wp.vec2)
+    # (t, f) where the last segment searched for isosurfaces ended (RayIntegral.surface_end; t
+    # NO_SURFACE_END: none yet)
+    surface_end: wp.array(dtype=wp.vec2)
     t_cur: wp.array(dtype=wp.float32)  # how far the traversal got
     t_end: wp.array(dtype=wp.float32)  # the ray's far end (camera t_max, clip far, an opaque surface)
     t_search: wp.array(dtype=wp.float32)  # where its last search started (kernels/entry.py: stalled walks)

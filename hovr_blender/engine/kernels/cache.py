@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from .args import (MAX_SAMPLES, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDATES, STAT_EMPTY, STAT_FIELD_EVALS,
-                   STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK, STAT_PIECEWISE,
-                   STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS, CameraArgs, MeshArgs,
-                   QuadArgs, RayState, SegmentCache, Segments, TransferArgs)
+from .args import (MAX_SAMPLES, NO_SURFACE_END, NUM_STATS, SEGMENTS_PER_ROUND, STAT_BVH_CANDIDATES, STAT_EMPTY,
+                   STAT_FIELD_EVALS, STAT_LOCATES, STAT_NEWTON_SAMPLE, STAT_NEWTON_SEARCH, STAT_NEWTON_WALK,
+                   STAT_PIECEWISE, STAT_RESTRICTION_EVALS, STAT_ROUNDS, STAT_SEGMENTS, STAT_SMOOTH, STAT_WALKS,
+                   CameraArgs, MeshArgs, QuadArgs, RayState, SegmentCache, Segments, TransferArgs)
 from .integrate import integrate_counted, integrate_counted_surfaces, no_tally, pixel_values, segment_step_terms
 from .quadrature import METHOD_CLASSIFIED, RayIntegral, samples_segments
 from .rays import MAX_REGISTERS, camera_ray
@@ -120,6 +120,7 @@ def make_shade_kernel(ISOSURFACES: bool):
         state.restriction_evals = 0.0
         state.depth = -1.0
         state.error = 0.0
+        state.surface_end = wp.vec2(NO_SURFACE_END, 0.0)
         tally = no_tally()
         skip_transparent = int(0)
         if samples_segments(q.method) != 0:

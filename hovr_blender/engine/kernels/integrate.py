@@ -189,7 +189,9 @@ def integrate_counted_surfaces(mesh: MeshArgs, tf: TransferArgs, q: QuadArgs, e:
     tally = tally_in
     state.error = state.error + tail
     span = isosurface.kept_span(tf.surf, o, d)
-    times, ids, n, evals = isosurface.segment_events(mesh, tf.surf, e, o, d, a, b, deg, coeffs, base, span)
+    times, ids, n, evals, surface_end = isosurface.segment_events(mesh, tf.surf, e, o, d, a, b, deg, coeffs, base, span,
+                                                                   tail, state.surface_end)
+    state.surface_end = surface_end
     tally.restriction_evals += float(evals)
     lo = wp.max(a, span[0])
     for k in range(n + 1):
@@ -231,6 +233,8 @@ def make_integrate_kernel(ISOSURFACES: bool):
         state.restriction_evals = 0.0
         state.depth = de[0]
         state.error = de[1]
+        if wp.static(ISOSURFACES):
+            state.surface_end = rays.surface_end[i]
         tally = no_tally()
         for k in range(segs.count[i]):
             if state.transmittance < q.min_transmittance:
@@ -241,6 +245,8 @@ def make_integrate_kernel(ISOSURFACES: bool):
                                               slot * MAX_SAMPLES, segs.step_terms[slot], state, tally)
         rays.color_t[i] = wp.vec4(state.color[0], state.color[1], state.color[2], state.transmittance)
         rays.depth_err[i] = wp.vec2(state.depth, state.error)
+        if wp.static(ISOSURFACES):
+            rays.surface_end[i] = state.surface_end
         rays.stats[pixel, STAT_FIELD_EVALS] += tally.field_evals
         rays.stats[pixel, STAT_RESTRICTION_EVALS] += int(tally.restriction_evals + state.restriction_evals)
         rays.stats[pixel, STAT_EMPTY] += tally.empty

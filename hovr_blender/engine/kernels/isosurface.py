@@ -11,11 +11,19 @@ at gets p's own series there (local_series: p at its Chebyshev-Lobatto points, t
 a series q bounds itself, |q - q_0| <= sum_k>0 |q_k|. An interval whose series keeps its sign
 has no root; one whose derivative's series keeps its sign holds one root at most, where the
 ends' signs differ; one whose second derivative's keeps its sign holds at most two, on either
-side of p's one extremum, found as the root of p' first: a grazing pair (the ray touching the
-surface inside the segment, p's extremum within rounding of 0) is found
-there as one root, where sign tests at samples would miss it. Other intervals are halved, left
-half first, so the roots come out in increasing order. Roots are polished by safeguarded Newton
-inside their bracket to a few ulps of s.
+side of p's one extremum, found as the root of p' first: an extremum within the series' own
+rounding of 0 (the ray touching the surface inside the segment) is one root, where sign tests at
+samples would miss it; beyond that rounding the pair is two roots, each at its own place. Other
+intervals are halved, left half first, so the roots come out in increasing order. Roots are
+polished by safeguarded Newton inside their bracket to a few ulps of s.
+
+The segments of a ray abut only to the traversal's rounding (a gap or an overlap of up to
+STRETCH_RTOL where the next element was found by a search), and two abutting series' ends agree
+only to their rounding. So the sign tests at a segment's start take the sign of f - c at the end
+of the ray's previous segment where this one runs on from it (segment_events): a crossing between
+the two ends is met once, at this segment's start, and one met at the previous end is not met
+again. Near tangency the precision decides whether a ray meets the surface only within a band
+(docs/methods.md "Near tangency", contract §7; audit/isosurface_band.py checks it).
 
 On affine elements the series is the field itself (exact to rounding), so these are the exact
 crossings. On curved ones it interpolates the field (its tail below restriction's
@@ -35,10 +43,12 @@ import warp as wp
 from . import derived
 from . import element
 from . import geometry
-from .args import MAX_SAMPLES, MeshArgs, SurfaceArgs, TransferArgs
+from .args import MAX_SAMPLES, NO_SURFACE_END, MeshArgs, SurfaceArgs, TransferArgs
 from .quadrature import RayIntegral, ramp_segment, tf_color
 from .restriction import series_weights
-from .tolerances import ROOT_EPS  # the arithmetic's epsilon: rounding of a series' value, Newton's stop
+# ROOT_EPS: the arithmetic's epsilon (rounding of a series' value, Newton's stop); STRETCH_RTOL: the
+# traversal's rounding of where a segment ends and the next begins
+from .tolerances import ROOT_EPS, STRETCH_RTOL
 
 wp.set_module_options({"enable_backward": False})
 
@@ -48,6 +58,7 @@ ROOT_MAX_DEPTH = 40  # halvings of [-1, 1] at most (2^-40: below float32's resol
 ROOT_ITERATIONS = 64  # safeguarded Newton steps at most
 MAX_INTERVALS = 256  # intervals one level's isolation looks at, at most (a bound on a ray's work)
 ROUNDING_FACTOR = 16.0  # p's rounding: ROUNDING_FACTOR eps sum |p_k| (deg <= 47 terms of Clenshaw)
+NO_START = 2.0  # level_roots' start: none (p's own sign at s = -1)
 # headlight shading of an isosurface (contract §7): colour (AMBIENT + DIFFUSE |n . d|)
 AMBIENT = 0.25
 DIFFUSE = 0.75
@@ -200,6 +211,27 @@ def local_series(p: Series, n: int, u: float, v: float) -> Series:
 
 
 @wp.func
+def start_crosses(start: float, side: float) -> int:
+    """1 where the start's sign (a previous segment's end: -1, 0, 1; NO_START: none) and `side`,
+    the sign p keeps beyond it, say a root lies at the start: the start on c, or across it."""
+    if start == NO_START:
+        return 0
+    if start == 0.0 or (start < 0.0) != (side < 0.0):
+        return 1
+    return 0
+
+
+@wp.func
+def root_from(p: Series, dp: Series, n: int, u: float, v: float, pu: float, pu_own: float, pv: float):
+    """The root in [u, v] where the sign at u (pu: p's own pu_own, or the start's sign) and pv
+    differ: u itself where pu is 0 or the change is the start's alone (p keeps its sign from u to
+    v), else p's own bracketed root. Returns (root, series evaluations)."""
+    if pu == 0.0 or pu_own == 0.0 or sign_change(pu_own, pv) == 0:
+        return u, 0
+    return bracketed_root(p, dp, n, u, v, pu_own)
+
+
+@wp.func
 def keeps_sign(q: Series, n: int, tol: float) -> int:
     """1 where the series q (on [-1, 1]) stays away from 0 by more than tol: |q_0| > sum_k>0 |q_k| + tol."""
     if wp.abs(q[0]) > series_abs_sum(q, n) - wp.abs(q[0]) + tol:
@@ -208,20 +240,27 @@ def keeps_sign(q: Series, n: int, tol: float) -> int:
 
 
 @wp.func
-def level_roots(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, c: float, err: float):
+def level_roots(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, c: float, err: float, start: float):
     """The roots in [-1, 1) of f = c on the segment whose series is at coeffs[base ..] (degree
     deg): (roots ascending, how many, series evaluations spent). Each interval looked at gets
     its own series (local_series), whose coefficients bound p, p' and p'' there; err widens
-    the rounding tolerance (the samples' own rounding, MeshArgs.field_err)."""
+    the rounding tolerance (the samples' own rounding, MeshArgs.field_err, and a curved
+    interpolant's tail). `start` (NO_START: none) is the sign p takes at s = -1 for the sign
+    tests: the previous segment's end where the ray's field runs on from it (segment_events),
+    so that a crossing between two segments' ends is met once, at this one's start."""
     roots = EventTimes()
     count = int(0)
     evals = int(0)
     n = wp.max(deg, 2)
     p = level_series(coeffs, base, deg, c)
     total = series_abs_sum(p, n)
-    tol = ROUNDING_FACTOR * ROOT_EPS * total + err
+    touch = ROUNDING_FACTOR * ROOT_EPS * total  # the series' own rounding: an extremum this near c touches it
+    tol = touch + err
     if keeps_sign(p, n, tol) == 1:
-        return roots, count, evals  # the series' own bound excludes c: the common case, O(deg)
+        # the series' own bound excludes c: the common case, O(deg)
+        if start_crosses(start, p[0]) == 1:
+            roots, count = push_root(roots, count, -1.0)
+        return roots, count, evals
     if total <= tol:
         return roots, count, evals  # f = c on the whole segment, within rounding: no surface
     d1 = series_derivative(p, n)
@@ -244,9 +283,17 @@ def level_roots(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, c: floa
         r = 0.5 * (v - u)
         q = local_series(p, n, u, v)
         evals += n + 1
+        first = int(0)  # the interval at the segment's start: its sign there may be the start's
+        if u == -1.0 and start != NO_START:
+            first = 1
         if keeps_sign(q, n, tol) == 1:
-            continue  # no root: |p| stays above the rounding
-        pu = series_value(p, n, u)  # the ends from p itself: a shared end has one value and sign
+            if first == 1 and start_crosses(start, q[0]) == 1:
+                roots, count = push_root(roots, count, u)
+            continue  # no root of p: |p| stays above the rounding
+        pu_own = series_value(p, n, u)  # the ends from p itself: a shared end has one value and sign
+        pu = pu_own
+        if first == 1:
+            pu = start
         pv = series_value(p, n, v)
         evals += 2
         q1 = series_derivative(q, n)  # r p'(m + r x)
@@ -266,11 +313,18 @@ def level_roots(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, c: floa
                         evals += ev
                     p_ext = series_value(p, n, s_ext)
                     evals += 1
-                    if wp.abs(p_ext) <= tol:
-                        roots, count = push_root(roots, count, s_ext)  # a grazing (double) root: one crossing
+                    if wp.abs(p_ext) <= touch:
+                        # p's extremum on c within the series' own rounding: the ray touches the
+                        # surface, one meeting (contract §7), after the start's crossing if any
+                        if sign_change(pu, pv) == 1 and sign_change(pu_own, pv) == 0:
+                            roots, count = push_root(roots, count, u)
+                        roots, count = push_root(roots, count, s_ext)
                     else:
+                        # p crosses c where the signs change: a pair near tangency is two meetings,
+                        # the first at its own depth, not the extremum's (the samples' rounding
+                        # err makes no touch: it would draw rays that miss by up to err / |grad f|)
                         if sign_change(pu, p_ext) == 1:
-                            s_root, ev = bracketed_root(p, d1, n, u, s_ext, pu)
+                            s_root, ev = root_from(p, d1, n, u, s_ext, pu, pu_own, p_ext)
                             evals += ev
                             roots, count = push_root(roots, count, s_root)
                         if sign_change(p_ext, pv) == 1:
@@ -280,10 +334,8 @@ def level_roots(coeffs: wp.array(dtype=wp.float32), base: int, deg: int, c: floa
                     continue
         if monotone == 1:
             if sign_change(pu, pv) == 1:
-                s_root = u
-                if pu != 0.0:
-                    s_root, ev = bracketed_root(p, d1, n, u, v, pu)
-                    evals += ev
+                s_root, ev = root_from(p, d1, n, u, v, pu, pu_own, pv)
+                evals += ev
                 roots, count = push_root(roots, count, s_root)
             continue
         if depth >= ROOT_MAX_DEPTH or top + 2 > ROOT_STACK or r <= 4.0 * ROOT_EPS:
@@ -359,30 +411,95 @@ def kept_span(surf: SurfaceArgs, o: wp.vec3, d: wp.vec3) -> wp.vec2:
 
 
 @wp.func
+def series_ends(coeffs: wp.array(dtype=wp.float32), base: int, deg: int) -> wp.vec4:
+    """(g(-1), g(1), g'(-1), sum |g_k|) of the segment's series g (f = g / w^2)."""
+    g0 = float(0.0)
+    g1 = float(0.0)
+    dg0 = float(0.0)
+    size = float(0.0)
+    sign = float(1.0)
+    for k in range(deg + 1):
+        ck = coeffs[base + k]
+        g1 += ck
+        g0 += sign * ck
+        dg0 -= sign * float(k * k) * ck  # T_k'(-1) = (-1)^(k+1) k^2
+        size += wp.abs(ck)
+        sign = -sign
+    return wp.vec4(g0, g1, dg0, size)
+
+
+@wp.func
+def runs_on(last: wp.vec2, a: float, b: float, f0: float, err: float, slope: float) -> int:
+    """1 where a segment [a, b] whose field starts at f0 (within err; slope |df/dt| there) takes
+    over from the previous one's end last = (t, f): it starts there, within the traversal's
+    rounding of a crossing (STRETCH_RTOL), and its field agrees with the end's within both ends'
+    rounding and what the gap between them changes (a field that jumps across the element's
+    face, as a discontinuous one may, does not run on)."""
+    gap = a - last[0]
+    if last[0] <= NO_SURFACE_END or wp.abs(gap) > STRETCH_RTOL * (wp.abs(a) + (b - a)):
+        return 0
+    if wp.abs(f0 - last[1]) <= 2.0 * err + 2.0 * slope * wp.abs(gap):
+        return 1
+    return 0
+
+
+@wp.func
 def segment_events(mesh: MeshArgs, surf: SurfaceArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, b: float, deg: int,
-                   coeffs: wp.array(dtype=wp.float32), base: int, span: wp.vec2):
+                   coeffs: wp.array(dtype=wp.float32), base: int, span: wp.vec2, tail: float, last: wp.vec2):
     """The surfaces the ray meets in segment [a, b) of element e within the kept span, in
-    increasing t: (times, ids, count, series evaluations); id i >= 0 is isosurface i, -1 - j
-    plane j. Levels outside the element's certified range are not searched."""
+    increasing t: (times, ids, count, series evaluations, the ray's surface_end after it); id
+    i >= 0 is isosurface i, -1 - j plane j. Levels outside the element's certified range are
+    not searched.
+
+    `last` is (t, f) at the far end of the ray's previous segment (RayIntegral.surface_end).
+    Where this one runs on from it (runs_on), each level's sign at this segment's start is the
+    previous end's: a crossing between the two series' ends (in a gap the traversal's rounding
+    left, or where their roundings put their ends on either side of c) is met once, at this
+    start, and one the previous segment met at its end is not met again here."""
     times = EventTimes()
     ids = EventIds()
     count = int(0)
     evals = int(0)
-    if deg >= 0:
+    end = last
+    if deg >= 0 and b > a:  # (a zero-length segment changes nothing)
+        ws = series_weights(coeffs, base, deg)
+        w0 = ws[0] * ws[0]
+        w1 = ws[1] * ws[1]
+        g = series_ends(coeffs, base, deg)
+        err = mesh.field_err[e] + tail
+        joined = int(0)
+        end = wp.vec2(NO_SURFACE_END, 0.0)
+        if w0 > 0.0 and w1 > 0.0:  # (a pyramid's apex: f = g / w^2 is not defined there)
+            end = wp.vec2(b, g[1] / w1)
+            rounding = (ROUNDING_FACTOR * ROOT_EPS * g[3] + err) / w0
+            joined = runs_on(last, a, b, g[0] / w0, rounding, wp.abs(g[2]) * 2.0 / ((b - a) * w0))
         for i in range(surf.n_iso):
             c = surf.iso_s[i]
+            start = float(NO_START)
+            if joined == 1:
+                start = wp.sign(last[1] - c)
+                if last[1] == c:
+                    start = 0.0
+            k = int(0)
+            roots = EventTimes()
             if c >= mesh.field_lo[e] and c <= mesh.field_hi[e]:
-                roots, k, ev = level_roots(coeffs, base, deg, c, mesh.field_err[e])
+                roots, k, ev = level_roots(coeffs, base, deg, c, err, start)
                 evals += ev
-                for j in range(k):
-                    t = a + 0.5 * (roots[j] + 1.0) * (b - a)
-                    if roots[j] < 1.0 and t < b and t >= span[0] and t <= span[1]:
-                        times, ids, count = insert_event(times, ids, count, t, i)
+            elif start_crosses(start, mesh.field_lo[e] - c) == 1:
+                # c outside this element's range, the previous end across it: met at this start
+                roots[0] = -1.0
+                k = 1
+            for j in range(k):
+                t = a + 0.5 * (roots[j] + 1.0) * (b - a)
+                if roots[j] < 1.0 and t < b and t >= span[0] and t <= span[1]:
+                    times, ids, count = insert_event(times, ids, count, t, i)
+    elif deg < 0:
+        end = wp.vec2(NO_SURFACE_END, 0.0)
     for j in range(surf.n_planes):
         t = plane_hit(surf, j, o, d)
         if t >= a and t < b and t >= span[0] and t <= span[1]:
             times, ids, count = insert_event(times, ids, count, t, -1 - j)
-    return times, ids, count, evals
+    return times, ids, count, evals, end
 
 
 # ------------------------------------------------------------------ the surface at a point

@@ -63,6 +63,9 @@ class RayIntegral:
     # the accepted Gauss-Kronrod panels' error estimates and curved segments' tails, summed
     # (0 for methods without one)
     error: wp.float32
+    # (t, f) at the far end of the last segment searched for isosurfaces (t -1e30: none), where
+    # the next one's roots start from (isosurface.segment_events)
+    surface_end: wp.vec2
 
 
 # ------------------------------------------------------------------ transfer function
@@ -599,6 +602,7 @@ def gauss_kronrod_smooth(
     out.restriction_evals = nev
     out.depth = depth_t
     out.error = err_sum
+    out.surface_end = state.surface_end
     return out
 
 

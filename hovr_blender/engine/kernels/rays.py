@@ -6,7 +6,7 @@ from __future__ import annotations
 import warp as wp
 
 from . import element
-from .args import CameraArgs, MeshArgs, RayState
+from .args import NO_SURFACE_END, CameraArgs, MeshArgs, RayState
 
 wp.set_module_options({"enable_backward": False})
 
@@ -58,6 +58,7 @@ def init_rays(cam: CameraArgs, pixel_offset: wp.int32, rays: RayState, t_limit: 
         t_hi = wp.min(t_hi, t_limit[i + pixel_offset])
     rays.color_t[i] = wp.vec4(0.0, 0.0, 0.0, 1.0)
     rays.depth_err[i] = wp.vec2(-1.0, 0.0)
+    rays.surface_end[i] = wp.vec2(NO_SURFACE_END, 0.0)
     rays.t_cur[i] = t_lo
     rays.t_end[i] = t_hi
     rays.t_search[i] = -1.0e30

@@ -41,12 +41,14 @@ class Topology:
         elems, local, verts = [], [], []
         for geom, (idx, conn) in self.groups.items():
             for j, ent in enumerate(table[geom]):
+                limits.progress()
                 elems.append(idx)
                 local.append(np.full(idx.size, j))
                 v = np.full((idx.size, 4), -1, dtype=np.int64)
                 v[:, :len(ent)] = conn[:, list(ent)]
                 verts.append(v)
         elems, local, verts = np.concatenate(elems), np.concatenate(local), np.concatenate(verts)
+        limits.progress()
         order = np.lexsort((local, elems))
         return elems[order], local[order], verts[order]
 
@@ -55,6 +57,7 @@ class Topology:
         """(id of each occurrence, first occurrence of each id, count): ids in order of first appearance."""
         _, first, inverse, counts = np.unique(keys, axis=0, return_index=True, return_inverse=True,
                                               return_counts=True)
+        limits.progress()
         inverse = inverse.reshape(-1)
         rank = np.empty(first.size, dtype=np.int64)
         rank[np.argsort(first, kind="stable")] = np.arange(first.size)
@@ -66,10 +69,12 @@ class Topology:
     def edges(self):
         """{geom: (edge ids (n, m), forward (n, m): the local edge runs from the lower vertex)}, count."""
         elems, local, verts = self._occurrences(el.EDGES)
+        limits.progress()
         a, b = verts[:, 0], verts[:, 1]
         ids, _, _ = self._first_appearance(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1))
         out = {}
         for geom, (idx, _) in self.groups.items():
+            limits.progress()
             where = np.isin(elems, idx)  # this geometry's occurrences, in element order, local order
             m = len(el.EDGES[geom])
             out[geom] = (ids[where].reshape(idx.size, m), (a < b)[where].reshape(idx.size, m))
@@ -82,7 +87,9 @@ class Topology:
         elems, local, verts = self._occurrences(el.FACES)
         nv = (verts >= 0).sum(axis=1)
         ordered = np.sort(np.where(verts >= 0, verts, np.iinfo(np.int64).max), axis=1)
+        limits.progress()
         ids, first, counts = self._first_appearance(ordered[:, :3])
+        limits.progress()
         path = self.mesh.path
         if counts.size and counts.max() > 2:
             f = int(np.argmax(counts > 2))
@@ -93,9 +100,11 @@ class Topology:
             o = int(np.flatnonzero(differ)[0])
             raise MFEMError(f"{path}: element {int(elems[o])}'s face {int(local[o])} shares three vertices with another "
                             "face but not all of them")
+        limits.progress()
         match = verts[:, :, None] == frame[:, None, :]  # [o, k, m]: the element's corner k is the frame's corner m
         match &= (frame >= 0)[:, None, :]
         corners = np.where(frame >= 0, np.argmax(match, axis=1), -1)
+        limits.progress()
         quad = nv == 4
         step = (corners[:, 1] - corners[:, 0]) % 4
         twisted = quad & ~(((step == 1) | (step == 3)) & np.all((np.roll(corners, -1, axis=1) - corners) % 4 == step[:, None],
@@ -105,6 +114,7 @@ class Topology:
             raise MFEMError(f"{path}: element {int(elems[o])}'s face {int(local[o])} meets its neighbour's twisted")
         out = {}
         for geom, (idx, _) in self.groups.items():
+            limits.progress()
             where = np.isin(elems, idx)
             f = len(el.FACES[geom])
             out[geom] = (ids[where].reshape(idx.size, f), corners[where].reshape(idx.size, f, 4))
@@ -149,6 +159,7 @@ def gather(topology: Topology, gf: GridFunction, path: str) -> list[Gathered]:
         table = gf.values.reshape(gf.vdim, ndofs).T
     out = []
     for geom, dofs in dof_sets:
+        limits.progress()
         out.append(Gathered(geom, topology.groups[geom][0], table[dofs], nodes_of(col, geom), p))
     return out
 
@@ -177,6 +188,7 @@ def _h1_dofs(topology: Topology, p: int):
     faces, face_nv = topology.faces if p >= 2 else ({}, np.zeros(0, np.int64))
     fcount = np.array([el.face_dofs(int(n), p) for n in face_nv], dtype=np.int64) if p >= 2 else np.zeros(0, np.int64)
     fbase = nv_dofs + ne_dofs + np.concatenate([[0], np.cumsum(fcount)])[:-1]
+    limits.progress()
     nf_dofs = int(fcount.sum())
     interior = np.array([el.h1_element_dofs(int(g), p) if g in el.SHAPES else 0 for g in range(8)], dtype=np.int64)
     per = interior[mesh.geoms]
@@ -191,6 +203,7 @@ def _h1_dofs(topology: Topology, p: int):
             parts.append((nv_dofs + eid[..., None] * (p - 1) + along).reshape(idx.size, -1))
             fid, corners = faces[geom]
             for j, face in enumerate(el.FACES[geom]):
+                limits.progress()
                 n = el.face_dofs(len(face), p)
                 if n == 0:
                     continue

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...engine import limits
 from . import elements as el
 from .text import MFEMError, Text, shown
 
@@ -253,6 +254,7 @@ def _elements(text: Text, what: str, allowed, nc: bool):
     pos = 0
     off = 0
     for e in range(count):
+        limits.progress()
         if pos + head > flat.size:
             raise text.error(f"{what}: {count:,} declared, the list ends after {e:,}", start)
         geom = int(flat[pos + gcol])

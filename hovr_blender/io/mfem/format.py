@@ -69,8 +69,10 @@ def _geometry(mesh: MFEMMesh, topology: Topology):
         gathered = [Gathered(geom, idx, mesh.coordinates[conn], el.VERTICES[geom], 1)
                     for geom, (idx, conn) in topology.groups.items()]
     for g in gathered:
+        limits.progress()
         T = el.conversion(g.geom, g.order, g.nodes)
         G = np.matmul(T, g.values)  # (K, n) @ (elements, n, 3)
+        limits.progress()
         gmodes = el.modes(g.geom, g.order)
         shape = el.SHAPES[g.geom]
         try:
@@ -99,13 +101,16 @@ def _read(mesh_path, gf_path, reads, own_orders):
         shapes, modes, coeffs = [None] * n, [None] * n, [None] * n
         gmodes, gcoeffs = [None] * n, [None] * n
         for g in gathered:
+            limits.progress()
             T = el.conversion(g.geom, g.order, g.nodes)
             C = g.values[:, :, c] @ T.T  # (n, K)
+            limits.progress()
             orders = (el.truncated_order(g.geom, g.order, C, ORDER_TOLERANCE * scale) if own_orders
                       else np.full(len(C), g.order))
             keep = {q: el.keep_modes(g.geom, g.order, int(q)) for q in np.unique(orders)}
             _, gm, G = geometry[g.geom]
             for row, e in enumerate(g.elements):
+                limits.progress()
                 q = int(orders[row])
                 shapes[e], modes[e], coeffs[e] = el.SHAPES[g.geom], el.modes(g.geom, q), C[row, keep[q]]
                 gmodes[e], gcoeffs[e] = gm, G[row]

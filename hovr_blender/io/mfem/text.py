@@ -136,6 +136,7 @@ class Text:
         limits.check_bytes((len(region) // 2 + 1) * np.dtype(dtype).itemsize, f"{self.path}: {what}")
         pieces, offset = [], 0
         while offset < len(region):
+            limits.progress()
             stop = min(offset + CHUNK, len(region))
             while stop < len(region) and region[stop] not in b" \t\r\n\f\v":
                 stop += 1  # end a chunk between tokens

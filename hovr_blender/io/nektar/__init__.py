@@ -26,12 +26,34 @@ Modules, each importing only those above it:
   hdf5       HDF5 field files, and safe access to HDF5 objects (imports h5py)
   fields     field files and directories -> FieldFile; one field's coefficients
   reader     read_nektar, list_fields, find_solution, mesh_boundaries
+
+This package's read_nektar and list_fields read in a reader process (io/isolation.py), as every
+public reading door does: libhdf5 crashes (SIGSEGV) or loops on some damaged HDF5 field files, and
+that ends the reader process, never the caller. The parsers themselves, which run in whatever
+process calls them, are the modules' (reader.read_nektar, fields.read_field_file): the reader
+process and the tests call those.
 """
 from .composites import Boundaries, BoundaryRegion, Composite
 from .errors import NektarError
-from .fields import FieldFile, read_field_file
-from .reader import (NO_FIELD, SOLUTION_EXTENSIONS, find_solution, list_fields, mesh_boundaries, pick_solution,
-                     read_nektar, solution_candidates)
+from .fields import FieldFile
+from .reader import NO_FIELD, SOLUTION_EXTENSIONS, find_solution, mesh_boundaries, pick_solution, solution_candidates
 
 __all__ = ["NO_FIELD", "SOLUTION_EXTENSIONS", "Boundaries", "BoundaryRegion", "Composite", "FieldFile",
-           "NektarError", "find_solution", "list_fields", "mesh_boundaries", "read_field_file", "read_nektar"]
+           "NektarError", "find_solution", "list_fields", "mesh_boundaries", "read_nektar"]
+
+
+def read_nektar(mesh_path, solution_path=None, field=None):
+    """reader.read_nektar (a mesh and one field of its field file -> VolumeMesh), read in a reader
+    process: a crash or a hang there is one NektarError-like line naming the file, here."""
+    from .. import isolation
+    from ..volume_source import VolumeSource
+
+    return isolation.read_volume(VolumeSource(str(mesh_path), "" if solution_path is None else str(solution_path),
+                                              field or ""))
+
+
+def list_fields(solution_path) -> list[str]:
+    """reader.list_fields (the fields a field file holds), read in a reader process."""
+    from .. import isolation
+
+    return isolation.list_fields("nektar", solution_path)

@@ -10,6 +10,7 @@ from functools import lru_cache
 import numpy as np
 
 from ...engine import expansions as ex
+from ...engine import limits
 from ...engine import validity
 from ...engine.expansions import gll_points
 from ...engine.mesh import MeshError
@@ -241,6 +242,7 @@ def mesh_geometry(mesh: NektarMesh, warnings):
     straight: dict = {}  # shape -> [(position, corners)]
     curved: dict = {}  # (shape, num_modes) -> [position]
     for k, (e, shape, face_ids) in enumerate(mesh.elements):
+        limits.progress()
         topology = element_topology(mesh, e, shape, face_ids, face_vertex_cache)
         num_modes = _element_modes(mesh, topology)
         if num_modes == STRAIGHT_MODES:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import binascii
+import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -17,17 +18,22 @@ from .errors import NektarError
 
 def parse_xml(path: Path, what: str) -> ET.Element:
     """The <NEKTAR> root of an XML file, read through the resource policy and parsed by
-    io/safe_xml.py (no DTDs in any encoding, bounded nesting)."""
+    io/safe_xml.py as it is read (no DTDs in any encoding, bounded nesting and tokens)."""
     try:
-        raw = limits.read_regular(path, what)
+        fh = limits.open_regular(path, what)
     except OSError as exc:
         raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    try:
-        root = safe_xml.parse(raw)
-    except (safe_xml.XmlRefused, limits.ResourceLimitError) as exc:
-        raise NektarError(f"{path}: {exc}") from None
-    except safe_xml.ParseError as exc:
-        raise NektarError(f"{path}: not well-formed XML ({exc})") from exc
+    with fh:
+        size = os.fstat(fh.fileno()).st_size
+        limits.check_bytes(size, f"reading {what} {path}")
+        try:
+            root = safe_xml.parse(fh, size)
+        except OSError as exc:
+            raise NektarError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+        except (safe_xml.XmlRefused, limits.ResourceLimitError, limits.UnsafeFileError) as exc:
+            raise NektarError(f"{path}: {exc}") from None
+        except safe_xml.ParseError as exc:
+            raise NektarError(f"{path}: not well-formed XML ({exc})") from exc
     if root.tag != "NEKTAR":
         raise NektarError(f"{path}: root element is <{root.tag}>, expected <NEKTAR>")
     return root

@@ -17,7 +17,7 @@ import numpy as np
 
 from ...engine.derived_fields import derived_mesh, parse_derived
 from ...engine.mesh import MeshError, VolumeMesh
-from ...engine import validity
+from ...engine import limits, validity
 from ..magnitude import component_reads, magnitude_mesh, parse_magnitude
 from ..format_base import Format
 from . import elements as el
@@ -56,10 +56,12 @@ def _geometry(mesh, solution):
     each element's geometry certified (engine/validity.py)."""
     out, first = [], 0
     for etype, points in mesh.points.items():
+        limits.progress()
         order, index = solution.blocks[etype][0], solution.blocks[etype][1]
         sorder = el.order_from_npts(etype, points.shape[1])
         gmodes = el.modes(etype, sorder)
         G = np.matmul(el.conversion(etype, sorder, el.std_ele(etype, sorder)), points[index])
+        limits.progress()
         try:
             validity.check_elements(el.ETYPES[etype], gmodes, G, first + np.arange(len(index)))
         except MeshError as exc:
@@ -82,8 +84,10 @@ def _meshes(mesh_path, solution_path, names) -> list[VolumeMesh]:
     for name in names:
         shapes, modes, coeffs, gmodes, gcoeffs = [], [], [], [], []
         for etype, index, gm, G in geometry:
+            limits.progress()
             order, _, values, pts = solution.blocks[etype]
             C = _values(solution, values, name) @ el.conversion(etype, order, pts).T
+            limits.progress()
             shapes += [el.ETYPES[etype]] * len(index)
             modes += [el.modes(etype, order)] * len(index)
             coeffs += list(C)
