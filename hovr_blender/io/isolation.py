@@ -2,7 +2,8 @@
 library (libhdf5, expat, zlib) ends that process, never Blender or the `hovr` command.
 
 Every parse of a data file (io.sources.load_volume, the field listing behind the import dialog,
-a Nektar++ mesh's composites for the walls) is a task of `reader_process.py`, run by `call` in a
+a Nektar++ mesh's composites for the walls, the format packages' read_nektar, read_pyfr and
+read_mfem (read_files) and their list_fields) is a task of `reader_process.py`, run by `call` in a
 reader process of this package: `python -I -c BOOT` on this interpreter (Blender's own Python, not
 Blender: `interpreter`), with this process's module path, loading this package from its folder
 under this process's name for it (the extension's `bl_ext.<repo>.hovr_blender`) as the render
@@ -233,6 +234,7 @@ def _take() -> _Worker:
 
 def _give_back(worker: _Worker):
     with _LOCK:
+        _IDLE[:] = [w for w in _IDLE if w.alive()]  # a dead idle reader must not turn a live one away
         if not _IDLE and worker.alive():
             _IDLE.append(worker)
             return
@@ -273,10 +275,12 @@ def _error_class(kind: str):
     """The class a reader's error of that name is raised as here: a registered format's own
     error, or one of the loader's and the policy's."""
     from ..engine.mesh import MeshError
+    from ..engine.mesh_base import DerivedFieldError
     from . import formats, magnitude
     from .volume_source import SourceError
 
     known = {"SourceError": SourceError, "DerivedError": magnitude.DerivedError, "MeshError": MeshError,
+             "DerivedFieldError": DerivedFieldError,
              "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
              "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
              "ModuleNotFoundError": ModuleNotFoundError}
@@ -674,10 +678,21 @@ def read_volume(source, **progress):
     return wait(read_volume_request(source), **progress)
 
 
+def read_files(path, solution=None, field=None, component=None, **progress):
+    """A format package's public reading door (io.nektar.read_nektar, io.pyfr.read_pyfr,
+    io.mfem.read_mfem): read_volume of its files, named by absolute paths (the warm reader process
+    keeps the working folder it was started in)."""
+    from .volume_source import VolumeSource
+
+    return read_volume(VolumeSource(os.path.abspath(path), os.path.abspath(solution) if solution else "", field or "",
+                                    (), "" if component is None else str(component)), **progress)
+
+
 def list_fields_request(format_name: str, path):
     """list_fields started in a reader process (start)."""
-    return start("list_fields", {"format_name": format_name, "path": str(path), "extra_formats": _extra_formats()},
-                 what=str(path), cap=LIST_SECONDS)
+    path = os.path.abspath(path)
+    return start("list_fields", {"format_name": format_name, "path": path, "extra_formats": _extra_formats()},
+                 what=path, cap=LIST_SECONDS)
 
 
 def list_fields(format_name: str, path, **progress):

@@ -8,7 +8,7 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.io.pyfr import read_pyfr  # noqa: E402
+from hovr_blender.io.pyfr.format import read_pyfr  # noqa: E402  (the parser, in this process)
 from hovr_blender.io.sources import VolumeSource, load_volume  # noqa: E402
 from hovr_blender.ui import import_operators  # noqa: E402
 

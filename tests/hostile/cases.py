@@ -617,6 +617,33 @@ VLEN_LENGTH = hdf5_one_byte(lambda d: _vlen_string_attribute(d, b"NUMMODESPERDIR
 HEAP_OBJECT_SIZE = hdf5_one_byte(lambda d: _global_heap_object(d, b"p"), lambda b: 0)
 
 
+def pyfr_vlen_uuid(folder: Path, flip: bool = True) -> tuple[Path, Path]:
+    """(m.pyfrm, m-0.02.pyfrs): the vendored PyFR shell case, its solution's `mesh-uuid` a
+    variable-length string (as h5py writes a str; the reader takes it), and with `flip` that
+    string's datatype's class bits flipped, as VLEN_TYPE_BITS's: libhdf5 crashes reading it
+    (SIGSEGV). The byte is found from the dataset's object header, not a fixed offset."""
+    import h5py
+
+    from tests.helpers import data_file
+
+    mesh, soln = folder / "m.pyfrm", folder / "m-0.02.pyfrs"
+    mesh.write_bytes(data_file("pyfr", "shell.pyfrm").read_bytes())
+    soln.write_bytes(data_file("pyfr", "shell-0.02.pyfrs").read_bytes())
+    with h5py.File(soln, "r+") as h5:
+        uuid = h5["mesh-uuid"][()].decode()
+        del h5["mesh-uuid"]
+        h5.create_dataset("mesh-uuid", data=uuid, dtype=h5py.string_dtype())
+    with h5py.File(soln, "r") as h5:
+        header = h5py.h5o.get_info(h5["mesh-uuid"].id).addr
+    if flip:
+        data = bytearray(soln.read_bytes())
+        # its datatype message: class 9 (variable-length), version 1, size 16
+        at = header + re.search(rb"\x19[\x00-\xff]{3}\x10\x00\x00\x00", data[header:]).start()
+        data[at + 1] ^= 0xFF
+        soln.write_bytes(bytes(data))
+    return mesh, soln
+
+
 def _utf16_with_decoy(root: str, decoy: str) -> bytes:
     """An entity bomb in UTF-16: DOCTYPE and ENTITY are not ASCII bytes there, and a comment whose
     UTF-16 code units spell `decoy` in ASCII bytes satisfies a check of the raw bytes."""

@@ -371,6 +371,88 @@ def test_the_packages_reading_functions_read_in_a_reader_process(tmp_path):
     assert nektar.read_nektar(mesh).num_elements == 1  # the next read works
 
 
+def _broken(*args, **kwargs):
+    raise AssertionError("a parser ran in the calling process")
+
+
+def test_the_pyfr_and_mfem_packages_read_in_a_reader_process(monkeypatch):
+    """io.pyfr.read_pyfr and list_fields, io.mfem.read_mfem and list_fields: the parser's result (to
+    the rounding of the reader's one BLAS thread), its errors in their class and words, read in
+    another process: the file parsers of this one, broken here, are not what runs."""
+    from hovr_blender.io import mfem, pyfr
+
+    mesh, soln = data_file("pyfr", "shell.pyfrm"), data_file("pyfr", "shell-0.02.pyfrs")
+    fichera, vel = data_file("mfem", "fichera.mesh"), data_file("mfem", "fichera-vel.gf")
+    want = {"pyfr": pyfr.format.read_pyfr(mesh, soln, "rho"), "mfem": mfem.format.read_mfem(fichera, vel, None, 1)}
+    fields = {"pyfr": pyfr.format.list_fields(soln), "mfem": mfem.format.list_fields(vel)}
+    for module, names in ((pyfr.format, ("read_mesh", "read_solution")), (mfem.format, ("read_mesh", "read_gridfunction"))):
+        for name in names:
+            monkeypatch.setattr(module, name, _broken)
+    got = {"pyfr": pyfr.read_pyfr(mesh, soln, "rho"), "mfem": mfem.read_mfem(fichera, vel, None, 1)}
+    assert pyfr.list_fields(soln) == fields["pyfr"] and mfem.list_fields(vel) == fields["mfem"]
+    for kind in got:
+        for name in ("coeffs", "geom_coeffs"):
+            np.testing.assert_allclose(getattr(got[kind], name), getattr(want[kind], name), rtol=0, atol=1e-10)
+        assert got[kind].field_name == want[kind].field_name and got[kind].num_elements == want[kind].num_elements
+    with pytest.raises(pyfr.PyFRError, match="shell-0.02.pyfrs: no field 'T'"):
+        pyfr.read_pyfr(mesh, soln, "T")
+    with pytest.raises(mfem.MFEMError, match="fichera-vel.gf: no field 'u'"):
+        mfem.read_mfem(fichera, vel, "u")
+
+
+def test_relative_paths_are_the_callers_after_a_change_of_folder(tmp_path, monkeypatch):
+    """The warm reader process keeps the folder it started in: a relative path given to a package's
+    reading function is the caller's, read after the caller changed its folder."""
+    from hovr_blender.io import pyfr
+
+    isolation.prestart()
+    for name in ("shell.pyfrm", "shell-0.02.pyfrs"):
+        (tmp_path / name).write_bytes(data_file("pyfr", name).read_bytes())
+    monkeypatch.chdir(tmp_path)
+    assert pyfr.list_fields("shell-0.02.pyfrs")[0] == "rho"
+    assert pyfr.read_pyfr("shell.pyfrm", field="p").num_elements == 280  # the solution beside it found
+
+
+_PYFR_CALLER = """
+import sys
+from hovr_blender.io import pyfr
+for read in (lambda: pyfr.list_fields(sys.argv[2]), lambda: pyfr.read_pyfr(sys.argv[1], sys.argv[2], "rho")):
+    try:
+        read()
+    except Exception as exc:
+        print(f"{type(exc).__name__}: {exc}")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="signals")
+def test_a_pyfr_file_that_crashes_libhdf5_is_one_error_line_for_the_packages_caller(tmp_path):
+    """A PyFR solution whose variable-length `mesh-uuid` has one byte changed (its honest twin reads):
+    the parser, in a bare Python, dies of SIGSEGV inside libhdf5; a script calling io.pyfr's
+    list_fields and read_pyfr on it gets one error line for each, naming the file, and ends normally."""
+    from tests.hostile import cases
+
+    honest = tmp_path / "honest"
+    honest.mkdir()
+    assert pyfr_fields(cases.pyfr_vlen_uuid(honest, flip=False)[1])[0] == "rho"
+    mesh, soln = cases.pyfr_vlen_uuid(tmp_path)
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    bare = subprocess.run([sys.executable, "-c", "import sys; from hovr_blender.io.pyfr.format import list_fields; "
+                           "list_fields(sys.argv[1])", str(soln)], capture_output=True, env=env, timeout=120)
+    assert bare.returncode == -signal.SIGSEGV, bare
+    caller = subprocess.run([sys.executable, "-c", _PYFR_CALLER, str(mesh), str(soln)], capture_output=True, text=True,
+                            env=env, timeout=300)
+    assert caller.returncode == 0 and not caller.stderr, caller
+    lines = caller.stdout.splitlines()
+    assert len(lines) == 2 and all(
+        line.startswith(f"ReaderFailure: {soln}: the reader process crashed (SIGSEGV)") for line in lines), lines
+
+
+def pyfr_fields(solution):
+    from hovr_blender.io.pyfr.format import list_fields
+
+    return list_fields(solution)
+
+
 def test_a_sample_of_the_hdf5_byte_flip_fuzzer(tmp_path):
     """tests/fuzz/hdf5_mutation.py on 30 mutants, the hostile suite's three first: each loads or
     is refused with one line naming the file; this process lives on."""
@@ -393,3 +475,17 @@ def test_derived_mesh_leaves_the_reader_process(q_mesh):
     assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
     for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
         np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
+
+
+def test_the_callers_process_never_imports_h5py():
+    """h5py (and its libhdf5) loads only in the reader process. Blender's own process may link
+    another libhdf5 (Debian's Blender 3.4 does), where importing h5py fails and the add-on with it:
+    the registry, every format's front and a whole read through the doors import none of it."""
+    code = ("import sys\n"
+            "from hovr_blender.io import formats, sources, pyfr, mfem, nektar, vtu\n"
+            "sources.load_volume(sources.VolumeSource.resolve(sys.argv[1]))\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'h5py'))\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(data_file("pyfr", "shell.pyfrm"))],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"

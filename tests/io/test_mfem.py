@@ -20,7 +20,8 @@ from hovr_blender.engine.shapes import HEX, PRISM, PYR, TET
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io import formats
-from hovr_blender.io.mfem import MFEMError, elements as el, list_fields, read_mfem
+from hovr_blender.io.mfem import MFEMError, elements as el
+from hovr_blender.io.mfem.format import list_fields, read_mfem  # the parser, in this process
 from hovr_blender.io.mfem.files import parse_collection
 from hovr_blender.io.vtu import read_vtu
 

@@ -19,7 +19,8 @@ from hovr_blender.engine.shapes import HEX, PRISM, PYR, TET, VERTICES
 from hovr_blender.engine.transfer_function import TransferFunction
 from hovr_blender.engine.view import RenderOptions
 from hovr_blender.io import formats
-from hovr_blender.io.pyfr import PyFRError, elements as el, list_fields, read_pyfr
+from hovr_blender.io.pyfr import PyFRError, elements as el
+from hovr_blender.io.pyfr.format import list_fields, read_pyfr  # the parser, in this process
 from hovr_blender.io.vtu import read_vtu
 
 from ..helpers import data_file

@@ -12,12 +12,34 @@ not understand is refused with one MFEMError naming the file and the line.
 Modules, each importing only those above it:
   elements   MFEM's geometries, node sets and spaces; the change of basis to the engine's modes
   text       the bounded text cursor (MFEMError)
-  files      the mesh and GridFunction files parsed
+  files      the mesh and GridFunction files parsed: read_mesh, read_gridfunction
   dofs       MFEM's edge, face and DOF numbering: each element's values at its nodes
-  format     fields, element orders, the GridFunction beside a mesh, the registry's Format
+  format     fields, element orders, the GridFunction beside a mesh, the registry's Format: read_mfem,
+             list_fields
+
+This package's read_mfem and list_fields read in a reader process (io/isolation.py), as every
+public reading door does: a parse that blows a limit, loops or crashes ends the reader process,
+never the caller. The parsers themselves, which run in whatever process calls them, are the
+modules' (format.read_mfem, with own_orders=False for the field as stored, format.list_fields,
+files.read_mesh, files.read_gridfunction): the reader process and the parser's tests call those.
 """
-from .files import read_gridfunction, read_mesh
-from .format import FORMAT, list_fields, read_mfem
+from .format import FORMAT
 from .text import MFEMError
 
-__all__ = ["FORMAT", "MFEMError", "list_fields", "read_gridfunction", "read_mesh", "read_mfem"]
+__all__ = ["FORMAT", "MFEMError", "list_fields", "read_mfem"]
+
+
+def read_mfem(mesh_path, gf_path=None, field=None, component=None):
+    """format.read_mfem (a field of an MFEM mesh and GridFunction -> VolumeMesh; `component`: an
+    index, "magnitude" or None), read in a reader process: a crash or a hang there is one
+    MFEMError-like line naming the file, here."""
+    from .. import isolation
+
+    return isolation.read_files(mesh_path, gf_path, field, component)
+
+
+def list_fields(gf_path) -> dict:
+    """format.list_fields ({name: components} of a GridFunction), read in a reader process."""
+    from .. import isolation
+
+    return isolation.list_fields("mfem", gf_path)

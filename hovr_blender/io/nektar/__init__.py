@@ -46,10 +46,8 @@ def read_nektar(mesh_path, solution_path=None, field=None):
     """reader.read_nektar (a mesh and one field of its field file -> VolumeMesh), read in a reader
     process: a crash or a hang there is one NektarError-like line naming the file, here."""
     from .. import isolation
-    from ..volume_source import VolumeSource
 
-    return isolation.read_volume(VolumeSource(str(mesh_path), "" if solution_path is None else str(solution_path),
-                                              field or ""))
+    return isolation.read_files(mesh_path, solution_path, field)
 
 
 def list_fields(solution_path) -> list[str]:
