@@ -22,7 +22,9 @@ Per dataset:
   perfect) each strategy would give for 2, 4 and 8 devices: equal rows, a pre-pass at 1/4, 1/8
   and 1/16 of the size (each pre-pass rendered here on the one device, its seconds as a fraction
   of the frame), interleaved tiles of k rows dealt round-robin, and the frame's own costs (the
-  previous frame of a still view: the best contiguous bands can do).
+  previous frame of a still view: the best contiguous bands can do). Tiles need a render call
+  per tile (Renderer.render traces one range of rows): `tile_calls` times the one device's frame
+  in --tile-calls calls of equal bands against one call, the cost of a call.
 """
 from __future__ import annotations
 
@@ -54,9 +56,10 @@ def tiles_balance(row_cost, devices: int, rows: int) -> float:
     return float(c.mean() / c.max())
 
 
-def strategies(renderer, cam, tf, opts, frame_cost, frame_seconds) -> dict:
-    """The cost model's balance of each strategy (module docstring), and each pre-pass's seconds
-    on `renderer`'s device as a fraction of `frame_seconds`."""
+def strategies(renderer, cam, tf, opts, frame_cost, frame_seconds, calls: int) -> dict:
+    """The cost model's balance of each strategy (module docstring), each pre-pass's seconds on
+    `renderer`'s device as a fraction of `frame_seconds`, and the frame's wall time in `calls`
+    render calls of equal bands."""
     from hovr_blender.engine.multi_device import balanced_rows, prepass_camera, upsampled_rows
 
     H = len(frame_cost)
@@ -77,6 +80,12 @@ def strategies(renderer, cam, tf, opts, frame_cost, frame_seconds) -> dict:
             out["prepass"][f"1/{s}"][n] = band_balance(frame_cost, balanced_rows(estimates[s], ones))
         for k in TILE_ROWS:
             out["tiles"].setdefault(f"{k} rows", {})[n] = tiles_balance(frame_cost, n, k)
+    t0 = time.perf_counter()
+    for band in balanced_rows(np.ones(H), np.ones(calls)):
+        renderer.render(cam, tf, common.BACKGROUND, opts, rows=band)
+    wall = time.perf_counter() - t0
+    out["tile_calls"] = {"calls": calls, "wall_seconds": wall, "one_call_wall_seconds": frame_seconds,
+                         "seconds_per_call": (wall - frame_seconds) / max(calls - 1, 1)}
     return out
 
 
@@ -92,7 +101,7 @@ def split_frame_row(md, res, one, one_wall, n) -> dict:
             "max_abs_difference": float(np.abs(res.rgba.astype(np.float64) - one.rgba).max())}
 
 
-def bench_dataset(name, devices, W, H, repeats, prepass_scale, opts) -> dict:
+def bench_dataset(name, devices, W, H, repeats, prepass_scale, opts, tile_calls) -> dict:
     from hovr_blender.audit import datasets
     from hovr_blender.engine.camera import RayCamera
     from hovr_blender.engine.multi_device import MultiDeviceRenderer
@@ -117,7 +126,7 @@ def bench_dataset(name, devices, W, H, repeats, prepass_scale, opts) -> dict:
         if one is None or wall < one_wall:
             one, one_wall = res, wall
     row.update(one_device=devices[0], one_seconds=one.stats["render_seconds"], one_wall_seconds=one_wall)
-    row["strategies"] = strategies(r, cam, tf, opts, one.row_cost, one_wall)
+    row["strategies"] = strategies(r, cam, tf, opts, one.row_cost, one_wall, tile_calls)
     del r
 
     t1 = time.perf_counter()
@@ -148,6 +157,7 @@ def report(row) -> str:
 
     st = row["strategies"]
     pre = ", ".join(f"{k} {v['fraction_of_frame']:.3f}" for k, v in st["prepass"].items())
+    tc = st["tile_calls"]
     bal = "; ".join(f"{n}: equal {st['equal_rows'][n]:.2f}, pre-pass 1/8 {st['prepass']['1/8'][n]:.2f}, "
                     f"tiles 8 rows {st['tiles']['8 rows'][n]:.2f}, previous {st['previous_frame'][n]:.2f}"
                     for n in DEVICE_COUNTS)
@@ -155,7 +165,8 @@ def report(row) -> str:
             f"{row['one_wall_seconds']:.3f} s; set-up {row['setup']['seconds']:.2f} s; first frame "
             f"{frame(row['first_frame'])} (pre-pass {row['first_frame']['prepass_seconds']:.3f} s), equal rows "
             f"{frame(row['first_frame_equal_rows'])}, steady {frame(row['steady_frame'])}\n"
-            f"  pre-pass seconds / frame on one device: {pre}\n  cost-model balance by devices: {bal}")
+            f"  pre-pass seconds / frame on one device: {pre}; the frame in {tc['calls']} calls "
+            f"{tc['wall_seconds']:.3f} s ({tc['seconds_per_call']:.4f} s a call)\n  cost-model balance by devices: {bal}")
 
 
 def main(argv=None):
@@ -167,6 +178,7 @@ def main(argv=None):
     ap.add_argument("--method", default="split", help="the render method (the defaults' tolerance and step)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--prepass-scale", type=int, default=None, help="the first frame's pre-pass (default the engine's)")
+    ap.add_argument("--tile-calls", type=int, default=16, help="the one device's frame in this many calls")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     from hovr_blender.engine.devices import expand_devices
@@ -182,7 +194,8 @@ def main(argv=None):
            "git_commit": common.git("rev-parse", "HEAD"), "devices": devices, "prepass_scale": scale, "rows": []}
     for name in args.datasets.split(","):
         try:
-            row = bench_dataset(name.strip(), devices, W, H, args.repeats, scale, RenderOptions(method=args.method))
+            row = bench_dataset(name.strip(), devices, W, H, args.repeats, scale, RenderOptions(method=args.method),
+                                args.tile_calls)
         except FileNotFoundError as exc:
             print(f"{name}: skipped, no {exc}", flush=True)
             continue

@@ -35,6 +35,7 @@ def test_a_run_on_two_cpu_devices_reports_identity_speed_and_spread(tmp_path):
         per = [d["render_seconds"] for d in frame["per_device"]]
         assert frame["device_spread"] == pytest.approx((max(per) - min(per)) / min(per))
     assert row["first_frame"]["prepass_seconds"] > 0.0
+    assert row["strategies"]["tile_calls"]["calls"] == 16 and row["strategies"]["tile_calls"]["wall_seconds"] > 0.0
     st = row["strategies"]
     assert set(st["prepass"]) == {"1/4", "1/8", "1/16"} and st["prepass"]["1/8"]["size"] == [4, 3]
     for n in ("2", "4", "8"):
