@@ -375,3 +375,23 @@ def test_a_frame_a_renderer_cannot_draw_is_refused_in_one_line():
     plain = render_frame(sl, iso.with_(surfaces=None, cache=slot), cam)
     assert slot.cache is None
     np.testing.assert_array_equal(plain.rgba, sl.render(cam, tf, BACKGROUND, RenderOptions()).rgba)
+
+
+def test_a_first_frame_with_an_opaque_mesh_is_split_by_a_prepass_that_stops_at_it():
+    """The pre-pass of a frame with opaque meshes samples their hits (surface_t) at its pixels;
+    the split image equals the one device's bit for bit."""
+    from hovr_blender.engine.frame import Frame, render_frame
+    from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    cam = camera(W, H)
+    plane = OpaqueScene([OpaqueMesh([[-1, -1, 0.5], [2, -1, 0.5], [2, 2, 0.5]], [[0, 1, 2]])])
+    frame = Frame(tf, BACKGROUND, RenderOptions(), opaque=plane)
+    with MultiDeviceRenderer(mesh, ["cpu"]) as one:
+        whole = render_frame(one, frame, cam)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        split = render_frame(md, frame, cam)
+    assert split.stats["split_by"] == "pre-pass"
+    assert np.array_equal(split.rgba, whole.rgba)
+    t = plane.cast(cam).t
+    assert np.isfinite(t).mean() > 0.2 and not np.isfinite(t).all()  # the plane stops some rays, not all
