@@ -21,7 +21,7 @@ def main(argv=None) -> int:
         mesh = data.read(argv[0], argv[1], argv[2])
     else:
         mesh = data.read(argv[0], None, argv[1] if len(argv) > 1 else None)
-    print(f"{mesh.num_elements} elements; {mesh.warnings[-1]}")
+    print(f"{mesh.num_elements} elements; {mesh.fit_report}")
     return 0
 
 

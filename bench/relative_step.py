@@ -19,7 +19,8 @@ import numpy as np
 
 from bench.common import DATA
 from hovr_blender.ui import framing  # bpy-free
-from hovr_blender.ui.scene import TF_PRESETS, field_samples
+from hovr_blender.engine import first_view
+from hovr_blender.engine.looks import TF_PRESETS, field_samples
 from hovr_blender.engine.camera import RayCamera
 from hovr_blender.engine.renderer import Renderer
 from hovr_blender.engine.transfer_function import TransferFunction
@@ -31,23 +32,23 @@ DATASETS = {  # name: (mesh, solution, field)
     "pyfr_tgv_pressure": ("vtu/pyfr_tgv_hexprism_p4_t4.vtu", "", "Pressure"),
 }
 STEPS_ACROSS = (250, 500, 1000, 2000)
-DEFAULT_VIEW = (-7.36, 6.93, -4.96)  # Blender's default camera direction (ui/operators.py)
+DEFAULT_VIEW = first_view.FACTORY_FORWARD  # Blender's default camera direction
 
 
 def first_picture(mesh, width: int, height: int):
     """(camera, transfer function, diagonal) as the importer's defaults give them."""
     v = mesh.vertices.reshape(-1, 3)
     lo, hi = v.min(axis=0), v.max(axis=0)
-    diag = framing.volume_diagonal(lo, hi)
+    diag = first_view.volume_diagonal(lo, hi)
     values = field_samples(mesh)
     stops = TF_PRESETS["SMOOTH"][2]
     tf = TransferFunction.from_rgba_ramp([p for p, _ in stops], [c for _, c in stops],
-                                         framing.density_per_world_unit(4.0, "RELATIVE", diag),
+                                         first_view.density_per_world_unit(4.0, "RELATIVE", diag),
                                          float(values.min()), float(values.max()))
     forward = np.asarray(DEFAULT_VIEW, float)
     forward /= np.linalg.norm(forward)
     tan_y = np.tan(np.radians(39.6) / 2) * height / width  # Blender's 50 mm lens, sensor fit along x
-    eye, _, _, _ = framing.fit_view(framing.box_corners(lo, hi), forward, (0, 0, 1), tan_y * width / height, tan_y)
+    eye, _, _, _ = first_view.fit_view(framing.box_corners(lo, hi), forward, (0, 0, 1), tan_y * width / height, tan_y)
     camera = RayCamera.from_contract({"projection": "perspective", "eye": eye.tolist(),
                                       "target": (eye + forward).tolist(), "up": [0.0, 0.0, 1.0],
                                       "fov_y_deg": float(np.degrees(2 * np.arctan(tan_y)))}, width, height)

@@ -1,8 +1,10 @@
 """`hovr`: render a view file exactly per the render contract, without Blender.
 
-    hovr render VIEW.json -o out.npy [--png out.png [--png-background view|transparent|R,G,B] [--legend]]
-                [--stats stats.json]
+    hovr render FILE|VIEW.json [-o out.npy] [--png out.png [--png-background view|transparent|R,G,B]
+                [--legend [--units UNITS]]] [--field NAME] [--size WxH] [--stats stats.json]
                 [--method NAME] [--h STEP] [--tolerance TOL] [--device cpu|cpu:all|cuda:0|cuda:0,cuda:1|cuda:all]
+    hovr view FILE|VIEW.json [--field NAME] [--size WxH] > view.json
+                                                           (the view a data file gets: Blender's first look)
     hovr reference VIEW.json -o ref.npy [--png ref.png]    (float64 certifying reference)
     hovr render-series VIEW.json -o out/frame_####.npy --frames 1-100 [--png] [--orbit DEG]
                 [--camera-path cams.json] [--scheduler ADDRESS | --workers N] [--device auto|cpu|cuda:0]
@@ -27,8 +29,10 @@ import traceback
 
 from .engine import scratch
 from .engine.methods import METHODS
+from .engine.words import plural
 
 EXIT_ERROR = 2
+DEFAULT_SIZE = (960, 540)  # a data file's image without --size: half Blender's default 1920 x 1080
 
 
 class OutputError(ValueError):
@@ -62,25 +66,34 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = p.add_subparsers(dest="command", required=True)
 
+    def view_source(q):
+        q.add_argument("view", help="a data file (its view as Blender's import gives it: docs/cli.md) or a view "
+                       "JSON (docs/spec/render-contract.md), whose image, camera, transfer_function and background "
+                       "may be left out")
+        q.add_argument("--field", help="the data's field instead of the view's data.field (a data file's default: "
+                       "its first): a name, |a,b,c| or a derived field such as Q(Velocity), "
+                       "vorticity(rhou,rhov,rhow/rho), |grad|(p) (docs/spec/render-contract.md §8)")
+        q.add_argument("--size", type=_size, metavar="WxH", help="image size in pixels instead of the view's "
+                       f"(default for a data file: {DEFAULT_SIZE[0]}x{DEFAULT_SIZE[1]})")
+
     def common(q):
-        q.add_argument("view", help="view JSON (docs/spec/render-contract.md)")
-        q.add_argument("-o", "--output", required=True, help="float32 (H, W, 4) RGBA .npy (its folder must exist)")
-        q.add_argument("--png", help="also write an sRGB 8-bit .png")
+        view_source(q)
+        q.add_argument("-o", "--output", help="float32 (H, W, 4) RGBA .npy (its folder must exist); -o, --png or both")
+        q.add_argument("--png", help="an sRGB 8-bit .png")
         q.add_argument("--png-background", default="view", type=_png_background, metavar="view|transparent|R,G,B",
                        help="the PNG's background: view (default: flattened on the view's background colour, "
                        "no alpha), transparent (the volume alone, straight alpha) or a linear colour R,G,B")
         q.add_argument("--legend", action="store_true", help="draw the colour legend on the PNG: the transfer "
-                       "function's bar over its value range, with the field's name (engine/legend.py)")
+                       "function's colours over its value range with its density as a curve, the field's name and "
+                       "units (engine/legend.py)")
+        q.add_argument("--units", help="the field's units for the legend's title (e.g. kg/m^3)")
         q.add_argument("--stats", help="write render statistics as .json")
         q.add_argument("--max-memory", help="memory limit of the load and the render, e.g. 8G (default 4G, "
                        "or HOVR_MAX_MEMORY)")
         q.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
 
-    r = sub.add_parser("render", help="render a view file with the Warp kernels")
+    r = sub.add_parser("render", help="render a data file or a view file with the Warp kernels")
     common(r)
-    r.add_argument("--field", help="the data's field instead of the view's data.field: a name, |a,b,c| or a "
-                   "derived field such as Q(Velocity), vorticity(rhou,rhov,rhow/rho), |grad|(p) "
-                   "(docs/spec/render-contract.md §8)")
     r.add_argument("--method", choices=METHODS, help="quadrature (default: the view's, else classified)")
     r.add_argument("--h", type=float, help="fixed step in world units: Riemann and trapezoid need one; classified "
                    "without it chooses each piecewise-smooth segment's step from its error bound")
@@ -94,6 +107,10 @@ def _parser() -> argparse.ArgumentParser:
                    "samples across the data (default 100000, or HOVR_MAX_SAMPLES_PER_RAY)")
     f = sub.add_parser("reference", help="render the float64 reference (affine hexahedra)")
     common(f)
+    v = sub.add_parser("view", help="print the view of a data file (or complete a view file's) as JSON: the "
+                       "camera, transfer function and range Blender's import gives it, to edit and render")
+    view_source(v)
+    v.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     s = sub.add_parser("render-series", help="render numbered frames (a field series, a camera path, or both) "
                        "over a Dask cluster (docs/distributed.md)")
     s.add_argument("view", help="view JSON; a run of '#' in data.path or data.solution is the frame number")
@@ -179,14 +196,137 @@ def _write_all(outputs):
         raise
 
 
+def _size(text: str) -> tuple[int, int]:
+    """--size WxH: whole numbers of pixels."""
+    from .engine.view import MAX_IMAGE_SIDE
+
+    w, _, h = text.lower().partition("x")
+    try:
+        size = (int(w), int(h))
+    except ValueError:
+        size = (0, 0)
+    if not all(1 <= s <= MAX_IMAGE_SIDE for s in size):
+        raise argparse.ArgumentTypeError(f"{text!r}: give the image size as WxH, each 1..{MAX_IMAGE_SIDE} pixels")
+    return size
+
+
+def _is_view_file(path: str) -> bool:
+    return path.lower().endswith(".json")
+
+
 def _reads_a_file(view_path) -> bool:
     """Whether a view names a data file (not builtin:): a cheap first look, errors left to the run."""
-    from .engine.view import View
+    if not _is_view_file(view_path):
+        return not view_path.startswith("builtin:")
+    from .engine import strict_json
+    from .engine.view import MAX_VIEW_BYTES, ViewError
+    from .engine.limits import read_regular
 
     try:
-        return "path" in View.load(view_path).data
+        data = strict_json.loads(read_regular(view_path, "view file", max_bytes=MAX_VIEW_BYTES), view_path, ViewError)
+        return "path" in data.get("data", {})
     except Exception:  # noqa: BLE001  (the run itself reports what is wrong)
         return False
+
+
+def _data_of_file(path: str, field: str | None) -> tuple[dict, list]:
+    """(the view's data object, notes) of a data file as Blender's import reads it (io.sources.choose_data:
+    the solution given or the likeliest beside it, the field given or the file's first)."""
+    if path.startswith("builtin:"):
+        return {"builtin": path.partition(":")[2]}, []
+    from .io.sources import choose_data
+
+    path = os.path.abspath(path)
+    _, choice = choose_data(path, field=field or "", settings=("--field", "give a view file's data.solution"))
+    data = {"path": path, **{k: v for k, v in (("solution", choice.solution), ("field", choice.field),
+                                                ("component", choice.component)) if v}}
+    return data, [*choice.notes, *(f"warning: {w}" for w in choice.warnings)]
+
+
+def _view_object(args) -> tuple[dict, str, list]:
+    """(view object, base folder, notes): a view file's keys, or a data file's {"data": ...}, with
+    --field and --size over them; completed by _first_view once the data is read."""
+    from .engine import limits, strict_json
+    from .engine.view import MAX_VIEW_BYTES, ViewError, data_spec
+
+    if _is_view_file(args.view):
+        raw = limits.read_regular(args.view, "view file", max_bytes=MAX_VIEW_BYTES)
+        view = strict_json.as_object(strict_json.loads(raw, args.view, ViewError), "a view", ViewError)
+        if "data" not in view:
+            raise ViewError("view needs 'data'")
+        base_dir, notes = os.path.dirname(os.path.abspath(args.view)), []
+        if args.field:
+            view["data"] = {**data_spec(view["data"]), "field": args.field}
+    else:
+        data, notes = _data_of_file(args.view, args.field)
+        view, base_dir = {"data": data}, os.getcwd()
+    if args.size:
+        view["image"] = {"width": args.size[0], "height": args.size[1]}
+    return view, base_dir, notes
+
+
+def _first_view(view: dict, mesh):
+    """(view, F12's camera or None, warnings): a view without a camera or a transfer function completed
+    from the data's first view (engine/first_view.default_view: Blender's import), each key it gives
+    kept, and where the camera is the first view's, the rays Blender's F12 has (factory_camera); a
+    view with both is left as it is (its background black and its render settings the defaults where
+    it gives none, as ever)."""
+    if "camera" in view and "transfer_function" in view:
+        return view, None, []
+    from .engine import first_view
+    from .engine.strict_json import as_integer, as_object
+    from .engine.view import MAX_IMAGE_SIDE, ViewError
+
+    image = as_object(view.get("image", {}), "image", ViewError)
+    width = as_integer(image.get("width", DEFAULT_SIZE[0]), "image size: width", ViewError, 1, MAX_IMAGE_SIDE)
+    height = as_integer(image.get("height", DEFAULT_SIZE[1]), "image size: height", ViewError, 1, MAX_IMAGE_SIDE)
+    first = first_view.default_view(mesh, view["data"], width, height)
+    out = {**first.view, **view}
+    out["render"] = {**first.view["render"], **as_object(view.get("render", {}), "render", ViewError)}
+    return out, (first.camera if "camera" not in view else None), first.warnings
+
+
+def _load_view(args):
+    """(View, its object, mesh) of the command line's data file or view file (_view_object,
+    _first_view); what the data's choice, its reader and its first look have to say goes to stderr,
+    as Blender's import reports it."""
+    from .engine.view import View, data_spec
+    from .engine.words import summarise_warnings
+    from .io.sources import VolumeSource, load_volume
+
+    d, base_dir, notes = _view_object(args)
+    mesh = load_volume(VolumeSource.from_view_data(data_spec(d["data"]), base_dir))
+    d, camera, warnings = _first_view(d, mesh)
+    view = View.from_dict(d, base_dir)
+    if camera is not None:
+        view.camera = camera
+    for note in notes + getattr(mesh, "notes", []):
+        print(f"hovr: {note}", file=sys.stderr)
+    for warning in summarise_warnings(getattr(mesh, "warnings", [])) + warnings:
+        print(f"hovr: warning: {warning}", file=sys.stderr)
+    return view, d, mesh
+
+
+def _run_view(args) -> str:
+    """hovr view: the completed view on stdout, as JSON (the notes on stderr)."""
+    if _reads_a_file(args.view):
+        from .io import isolation
+
+        isolation.prestart()
+    return view_json(_load_view(args)[1])
+
+
+def view_json(view: dict) -> str:
+    """A view as JSON to read and edit: a key a line, a transfer function's breakpoint a line."""
+    import json
+
+    def rows(key, value):
+        if key != "transfer_function":
+            return json.dumps(value)
+        parts = [f'  "{k}": [\n' + ",\n".join(f"   {json.dumps(r)}" for r in v) + "]" for k, v in value.items()]
+        return "{\n" + ",\n".join(parts) + "}"
+
+    return "{\n" + ",\n".join(f' "{k}": {rows(k, v)}' for k, v in view.items()) + "\n}"
 
 
 def _run(args) -> str:
@@ -197,13 +337,15 @@ def _run(args) -> str:
     from .engine import limits
     from .engine.image_io import png_pixels, write_json, write_npy, write_png
     from .engine.mesh import data_diagonal
-    from .engine.view import View
-    from .io import load_view_data
 
-    out = _output_path(args.output, ".npy", "-o")
+    if not args.output and not args.png:
+        raise OutputError("give -o out.npy, --png out.png or both")
+    out = _output_path(args.output, ".npy", "-o") if args.output else None
     png = _output_path(args.png, ".png", "--png") if args.png else None
     if args.legend and not png:
         raise OutputError("--legend draws on the PNG: give --png too")
+    if args.units and not args.legend:
+        raise OutputError("--units names the legend's units: give --legend too")
     st_path = _output_path(args.stats, ".json", "--stats") if args.stats else None
     lim = limits.current()
     if args.max_memory:  # the other limits (inflation, read time) stay as the environment sets them
@@ -211,9 +353,9 @@ def _run(args) -> str:
     if getattr(args, "max_samples_per_ray", None) is not None:
         lim = dataclasses.replace(lim, max_samples_per_ray=args.max_samples_per_ray)
     with limits.using(lim):
-        view = View.load(args.view)
-        if getattr(args, "field", None):
-            view.data = {**view.data, "field": args.field}
+        t0 = time.perf_counter()
+        view, _, mesh = _load_view(args)  # the data is read before Warp loads: most hostile files are
+        load_s = time.perf_counter() - t0  # refused by their reader
         if args.command == "render":
             view.options = view.options.with_(
                 method=args.method, h=args.h, tolerance=args.tolerance,
@@ -224,10 +366,6 @@ def _run(args) -> str:
             w, h = view.camera.width, view.camera.height
             limits.check_bytes(view.options.image_bytes(w, h), f"a {w}x{h} image in {view.options.precision} "
                                                                "(its pixels alone)")
-        t0 = time.perf_counter()
-        mesh = load_view_data(view)  # before Warp loads: most hostile files are refused by their reader
-        load_s = time.perf_counter() - t0
-        if args.command == "render":
             view.options.check_steps(data_diagonal(mesh))
             from .engine.frame import Frame, render_frame
             from .engine.multi_device import make_renderer
@@ -246,7 +384,7 @@ def _run(args) -> str:
             stats = {"device": "cpu (numpy float64)", "render_seconds": time.perf_counter() - t0,
                      "method": "reference", "parameters": {}, **info}
     stats["load_seconds"] = load_s
-    outputs = [(out, lambda fh: write_npy(fh, rgba))]
+    outputs = [(out, lambda fh: write_npy(fh, rgba))] if out else []
     if png:
         shown = png_pixels(rgba, view.background, args.png_background)
         if args.legend:
@@ -255,13 +393,14 @@ def _run(args) -> str:
             over = view.background if isinstance(args.png_background, str) else args.png_background
             title = mesh.field_name or view.data.get("field") or "value"
             shown = draw_legend(shown, legend_layout(view.transfer_function, *tf_value_range(view.transfer_function),
-                                                     title, view.camera.width, view.camera.height, over))
+                                                     title, view.camera.width, view.camera.height, over,
+                                                     units=args.units))
         outputs.append((png, lambda fh: write_png(fh, shown, alpha=args.png_background == "transparent")))
     if st_path:
         outputs.append((st_path, lambda fh: write_json(fh, stats)))
     _write_all(outputs)
     return (f"hovr: {view.camera.width}x{view.camera.height} {stats['method']} in {stats['render_seconds']:.3f} s "
-            f"on {stats['device']} -> {out}")
+            f"on {stats['device']} -> {', '.join(p for p in (out, png) if p)}")
 
 
 class _dask_client:  # noqa: N801  (a context manager read as a function)
@@ -337,7 +476,7 @@ def _run_blend(args) -> str:
                                                   progress=_progress_bar(t0), timeout=args.frame_timeout,
                                                   output=args.output)
     written = sum(1 for r in records if r["status"] == "written")
-    return (f"hovr: {written} frames written, {len(records) - written} were already there, in "
+    return (f"hovr: {plural(written, 'frame')} written, {len(records) - written} were already there, in "
             f"{time.perf_counter() - t0:.1f} s")
 
 
@@ -378,8 +517,9 @@ def _run_series(args) -> str:
     seconds = time.perf_counter() - t0
     written = [r for r in records if r["status"] == "written"]
     load = sum(r["load_seconds"] for r in written) / max(len(written), 1)
-    return (f"hovr: {len(written)} frames written ({len(frames) - len(todo)} were already there) in {seconds:.1f} s, "
-            f"{len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> {os.path.dirname(job.npy(frames[0]))}")
+    return (f"hovr: {plural(len(written), 'frame')} written ({len(frames) - len(todo)} were already there) in "
+            f"{seconds:.1f} s, {len(written) / seconds:.2f} frames/s, load {load:.3f} s a frame -> "
+            f"{os.path.dirname(job.npy(frames[0]))}")
 
 
 def _terminate(signum, frame):
@@ -392,7 +532,8 @@ def main(argv=None) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate) if on_sigterm else None
     try:
         with scratch.adopted():  # every temporary file of the run, its children's included, in a private folder
-            message = {"render-series": _run_series, "render-blend": _run_blend}.get(args.command, _run)(args)
+            message = {"render-series": _run_series, "render-blend": _run_blend,
+                       "view": _run_view}.get(args.command, _run)(args)
     except KeyboardInterrupt:
         _end_progress_line()
         print("hovr: interrupted", file=sys.stderr)

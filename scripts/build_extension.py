@@ -45,6 +45,8 @@ import tomllib
 import zipfile
 from pathlib import Path
 
+from hovr_blender.ui.dependencies import WARP_VERSION  # the add-on's one pin of Warp
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "hovr_blender"
 MANIFEST = REPO / "blender_manifest.toml"
@@ -52,7 +54,6 @@ WHEEL_CACHE = REPO / "build" / "wheels"
 SKIP_DIRS = {"__pycache__", "tests"}
 SKIP_SUFFIXES = {".pyc", ".pyo", ".zip"}
 
-WARP_VERSION = "1.19.0"  # pinned as in pyproject.toml: Warp's APIs move fast
 # Everything the add-on imports beyond Blender (ui/dependencies.py checks the same packages at
 # enable time, tests/ui/test_framing.py that they agree): Warp renders, h5py reads
 # HDF5 solution files, defusedxml parses every XML data file (DTDs refused in any encoding:
@@ -220,12 +221,19 @@ def download_wheel(platform: str, cache: Path = WHEEL_CACHE) -> Path:
     return next(w for w in download_wheels(platform, cache) if _wheel_project(w) == "warp-lang")
 
 
+def zip_name(manifest: dict, platform: str | None = None) -> str:
+    """The zip's file name: hovr_blender-0.1.0.zip, or with a platform's wheels
+    hovr_blender-0.1.0-linux_x64.zip (Blender's platform names, '-' as '_')."""
+    tail = f"-{platform.replace('-', '_')}" if platform else ""
+    return f"{manifest['id']}-{manifest['version']}{tail}.zip"
+
+
 def build(output_dir: Path, kernels: dict | None = None) -> Path:
     """The zip without wheels; `kernels` are compile_kernels(...) arguments to ship compiled kernels
     of this machine's platform."""
     text, manifest = _load_manifest()
     output_dir.mkdir(parents=True, exist_ok=True)
-    out = output_dir / f"{manifest['id']}-{manifest['version']}.zip"
+    out = output_dir / zip_name(manifest)
     compiled = compile_kernels(host_platform(), **kernels) if kernels is not None else None
     _write_zip(out, text, kernels=compiled)
     return out
@@ -242,7 +250,7 @@ def build_with_wheels(output_dir: Path, platforms=DEFAULT_PLATFORMS, cache: Path
         wheels = download_wheels(platform, cache)
         listed = ", ".join(f'"./wheels/{w.name}"' for w in wheels)
         lines = [f'platforms = ["{platform}"]', f"wheels = [{listed}]"]
-        out = output_dir / f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"
+        out = output_dir / zip_name(manifest, platform)
         compiled = compile_kernels(platform, **kernels) if kernels is not None else None
         if compiled and compiled["warp"] != WARP_VERSION:
             raise SystemExit(f"the kernels were compiled with Warp {compiled['warp']}, the zip ships Warp {WARP_VERSION}: "

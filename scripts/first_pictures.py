@@ -16,10 +16,10 @@ by name) and docs/first-picture-ngsolve-ball.png (NGSolve's ball, VTU), from ../
 A contact sheet (issue 30): each first look (ui/scene.FIRST_LOOKS, chosen from the data, and the
 smooth ramp of before) on each of the six shared datasets, a row a dataset, a column a look,
 every cell with its legend. No Blender: the engine renders what an import with the importer's
-defaults gives in Blender's factory scene: the importer's field (the file's first, Tet_channel_m3's
-w: its first, u, is zero), Value Min/Max fitted (ui/scene.value_range), the look's ramp and Density
-across the volume, the default camera's direction and lens framed on the volume (ui/framing), the
-default world's grey behind it, Classified at 1000 Steps Across. --json writes each cell's numbers.
+defaults gives in Blender's factory scene (engine/first_view.py, what `hovr render FILE` renders): the
+importer's field (the file's first, Tet_channel_m3's w: its first, u, is zero), Value Min/Max fitted,
+the look's ramp and Density across the volume, the factory camera framed on the volume, the factory
+world's grey behind it, Classified at 1000 Steps Across. --json writes each cell's numbers.
 """
 from __future__ import annotations
 
@@ -45,38 +45,15 @@ SHEET_DATASETS = {
     "pyfr-tgv": ("PyFR TGV", "vtu/pyfr_tgv_hexprism_p4_t4.vtu", None),
     "tet-channel": ("Tet_channel_m3 (Nektar++)", "nektar/Tet_channel_m3.xml", "w"),
 }
-BLENDER_WORLD = (0.0509, 0.0509, 0.0509)  # the factory startup world's colour, linear
-BLENDER_LENS_TAN = 18.0 / 50.0  # the default camera: 50 mm lens, 36 mm sensor fitted to the wider side
-STEPS_ACROSS = 1000  # ui/properties.DEFAULT_STEPS_ACROSS
 
 
-def default_field(path: Path) -> tuple[str, str]:
-    """(solution, field) an import with the importer's defaults shows (ui/import_operators'
-    resolve_nektar / resolve_vtu: the solution beside the mesh, the file's first field)."""
-    from hovr_blender.io import nektar, vtu
+def default_field(path) -> tuple[str, str]:
+    """(solution, field) an import with the importer's defaults shows (io.sources.choose_data: the
+    likeliest solution beside the mesh, the file's first field)."""
+    from hovr_blender.io.sources import choose_data
 
-    if path.suffix == ".vtu":
-        return "", list(vtu.list_fields(str(path)))[0]
-    picked, _, _ = nektar.pick_solution(str(path))
-    return (str(picked), nektar.list_fields(str(picked))[0]) if picked else ("", "")
-
-
-def framing_camera(mesh, width: int, height: int):
-    """The factory scene's camera direction and lens, framed on the volume as an import frames it
-    (ui/operators.frame_volumes: ui/framing.fit_view over the elements' corners)."""
-    import numpy as np
-
-    from hovr_blender.engine.camera import RayCamera
-    from hovr_blender.ui.framing import DEFAULT_VIEW, fit_view
-
-    forward = np.asarray(DEFAULT_VIEW, float) / np.linalg.norm(DEFAULT_VIEW)
-    tan_x = BLENDER_LENS_TAN if width >= height else BLENDER_LENS_TAN * width / height
-    tan_y = tan_x * height / width
-    corners = np.unique(mesh.vertices.reshape(-1, 3), axis=0)
-    eye, _, _, _ = fit_view(corners[:: max(1, len(corners) // 50_000)], forward, (0, 0, 1), tan_x, tan_y)
-    return RayCamera.from_contract({"projection": "perspective", "eye": eye.tolist(), "target": (eye + forward).tolist(),
-                                    "up": [0.0, 0.0, 1.0], "fov_y_deg": float(np.degrees(2 * np.arctan(tan_y)))},
-                                   width, height)
+    _, choice = choose_data(str(path))
+    return choice.solution, choice.field
 
 
 def look_cells(key: str, device: str, width: int, height: int, looks, out_json: dict):
@@ -85,38 +62,36 @@ def look_cells(key: str, device: str, width: int, height: int, looks, out_json: 
 
     import numpy as np
 
+    from hovr_blender.engine import first_view
     from hovr_blender.engine.image_io import png_pixels
     from hovr_blender.engine.legend import draw_legend, legend_layout
+    from hovr_blender.engine.looks import FIRST_LOOKS, field_samples, value_range
     from hovr_blender.engine.renderer import Renderer
     from hovr_blender.engine.view import RenderOptions
     from hovr_blender.io.sources import VolumeSource, load_volume
-    from hovr_blender.ui.framing import density_per_world_unit, volume_diagonal
-    from hovr_blender.ui.scene import FIRST_LOOKS, field_samples, render_background, transfer_function_from_ramp, \
-        value_range
 
     label, rel, field = SHEET_DATASETS[key]
     path = DATA / rel
     solution, default = default_field(path)
     field = field or default
     mesh = load_volume(VolumeSource.resolve(str(path), solution, field, 1))
-    values = field_samples(mesh)
-    lo, hi, warning = value_range(values)
-    box = mesh.vertices.reshape(-1, 3)
-    diag = volume_diagonal(box.min(axis=0), box.max(axis=0))
-    camera = framing_camera(mesh, width, height)
-    background = render_background(BLENDER_WORLD, False)
+    values, weights = field_samples(mesh, weights=True)
+    warning = value_range(values)[2]
+    diag = first_view.mesh_diagonal(mesh)
+    camera, _ = first_view.factory_camera(first_view.framing_points(mesh), width, height)
+    background = np.array(first_view.FACTORY_WORLD)
     renderer = Renderer(mesh, device)
-    options = RenderOptions(method="classified", h=diag / STEPS_ACROSS, tolerance=1e-5, min_transmittance=1e-5,
-                            device=device)
+    options = RenderOptions(method="classified", h=diag / first_view.DEFAULT_STEPS_ACROSS, device=device)
     cells = []
     for look in looks:
-        stops, density = FIRST_LOOKS[look][2](values, lo, hi)
-        tf = transfer_function_from_ramp("LINEAR", "RGB", [p for p, _ in stops], [c for _, c in stops],
-                                         density_per_world_unit(density, "RELATIVE", diag), lo, hi)
+        first = first_view.first_look(values, look, weights)
+        stops, density = first.stops, first.density
+        tf = first_view.look_transfer_function(first, diag)
         t0 = time.perf_counter()
         result = renderer.render(camera, tf, background, options)
         secs = time.perf_counter() - t0
         shown = png_pixels(result.rgba, background, "view")
+        lo, hi = first.value_min, first.value_max
         shown = draw_legend(shown, legend_layout(tf, lo, hi, mesh.field_name or field, width, height, background))
         cells.append(shown[..., :3])
         alpha = result.rgba[..., 3]
@@ -136,7 +111,7 @@ def contact_sheet(rows, looks, width: int, height: int, columns: int = 0):
     from PIL import Image, ImageDraw, ImageFont
 
     from hovr_blender.engine.image_io import srgb_encode
-    from hovr_blender.ui.scene import FIRST_LOOKS
+    from hovr_blender.engine.looks import FIRST_LOOKS
 
     font_px = max(10, min(20, height // 9))
     font = ImageFont.load_default(size=font_px)
@@ -172,7 +147,7 @@ def looks_main(argv):
     import datetime
     import json
 
-    from hovr_blender.ui.scene import FIRST_LOOKS
+    from hovr_blender.engine.looks import FIRST_LOOKS
 
     ap = argparse.ArgumentParser(prog="python -m scripts.first_pictures looks")
     ap.add_argument("--device", default="cpu")

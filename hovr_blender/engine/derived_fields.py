@@ -38,6 +38,7 @@ from . import expansions as ex
 from .mesh import element_field_ranges
 from .mesh_base import DerivedFieldError, MeshError
 from .shapes import MAX_MODES
+from .words import plural
 
 OPERATIONS = ("|grad|", "vorticity", "Q", "speed")
 SAMPLES_PER_ELEMENT = 64  # random points per element where the fit's error is measured
@@ -118,7 +119,7 @@ def derived_field_names(fields) -> list[str]:
 
 def not_a_velocity(spec: DerivedSpec, name: str, components: int) -> DerivedFieldError:
     """The one-line error where a velocity's one name is not a vector of three components."""
-    return DerivedFieldError(f"{spec.name}: {name!r} has {components} component(s), not a velocity: give three "
+    return DerivedFieldError(f"{spec.name}: {name!r} has {plural(components, 'component')}, not a velocity: give three "
                              f"components ({spec.operation}(u,v,w)), a vector field of three or momenta over a "
                              f"density ({spec.operation}(rhou,rhov,rhow/rho))")
 
@@ -320,16 +321,25 @@ def derived_mesh(spec: DerivedSpec, components, seed: int = 0):
     note = (f"{spec.name}: sampled exactly in the render; its fit ({'/'.join(str(q) for q in sorted(set(Q.tolist())))}"
             f" modes per direction, for ranges and normals) is within {worst:.3g} of it at {points} random points "
             f"({100 * out.derived_error['relative']:.3g} % of max {peak:.4g})")
-    return with_reader_notes(out, components, note)
+    return with_reader_notes(out, components, note, out.derived_error["relative"])
 
 
-def with_reader_notes(out, components, note: str):
-    """`out` (a field derived from `components`) with their readers' warnings, then `note`, and
-    the reader's element ids and has_field of the first component."""
+# a fit's error, relative to the field's largest value, above which its report is a warning (below:
+# a note): a thousandth is what one can see in a picture; Q's fit on PyFR's Taylor-Green (7.8e-13) is
+# a note, a magnitude's at its kinks (2 % on hump3D's momentum) a warning
+FIT_WARNING = 1e-3
+
+
+def with_reader_notes(out, components, note: str, relative: float):
+    """`out` (a field derived from `components`) with their readers' warnings, its fit's report
+    `note` (out.fit_report; among the warnings where the fit's relative error passes FIT_WARNING,
+    else among out.notes), and the reader's element ids and has_field of the first component."""
     warnings = []
     for c in components:
         warnings += [w for w in getattr(c, "warnings", []) if w not in warnings]
-    out.warnings = warnings + [note]
+    out.fit_report = note
+    out.warnings = warnings + ([note] if relative > FIT_WARNING else [])
+    out.notes = [] if relative > FIT_WARNING else [note]
     for attr in ("element_ids", "has_field"):
         if hasattr(components[0], attr):
             setattr(out, attr, getattr(components[0], attr))

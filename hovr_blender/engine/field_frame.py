@@ -136,9 +136,12 @@ def resolution_warnings(tfs, fr: FieldFrame, volume, lo, hi, rounding, precision
     """Where the field's rounding in `precision` cannot resolve a volume's finest transfer-function
     feature: per element of volume k (`volume` (N,) ints), its range [lo, hi] and the size of its
     evaluation's rounding, all in frame units. Only elements whose range meets the band count:
-    the rest see a constant part of the transfer function."""
+    the rest see a constant part of the transfer function; and none of a transfer function whose
+    density is zero everywhere (an invisible volume has no feature to resolve)."""
     warnings = []
     for k, tf in enumerate(tfs):
+        if not tf.density_tau.max() > 0:
+            continue
         blo, bhi = (fr.apply(v, k) for v in band(tf))
         near = (volume == k) & (hi >= blo) & (lo <= bhi)
         if not near.any():

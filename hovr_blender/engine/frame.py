@@ -13,11 +13,13 @@ What render_frame does with a frame, in order:
 - opaque meshes (engine/opaque.py) are cast first: the volume is rendered up to each pixel's
   first hit over black and composited over the hit's shading (or left transparent there:
   holdout);
-- isosurfaces and cut planes (contract §7) go to the kernels with the volume;
+- isosurfaces and cut planes (contract §7) go to the kernels with the volume; an isosurface that
+  meets no ray of the whole image is said so in stats["warnings"] (Surfaces.unseen);
 - with a segment cache (SegmentSlot), the view is shaded from the slot's cache where it holds
   this view's segments (Renderer.cache_fits), else traced anew and kept in the slot; where the
   memory limit or the device refuses the cache the frame renders plainly and
-  stats["segment_cache"]["refused"] says why.
+  stats["segment_cache"]["refused"] says why. stats["segment_cache"]["use"] says what was done
+  ("traced": its stats count the trace's work too; "shaded": no field was evaluated).
 
 Warp is imported only when a frame is rendered (by the renderers), so the UI's bpy-free parts
 import this module without it.
@@ -150,6 +152,14 @@ def render_frame(renderer, frame: Frame, camera, rows: tuple[int, int] | None = 
         how["ray_counts"] = True
     if frame.surfaces:
         how["surfaces"] = frame.surfaces
+    result = _render(renderer, frame, camera, rows, how)
+    if frame.surfaces and rows is None and not result.cancelled:  # said of the whole image only
+        result.stats["warnings"] = list(result.stats.get("warnings", [])) + renderer.surface_misses(camera,
+                                                                                                    frame.surfaces)
+    return result
+
+
+def _render(renderer, frame: Frame, camera, rows, how: dict) -> RenderResult:
     opaque = frame.opaque_meshes
     slot = frame.cache
     if slot is not None and Capability.SEGMENT_CACHE in renderer.capabilities:
@@ -161,6 +171,24 @@ def render_frame(renderer, frame: Frame, camera, rows: tuple[int, int] | None = 
     hits = opaque.cast(camera)
     res = renderer.render(camera, frame.transfer_function, np.zeros(3), frame.options, surface_t=hits.t, **how)
     return composite_hits(res, hits, frame.background, frame.opaque_mode, rows)
+
+
+# the work a trace does and a shade does not (both count the segments: the shade's are the trace's)
+TRACE_COUNTS = ("field_evaluations", "restriction_evaluations", "curved_locates", "walks", "bvh_candidates",
+                "newton_iterations")
+
+
+def _add_trace(stats: dict, trace: dict):
+    """A traced and shaded frame's stats: the trace's time and work added to the shade's (the trace
+    evaluated the field, the shade integrated what it kept), and stats["segment_cache"]["use"]."""
+    stats["render_seconds"] += trace["trace_seconds"]
+    for k in TRACE_COUNTS:
+        if k in trace and k in stats:
+            stats[k] += trace[k]
+    r0, r1 = stats.get("rows", (0, int(stats["height"])))
+    pixels = int(stats["width"]) * (r1 - r0)
+    stats["samples_per_ray"] = (stats["field_evaluations"] + stats["restriction_evaluations"]) / max(pixels, 1)
+    stats["segment_cache"] = {**stats.get("segment_cache", {}), "use": "traced"}
 
 
 def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, how: dict) -> RenderResult:
@@ -179,6 +207,7 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
     if fits:
         res = renderer.shade(old, tf, background, options, progress=progress, tile_pixels=tile_pixels,
                              surfaces=surfaces)
+        res.stats["segment_cache"] = {**res.stats.get("segment_cache", {}), "use": "shaded"}
     else:
         surface_t = None if hits is None else hits.t
         try:
@@ -200,7 +229,7 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
         slot.cache = cache
         res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
                              surfaces=surfaces)
-        res.stats["render_seconds"] += cache.stats["trace_seconds"]  # this call traced and shaded
+        _add_trace(res.stats, cache.stats)
     if hits is None or res.cancelled:
         return res
     return composite_hits(res, hits, frame.background, frame.opaque_mode, rows)

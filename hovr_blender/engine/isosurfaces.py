@@ -18,6 +18,9 @@ from . import expansions as ex
 from .strict_json import as_number, as_numbers, as_object, as_string, as_vector3
 
 MAX_ISOSURFACES = 16
+# a level this share of the field's sampled range beyond it may still meet the field between the
+# samples (a polynomial's extremum between lattice points); beyond that there is no surface
+RANGE_SLACK = 0.01
 MAX_PLANES = 8
 CLIP_SIDES = {"none": 0, "front": 1, "back": -1}  # front: the side the normal points to is removed
 
@@ -69,22 +72,40 @@ class Surfaces:
         return any(p.clip != 0 for p in self.planes)
 
     def check(self, data_ranges, lower, upper) -> None:
-        """SurfaceError where a level lies outside its volume's field range (data_ranges: one
-        (lo, hi) per volume, in the field's units) or a plane misses the data's box
-        [lower, upper]."""
+        """SurfaceError where a level lies outside its volume's field range over the data
+        (data_ranges: one (lo, hi) per volume, in the field's units: the range of the field's
+        samples, engine/looks.field_samples, widened by RANGE_SLACK of it, which the field's true
+        extremes between the samples do not pass) or a plane misses the data's box [lower, upper]."""
         for k, iso in enumerate(self.isosurfaces):
             if not 0 <= iso.volume < len(data_ranges):
                 raise SurfaceError(f"isosurface {k}: volume {iso.volume} does not exist ({len(data_ranges)} volumes)")
             lo, hi = data_ranges[iso.volume]
-            if not lo <= iso.value <= hi:
-                raise SurfaceError(f"isosurface {k}: value {iso.value:g} is outside the field's range "
-                                   f"[{lo:g}, {hi:g}]: no surface to draw")
+            slack = RANGE_SLACK * (hi - lo)
+            if not lo - slack <= iso.value <= hi + slack:
+                raise SurfaceError(f"isosurface {k}: value {iso.value:g} is outside the field's range over the "
+                                   f"data [{lo:.6g}, {hi:.6g}]: no surface to draw")
         corners = np.array(np.meshgrid(*zip(lower, upper), indexing="ij")).reshape(3, -1).T
         for k, plane in enumerate(self.planes):
             side = corners @ np.asarray(plane.normal) - plane.offset
             if side.min() > 0 or side.max() < 0:
                 raise SurfaceError(f"plane {k} (normal {list(np.round(plane.normal, 6))}, offset {plane.offset:g}) "
                                    f"misses the volume's box {list(lower)} .. {list(upper)}")
+
+    def unseen(self, camera, box_lo, box_hi, field_lo, field_hi, volume) -> list[str]:
+        """Words for each isosurface that meets no ray of `camera` (engine/camera.RayCamera): no
+        element whose certified field range [field_lo, field_hi] holds its level (of its volume)
+        has its box [box_lo, box_hi] inside the camera's view. Said of the whole image only (a band
+        of rows sees less); a level a ray grazes past in a visible element is not caught."""
+        out = []
+        seen = None
+        for k, iso in enumerate(self.isosurfaces):
+            holds = (volume == iso.volume) & (field_lo <= iso.value) & (iso.value <= field_hi)
+            if seen is None:
+                seen = boxes_in_view(camera, box_lo, box_hi)
+            if not (holds & seen).any():
+                where = "no element holding it is in the camera's view" if holds.any() else "no element holds it"
+                out.append(f"isosurface {k} (value {iso.value:g}) meets no ray in this frame: {where}")
+        return out
 
     def color_ramp(self, spec) -> dict:
         """The isosurfaces' colouring for the kernels: per isosurface its colour field's name or
@@ -122,6 +143,35 @@ class Surfaces:
             keep |= np.abs(mid) <= reach
         return {"iso_s": iso_s, "iso_rgba": iso_rgba, "plane": plane, "plane_style": style,
                 "keep": keep.astype(np.int32)}
+
+
+def boxes_in_view(camera, lo, hi) -> np.ndarray:
+    """(E,) whether each box [lo, hi] may meet the camera's rays: False where its corners all lie
+    beyond one side of the view (the image's four edges, behind the eye, past the clip planes)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    corners = np.stack([np.stack([(lo, hi)[i][:, 0], (lo, hi)[j][:, 1], (lo, hi)[k][:, 2]], axis=1)
+                        for i in (0, 1) for j in (0, 1) for k in (0, 1)], axis=1)  # (E, 8, 3)
+    U = camera.width / camera.height
+    perspective = not (np.any(camera.ou) or np.any(camera.ov))
+    # p = o0 + u ou + v ov + t (d0 + u du + v dv): perspective solves (t, t u, t v), orthographic (u, v, t)
+    basis = np.stack([camera.d0, camera.du, camera.dv] if perspective else [camera.ou, camera.ov, camera.d0], axis=1)
+    a = (corners - camera.o0) @ np.linalg.inv(basis).T  # (E, 8, 3)
+    if perspective:  # the four edges' planes through the eye, each a half-space: tu <= U t, ...
+        t, tu, tv = a[..., 0], a[..., 1], a[..., 2]
+        scale = t
+    else:
+        tu, tv, t = a[..., 0], a[..., 1], a[..., 2]
+        scale = np.ones_like(t)
+    outside = ((tu > U * scale).all(axis=1) | (tu < -U * scale).all(axis=1) | (tv > scale).all(axis=1)
+               | (tv < -scale).all(axis=1) | (t <= 0).all(axis=1))
+    axis = np.asarray(camera.clip_axis, np.float64)
+    if np.any(axis):  # a perspective camera's clip planes along its view axis
+        z = (corners - camera.o0) @ axis
+        outside |= (z < camera.clip_near).all(axis=1) | (z > camera.clip_far).all(axis=1)
+    elif not perspective:  # an orthographic camera's clip range along its rays
+        depth = t * np.linalg.norm(camera.d0)
+        outside |= (depth < camera.t_min).all(axis=1) | (depth > camera.t_max).all(axis=1)
+    return ~outside
 
 
 def surfaces_from_view(d: dict, exc=SurfaceError) -> Surfaces:

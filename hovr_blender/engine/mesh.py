@@ -17,7 +17,7 @@ from . import expansions as ex
 from . import limits
 from .expansions import MODIFIED_A
 from .mesh_base import TOLERANCE, DerivedFieldError, MeshError
-from .shapes import HEX, MAX_MODES, NAMES, VERTICES
+from .shapes import HEX, MAX_MODES, NAMES, PRISM, PYR, TET, VERTICES
 
 _AFFINE_BATCH = 2048  # elements a call of _affine_maps: a reader reports progress between calls
 
@@ -242,6 +242,38 @@ class VolumeMesh:
             pts = lattice[ex.inside(sh, lattice, tol=1e-12)]
             C = self.coeffs[self.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(sh, m))[None, :]]
             out.append((C @ ex.basis_matrix(sh, m, pts).T).ravel())
+        return np.concatenate(out)
+
+    def element_sample_ranges(self, per_axis: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) per element: the least and greatest of field_samples' values in it."""
+        g = np.linspace(-1.0, 1.0, per_axis)
+        lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        keys = np.concatenate([self.shape[:, None], self.modes], axis=1)
+        lo, hi = np.empty(self.num_elements), np.empty(self.num_elements)
+        for key in np.unique(keys, axis=0):
+            sh, m = int(key[0]), tuple(int(v) for v in key[1:])
+            idx = np.nonzero((keys == key).all(axis=1))[0]
+            pts = lattice[ex.inside(sh, lattice, tol=1e-12)]
+            C = self.coeffs[self.coeff_offset[idx][:, None] + np.arange(ex.num_coeffs(sh, m))[None, :]]
+            values = C @ ex.basis_matrix(sh, m, pts).T
+            lo[idx], hi[idx] = values.min(axis=1), values.max(axis=1)
+        return lo, hi
+
+    def field_sample_weights(self, per_axis: int) -> np.ndarray:
+        """The volume each of field_samples' values stands for, in their order: its element's volume
+        (the box of its corners, times the share of the box its shape fills) over the element's
+        samples, so that weighted quantiles are quantiles over the domain's volume."""
+        g = np.linspace(-1.0, 1.0, per_axis)
+        lattice = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+        fill = {HEX: 1.0, PRISM: 0.5, TET: 1.0 / 6.0, PYR: 1.0 / 3.0}
+        size = np.prod(self.vertices.max(axis=1) - self.vertices.min(axis=1), axis=1)
+        keys = np.concatenate([self.shape[:, None], self.modes], axis=1)
+        out = []
+        for key in np.unique(keys, axis=0):
+            sh = int(key[0])
+            idx = np.nonzero((keys == key).all(axis=1))[0]
+            k = int(ex.inside(sh, lattice, tol=1e-12).sum())
+            out.append(np.repeat(fill[sh] * size[idx] / k, k))
         return np.concatenate(out)
 
     def transformed(self, matrix) -> "VolumeMesh":

@@ -35,13 +35,20 @@ import types
 
 import numpy as np
 
-from . import limits
+import itertools
+import weakref
+from dataclasses import dataclass
+
+from . import field_frame, limits
 from .frame import Capability, Frame, check_frame
 from .processes import sigint_blocked, watch_parent
 from .devices import expand_devices
 from .kernel_loading import kernel_variant, load_kernels
-from .render_result import RenderError, RenderResult
+from .methods import samples_segments
+from .render_result import RenderError, RenderResult, SegmentCacheError
 from .renderer import Renderer
+from .segment_cache import TraceKey, camera_key
+from .transfer_function import TransferFunction
 
 SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
                 "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
@@ -201,9 +208,37 @@ def _set_up(mesh, device, max_tile_rays, precision) -> tuple[Renderer, dict]:
                       "kernel_seconds": time.perf_counter() - t0, "kernel_modules": sorted(report.shipped + report.compiled)}
 
 
+def _trace_band(renderer, caches, msg) -> dict:
+    """A "trace" request: the band's segments traced and kept here under the parent's cache id;
+    the answer is their size and the trace's counters."""
+    _, cache_id, camera, tf, options, band, surface_t, held_bytes = msg
+    cache = renderer.trace(camera, tf, options.with_(device=renderer.device), rows=band, surface_t=surface_t,
+                           surface_key="parent" if surface_t is not None else None, held_bytes=held_bytes)
+    caches[cache_id] = cache
+    return {"complete": cache.complete, "counts": cache.counts, "nbytes": cache.nbytes, "stats": cache.stats}
+
+
+def _shade_band(renderer, caches, shared, msg) -> RenderResult:
+    """A "shade" request: the kept band shaded through the look into the shared image's rows."""
+    _, cache_id, tf, background, options, _ = msg
+    cache = caches.get(cache_id)
+    if cache is None:
+        raise SegmentCacheError("this device no longer keeps the segments; trace again")
+    t0 = time.perf_counter()
+    res = renderer.shade(cache, tf, background, options.with_(device=renderer.device))
+    r0, r1 = cache.rows
+    shared.rgba[r0:r1] = res.rgba
+    shared.aux[r0:r1, :, 0], shared.aux[r0:r1, :, 1] = res.depth, res.error
+    res.stats["wall_seconds"] = time.perf_counter() - t0
+    res.rgba = res.depth = res.error = None
+    return res
+
+
 def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float32"):
     """A device's process: a Renderer of `mesh` on `device` with the kernels of `precision`
-    loaded, rendering what it is sent; it ends with its parent (engine/processes.watch_parent)."""
+    loaded, rendering what it is sent, and the segments of the bands it traced, by the parent's
+    cache ids, until the parent drops them (a request's last item); it ends with its parent
+    (engine/processes.watch_parent)."""
     if parent_pid is not None:
         watch_parent(parent_pid)
     try:
@@ -213,6 +248,7 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float3
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     shared = None  # the SharedImage the last frame was written into
+    caches = {}  # the parent's cache id -> this band's SegmentCache
     try:
         while True:
             try:
@@ -221,10 +257,20 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float3
                 return
             if msg[0] == "close":
                 return
+            if msg[0] in ("trace", "shade", "render_shared"):
+                msg, dropped = msg[:-1], msg[-1]
+                for cache_id in dropped:
+                    caches.pop(cache_id, None)
             try:
                 if msg[0] == "field":
+                    caches.clear()  # another field: the segments are stale
                     renderer.replace_field(msg[1])
                     conn.send(("ok", None))
+                elif msg[0] == "trace":
+                    conn.send(("ok", _trace_band(renderer, caches, msg)))
+                elif msg[0] == "shade":
+                    shared = _attach(shared, msg[-1])
+                    conn.send(("ok", _shade_band(renderer, caches, shared, msg)))
                 elif msg[0] == "data_ranges":
                     renderer.data_ranges = msg[1]
                     conn.send(("ok", None))
@@ -354,15 +400,48 @@ def start_processes(meshes, devices, max_tile_rays=None, precision: str = "float
     return procs
 
 
+_CACHE_IDS = itertools.count(1)
+
+
+@dataclass(eq=False)
+class MultiDeviceCache:
+    """A view's segments kept over several devices (MultiDeviceRenderer.trace): each device's
+    process holds its band's SegmentCache under `id`; this is the parent's record of them, what
+    engine/frame.py and the callers read of a SegmentCache (key, frame_key, complete, nbytes, stats,
+    describe()). When it is dropped, the devices drop their bands with the next request."""
+
+    id: int
+    key: TraceKey
+    frame_key: tuple
+    camera: object
+    bands: list  # (first, end) rows of each device, in the devices' order
+    complete: bool
+    nbytes: int
+    counts: tuple  # (segments, chunks, coefficients), summed
+    stats: dict  # the trace's: trace_seconds and its counters, summed over the devices
+    opaque_hits: object = None  # engine/frame.py keeps the opaque meshes' hits that stopped the rays here
+
+    def describe(self) -> dict:
+        segments, chunks, coefficients = self.counts
+        rays = int(self.camera.width) * int(self.camera.height)
+        return {"bytes": self.nbytes, "bytes_per_ray": self.nbytes / max(rays, 1), "segments": segments,
+                "segments_per_ray": segments / max(rays, 1), "chunks": chunks,
+                "coefficients_per_segment": coefficients / max(segments, 1),
+                "trace_seconds": self.stats.get("trace_seconds"), "devices": len(self.bands),
+                **{k: self.stats.get(k) for k in ("split_by", "prepass_seconds", "device_spread")}}
+
+
 class MultiDeviceRenderer:
     """Renderer's render() over several devices (e.g. every CUDA device of the host): one process
     a device, each holding the mesh with the kernels of `precision` loaded (`setup` says what that
     cost, once); close() (or `with`) stops them. A frame's rows are split by the previous frame's
     row costs where it had the same height, else by a pre-pass at 1/prepass_scale of the size (0:
     equal rows). Of a Frame it draws opaque meshes (each device reads its band of the whole
-    image's hits), not isosurfaces or planes, and it keeps no segment cache (engine/frame.py)."""
+    image's hits), not isosurfaces or planes, and it keeps a segment cache of the whole image
+    (engine/frame.py): each device traces and keeps its band's segments, and a look-only edit
+    shades each band where it is (trace, shade)."""
 
-    capabilities = frozenset({Capability.OPAQUE})
+    capabilities = frozenset({Capability.OPAQUE, Capability.SEGMENT_CACHE})
     kind = "over several devices"
 
     def __init__(self, mesh, devices, max_tile_rays: int | None = None, precision: str = "float32",
@@ -381,6 +460,10 @@ class MultiDeviceRenderer:
         # once, before any frame: the processes' start, each device's upload and kernel load
         self.setup = {"seconds": self.upload_seconds, "precision": precision,
                       "devices": [{k: v for k, v in p.setup.items() if k != "kernel_modules"} for p in self._procs]}
+        self._id = next(_CACHE_IDS)  # its identity in its caches' keys
+        self._field_version = 0
+        self.data_ranges = Renderer.volume_ranges(mesh)  # the field frame's (Renderer's own)
+        self._dropped = []  # ids of caches the caller let go of: the devices drop them with the next request
 
     def replace_field(self, mesh):
         """A new field on the same geometry, sent to every device (Renderer.replace_field)."""
@@ -389,6 +472,111 @@ class MultiDeviceRenderer:
         for p in self._procs:
             p.reply()
         self.mesh = mesh
+        self._field_version += 1
+        self.data_ranges = Renderer.volume_ranges(mesh)
+
+    # ---------------------------------------------------------------- the segment cache, over the devices
+
+    def trace_key(self, camera, options, rows=None, surface_key=None) -> TraceKey:
+        """What a trace's segments depend on (Renderer.trace_key): the whole image's rows always."""
+        if rows is not None:
+            raise RenderError("a renderer over several devices traces the whole image, not a band of rows")
+        return TraceKey(self._id, self._field_version, options.precision, samples_segments(options.method),
+                        camera_key(camera), (0, int(camera.height)), surface_key)
+
+    def frame_key(self, tf) -> tuple:
+        tfs = [tf] if isinstance(tf, TransferFunction) else list(tf)
+        return field_frame.frame(tfs, self.data_ranges)[0].key
+
+    def cache_fits(self, cache, camera, tf, options, rows=None, surface_key=None) -> bool:
+        return (isinstance(cache, MultiDeviceCache) and cache.complete
+                and cache.key == self.trace_key(camera, options, rows, surface_key)
+                and cache.frame_key == self.frame_key(tf))
+
+    def _forget(self, cache_id: int):
+        self._dropped.append(cache_id)
+
+    def _ask(self, requests) -> list:
+        """Send each device its request (the dropped caches' ids last), then read every answer (the
+        pipes stay in step); the first error is raised once all have answered."""
+        dropped, self._dropped = self._dropped, []
+        replies, errors = [], []
+        for p, msg in zip(self._procs, requests):
+            p.send(*msg, dropped)
+        for p in self._procs:
+            try:
+                replies.append(p.reply())
+            except RenderError as exc:
+                errors.append(exc)
+                replies.append(None)
+        if errors:
+            raise errors[0]
+        return replies
+
+    def trace(self, camera, tf, options, rows=None, surface_t=None, surface_key=None, progress=None,
+              tile_pixels=None, held_bytes: int = 0) -> MultiDeviceCache:
+        """Renderer.trace over the devices: each keeps its band's segments (the bands render()
+        would split, a first trace's by the pre-pass, whose row costs then split the next traces
+        of this height: a trace measures none), the memory limit shared among them; `progress` is
+        called once, at the end."""
+        key = self.trace_key(camera, options, rows, surface_key)
+        t0 = time.perf_counter()
+        bands, split_by, prepass_seconds, cost = self._frame_bands(camera, tf, np.zeros(3), options, surface_t)
+        if cost is not None:
+            self._row_cost = cost
+        n = len(self._procs)
+        share = int(limits.current().max_memory * (n - 1) / n)  # each device's band within its share
+        cache_id = next(_CACHE_IDS)
+        replies = self._ask([("trace", cache_id, camera, tf, options, band, surface_t, int(held_bytes) + share)
+                             for band in bands])
+        counts = tuple(int(sum(r["counts"][k] for r in replies)) for k in range(3))
+        summed = {k: sum(r["stats"].get(k, 0) for r in replies) for k in
+                  ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
+                   "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
+                   "ray_rounds")}
+        pixels = int(camera.width) * int(camera.height)
+        samples = summed["field_evaluations"] + summed["restriction_evaluations"]
+        stats = {**summed, "samples_per_ray": samples / pixels,
+                 "trace_seconds": time.perf_counter() - t0, "device": self.device, "split_by": split_by,
+                 "prepass_seconds": prepass_seconds,
+                 "devices": [{"device": p.device, "rows": list(band), "trace_seconds": r["stats"]["trace_seconds"]}
+                             for p, band, r in zip(self._procs, bands, replies)],
+                 **device_spread([r["stats"]["trace_seconds"] for r in replies])}
+        cache = MultiDeviceCache(cache_id, key, self.frame_key(tf), camera, bands, all(r["complete"] for r in replies),
+                                 int(sum(r["nbytes"] for r in replies)), counts, stats)
+        weakref.finalize(cache, self._forget, cache_id)
+        if progress is not None:
+            progress(1.0)
+        return cache
+
+    def shade(self, cache: MultiDeviceCache, tf, background, options, progress=None, tile_pixels=None,
+              profile=False, surfaces=None) -> RenderResult:
+        """Renderer.shade over the devices: each shades its kept band into the shared image."""
+        if surfaces:
+            raise RenderError("isosurfaces and planes: not drawn when rendering over several devices")
+        if not isinstance(cache, MultiDeviceCache) or not cache.complete:
+            raise SegmentCacheError("the segment cache was not traced to its end on these devices; trace again")
+        if cache.frame_key != self.frame_key(tf):
+            raise SegmentCacheError("this transfer function maps the field into another frame than the cached "
+                                    "segments' (engine/field_frame.py); trace again")
+        camera = cache.camera
+        W, H = int(camera.width), int(camera.height)
+        shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
+        t0 = time.perf_counter()
+        replies = self._ask([("shade", cache.id, tf, background, options, shared.spec) for _ in cache.bands])
+        seconds = time.perf_counter() - t0
+        first = replies[0].stats
+        stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds", "segment_cache")}
+        for k in SUMMED_STATS:
+            stats[k] = int(sum(r.stats[k] for r in replies))
+        stats.update(width=W, height=H, render_seconds=seconds, device=self.device,
+                     samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / (W * H),
+                     warnings=sorted({w for r in replies for w in r.stats.get("warnings", [])}),
+                     segment_cache=cache.describe())
+        rgba, aux = shared.rgba.copy(), shared.aux.copy()
+        if progress is not None:
+            progress(1.0)
+        return RenderResult(rgba=rgba, stats=stats, depth=aux[..., 0], error=aux[..., 1])
 
     def split(self, height: int, row_cost=None) -> list[tuple[int, int]]:
         """The row bands of the next frame: by `row_cost` (a pre-pass's), else the last frame's row
@@ -425,6 +613,19 @@ class MultiDeviceRenderer:
             raise errors[0]
         return upsampled_rows(np.concatenate([r.row_cost for r in replies]), int(camera.height))
 
+    def _frame_bands(self, camera, tf, background, options, surface_t=None):
+        """(bands, split_by, pre-pass seconds, the pre-pass's row costs or None) of a frame: split
+        by the previous frame's row costs where it had this height, else by a pre-pass (none with
+        prepass_scale 0 or one device: equal rows)."""
+        H = int(camera.height)
+        if self._row_cost is not None and len(self._row_cost) == H:
+            return self.split(H), "previous frame", 0.0, None
+        if self.prepass_scale <= 0 or len(self._procs) < 2:
+            return self.split(H), "equal rows", 0.0, None
+        t0 = time.perf_counter()
+        cost = self.prepass(camera, tf, background, options, surface_t)
+        return self.split(H, cost), "pre-pass", time.perf_counter() - t0, cost
+
     def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False,
                surface_t=None) -> RenderResult:
         """Renderer.render over the devices (progress is called once, at the end; profile is ignored;
@@ -433,20 +634,15 @@ class MultiDeviceRenderer:
         render_seconds and apart in stats["prepass_seconds"]; stats["split_by"] says which."""
         W, H = int(camera.width), int(camera.height)
         t0 = time.perf_counter()
-        row_cost, split_by, prepass_seconds = None, "previous frame", 0.0
-        if self._row_cost is None or len(self._row_cost) != H:
-            split_by = "equal rows"
-            if self.prepass_scale > 0 and len(self._procs) > 1:
-                row_cost = self.prepass(camera, tf, background, options, surface_t)
-                split_by, prepass_seconds = "pre-pass", time.perf_counter() - t0
-        bands = self.split(H, row_cost)
+        bands, split_by, prepass_seconds, _ = self._frame_bands(camera, tf, background, options, surface_t)
         shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
         # every device gets its request before any reply is waited for; each writes its rows into
         # the shared image and answers with its stats and row costs only
         replies, errors, waiting = [None] * len(bands), [], {}
+        dropped, self._dropped = self._dropped, []
         for k, (p, band) in enumerate(zip(self._procs, bands)):
             try:
-                p.send("render_shared", camera, tf, background, options, band, surface_t, shared.spec)
+                p.send("render_shared", camera, tf, background, options, band, surface_t, shared.spec, dropped)
                 waiting[p.fileno()] = k
             except RenderError as exc:
                 errors.append(exc)

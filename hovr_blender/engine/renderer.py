@@ -24,6 +24,7 @@ from .isosurfaces import Surfaces, reference_gradient
 from .kernel_loading import kernel_table, kernel_variant, load_kernels
 from .kernels.args import MAX_SAMPLES
 from .kernels.precision import Precision
+from .looks import sampled_ranges
 from .launch_args import (EVAL_ERROR_FACTOR, Launcher, TileBuffers, Upload, camera_args, derived_args, gauss_kronrod,
                           mesh_args, outward, quad_args, sample_stride, surface_args, surface_limit, tile_buffers,
                           transfer_args)
@@ -77,6 +78,7 @@ class Renderer(SegmentCaching):
         self._coeff_scale = element_coefficient_scale(mesh)
         self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
+        self._sampled_ranges = None  # sampled_ranges, on first use
         self._bytes_per_ray = {}  # precision name -> launch-tile bytes per ray (_tile_limit)
         t0 = time.perf_counter()
         with wp.ScopedDevice(self.device):
@@ -137,6 +139,7 @@ class Renderer(SegmentCaching):
         self._coeff_scale = element_coefficient_scale(mesh)
         self._gradient = None  # the field's reference gradient (isosurfaces.reference_gradient), on first use
         self.data_ranges = self.volume_ranges(mesh, self._field_lo, self._field_hi)
+        self._sampled_ranges = None
         for upload in self._uploads.values():
             upload.field_key = None  # _set_field maps and uploads the new coefficients
             upload.gradient = None
@@ -252,7 +255,7 @@ class Renderer(SegmentCaching):
             raise RenderError(f"isosurfaces and planes are found on the segments' series: method "
                               f"{' or '.join(SAMPLING_METHODS)}, not {options.method}")
         colour = surfaces.color_ramp(self.mesh.derived.spec if self.mesh.derived is not None else None)
-        surfaces.check(self.data_ranges, self._box_lo.min(axis=0), self._box_hi.max(axis=0))
+        surfaces.check(self.sampled_ranges, self._box_lo.min(axis=0), self._box_hi.max(axis=0))
         lo, hi, _ = upload.field
         arrays = surfaces.device_arrays(fr.scale, fr.shift, self._volume, lo, hi, self._box_lo, self._box_hi)
         if upload.gradient is None or upload.gradient[0] != fr.key:
@@ -264,6 +267,18 @@ class Renderer(SegmentCaching):
                 upload.gradient = (fr.key, wp.array((self._gradient * scale).ravel().astype(prec.dtype), dtype=prec.scalar))
         with wp.ScopedDevice(self.device):
             return surface_args(prec, arrays, colour, upload.gradient[1], self.mesh.coeffs.shape[0])
+
+    @property
+    def sampled_ranges(self) -> list[tuple[float, float]]:
+        """The field's range over the data per volume (looks.sampled_ranges), which isosurface levels
+        are checked against (the certified data_ranges are wider: coefficient bounds)."""
+        if self._sampled_ranges is None:
+            self._sampled_ranges = sampled_ranges(self.mesh)
+        return self._sampled_ranges
+
+    def surface_misses(self, camera: RayCamera, surfaces: Surfaces) -> list[str]:
+        """Words for each isosurface no ray of `camera` meets (Surfaces.unseen)."""
+        return surfaces.unseen(camera, self._box_lo, self._box_hi, self._field_lo, self._field_hi, self._volume)
 
     def identity_frame(self) -> field_frame.FieldFrame:
         return field_frame.FieldFrame(np.ones(self.volumes), np.zeros(self.volumes))

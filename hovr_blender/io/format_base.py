@@ -66,10 +66,12 @@ class Format:
         return f"HOVR {self.label} ({', '.join(self.extensions)})"
 
     def choose(self, path: str, solution: str = "", field: str = "", component: str = "",
-               list_fields: Callable[[str], Iterable[str]] | None = None) -> Choice:
+               list_fields: Callable[[str], Iterable[str]] | None = None,
+               settings: tuple[str, str] = ("set Field", "set Solution")) -> Choice:
         """An import's settings with the defaults filled in: the solution given or the likeliest
         beside the data, the field given or the file's first; raises `error` for bad settings.
-        `list_fields` lists a file's fields in its stead (io.isolation's, in the reader process)."""
+        `list_fields` lists a file's fields in its stead (io.isolation's, in the reader process);
+        `settings`: how the notes tell the user to choose the field and the solution."""
         notes, warnings = [], []
         if self.takes_solution and not solution and self.pick_solution is not None:
             picked, why, others = self.pick_solution(path)
@@ -80,7 +82,7 @@ class Format:
                              + (f"; also in the folder: {', '.join(rest[:4])}{' ...' if len(rest) > 4 else ''}"
                                 if rest else ""))
             elif others:
-                warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): set Solution to pick one")
+                warnings.append(f"{why} ({', '.join(p.name for p in others[:4])}): {settings[1]} to pick one")
         field = field.strip()
         fields_file = solution if self.takes_solution else path
         if fields_file and not field:
@@ -89,7 +91,7 @@ class Format:
                 raise self.error(f"{fields_file}: holds no fields to render")
             field = names[0]
             if len(names) > 1:
-                notes.append(f"showing {field!r} of {', '.join(names)} (set Field to choose)")
+                notes.append(f"showing {field!r} of {', '.join(names)} ({settings[0]} to choose)")
         if self.takes_solution and not solution and field:
             raise self.error(f"{path}: field {field!r} requested but no solution file is given or found beside it")
         return Choice(solution, field, component.strip() if self.components else "", notes, warnings)

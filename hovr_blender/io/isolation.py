@@ -275,10 +275,12 @@ def _error_class(kind: str):
     """The class a reader's error of that name is raised as here: a registered format's own
     error, or one of the loader's and the policy's."""
     from ..engine.mesh import MeshError
+    from ..engine.mesh_base import DerivedFieldError
     from . import formats, magnitude
     from .volume_source import SourceError
 
     known = {"SourceError": SourceError, "DerivedError": magnitude.DerivedError, "MeshError": MeshError,
+             "DerivedFieldError": DerivedFieldError,
              "ResourceLimitError": limits.ResourceLimitError, "UnsafeFileError": limits.UnsafeFileError,
              "FileNotFoundError": FileNotFoundError, "ImportError": ImportError,
              "ModuleNotFoundError": ModuleNotFoundError}

@@ -46,7 +46,7 @@ import re
 import numpy as np
 
 from ..engine import expansions as ex
-from ..engine.derived_fields import DerivedFieldError, not_a_velocity
+from ..engine.derived_fields import DerivedFieldError, not_a_velocity, with_reader_notes
 from ..engine.shapes import MAX_MODES
 from ..engine.mesh import MeshError, VolumeMesh, element_field_ranges
 
@@ -215,14 +215,7 @@ def magnitude_mesh(components, field_name: str | None = None, seed: int = 0) -> 
         note += (f"; the fit dips to {extremes.fit_min:.3g} near the vector's zeros, where the true magnitude has "
                  f"a kink (true minimum {extremes.true_min:.3g}): the value range comes from the true magnitudes, "
                  "so those dips show as Value Min")
-    warnings = []
-    for c in components:
-        warnings += [w for w in getattr(c, "warnings", []) if w not in warnings]
-    out.warnings = warnings + [note]
-    for attr in ("element_ids", "has_field"):
-        if hasattr(base, attr):
-            setattr(out, attr, getattr(base, attr))
-    return out
+    return with_reader_notes(out, components, note, rel)
 
 
 def component_reads(spec, sizes: dict | None) -> list[tuple[str, int | None]]:

@@ -29,6 +29,47 @@ def volume_request(source: VolumeSource):
     return isolation.read_volume_request(source)
 
 
+class _Unlisted(Exception):
+    """Format.choose needs the fields of a file not listed yet (choose_steps lists it, then asks again)."""
+
+    def __init__(self, path):
+        super().__init__(path)
+        self.path = path
+
+
+def choose_steps(data_format, path: str, solution: str = "", field: str = "", component: str = "",
+                 settings: tuple[str, str] = ("set Field", "set Solution")):
+    """data_format.choose's defaults (the solution given or the likeliest beside the data, the field
+    given or the file's first), each file's fields listed in a reader process: a generator that
+    yields each listing's isolation.Request, is sent its value, and returns the format's Choice
+    (Blender's import polls the requests; choose_data waits for them)."""
+    listed = {}
+
+    def list_fields(p):
+        if p not in listed:
+            raise _Unlisted(p)
+        return listed[p]
+
+    while True:
+        try:
+            return data_format.choose(path, solution, field, component, list_fields=list_fields, settings=settings)
+        except _Unlisted as missing:
+            listed[missing.path] = yield isolation.list_fields_request(data_format.name, missing.path)
+
+
+def choose_data(path: str, solution: str = "", field: str = "", component: str = "",
+                settings: tuple[str, str] = ("set Field", "set Solution")):
+    """(format, Choice): what an import of `path` with these settings reads (choose_steps), waited for."""
+    data_format = file_format(VolumeSource(path))
+    steps = choose_steps(data_format, path, solution, field, component, settings)
+    try:
+        request = next(steps)
+        while True:
+            request = steps.send(isolation.wait(request))
+    except StopIteration as done:
+        return data_format, done.value
+
+
 def load_view_data(view) -> VolumeMesh:
     """The mesh a view file (engine.view.View) names in its `data` object."""
     return load_volume(VolumeSource.from_view_data(view.data, view.base_dir))

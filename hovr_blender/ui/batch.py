@@ -24,8 +24,8 @@ for the module). MODE "into" writes each frame into the folder ROOT under the fi
 
 Its reports go to the task alone, a JSON line each on the file descriptor HOVR_RESULT_FD (a pipe
 the task made; never stdout, where an object's name can print anything): `{"status": "exists",
-"out": ...}` when the frame's output (scene.render.frame_path, as `blender -b -a` names it)
-exists already; else `{"status": "rendering", "out": ..., "tmp": ...}` before it renders to
+"out": ...}` when the frame's output (scene.render.frame_path, as `blender -b -a` names it, but
+iso_q0001.png for an output path iso_q.png: frame_file) exists already; else `{"status": "rendering", "out": ..., "tmp": ...}` before it renders to
 `.<name>.<pid>.tmp` beside it, and `{"status": "rendered", ...}` after.
 """
 import json
@@ -123,9 +123,27 @@ def check_datablocks(blend: str, root: str):
             bpy.data.libraries.remove(library)
 
 
+def frame_file(scene, frame: int) -> str:
+    """The file `blender -b -a` writes frame `frame` to (RenderSettings.frame_path), except that an
+    output path ending in the image format's own extension, with no '#' (//iso_q.png), numbers the
+    frame before the extension (iso_q0001.png) where Blender numbers it after (iso_q.png0001.png)."""
+    r = scene.render
+    name = os.path.basename(r.filepath)
+    ext = r.file_extension
+    if not (r.use_file_extension and ext and "#" not in name and name.lower().endswith(ext.lower())
+            and len(name) > len(ext)):
+        return r.frame_path(frame=frame)
+    saved = r.filepath
+    try:
+        r.filepath = saved[:-len(ext)]
+        return r.frame_path(frame=frame)
+    finally:
+        r.filepath = saved
+
+
 def output_path(scene, frame: int, root: str, mode: str) -> str:
     """Where frame `frame` goes: confined to `root` (module doc); Refused otherwise."""
-    out = os.path.abspath(bpy.path.abspath(scene.render.frame_path(frame=frame)))
+    out = os.path.abspath(bpy.path.abspath(frame_file(scene, frame)))
     if mode == "into":
         out = os.path.join(os.path.abspath(root), os.path.basename(out))
     elif not _inside(out, root):
@@ -162,7 +180,16 @@ def render_scene_frame(frame: int, root: str, mode: str):
     _report({"status": "rendered", "tmp": tmp, "out": out})
 
 
+def _one_off_renders():
+    """Each frame is rendered in a Blender of its own: F12 keeps no segments for a next render that
+    never comes (ui/render.FINAL.once), whichever name the add-on has here (bl_ext.<repo>.hovr_blender)."""
+    for name, module in list(sys.modules.items()):
+        if name.endswith("hovr_blender.ui.render") and hasattr(module, "FINAL"):
+            module.FINAL.once = True
+
+
 def _run(blend: str, frame: str, root: str, mode: str) -> int:
+    _one_off_renders()
     try:
         check_datablocks(blend, root)
         bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False, use_scripts=False)

@@ -12,7 +12,15 @@ import sys
 
 from ..io import formats
 
+# the Warp the add-on is built and tested with, and whose compiled kernels the zips ship (its APIs
+# move fast): the one pin of it (pyproject.toml and scripts/build_extension.py agree: tests/ui/test_framing.py)
+WARP_VERSION = "1.19.0"
 RENDERING = ("warp", "warp-lang", "rendering (the ray kernels)")
+
+
+def requirement(package: str) -> str:
+    """What pip installs of `package`: Warp at the version the add-on needs, the others as they come."""
+    return f"{package}=={WARP_VERSION}" if package == "warp-lang" else package
 
 
 def dependencies() -> list[tuple[str, str, str, bool]]:
@@ -40,7 +48,7 @@ def report_lines(absent, python: str = sys.executable) -> list[str]:
     lines = []
     for _module, package, purpose, required in absent:
         lines.append(f"HOVR: {package} is missing: {purpose} {'will not work' if required else 'is unavailable'}")
-    packages = " ".join(p for _m, p, _w, _r in absent)
+    packages = " ".join(requirement(p) for _m, p, _w, _r in absent)
     lines.append("HOVR: install the extension zip built for your platform (it bundles these), or run: "
                  f"\"{python}\" -m pip install {packages}")
     return lines

@@ -31,13 +31,14 @@ from bpy.props import BoolProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
 from ..engine import walls as core_walls
+from ..engine.words import plural, summarise_warnings
 from ..io import formats, isolation
-from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, parse_component
+from ..io.sources import VolumeSource, cached_volume, cached_volume_steps, choose_steps, parse_component
 from . import compat, operators
-from .jobs import Job, Listings, summarise_warnings
+from .jobs import Job, Listings
 from .render import failure_text
 from .snapshot import volume_extent, volume_points, volume_source
-from .scene import field_samples
+from ..engine.looks import field_samples
 
 
 def _relative_wanted() -> bool:
@@ -110,34 +111,8 @@ class ImportRead:
     component: str
     notes: list = dc_field(default_factory=list)
     warnings: list = dc_field(default_factory=list)
-    values: object = None  # sampled field values (Fit Value Range)
+    values: object = None  # sampled field values and their volumes (Fit Value Range: looks.field_samples)
     walls: object = None  # engine.walls.Walls (Walls as Mesh)
-
-
-class _Unlisted(Exception):
-    """Format.choose needs the fields of a file not listed yet (_choose lists it, then asks again)."""
-
-    def __init__(self, path):
-        super().__init__(path)
-        self.path = path
-
-
-def _choose(data_format, request: ImportRequest):
-    """data_format.choose's defaults for the request, a file's fields listed in the reader
-    process: a generator that yields the listing's request (read_import)."""
-    listed = {}
-
-    def list_fields(path):
-        if path not in listed:
-            raise _Unlisted(path)
-        return listed[path]
-
-    while True:
-        try:
-            return data_format.choose(request.path, request.solution, request.field, request.component,
-                                      list_fields=list_fields)
-        except _Unlisted as missing:
-            listed[missing.path] = yield isolation.list_fields_request(data_format.name, missing.path)
 
 
 def read_import(request: ImportRequest, step=lambda stage: None):
@@ -150,7 +125,7 @@ def read_import(request: ImportRequest, step=lambda stage: None):
     data_format = formats.named(request.kind)
     if data_format.components:
         parse_component(request.component)  # a bad entry is reported before the file is read
-    choice = yield from _choose(data_format, request)
+    choice = yield from choose_steps(data_format, request.path, request.solution, request.field, request.component)
     step("reading the data")
     source = VolumeSource.resolve(request.path, choice.solution, choice.field, request.frame,
                                   component=choice.component)
@@ -161,7 +136,7 @@ def read_import(request: ImportRequest, step=lambda stage: None):
     values = walls = None
     if request.fit_range:
         step("sampling the field")
-        values = field_samples(mesh)
+        values = field_samples(mesh, weights=True)
     if request.walls:
         step("tessellating the walls")
         faces_read = wall_faces_request(request.path, request.walls_from)
@@ -208,15 +183,14 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         except Exception as exc:  # the volume itself was imported
             warnings.append(f"walls not made: {failure_text(exc)}")
         context.view_layer.objects.active = obj
-    if read.values is not None and read.values.size:
-        warning = operators.fit_value_range(obj, context.scene, read.values)[3]
+    if read.values is not None and read.values[0].size:
+        warning = operators.give_first_look(obj, context.scene, read.values)  # the first picture's look
         if warning:  # a constant field keeps the smooth ramp: there is no structure to place a look by
             warnings.append(warning)
-        else:
-            operators.apply_look(obj, read.values)  # the first picture's look, chosen from the data
     if getattr(mesh, "has_field", True) is False:
         warnings.append("no solution file: geometry only, a zero field (set Solution in Object > HOVR Volume)")
     warnings += summarise_warnings(getattr(mesh, "warnings", []))  # one line per kind, each reported apart
+    notes += getattr(mesh, "notes", [])  # a derived field's fit, where it is as good as exact
     if frame_camera:
         try:
             operators.frame_volumes(context, [o for o in context.scene.objects
@@ -224,7 +198,8 @@ def conclude_import(op, context, read: ImportRead, frame_camera: bool = True) ->
         except Exception as exc:  # framing is a convenience: the import itself succeeded
             notes.append(f"camera not framed: {failure_text(exc)}")
     label = f" field {mesh.field_name}" if mesh.field_name else ""
-    op.report({'INFO'}, f"HOVR: {obj.name}: {mesh.num_elements} elements,{label}" + "".join(f"; {n}" for n in notes))
+    op.report({'INFO'}, f"HOVR: {obj.name}: {plural(mesh.num_elements, 'element')},{label}"
+              + "".join(f"; {n}" for n in notes))
     for w in warnings:
         op.report({'WARNING'}, f"HOVR: {obj.name}: {w}")
     return {'FINISHED'}
@@ -407,7 +382,8 @@ def tessellate_walls(mesh, faces, relative_tolerance: float):
 def walls_report(walls, selection: str):
     """(note, warning or None) for the report of a walls mesh."""
     what = f" of {selection.strip()}" if selection.strip() else ""
-    note = f"walls{what}: {len(walls.element)} faces, {len(walls.triangles)} triangles within {walls.tolerance:.3g}"
+    note = (f"walls{what}: {plural(len(walls.element), 'face')}, {plural(len(walls.triangles), 'triangle')} within "
+            f"{walls.tolerance:.3g}")
     warning = None
     if walls.cap_hit:
         warning = (f"walls: {walls.capped} curved faces reached {walls.max_k} x {walls.max_k} "

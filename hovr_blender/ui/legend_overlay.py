@@ -51,21 +51,53 @@ def scene_legend(scene, view_layer, width: int, height: int, background, top: in
     obj = obj or next((o for o in scene.objects if o.hovr.is_volume), None)
     if obj is None:
         return None
-    tf, value_min, value_max, title = legend_volume_inputs(obj, scene)
-    return legend_layout(tf, value_min, value_max, title, width, height, background, top=top)
+    tf, value_min, value_max, title, units = legend_volume_inputs(obj, scene)
+    return legend_layout(tf, value_min, value_max, title, width, height, background, units=units or None, top=top)
 
 
-def bar_triangles(legend: Legend, region_height: int):
-    """(positions (6n, 2), colours (6n, 4)) of the bar's rows as triangles, Blender's region
-    coordinates (origin at the bottom left), display-encoded colours."""
+def _rects(x0, x1, y0, y1, region_height: int):
+    """(6n, 2) triangles of the pixel rectangles [x0, x1) x [y0, y1) (arrays, rows from the top),
+    in Blender's region coordinates (origin at the bottom left)."""
+    x0, x1, y0, y1 = (np.asarray(a, dtype=np.float64) for a in (x0, x1, y0, y1))
+    top, bottom = region_height - y0, region_height - y1
+    corners = np.stack([np.stack([x0, bottom], 1), np.stack([x1, bottom], 1), np.stack([x1, top], 1),
+                        np.stack([x0, bottom], 1), np.stack([x1, top], 1), np.stack([x0, top], 1)], 1)
+    return corners.reshape(-1, 2)
+
+
+def legend_triangles(legend: Legend, region_height: int):
+    """(positions (6n, 2), colours (6n, 4)) of the legend's bar, density curve and marks (ticks,
+    frame, the curve's edge: engine/legend.marks_mask) as triangles in Blender's region coordinates,
+    display-encoded colours."""
     x0, y0, x1, y1 = legend.bar
-    rows = np.arange(y1 - y0)
-    top, bottom = region_height - (y0 + rows), region_height - (y0 + rows + 1)
-    corners = np.stack([np.stack([np.full_like(rows, x0), bottom], 1), np.stack([np.full_like(rows, x1), bottom], 1),
-                        np.stack([np.full_like(rows, x1), top], 1), np.stack([np.full_like(rows, x0), bottom], 1),
-                        np.stack([np.full_like(rows, x1), top], 1), np.stack([np.full_like(rows, x0), top], 1)], 1)
-    colours = np.concatenate([srgb_encode(legend.bar_rgb), np.ones((len(rows), 1))], axis=1)
-    return corners.reshape(-1, 2).astype(np.float32), np.repeat(colours, 6, axis=0).astype(np.float32)
+    cx0, cx1 = legend.curve
+    rows = np.arange(y0, y1)
+    n = len(rows)
+    edge = np.round(cx1 - legend.density * (cx1 - cx0))
+    rgb = np.concatenate([srgb_encode(legend.bar_rgb), np.ones((n, 1))], axis=1)
+    marks = legend_marks(legend)
+    ink = np.array([*srgb_encode(np.asarray(legend.text_rgb)), 1.0])
+    positions = np.concatenate([_rects(np.full(n, x0), np.full(n, x1), rows, rows + 1, region_height),
+                                _rects(edge, np.full(n, cx1), rows, rows + 1, region_height),
+                                _rects(*marks, region_height)])
+    colours = np.concatenate([np.repeat(rgb, 6, axis=0), np.repeat(rgb, 6, axis=0),
+                              np.tile(ink, (6 * len(marks[0]), 1))])
+    return positions.astype(np.float32), colours.astype(np.float32)
+
+
+def legend_marks(legend: Legend):
+    """(x0, x1, y0, y1) arrays of the marks' pixel rectangles (engine/legend.marks_mask's pixels, a
+    rectangle each run of a row)."""
+    from ..engine.legend import marks_mask
+
+    x0, y0, x1, y1 = legend.bar
+    mask = marks_mask(legend, x1 + 1, y1 + 1) > 0
+    runs = []
+    for y in np.flatnonzero(mask.any(axis=1)):
+        row = np.concatenate([[False], mask[y], [False]])
+        starts, ends = np.flatnonzero(row[1:] & ~row[:-1]), np.flatnonzero(~row[1:] & row[:-1])
+        runs += [(a, b, y, y + 1) for a, b in zip(starts, ends)]
+    return tuple(np.array(c, dtype=np.float64) for c in zip(*runs)) if runs else (np.zeros(0),) * 4
 
 
 def draw():
@@ -78,7 +110,7 @@ def draw():
     from gpu_extras.batch import batch_for_shader
 
     height = context.region.height
-    positions, colours = bar_triangles(legend, height)
+    positions, colours = legend_triangles(legend, height)
     shader = compat.flat_color_shader()
     batch_for_shader(shader, 'TRIS', {"pos": positions.tolist(), "color": colours.tolist()}).draw(shader)
     font = 0

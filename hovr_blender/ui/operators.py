@@ -8,7 +8,9 @@ import numpy as np
 from ..engine.lru_cache import LRUCache
 from ..engine.outline import outline_edges
 from ..io.sources import VolumeSource, cached_volume, load_volume
-from .scene import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_histogram, value_range
+from ..engine.first_view import FRAME_MARGIN, first_look
+from ..engine.looks import DEFAULT_PRESET, FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, field_samples, value_range
+from .scene import value_histogram
 from .snapshot import volume_source
 
 
@@ -18,8 +20,8 @@ def field_range(mesh, samples: int = 9):
     return float(values.min()), float(values.max())
 
 
-# Field samples per volume source key (never stored in the .blend): the histogram is drawn
-# from here, so panels never load data while drawing.
+# Field samples and their volumes (looks.field_samples) per volume source key (never stored in the
+# .blend): the histogram is drawn from here, so panels never load data while drawing.
 SAMPLES = LRUCache(4)
 HISTOGRAM_BINS = 16
 
@@ -43,9 +45,10 @@ def histogram_for(context, obj=None):
         key = volume_source(obj, context.scene).key
     except ValueError:
         return None
-    values = SAMPLES.get(key)
-    if values is None:
+    samples = SAMPLES.get(key)
+    if samples is None:
         return None
+    values = samples[0]
     h = obj.hovr
     return value_histogram(values, h.value_min, h.value_max, HISTOGRAM_BINS)
 
@@ -128,24 +131,24 @@ class HOVR_OT_new_transfer_function(_OnVolume, bpy.types.Operator):
         return {'FINISHED'}
 
 
-def volume_samples(obj, scene, values=None):
-    """The volume's sampled field values (kept in SAMPLES for the histogram): `values` where the
-    caller has them, else the cached ones, else sampled now."""
+def volume_samples(obj, scene, samples=None):
+    """(values, volumes) of the volume's sampled field (looks.field_samples, kept in SAMPLES for the
+    histogram): `samples` where the caller has them, else the cached ones, else sampled now."""
     source = volume_source(obj, scene)
-    if values is None:
-        values = SAMPLES.get(source.key)
-    if values is None:
-        values = field_samples(cached_volume(source))
-    if values.size == 0:
+    if samples is None:
+        samples = SAMPLES.get(source.key)
+    if samples is None:
+        samples = field_samples(cached_volume(source), weights=True)
+    if samples[0].size == 0:
         raise ValueError(f"{obj.name!r} has no finite field values")
-    SAMPLES.put(source.key, values)
-    return values
+    SAMPLES.put(source.key, samples)
+    return samples
 
 
-def fit_value_range(obj, scene, values=None):
-    """Set the volume's Value Min/Max to its field's sampled range (scene.value_range: a field
+def fit_value_range(obj, scene, samples=None):
+    """Set the volume's Value Min/Max to its field's sampled range (looks.value_range: a field
     constant up to rounding gets a range around its value); returns (lo, hi, samples, warning)."""
-    values = volume_samples(obj, scene, values)
+    values = volume_samples(obj, scene, samples)[0]
     lo, hi, warning = value_range(values)
     obj.hovr.value_min, obj.hovr.value_max = lo, hi
     return lo, hi, values.size, warning
@@ -188,14 +191,14 @@ def volume_points(obj, scene):
         return transform_points(np.array([tuple(c) for c in obj.bound_box]), M)
 
 
-def frame_volumes(context, objects, margin: float = 1.1):
+def frame_volumes(context, objects, margin: float = FRAME_MARGIN):
     """Point the scene camera (made if there is none) at `objects` from its current direction,
     near enough that they fill the frame, with clip start/end set from their size; the 3D
     views' clip range and view follow. Returns the camera object."""
     from mathutils import Matrix
 
     from .blender_camera import ray_camera_from_blender
-    from .framing import DEFAULT_VIEW, clip_planes, fit_view, look_at_matrix
+    from ..engine.first_view import FACTORY_FORWARD, camera_pose, clip_planes, fit_view, frame_tangents, look_at_matrix
 
     scene = context.scene
     corners = np.concatenate([volume_points(o, scene) for o in objects])
@@ -204,7 +207,7 @@ def frame_volumes(context, objects, margin: float = 1.1):
         cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
         scene.collection.objects.link(cam)
         scene.camera = cam
-        forward = np.array(DEFAULT_VIEW, float)
+        forward = np.array(FACTORY_FORWARD, float)  # as Blender's factory camera
         cam.matrix_world = Matrix(look_at_matrix(np.zeros(3), forward, (0, 0, 1)).tolist())
     else:
         forward = -np.array(cam.matrix_world.to_3x3().col[2])
@@ -212,14 +215,17 @@ def frame_volumes(context, objects, margin: float = 1.1):
     cam.data.clip_start, cam.data.clip_end = 1e-3, 1e3  # any valid range: only the angles are read
     depsgraph.update()
     rays = ray_camera_from_blender(cam, depsgraph, scene.render)
-    aspect = rays.width / rays.height
     ortho = rays.projection == "orthographic"
-    basis = (rays.ou, rays.ov) if ortho else (rays.du, rays.dv)
-    tan_x, tan_y = float(np.linalg.norm(basis[0])) * aspect, float(np.linalg.norm(basis[1]))
+    tan_x, tan_y = frame_tangents(rays)
     eye, height, near, far = fit_view(corners, forward, (0, 0, 1), tan_x, tan_y, ortho, margin)
     if ortho:
         cam.data.ortho_scale *= height / (2.0 * tan_y)
-    cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
+    location, euler, _ = camera_pose(eye, forward, (0, 0, 1))
+    if cam.parent is None and cam.rotation_mode == 'XYZ' and not any(cam.delta_location) and \
+            not any(cam.delta_rotation_euler) and tuple(cam.delta_scale) == (1.0, 1.0, 1.0):
+        cam.location, cam.rotation_euler = location, euler  # as `hovr render FILE` frames it, to the bit
+    else:
+        cam.matrix_world = Matrix(look_at_matrix(eye, forward, (0, 0, 1)).tolist())
     cam.data.clip_start, cam.data.clip_end = clip_planes(near, far)
     size = float(np.linalg.norm(corners.max(axis=0) - corners.min(axis=0)))
     cam.data.display_size = max(0.2 * size, 1e-4)  # the default 1 m wire camera would dwarf a 2 cm volume
@@ -255,7 +261,7 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
     bl_label = "Frame HOVR Volume"
     bl_options = {'REGISTER', 'UNDO'}
 
-    margin: bpy.props.FloatProperty(name="Margin", default=1.1, min=1.0, soft_max=3.0,
+    margin: bpy.props.FloatProperty(name="Margin", default=FRAME_MARGIN, min=1.0, soft_max=3.0,
                                     description="Room around the volumes (1: they touch the frame's edge)")
 
     @classmethod
@@ -275,15 +281,31 @@ class HOVR_OT_frame_volume(bpy.types.Operator):
         return {'FINISHED'}
 
 
-def apply_look(obj, values, look: str = FIRST_LOOK):
-    """Give the volume a look chosen from its field's samples (scene.FIRST_LOOKS) over its Value
-    Min/Max: the ramp's stops and Density (across the volume)."""
-    stops, density = FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max)
+def set_look(obj, stops, density: float):
+    """The volume's ramp stops and Density (across the volume)."""
     if obj.hovr.transfer_function is None:
         obj.hovr.transfer_function = new_transfer_function_texture(f"{obj.name} Transfer Function")
     obj.hovr.transfer_function.use_color_ramp = True
     set_ramp_stops(obj.hovr.transfer_function.color_ramp, stops)
     obj.hovr.density, obj.hovr.density_units = density, 'RELATIVE'
+
+
+def apply_look(obj, samples, look: str = FIRST_LOOK):
+    """Give the volume a look chosen from its field's samples, (values, volumes) (looks.FIRST_LOOKS),
+    over its Value Min/Max: the ramp's stops and Density (across the volume)."""
+    values, weights = samples
+    set_look(obj, *FIRST_LOOKS[look][2](values, obj.hovr.value_min, obj.hovr.value_max, weights))
+
+
+def give_first_look(obj, scene, samples=None) -> str | None:
+    """An import's Fit Value Range: the volume's Value Min/Max and look from its field's samples,
+    (values, volumes) (engine/first_view.first_look, what `hovr render FILE` renders too); returns
+    the warning of a field constant up to rounding (it keeps the smooth ramp)."""
+    values, weights = volume_samples(obj, scene, samples)
+    look = first_look(values, weights=weights)
+    obj.hovr.value_min, obj.hovr.value_max = look.value_min, look.value_max
+    set_look(obj, look.stops, look.density)
+    return look.warning
 
 
 # The fixed ramps, then the looks chosen from the data (placed by the field's samples over Value

@@ -33,7 +33,8 @@ def draw_histogram(layout, context, obj):
 def known_world_step(scene):
     """The world step a relative Step gives the scene's volumes, if all their sizes are known
     already (panels never load data: a volume not yet read or rendered leaves it unknown)."""
-    from .framing import step_world_length, volume_diagonal
+    from ..engine.first_view import volume_diagonal
+    from .framing import step_world_length
     from .snapshot import EXTENTS, volume_source
 
     diagonals = []
@@ -140,6 +141,7 @@ class HOVR_OBJECT_PT_volume(HovrButtonsPanel, bpy.types.Panel):
             layout.prop(hovr, "field")
             if data_format is not None and data_format.components:
                 layout.prop(hovr, "component")
+        layout.prop(hovr, "units")
         if "#" in hovr.source or "#" in hovr.solution:
             layout.label(text="# runs are replaced by the frame number", icon='INFO')
         row = layout.row(align=True)

@@ -3,6 +3,8 @@ and ViewLayer.hovr (extra passes)."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
+from ..engine.first_view import DEFAULT_STEPS_ACROSS
+from ..engine.looks import DEFAULT_DENSITY
 from ..engine.methods import METHOD_IDS
 from . import compat
 
@@ -57,9 +59,6 @@ STEP_UNIT_ITEMS = (
                                   "sampling at any size", 0),
     ("WORLD", "World Units", "Step: a length in world units (the render contract's h)", 1),
 )
-# h = diagonal / 1000: PyFR's Taylor-Green box (diagonal 10.9) keeps about the world default 0.01,
-# hump3D (diagonal 0.023) gets 2.3e-5 instead of a step half its size (docs/user-guide.md)
-DEFAULT_STEPS_ACROSS = 1000
 
 
 def _volume_ticked(self, context):
@@ -140,13 +139,16 @@ class HovrObjectSettings(bpy.types.PropertyGroup):
     component: StringProperty(name="Component", default="",
                               description="VTU vector arrays: empty or \"magnitude\" renders the vector's magnitude, "
                                           "an index (0, 1, 2, ...) that component")
+    units: StringProperty(name="Units", default="",
+                          description="The field's units, shown after its name in the colour legend (e.g. kg/m^3); "
+                                      "none of the readers' formats states them")
     # Python cannot define a ColorRamp property, so a Blend texture owns the ramp.
     transfer_function: PointerProperty(name="Transfer Function", type=bpy.types.Texture,
                                        description="Texture whose colour ramp (RGB, alpha) is this volume's transfer "
                                                    "function: colour = ramp RGB, density = ramp alpha x Density")
     value_min: FloatProperty(name="Value Min", default=0.0, precision=4, description="Field value at ramp position 0")
     value_max: FloatProperty(name="Value Max", default=1.0, precision=4, description="Field value at ramp position 1")
-    density: FloatProperty(name="Density", default=4.0, min=0.0, soft_max=100.0,
+    density: FloatProperty(name="Density", default=DEFAULT_DENSITY, min=0.0, soft_max=100.0,
                            description="Extinction at ramp alpha 1, in the units below")
     density_units: EnumProperty(name="Units", items=DENSITY_UNIT_ITEMS, default="RELATIVE",
                                 description="What Density is measured in")

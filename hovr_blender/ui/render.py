@@ -17,6 +17,7 @@ import numpy as np
 
 from .blender_camera import ray_camera_from_view
 from ..engine.lru_cache import LRUCache
+from ..engine.words import plural
 from ..io.sources import cached_volume
 from ..io.sources import clear_cache as clear_mesh_cache
 from . import compat
@@ -88,15 +89,17 @@ def scene_frame(inputs: SceneInputs, cache=None):
 
 @dataclass
 class FinalCache:
-    """F12's element segments, kept on the device for the next F12 (a Frame's SegmentSlot,
-    engine/frame.py). A view's segments are traced at its second F12 (the first renders plainly
-    and only remembers the view): a one-off render, or an animation whose frames change the data
-    or the camera, never pays for a trace it would not reuse; from then on, F12 after an edit of the
-    look alone (transfer function, density, colours, background, tolerance) shades from the cache."""
+    """F12's element segments, kept on the device (or the devices, All CPU Cores and All GPUs) for
+    the next F12 (a Frame's SegmentSlot, engine/frame.py): the first F12 of a view traces them and
+    shades its image from them, so the next F12 after an edit of the look alone (transfer function,
+    density, colours, background, tolerance) shades from the cache without tracing again. A frame
+    of an animation, or a render that will not be repeated (`once`: render-blend's frames, each in a
+    Blender of its own), renders plainly: it would pay for a trace it never reuses."""
 
-    view: tuple | None = None  # the last F12's view (Renderer.trace_key)
-    slot: object = None  # its SegmentSlot, once the view came twice
+    view: tuple | None = None  # the last traced view (Renderer.trace_key)
+    slot: object = None  # its SegmentSlot
     refused: bool = False  # the view's cache did not fit the memory limit: not tried again
+    once: bool = False  # every render is a one-off (ui/batch.py sets it)
 
     @property
     def cache(self):
@@ -110,20 +113,20 @@ class FinalCache:
 FINAL = FinalCache()
 
 
-def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixels=None):
+def render_final(renderer, inputs: SceneInputs, camera, progress=None, tile_pixels=None, animation: bool = False):
     """F12's frame (scene_frame) through FINAL: shaded from the last F12's segments where they hold
-    this view, traced (and kept) where the last F12 had the same view, else a plain render."""
+    this view, else traced, kept and shaded; plainly for an animation's frame or a one-off render."""
     from ..engine.frame import Capability, SegmentSlot, render_frame
 
     frame = scene_frame(inputs)
-    if Capability.SEGMENT_CACHE not in renderer.capabilities:  # several devices keep no segments
+    if Capability.SEGMENT_CACHE not in renderer.capabilities or animation or FINAL.once:
         FINAL.clear()
         return render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
     view = renderer.trace_key(camera, inputs.options, surface_key=frame.opaque_meshes)
     if view != FINAL.view:
-        FINAL.clear()
-        FINAL.view = view  # a new view: its segments only if it comes again
-    elif not FINAL.refused:
+        FINAL.clear()  # another view: the old segments go before the new trace allocates
+        FINAL.view = view
+    if not FINAL.refused:
         FINAL.slot = FINAL.slot or SegmentSlot()
         frame = frame.with_(cache=FINAL.slot)
     result = render_frame(renderer, frame, camera, progress=progress, tile_pixels=tile_pixels)
@@ -187,12 +190,18 @@ def tile_pixels(device: str) -> int:
 
 def render_stats(stats: dict, n_elements: int, seconds: float, device: str, load_seconds: float = 0.0) -> str:
     """Status-line text: elements, samples per ray, time (tracing, and reading if it took long)."""
-    n = int(stats.get("elements", n_elements))
-    parts = [f"{n} element{'s' if n != 1 else ''}"]
+    parts = [plural(int(stats.get("elements", n_elements)), "element")]
     if "samples_per_ray" in stats:
         parts.append(f"{stats['samples_per_ray']:.1f} samples/ray")
     if "field_evaluations" in stats:
         parts.append(f"{int(stats['field_evaluations']):,} field evaluations")
+    use = stats.get("segment_cache", {})
+    if use.get("use") == "traced":
+        parts.append(f"traced {use.get('segments', 0):,} segments, kept for a look-only edit")
+    elif use.get("use") == "shaded":
+        parts.append("shaded from the kept segments")
+    elif "refused" in use:
+        parts.append("segments not kept: " + use["refused"][:80])
     parts.append(f"{seconds:.2f} s on {device}")
     if load_seconds >= 0.5:
         parts.append(f"{load_seconds:.1f} s loading the data and the kernels")
@@ -310,7 +319,7 @@ def final_render(engine, api, depsgraph):
             stage, note = KERNELS.stage(key)
             if note:
                 api.report({'WARNING'}, f"HOVR: {note}")
-            status(f"HOVR | {n_elements} elements | {stage}\u2026")
+            status(f"HOVR | {plural(n_elements, 'element')} | {stage}\u2026")
             KERNELS.compile_now(key)
     except Exception as exc:
         fail(api, f"HOVR render failed: {failure_text(exc)}")
@@ -321,12 +330,13 @@ def final_render(engine, api, depsgraph):
 
     def progress(fraction):
         api.update_progress(fraction)
-        status(f"HOVR | {n_elements} elements | tracing rays {100 * fraction:.0f}% | "
+        status(f"HOVR | {plural(n_elements, 'element')} | tracing rays {100 * fraction:.0f}% | "
                f"{time.perf_counter() - t1:.1f} s", fraction)
         return not api.test_break()
 
     try:
-        result = render_final(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device))
+        result = render_final(renderer, job.inputs, job.camera, progress=progress, tile_pixels=tile_pixels(device),
+                              animation=bool(getattr(engine, "is_animation", False)))
         from .legend_render import with_legend
 
         shown, legend_warning = with_legend(depsgraph.scene_eval, depsgraph.view_layer_eval, result.rgba,

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..engine.first_view import framing_points
 from ..engine.lru_cache import LRUCache
 from ..engine.isosurfaces import CLIP_SIDES
 from ..io.sources import VolumeSource, cached_volume
@@ -24,7 +25,7 @@ class SceneError(ValueError):
 @dataclass
 class VolumeInputs:
     """One HOVR volume: its data, where it is, and its look as the contract's transfer function
-    still to be scaled: `density` in `density_units` (framing.density_per_world_unit)."""
+    still to be scaled: `density` in `density_units` (engine/first_view.density_per_world_unit)."""
 
     name: str
     source: VolumeSource
@@ -112,18 +113,11 @@ def volume_extent(source: VolumeSource) -> tuple:
 
 
 POINTS = LRUCache(8)
-MAX_FRAMING_POINTS = 50_000
 
 
 def volume_points(source: VolumeSource) -> np.ndarray:
-    """(n, 3) object-space element corners of a volume (at most ~MAX_FRAMING_POINTS, evenly
-    strided): what framing fits, tighter than the bounding box for round domains."""
-    def collect():
-        v = np.unique(cached_volume(source).vertices.reshape(-1, 3), axis=0)
-        step = max(1, len(v) // MAX_FRAMING_POINTS)
-        return v[::step]
-
-    return POINTS.get(source.key, collect)
+    """(n, 3) object-space points that Frame Camera fits (engine/first_view.framing_points)."""
+    return POINTS.get(source.key, lambda: framing_points(cached_volume(source)))
 
 
 def volume_source(obj, scene):
@@ -134,7 +128,7 @@ def volume_source(obj, scene):
 
 def world_diagonal(v: VolumeInputs) -> float:
     """The volume's bounding-box diagonal in world units (its data read once and cached)."""
-    from .framing import volume_diagonal
+    from ..engine.first_view import volume_diagonal
 
     lo, hi = volume_extent(v.source)
     return volume_diagonal(lo, hi, np.array(v.object_matrix).reshape(4, 4))
@@ -148,7 +142,8 @@ def resolve_units(inputs: SceneInputs) -> SceneInputs:
     what it always meant: only these numbers reach the core."""
     from dataclasses import replace
 
-    from .framing import density_per_world_unit, step_world_length
+    from ..engine.first_view import density_per_world_unit
+    from .framing import step_world_length
 
     tfs = []
     for v in inputs.volumes:
@@ -212,7 +207,7 @@ def volume_inputs(obj, hovr, scene) -> VolumeInputs:
 
 
 def legend_volume_inputs(obj, scene):
-    """(transfer function, Value Min, Value Max, title) of a volume's look, for its legend
+    """(transfer function, Value Min, Value Max, title, units) of a volume's look, for its legend
     (ui/legend_overlay.py); ValueError where the look cannot be drawn."""
     from .versioning import volume_look
 
@@ -223,7 +218,7 @@ def legend_volume_inputs(obj, scene):
     ramp = texture.color_ramp
     tf = transfer_function_from_ramp(ramp.interpolation, ramp.color_mode, [e.position for e in ramp.elements],
                                      [tuple(e.color) for e in ramp.elements], 1.0, look.value_min, look.value_max)
-    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name
+    return tf, float(look.value_min), float(look.value_max), obj.hovr.field or obj.name, obj.hovr.units.strip()
 
 
 def scene_isosurfaces(objects):

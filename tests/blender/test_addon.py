@@ -11,7 +11,7 @@ pytestmark = pytest.mark.blender
 import hovr_blender  # noqa: E402
 from hovr_blender.io import builtin  # noqa: E402
 from hovr_blender.ui import compat, operators, panels, snapshot  # noqa: E402
-from hovr_blender.ui.scene import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
+from hovr_blender.engine.looks import DEFAULT_PRESET, TF_PRESETS  # noqa: E402
 
 from ..helpers import REPO  # noqa: E402
 
@@ -251,15 +251,22 @@ def test_legend_overlay_layout_of_the_active_volume(scene):
     bpy.ops.hovr.add_sphere_volume()
     obj = bpy.context.active_object
     obj.hovr.field = "f"
-    tf, lo, hi, title = snapshot.legend_volume_inputs(obj, scene)
+    obj.hovr.units = "K"
+    tf, lo, hi, title, units = snapshot.legend_volume_inputs(obj, scene)
     assert (lo, hi) == (pytest.approx(obj.hovr.value_min), pytest.approx(obj.hovr.value_max)) and title == "f"
+    assert units == "K" and legend_overlay.scene_legend(scene, bpy.context.view_layer, 400, 300, (0, 0, 0)).texts[-1] \
+        .text == "f [K]"
     from hovr_blender.engine.legend import legend_layout
 
     layout = legend_layout(tf, lo, hi, title, 400, 300)
-    positions, colours = legend_overlay.bar_triangles(layout, 300)
+    positions, colours = legend_overlay.legend_triangles(layout, 300)
     x0, y0, x1, y1 = layout.bar
-    assert positions.shape == (6 * (y1 - y0), 2) and colours.shape == (6 * (y1 - y0), 4)
-    assert positions[:, 1].max() == 300 - y0 and positions[:, 1].min() == 300 - y1  # region rows count up
+    marks = len(legend_overlay.legend_marks(layout)[0])
+    assert positions.shape == (6 * (2 * (y1 - y0) + marks), 2) and colours.shape == (len(positions), 4)
+    bar = positions[: 6 * (y1 - y0)]  # the bar's rows first, then the curve's, then the marks
+    assert bar[:, 1].max() == 300 - y0 and bar[:, 1].min() == 300 - y1  # region rows count up
+    marked = positions[12 * (y1 - y0):, 0]  # the ticks, the curve's edge and the frame: beside and around the bar
+    assert marks > len(layout.ticks) and marked.min() == min(t[0] for t in layout.ticks) and marked.max() == x1 + 1
     assert scene.hovr.show_legend and legend_overlay._handle is None  # no viewport to draw on in background mode
     # With Region Overlap the tool header lies over the view's top (the window test's Blender 3.4
     # drew the field's name under it): the legend starts below what covers the view

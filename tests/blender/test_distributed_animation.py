@@ -54,3 +54,16 @@ def test_blend_animation_over_two_workers(scene, tmp_path):
         img.pixels.foreach_get(px)
         imgs.append(px)
     assert np.abs(imgs[0] - imgs[1]).max() > 0.01  # the keyframed rotation shows
+
+
+def test_an_output_path_ending_in_its_extension_numbers_the_frame_before_it(scene, tmp_path):
+    """Issue 40: a .blend whose output path is //iso_q.png gives render-blend's frame 7 the name
+    iso_q0007.png, not Blender's iso_q.png0007.png."""
+    build_sphere_scene(scene, CONTRACT, 8, 6, STOPS, (0.0, 20.0), 1.0, (0.05, 0.05, 0.1), (0.0, 0.0, 0.0), 0.0)
+    scene.render.filepath = "//iso_q.png"
+    scene.render.image_settings.file_format = 'PNG'
+    blend = tmp_path / "iso.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    record = blender_frames.render_blend_frame(str(blend), 7)
+    assert record["status"] == "written" and Path(record["output"]) == tmp_path / "iso_q0007.png"
+    assert sorted(p.name for p in tmp_path.glob("iso_q*")) == ["iso_q0007.png"]

@@ -238,3 +238,55 @@ def test_platform_zip_works_in_a_blender_without_the_dependencies(tmp_path):
     assert report["imports"] == ["FINISHED", "FINISHED"]
     assert report["fields"] == ["u", "vel[1]"]
     assert report["alpha_max"] > 0.1
+
+
+GUIDE_SCRIPT = "Python's `bpy` module (`pip install bpy`) starts **without your preferences**"
+
+
+def guide_script() -> str:
+    """The user guide's bpy script (section 5), as written there."""
+    text = (REPO / "docs" / "user-guide.md").read_text(encoding="utf-8")
+    after = text[text.index(GUIDE_SCRIPT):]
+    start = after.index("```python\n") + len("```python\n")
+    return after[start:after.index("\n```", start)]
+
+
+@pytest.mark.slow
+def test_the_user_guides_script(tmp_path):
+    """Issue 40: the user guide's script, run as written (its DATA and OUT set to a vendored VTU and
+    a file here) in a fresh bpy session where the built zip was installed by an earlier one (so the
+    extension is on disk but, as the bpy module never loads preferences, not enabled): it enables
+    the extension, imports, sets a look and writes an F12 with the volume in it."""
+    zip_path = build_zip(tmp_path / "dist")
+    env = _user_env(tmp_path / "blender-user")
+    install = ("import bpy\n"
+               f"r = bpy.ops.extensions.package_install_files(filepath={str(zip_path)!r}, repo='user_default', "
+               "enable_on_install=True)\n"
+               "assert r == {'FINISHED'}, r\n")
+    proc = subprocess.run([sys.executable, "-c", install], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    script = guide_script()
+    out = tmp_path / "first.png"
+    data = REPO / "tests" / "data" / "vtu" / "mfem_fichera_cells_p4.vtu"
+    script = script.replace('DATA = "flow.vtu"', f"DATA = {str(data)!r}").replace('OUT = "/tmp/first.png"',
+                                                                                 f"OUT = {str(out)!r}")
+    assert str(data) in script and str(out) in script
+    enable = 'bpy.ops.preferences.addon_enable(module="bl_ext.user_default.hovr_blender")\n'
+    assert enable in script
+    (tmp_path / "unenabled.py").write_text(script.replace(enable, ""))  # what the issue's user ran
+    proc = subprocess.run([sys.executable, str(tmp_path / "unenabled.py")], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode != 0 and 'enum "HOVR" not found' in proc.stderr and not out.exists()
+    (tmp_path / "guide.py").write_text(script + "\nimport os\nos._exit(0)\n")  # bpy's own exit: compat.finish_script
+    proc = subprocess.run([sys.executable, str(tmp_path / "guide.py")], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=900)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stdout[-3000:] + proc.stderr[-3000:]
+    img = bpy.data.images.load(str(out))
+    try:
+        px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+        img.pixels.foreach_get(px)
+    finally:
+        bpy.data.images.remove(img)
+    rgb = px.reshape(-1, 4)[:, :3]
+    assert (np.abs(rgb - rgb[0]).max(axis=1) > 0.05).mean() > 0.05  # the volume is in the picture

@@ -82,29 +82,30 @@ def test_an_import_gets_the_look_chosen_from_its_data(factory_scene):
     and 90 % quantiles) placed by the field's own samples, with its Density; the smooth ramp of
     before stays a preset, and the other looks from the data are presets too."""
     from hovr_blender.ui import operators
-    from hovr_blender.ui.scene import FIRST_LOOK, FIRST_LOOKS, TF_PRESETS
+    from hovr_blender.engine.looks import FIRST_LOOK, FIRST_LOOKS, TF_PRESETS, quantiles
 
     assert FIRST_LOOK == "QUANTILE_TENTS"
     assert bpy.ops.import_scene.hovr_nektar(filepath=str(data_file("nektar", "Tet_channel_m3.xml")), field="w") \
         == {'FINISHED'}
     obj = bpy.context.active_object
-    values = operators.volume_samples(obj, factory_scene)
-    stops, density = FIRST_LOOKS[FIRST_LOOK][2](values, obj.hovr.value_min, obj.hovr.value_max)
+    values, weights = operators.volume_samples(obj, factory_scene)
+    stops, density = FIRST_LOOKS[FIRST_LOOK][2](values, obj.hovr.value_min, obj.hovr.value_max, weights)
     assert _ramp(obj) == pytest.approx(_flat(stops), abs=1e-6) and obj.hovr.density == pytest.approx(density)
     assert obj.hovr.density_units == 'RELATIVE'
-    top = max(stops, key=lambda st: st[1][3])[0]  # the opaque shell: w's 90 % quantile, its maximum 0.25
-    assert top == pytest.approx((np.quantile(values, 0.9) - obj.hovr.value_min) / (obj.hovr.value_max - obj.hovr.value_min))
+    top = max(stops, key=lambda st: st[1][3])[0]  # the opaque shell: w's 90 % quantile over the volume
+    assert top == pytest.approx((quantiles(values, 0.9, weights) - obj.hovr.value_min)
+                                / (obj.hovr.value_max - obj.hovr.value_min))
 
     assert bpy.ops.hovr.transfer_function_preset(preset="SMOOTH") == {'FINISHED'}  # today's look, by hand
     assert _ramp(obj) == pytest.approx(_flat(TF_PRESETS["SMOOTH"][2]), abs=1e-6)
     assert bpy.ops.hovr.transfer_function_preset(preset="MEDIAN_SHELL") == {'FINISHED'}
-    shell = FIRST_LOOKS["MEDIAN_SHELL"][2](values, obj.hovr.value_min, obj.hovr.value_max)
+    shell = FIRST_LOOKS["MEDIAN_SHELL"][2](values, obj.hovr.value_min, obj.hovr.value_max, weights)
     assert _ramp(obj) == pytest.approx(_flat(shell[0]), abs=1e-6) and obj.hovr.density == pytest.approx(shell[1])
 
 
 def test_a_constant_field_keeps_the_smooth_ramp(factory_scene):
     """No structure to place shells by: wss_3D_periodic's rho (constant) keeps the smooth ramp."""
-    from hovr_blender.ui.scene import TF_PRESETS
+    from hovr_blender.engine.looks import TF_PRESETS
 
     path = data_file("nektar", "wss_3D_periodic.xml")
     assert bpy.ops.import_scene.hovr_nektar(filepath=str(path), field="rho") == {'FINISHED'}

@@ -14,7 +14,8 @@ import pytest
 bpy = pytest.importorskip("bpy", reason="bpy (Blender as a Python module) is not installed")
 pytestmark = pytest.mark.blender
 
-from hovr_blender.ui import render, scene as blender_scene  # noqa: E402
+from hovr_blender.engine.looks import field_samples  # noqa: E402
+from hovr_blender.ui import render  # noqa: E402
 from hovr_blender.engine.outline import outline_edges  # noqa: E402
 from hovr_blender.io import sources  # noqa: E402
 from hovr_blender.io import nektar  # noqa: E402
@@ -87,7 +88,7 @@ def test_import_nektar_magnitude(scene, tmp_path):
     # its own transfer function over the field's range
     s = obj.hovr
     assert s.transfer_function is not None
-    lo, hi = blender_scene.field_samples(mesh).min(), blender_scene.field_samples(mesh).max()
+    lo, hi = field_samples(mesh).min(), field_samples(mesh).max()
     assert s.value_min == pytest.approx(lo, abs=1e-6) and s.value_max == pytest.approx(hi, rel=1e-6)
     assert hi == pytest.approx(0.25, rel=1e-6)  # the channel's peak speed
 

@@ -54,17 +54,32 @@ def test_save_reload_renders_identically(scene, tmp_path):
     np.testing.assert_array_equal(first, second)
 
 
-def test_f12_over_every_cpu_core_equals_one_core(scene, tmp_path):
+def test_f12_over_every_cpu_core_equals_one_core(scene, tmp_path, capfd):
     """Device "All CPU Cores" (cpu:all, one process a core) renders the one-core image; the
-    processes are those of engine/multi_device.py, started from inside Blender."""
-    SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
+    processes are those of engine/multi_device.py, started from inside Blender. Issue 40: each
+    keeps its band's segments, so an F12 after a ramp edit is shaded where they are, and says so."""
+    obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     one = render_to_exr(scene, tmp_path / "one.exr")
     scene.hovr.device = "cpu:all"
+    ramp = obj.hovr.transfer_function.color_ramp
     try:
+        capfd.readouterr()
         every = render_to_exr(scene, tmp_path / "all.exr")
+        assert "kept for a look-only edit" in capfd.readouterr().out
+        ramp.elements[1].color = (1.0, 0.0, 0.0, 1.0)
+        edited = render_to_exr(scene, tmp_path / "all_edited.exr")
+        assert "shaded from the kept segments" in capfd.readouterr().out
     finally:
         render.clear_cache()  # closes the processes
     np.testing.assert_allclose(every, one, atol=1e-6)
+    scene.hovr.device = "cpu"
+    np.testing.assert_allclose(edited, render_to_exr(scene, tmp_path / "one_edited.exr"), atol=1e-6)
+
+
+def test_the_status_line_counts_in_words():
+    """Issue 40: a one-element volume's status line says '1 element'."""
+    assert render.render_stats({"elements": 1}, 1, 0.5, "cpu").startswith("HOVR | 1 element | ")
+    assert render.render_stats({"elements": 1760}, 1760, 0.5, "cpu").startswith("HOVR | 1,760 elements | ")
 
 
 def test_renderer_is_cached_per_object_transform(scene, tmp_path):
@@ -347,21 +362,27 @@ def test_a_file_saved_with_the_scene_look_renders_the_same(scene, tmp_path):
     np.testing.assert_allclose(fallback, got, atol=0)
 
 
-def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path, monkeypatch):
-    """The first F12 of a view renders plainly; the second traces and keeps its segments
-    (render.FINAL) and gives the same picture; an F12 after an edit of the look alone (ramp
+def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path, monkeypatch, capfd):
+    """Issue 40: the first F12 of a view traces and keeps its segments (render.FINAL) and shades its
+    picture from them, the picture of a plain render; an F12 after an edit of the look alone (ramp
     colour, density, world colour) shades from them without a trace and gives the picture of a
-    fresh render of the new look. A moved camera renders plainly again."""
+    fresh render of the new look; the status line says which. A moved camera traces again; an
+    animation's frame and a one-off render (render-blend's) render plainly."""
+    from hovr_blender.engine.frame import Frame, render_frame
     from hovr_blender.engine.renderer import Renderer
 
     obj = SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
     traces, trace = [], Renderer.trace
     monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(a[0]) or trace(self, *a, **k))
+    capfd.readouterr()
     first = render_to_exr(scene, tmp_path / "1.exr")
-    assert render.FINAL.cache is None and traces == []
-    second = render_to_exr(scene, tmp_path / "2.exr")
     assert render.FINAL.cache is not None and len(traces) == 1
+    assert "segments, kept for a look-only edit" in capfd.readouterr().out
+    plain = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
+    np.testing.assert_allclose(first[..., :3], plain[..., :3], atol=1e-5)
+    second = render_to_exr(scene, tmp_path / "2.exr")
+    assert len(traces) == 1 and "shaded from the kept segments" in capfd.readouterr().out
     np.testing.assert_array_equal(second, first)
     obj.hovr.transfer_function.color_ramp.elements[1].color = (1.0, 0.0, 0.0, 1.0)
     obj.hovr.density *= 2.0
@@ -374,12 +395,23 @@ def test_f12_after_a_look_edit_is_shaded_from_the_kept_segments(scene, tmp_path,
     np.testing.assert_array_equal(edited, fresh)
     scene.camera.location.x += 0.25
     render_to_exr(scene, tmp_path / "5.exr")
-    assert render.FINAL.cache is None and len(traces) == 1
+    assert render.FINAL.cache is not None and len(traces) == 3
+    renderer = next(r for r, _ in render.RENDERERS.values())
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    inputs = render.resolve_units(render.scene_inputs(depsgraph))
+    camera = ray_camera_from_blender(scene.camera, depsgraph, scene.render)
+    render.clear_cache()
+    for once, animation in ((False, True), (True, False)):
+        monkeypatch.setattr(render.FINAL, "once", once)
+        res = render.render_final(renderer, inputs, camera, animation=animation)
+        assert render.FINAL.cache is None and len(traces) == 3 and "segment_cache" not in res.stats
+    np.testing.assert_array_equal(res.rgba, render_frame(renderer, Frame(inputs.transfer_function, inputs.background,
+                                                                         inputs.options), camera).rgba)
 
 
 def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_path, monkeypatch):
-    """A view whose cache the memory limit refuses renders plainly at its second F12 (the same
-    picture) and does not try to keep its segments again."""
+    """A view whose cache the memory limit refuses renders plainly (the same picture) and does not
+    try to keep its segments again."""
     from hovr_blender.engine import limits
     from hovr_blender.engine import segment_cache
     from hovr_blender.engine.renderer import Renderer
@@ -387,6 +419,7 @@ def test_f12_whose_segments_the_memory_limit_refuses_renders_plainly(scene, tmp_
     SPHERE.build_scene(scene, SPHERE.PERSPECTIVE)
     render.clear_cache()
     first = render_to_exr(scene, tmp_path / "1.exr")
+    render.clear_cache()
     monkeypatch.setattr(segment_cache, "CACHE_MIN_SEGMENTS", 1 << 26)  # its smallest arrays: ~3 GB
     traces, trace = [], Renderer.trace
     monkeypatch.setattr(Renderer, "trace", lambda self, *a, **k: traces.append(1) or trace(self, *a, **k))

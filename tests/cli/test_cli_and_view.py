@@ -1,5 +1,6 @@
 """The `hovr` command line and view-file validation (render contract §1, §5)."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -8,6 +9,8 @@ from hovr_blender import cli
 from hovr_blender.engine.camera import CameraError, RayCamera
 from hovr_blender.engine.transfer_function import TransferFunction, TransferFunctionError
 from hovr_blender.engine.view import View, ViewError
+
+REPO_DATA = Path(__file__).resolve().parents[1] / "data"
 
 VIEW = {
     "data": {"builtin": "sphere"},
@@ -54,7 +57,7 @@ def test_cli_options_override_view(tmp_path):
 
 
 @pytest.mark.parametrize("mutate, message", [
-    (lambda v: v.pop("camera"), "camera"),
+    (lambda v: v.pop("data"), "data"),
     (lambda v: v["camera"].update(projection="fisheye"), "projection"),
     (lambda v: v["camera"].pop("fov_y_deg"), "fov_y_deg"),
     (lambda v: v["camera"].update(up=[7, 5.5, 7]), "parallel"),
@@ -249,12 +252,12 @@ def test_memory_limit_refuses_a_huge_image_before_allocating(tmp_path, capsys):
 
 
 def test_unexpected_exception_is_one_line_and_debug_shows_traceback(tmp_path, capsys, monkeypatch):
-    from hovr_blender import io
+    from hovr_blender.io import sources
 
-    def bug(view):
+    def bug(source):
         raise KeyError("boom")
 
-    monkeypatch.setattr(io, "load_view_data", bug)
+    monkeypatch.setattr(sources, "load_volume", bug)
     p = write_view(tmp_path)
     assert cli.main(["render", str(p), "-o", str(tmp_path / "o.npy")]) == 2
     err = capsys.readouterr().err
@@ -276,6 +279,10 @@ def test_a_transfer_function_float32_cannot_resolve_is_warned_about(tmp_path, ca
     assert err.startswith("hovr: warning: ") and "precision float64" in err
     assert cli.main(["render", str(p), "-o", str(tmp_path / "b.npy"), "--precision", "float64"]) == 0
     assert capsys.readouterr().err == ""
+    view["transfer_function"]["density"] = [[5, 0], [5.000002, 0]]  # issue 40: every alpha zero, nothing to resolve
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(tmp_path / "c.npy")]) == 0
+    assert "precision float64" not in capsys.readouterr().err
 
 
 def test_png_is_flattened_on_the_view_background_unless_asked_otherwise(tmp_path):
@@ -329,50 +336,35 @@ def test_png_pixels_recompose_the_contract_image():
 
 
 def test_png_legend_shows_the_ramp_and_its_values(tmp_path):
-    """Issue 30: --legend draws the transfer function's bar, its values and the field's name at the
-    PNG's right edge (engine/legend.py, the layout Blender's viewport overlay draws too)."""
+    """Issue 30, 40: --legend draws the transfer function's bar, its density, round values and the
+    field's name and units at the PNG's right edge (engine/legend.py, the layout Blender's viewport
+    overlay and F12 draw too), and nothing else."""
     from PIL import Image
 
     from hovr_blender.engine.image_io import srgb_encode
     from hovr_blender.engine.legend import legend_layout, tf_value_range
+    from hovr_blender.engine.legend_text import text_width
 
     p = write_view(tmp_path, dict(VIEW, image={"width": 160, "height": 120}))
     plain, legend = tmp_path / "plain.png", tmp_path / "legend.png"
     out = str(tmp_path / "o.npy")
     assert cli.main(["render", str(p), "-o", out, "--png", str(plain)]) == 0
-    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--legend"]) == 0
+    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--legend", "--units", "m^2"]) == 0
     a = np.asarray(Image.open(plain), dtype=int)
     b = np.asarray(Image.open(legend), dtype=int)
     view = View.load(p)
     layout = legend_layout(view.transfer_function, *tf_value_range(view.transfer_function), "f", 160, 120,
-                           view.background)
+                           view.background, units="m^2")
     x0, y0, x1, y1 = layout.bar
+    left = min(t.x - (text_width(t.text, layout.font_px) if t.anchor == "right" else 0) for t in layout.texts)
     changed = np.abs(a - b).max(axis=2) > 0
-    assert changed[:, : x0 - 6 * layout.font_px].sum() == 0  # the picture itself is untouched
-    assert changed[y0, x0:x1].all() and changed[:, x0 - 4 * layout.font_px: x0].any()  # the bar, its labels
-    # the bar's top row is the largest value's colour over the background by its opacity
-    want = np.round(srgb_encode(layout.bar_rgb[0]) * 255)
+    assert changed[:, : int(left) - 2].sum() == 0  # the picture itself is untouched
+    assert changed[y0, x0:x1].all() and changed[y0:y1, int(left):layout.curve[0]].any()  # the bar, its labels
+    assert changed[: y0 - 1].any() and "f [m^2]" in [t.text for t in layout.texts]  # the title
+    want = np.round(srgb_encode(layout.bar_rgb[0]) * 255)  # the largest value's colour, at full strength
     np.testing.assert_allclose(b[y0, (x0 + x1) // 2], want, atol=1)
-    with pytest.raises(ValueError, match="legend: Value Max"):
-        legend_layout(view.transfer_function, 1.0, 1.0, "f", 40, 30)
     assert cli.main(["render", str(p), "-o", out, "--legend"]) == 2  # it needs --png
-
-
-def test_legend_layout_labels_the_range_and_units():
-    from hovr_blender.engine.legend import legend_layout
-    from hovr_blender.engine.transfer_function import TransferFunction
-
-    tf = TransferFunction.from_rgba_ramp([0.0, 1.0], [(0, 0, 1, 0), (1, 0, 0, 1)], 2.0, -0.5, 2.5)
-    layout = legend_layout(tf, -0.5, 2.5, "p", 640, 480, background=(1, 1, 1), units="Pa")
-    texts = [t.text for t in layout.texts]
-    assert texts == ["2.5", "1.75", "1", "0.25", "-0.5", "p [Pa]"]
-    assert layout.text_rgb == (0.0, 0.0, 0.0)  # black on a light background
-    np.testing.assert_allclose(layout.bar_rgb[-1], [1, 1, 1], atol=0.01)  # the transparent end fades out
-    np.testing.assert_allclose(layout.bar_rgb[0], [1, 0, 0], atol=0.01)
-    x0, y0, x1, y1 = layout.bar
-    assert 0 < x0 < x1 <= 640 and 0 < y0 < y1 < 480 and layout.bar_rgb.shape == (y1 - y0, 3)
-    moved = legend_layout(tf, -0.5, 2.5, "p", 640, 480, top=26)  # below a viewport's tool header
-    assert moved.bar[1] == y0 + 26 and moved.texts[-1].y == layout.texts[-1].y + 26 and moved.bar[3] <= 480
+    assert cli.main(["render", str(p), "-o", out, "--png", str(legend), "--units", "Pa"]) == 2  # and --legend
 
 
 def test_cli_renders_the_example_view_and_refuses_bad_surfaces(tmp_path, capsys):
@@ -424,3 +416,55 @@ def test_cli_field_option(tmp_path, capsys):
     assert cli.main(["render", str(p), "-o", str(tmp_path / "bad.npy"), "--field", "Q(p)"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a velocity" in err[0], err
+
+
+def test_a_derived_field_of_a_scalar_is_a_users_error_in_one_line(tmp_path, capsys):
+    """Issue 40: Q(Pressure) on PyFR's output came back from the reader process as 'unexpected
+    DerivedFieldError ... (a bug: please report it)'; it is the user's error, said in one line."""
+    path = REPO_DATA / "pyfr" / "shell_lagrange_p2.vtu"
+    assert cli.main(["render", str(path), "--field", "Q(Pressure)", "--png", str(tmp_path / "q.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hovr: error: Q(Pressure): 'Pressure' has 1 component, not a "
+                                               "velocity") and "bug" not in err[0] and "unexpected" not in err[0]
+    assert not (tmp_path / "q.png").exists()
+
+
+def test_a_derived_fields_exact_fit_is_a_note_not_a_warning(capsys):
+    """Issue 40: Q's fit (for ranges and normals; the render samples Q exactly) within 1e-3 of its
+    largest value is reported as a note; the CLI prints it without 'warning'."""
+    from hovr_blender.engine.derived_fields import FIT_WARNING
+    from hovr_blender.io.sources import VolumeSource, load_volume
+
+    path = REPO_DATA / "pyfr" / "shell_lagrange_p2.vtu"
+    mesh = load_volume(VolumeSource.resolve(str(path), "", "Q(Velocity)"))
+    assert mesh.derived_error["relative"] <= FIT_WARNING
+    assert mesh.notes == [mesh.fit_report] and mesh.fit_report not in mesh.warnings
+    assert "sampled exactly in the render" in mesh.fit_report
+
+
+def test_a_data_file_needs_no_view_file(tmp_path, capsys):
+    """Issue 40: `hovr render FILE` renders a data file's first view (engine/first_view.py, Blender's
+    import's); `hovr view FILE` writes that view, which renders within float32's rounding of the
+    camera of it; a view file with only its data (and image) is the same first view; bad sizes and
+    missing outputs are one line."""
+    direct, partial, edited = (tmp_path / f"{k}.npy" for k in ("direct", "partial", "edited"))
+    assert cli.main(["render", "builtin:sphere", "--size", "40x30", "-o", str(direct)]) == 0
+    capsys.readouterr()
+    assert cli.main(["view", "builtin:sphere", "--size", "40x30"]) == 0
+    view = json.loads(capsys.readouterr().out)
+    assert set(view) == {"data", "image", "camera", "transfer_function", "background", "render"}
+    assert view["image"] == {"width": 40, "height": 30} and view["render"]["method"] == "classified"
+    p = write_view(tmp_path, view)
+    assert cli.main(["render", str(p), "-o", str(edited)]) == 0
+    a, b = np.load(direct), np.load(edited)
+    assert a[..., 3].max() > 0.1 and np.abs(a - b).max() < 1e-4
+    q = tmp_path / "partial.json"
+    q.write_text(json.dumps({"data": {"builtin": "sphere"}, "image": {"width": 40, "height": 30}}))
+    assert cli.main(["render", str(q), "-o", str(partial)]) == 0
+    np.testing.assert_array_equal(np.load(partial), a)  # the first view's own camera: the same rays
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as usage:  # argparse's usage error
+        cli.main(["render", "builtin:sphere", "--size", "40"])
+    assert usage.value.code == 2 and "WxH" in capsys.readouterr().err
+    assert cli.main(["render", "builtin:sphere"]) == 2
+    assert capsys.readouterr().err.strip() == "hovr: error: give -o out.npy, --png out.png or both"

@@ -284,3 +284,43 @@ def test_shaded_from_the_segment_cache_equals_the_render(ball_mesh):
         cache = slot.cache
         assert np.array_equal(shaded.rgba, fresh.rgba)
         assert np.array_equal(shaded.depth, fresh.depth)
+
+
+def test_levels_are_checked_against_the_fields_range_over_the_data():
+    """Issue 40: PyFR's Taylor-Green pressure runs 71.05..72.01 while its coefficients bound it by
+    64.7..78.4. A level of 500 is refused quoting the range over the data, and so is 75, inside
+    the bounds but outside the data (it drew nothing and said nothing)."""
+    from hovr_blender.engine.looks import field_samples, sampled_ranges
+    from hovr_blender.io.sources import VolumeSource, load_volume
+    from tests.helpers import data_file
+
+    mesh = load_volume(VolumeSource.resolve(str(data_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu")), "", "Pressure"))
+    (lo, hi), = sampled_ranges(mesh)
+    (blo, bhi), = Renderer.volume_ranges(mesh)
+    values = field_samples(mesh)
+    assert (lo, hi) == (values.min(), values.max()) and 71.0 < lo < 71.1 and 72.0 < hi < 72.05
+    assert blo < 65 and bhi > 78  # the certified bounds the check quoted before
+    box = mesh.vertices.reshape(-1, 3)
+    for level in (500.0, 75.0, 70.0):
+        with pytest.raises(SurfaceError, match=rf"value {level:g} is outside the field's range over the data "
+                                                rf"\[71\.0\d+, 72\.0\d+\]"):
+            Surfaces((Isosurface(level, (1, 1, 1)),)).check([(lo, hi)], box.min(axis=0), box.max(axis=0))
+    Surfaces((Isosurface(71.5, (1, 1, 1)),)).check([(lo, hi)], box.min(axis=0), box.max(axis=0))
+
+
+def test_a_level_no_ray_meets_is_said_once(ball_mesh):
+    """A level inside the range whose surface lies outside the camera's view: the render says, once,
+    that the isosurface meets no ray in this frame; in view it says nothing."""
+    from hovr_blender.engine.frame import Frame, render_frame
+
+    r = Renderer(ball_mesh, "cpu")
+    iso = Surfaces((Isosurface(0.09, (1, 1, 1)),))
+    frame = Frame(_clear_tf(), np.zeros(3), RenderOptions(), surfaces=iso)
+    seen = render_frame(r, frame, framing(ball_mesh, 8, 6))
+    assert not any("meets no ray" in w for w in seen.stats["warnings"])
+    away = RayCamera.from_contract({"eye": [0.5, 0.5, 3.0], "target": [0.5, 0.5, 9.0], "up": [0, 1, 0],
+                                    "fov_y_deg": 30}, 8, 6)  # looking away from the cube
+    missed = render_frame(r, frame, away)
+    assert [w for w in missed.stats["warnings"] if "meets no ray" in w] == [
+        "isosurface 0 (value 0.09) meets no ray in this frame: no element holding it is in the camera's view"]
+    assert missed.rgba[..., 3].max() == 0

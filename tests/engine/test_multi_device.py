@@ -395,3 +395,54 @@ def test_a_first_frame_with_an_opaque_mesh_is_split_by_a_prepass_that_stops_at_i
     assert np.array_equal(split.rgba, whole.rgba)
     t = plane.cast(cam).t
     assert np.isfinite(t).mean() > 0.2 and not np.isfinite(t).all()  # the plane stops some rays, not all
+
+
+def test_a_look_only_edit_over_two_cpu_processes_shades_the_kept_segments():
+    """Issue 40: All CPU Cores keeps each band's segments in its process; the next frame with only
+    the look changed is shaded where they are (no field evaluated), equal to the one device's shade
+    of the same segments; its stats say what was done; a dropped cache is dropped by the devices."""
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+    from hovr_blender.engine.segment_cache import SegmentCache
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    cam = camera(W, H)
+    recoloured = type(tf)(tf.color_s, tf.color_rgb[::-1].copy(), tf.density_s, 1.5 * tf.density_tau)
+    one_slot, slot = SegmentSlot(), SegmentSlot()
+    with MultiDeviceRenderer(mesh, ["cpu"]) as one:  # started like the split's (as the test above says)
+        first_one = render_frame(one, Frame(tf, BACKGROUND, RenderOptions(), cache=one_slot), cam)
+        again_one = render_frame(one, Frame(recoloured, BACKGROUND, RenderOptions(), cache=one_slot), cam)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        first = render_frame(md, Frame(tf, BACKGROUND, RenderOptions(), cache=slot), cam)
+        assert first.stats["segment_cache"]["use"] == "traced" and first.stats["field_evaluations"] > 0
+        assert first.stats["segment_cache"]["devices"] == 2 and not isinstance(slot.cache, SegmentCache)
+        again = render_frame(md, Frame(recoloured, BACKGROUND, RenderOptions(), cache=slot), cam)
+        assert again.stats["segment_cache"]["use"] == "shaded" and again.stats["field_evaluations"] == 0
+        for split, whole in ((first, first_one), (again, again_one)):
+            assert np.array_equal(split.rgba, whole.rgba)
+        assert again.stats["segments"] == again_one.stats["segments"] > 0
+        old = slot.cache.id
+        slot.cache = None  # the caller lets go of it: the devices drop it with their next request
+        md.render(cam, tf, BACKGROUND, RenderOptions())
+        assert md._dropped == [] and old not in [c.id for c in [slot.cache] if c is not None]
+
+
+def test_a_first_traced_frame_is_split_by_the_prepass_and_its_costs_split_the_next_trace():
+    """A first F12 over the devices keeps segments (trace): its bands come from the pre-pass, as a
+    render's would, and the image equals the one device's; the next trace of that height splits
+    by the pre-pass's costs without another pre-pass (a trace measures none)."""
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    centred = camera(W, H)
+    cam = dataclasses.replace(centred, d0=centred.d0 - 0.45 * centred.dv)  # as in the render test above
+    with MultiDeviceRenderer(mesh, ["cpu"]) as one:
+        whole = render_frame(one, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        first = render_frame(md, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+        again = render_frame(md, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+    assert np.array_equal(first.rgba, whole.rgba) and np.array_equal(again.rgba, whole.rgba)
+    traced, retraced = first.stats["segment_cache"], again.stats["segment_cache"]
+    assert traced["use"] == retraced["use"] == "traced"
+    assert traced["split_by"] == "pre-pass" and traced["prepass_seconds"] > 0.0
+    assert retraced["split_by"] == "previous frame" and retraced["prepass_seconds"] == 0.0
+    assert traced["device_spread"] >= 0.0

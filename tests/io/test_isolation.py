@@ -475,3 +475,17 @@ def test_derived_mesh_leaves_the_reader_process(q_mesh):
     assert back.derived.spec == q_mesh.derived.spec and back.derived.components == 3
     for name in ("modes", "offset", "size", "coeffs", "axes", "derived"):
         np.testing.assert_array_equal(getattr(back.derived, name), getattr(q_mesh.derived, name))
+
+
+def test_the_callers_process_never_imports_h5py():
+    """h5py (and its libhdf5) loads only in the reader process. Blender's own process may link
+    another libhdf5 (Debian's Blender 3.4 does), where importing h5py fails and the add-on with it:
+    the registry, every format's front and a whole read through the doors import none of it."""
+    code = ("import sys\n"
+            "from hovr_blender.io import formats, sources, pyfr, mfem, nektar, vtu\n"
+            "sources.load_volume(sources.VolumeSource.resolve(sys.argv[1]))\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'h5py'))\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(data_file("pyfr", "shell.pyfrm"))],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"

@@ -1,11 +1,11 @@
-"""blender_camera.py without Blender: projection matrices built here from the OpenGL
+"""blender_camera.py (engine's and ui's) without Blender: projection matrices built here from the OpenGL
 frustum formulas (the form Blender's calc_matrix_camera returns) must give the contract's rays."""
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hovr_blender.ui.blender_camera import is_orthographic, ray_camera_from_matrices
+from hovr_blender.engine.camera_matrices import is_orthographic, ray_camera_from_matrices
 from hovr_blender.engine.camera import CameraError, RayCamera
 
 
@@ -155,9 +155,8 @@ def test_points_on_pixel_rays_project_to_pixel_centres(q, pos, window, size, per
 
 # --- clipping, sub-images (render border, viewport bands), depth, viewport cameras ---------
 
-from hovr_blender.ui.blender_camera import (  # noqa: E402
-    border_region, clip_range, clipped, ray_camera_from_view, sub_camera, view_depth,
-)
+from hovr_blender.engine.camera_matrices import clip_range, clipped  # noqa: E402
+from hovr_blender.ui.blender_camera import border_region, ray_camera_from_view, sub_camera, view_depth  # noqa: E402
 
 
 @pytest.mark.parametrize("make", [frustum, ortho])

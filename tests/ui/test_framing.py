@@ -1,29 +1,30 @@
-"""The bpy-free numbers of a first picture (hovr_blender/ui/framing.py) and the Nektar++
+"""The bpy-free numbers of a first picture (hovr_blender/ui/framing.py, engine/first_view.py) and the Nektar++
 importer's solution discovery (io/nektar/reader.py): density and step relative to the volume's
 size, a camera that sees every point, clip planes around them, and the words for an empty, faint or
 clipped render."""
 import numpy as np
 import pytest
 
+from hovr_blender.engine import first_view
 from hovr_blender.ui import framing
-from hovr_blender.io import nektar
+from hovr_blender.io import formats, nektar
 
 
 def test_relative_density_is_optical_depth_along_the_diagonal():
     lo, hi = (0.0, 0.0, 0.0), (0.02, 0.01, 0.005)
-    diag = framing.volume_diagonal(lo, hi)
+    diag = first_view.volume_diagonal(lo, hi)
     assert diag == pytest.approx(np.sqrt(0.02**2 + 0.01**2 + 0.005**2))
-    assert framing.density_per_world_unit(4.0, "RELATIVE", diag) * diag == pytest.approx(4.0)
-    assert framing.density_per_world_unit(4.0, "WORLD", diag) == 4.0
+    assert first_view.density_per_world_unit(4.0, "RELATIVE", diag) * diag == pytest.approx(4.0)
+    assert first_view.density_per_world_unit(4.0, "WORLD", diag) == 4.0
     # the object's matrix: rotation keeps the diagonal, scale scales it
     c, s = np.cos(0.7), np.sin(0.7)
     rot = np.array([[c, -s, 0, 5], [s, c, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-    assert framing.volume_diagonal(lo, hi, rot) == pytest.approx(diag)
-    assert framing.volume_diagonal(lo, hi, np.diag([3.0, 3.0, 3.0, 1.0])) == pytest.approx(3 * diag)
+    assert first_view.volume_diagonal(lo, hi, rot) == pytest.approx(diag)
+    assert first_view.volume_diagonal(lo, hi, np.diag([3.0, 3.0, 3.0, 1.0])) == pytest.approx(3 * diag)
     with pytest.raises(ValueError, match="no extent"):
-        framing.density_per_world_unit(1.0, "RELATIVE", 0.0)
+        first_view.density_per_world_unit(1.0, "RELATIVE", 0.0)
     with pytest.raises(ValueError):
-        framing.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
+        first_view.density_per_world_unit(1.0, "PER_PARSEC", 1.0)
 
 
 def test_relative_step_is_the_smallest_diagonal_over_steps_across():
@@ -48,8 +49,8 @@ def test_fit_view_sees_every_corner_and_clip_planes_hold_them(scale, forward):
     W, H, fov = 96, 54, 40.0
     ty = np.tan(np.radians(fov) / 2)
     tx = ty * W / H
-    eye, _, near, far = framing.fit_view(corners, forward, (0, 0, 1), tx, ty, margin=1.1)
-    f, r, u = framing._axes(forward, (0, 0, 1))
+    eye, _, near, far = first_view.fit_view(corners, forward, (0, 0, 1), tx, ty, margin=1.1)
+    f, r, u = first_view._axes(forward, (0, 0, 1))
     rel = corners - eye
     z = rel @ f
     assert np.all(z > 0)
@@ -57,14 +58,14 @@ def test_fit_view_sees_every_corner_and_clip_planes_hold_them(scale, forward):
     assert max(px.max(), py.max()) <= 1 / 1.1 + 1e-9  # inside the frame, with the margin
     assert max(px.max(), py.max()) == pytest.approx(1 / 1.1, rel=1e-6)  # and as large as that allows
     assert (near, far) == pytest.approx((z.min(), z.max()))
-    start, end = framing.clip_planes(near, far)
+    start, end = first_view.clip_planes(near, far)
     assert 0 < start < near and end > far
     assert framing.clip_warning(corners, eye, f, start, end) is None
 
 
 def test_fit_view_orthographic_height():
     corners = framing.box_corners((-1, -1, -1), (1, 1, 1))
-    eye, height, near, far = framing.fit_view(corners, (0, 1, 0), (0, 0, 1), 1.0, 0.5, orthographic=True, margin=1.0)
+    eye, height, near, far = first_view.fit_view(corners, (0, 1, 0), (0, 0, 1), 1.0, 0.5, orthographic=True, margin=1.0)
     assert height == pytest.approx(2.0 * max(1.0, 1.0 * 0.5 / 1.0))  # z extent 1 vs x extent 1 at aspect 2
     assert near > 0 and far - near == pytest.approx(2.0)
 
@@ -147,7 +148,40 @@ def test_missing_dependencies_are_named_with_what_to_do():
     lines = dependencies.report_lines(absent, python="/blender/python")
     assert "warp-lang is missing" in lines[0] and "will not work" in lines[0]
     assert "h5py is missing" in lines[1] and "HDF5" in lines[1] and "is unavailable" in lines[1]
-    assert '"/blender/python" -m pip install warp-lang h5py' in lines[-1] and "extension zip" in lines[-1]
+    # issue 40: Warp pinned at the version the add-on needs (an unpinned install takes the newest)
+    assert '"/blender/python" -m pip install warp-lang==1.19.0 h5py' in lines[-1] and "extension zip" in lines[-1]
+
+
+def test_the_readme_and_the_guide_name_the_zips_the_build_writes():
+    """Issue 40: the README named the zip ...-linux-x64.zip; the build writes ...-linux_x64.zip."""
+    import re
+
+    from scripts import build_extension
+
+    _, manifest = build_extension._load_manifest()
+    written = {build_extension.zip_name(manifest)} | {build_extension.zip_name(manifest, p)
+                                                      for p in build_extension.DEFAULT_PLATFORMS}
+    tails = {name[len(f"{manifest['id']}-{manifest['version']}"):] for name in written}  # "-linux_x64.zip", ...
+    for doc in ("README.md", "docs/user-guide.md"):
+        text = (build_extension.REPO / doc).read_text(encoding="utf-8")
+        named = re.findall(r"hovr_blender-[0-9.]+[-\w]*\.zip", text)
+        assert named and set(named) <= written, (doc, named)
+        assert set(re.findall(r"`(-[a-z]+[-_][a-z0-9]+\.zip)`", text)) <= tails, doc
+
+
+def test_the_guide_names_the_packages_each_reader_needs():
+    """Issue 40: the user guide said the VTU reader needs no package; every package the add-on
+    checks is named there, Warp with its one version."""
+    from hovr_blender.ui import dependencies
+
+    text = (formats.__file__.rsplit("/hovr_blender/", 1)[0] + "/docs/user-guide.md")
+    with open(text, encoding="utf-8") as fh:
+        guide = fh.read()
+    requirements = guide[guide.index("- **Python packages**"):guide.index("- Warp's console messages")]
+    assert f"warp-lang {dependencies.WARP_VERSION}" in requirements and "no package" not in requirements
+    for _, package, *_ in dependencies.dependencies():
+        assert package in requirements
+    assert "VTU" in requirements[requirements.index("defusedxml"):]
 
 
 def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
@@ -159,3 +193,10 @@ def test_the_dependency_check_and_the_extension_wheels_name_the_same_packages():
     checked = {package for _, package, *_ in dependencies.dependencies()}
     bundled = {requirement.split("==")[0] for requirement in build_extension.RUNTIME_REQUIREMENTS}
     assert checked == bundled == {"warp-lang", "h5py", "defusedxml"}
+    # one pin of Warp: the add-on's, the zips' and the package's own
+    pyproject = (build_extension.REPO / "pyproject.toml").read_text()
+    assert f'"warp-lang=={dependencies.WARP_VERSION}"' in pyproject
+    assert f"warp-lang=={dependencies.WARP_VERSION}" in build_extension.RUNTIME_REQUIREMENTS
+    # issue 40: the VTU reader needs defusedxml (the user guide said it needed nothing)
+    assert ("defusedxml", "defusedxml") in {(m, p) for m, p, *_ in dependencies.dependencies()}
+    assert any(p == "defusedxml" for _, p, _ in formats.named("vtu").packages)

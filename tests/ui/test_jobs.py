@@ -223,7 +223,7 @@ def test_progress_lines_are_a_few_a_frame():
 
 def test_per_face_warnings_are_summarised():
     """Issue 30: Womersley's 136 per-face notes (scaleHO's 4,676) become one line per kind, whole."""
-    from hovr_blender.ui.jobs import summarise_warnings
+    from hovr_blender.engine.words import summarise_warnings
 
     face = ("pipe.xml: curved triangle face {} (NodalTriElec, 15 points): interior point positions of this type are "
             "not reproduced; the face follows its edge curves only")

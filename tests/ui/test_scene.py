@@ -71,9 +71,8 @@ def test_volume_sources():
 
 # --- numbered series, passes, presets, histogram ------------------------------------------
 
-from hovr_blender.ui.scene import (  # noqa: E402
-    TF_PRESETS, depth_pass, field_samples, flip_rows, value_histogram,
-)
+from hovr_blender.engine.looks import TF_PRESETS, field_samples  # noqa: E402
+from hovr_blender.ui.scene import depth_pass, flip_rows, value_histogram  # noqa: E402
 from hovr_blender.engine.camera import RayCamera  # noqa: E402
 
 
@@ -103,7 +102,7 @@ def test_volume_source_key_follows_the_frames_file(tmp_path):
 
 
 def test_depth_pass_converts_t_to_view_depth_and_far_where_opacity_stays_below_half():
-    from hovr_blender.ui.blender_camera import clipped
+    from hovr_blender.engine.camera_matrices import clipped
 
     cam = clipped(RayCamera.from_contract({"eye": [0, 0, 5], "target": [0, 0, 0], "up": [0, 1, 0],
                                            "fov_y_deg": 60}, 4, 3, ), 0.1, 20.0)
@@ -140,7 +139,7 @@ def test_field_samples_and_histogram_on_the_sphere():
 
 def test_value_range_of_a_field_constant_up_to_rounding():
     """Issue 30: round-off is not shown as structure, and a constant field gets a usable range."""
-    from hovr_blender.ui.scene import value_range
+    from hovr_blender.engine.looks import value_range
 
     rng = np.random.default_rng(0)
     # Tet_channel_m3's u: zero up to +-1.7e-16
@@ -163,25 +162,52 @@ def test_value_range_of_a_field_constant_up_to_rounding():
 
 from hypothesis import given, settings, strategies as st  # noqa: E402
 
-from hovr_blender.ui.scene import (  # noqa: E402
-    FIRST_LOOK, FIRST_LOOKS, LOOK_MIN_GAP, look_quantile_tents, ramp_positions, value_range,
+from hovr_blender.engine.looks import (  # noqa: E402
+    FIRST_LOOK, FIRST_LOOKS, LOOK_MIN_GAP, SHELL_SHARE, look_quantile_tents, quantiles, ramp_positions, value_range,
 )
+
+
+def _peaks(stops):
+    """(position, alpha, the tent's support) of each tent's peak, in ramp order."""
+    pos = np.array([p for p, _ in stops])
+    alpha = np.concatenate([[0.0], [c[3] for _, c in stops], [0.0]])
+    return [(pos[k], alpha[k + 1], (pos[max(k - 1, 0)], pos[min(k + 1, len(pos) - 1)]))
+            for k in range(len(pos)) if alpha[k + 1] > 0 and alpha[k + 1] >= alpha[k] and alpha[k + 1] >= alpha[k + 2]]
 
 
 def test_quantile_tents_peak_at_the_fields_quantiles():
     """Values bunched low (x^1.5 of a uniform x): the 10/50/90 % shells sit where the values are
-    (ramp 0.03, 0.35, 0.85), not at a fixed 20/50/80 % of the range; the ramp's stops stay
-    LOOK_MIN_GAP apart, so float32 resolves them."""
+    (ramp 0.03, 0.35, 0.85), not at a fixed 20/50/80 % of the range; each holds about 6 % of the
+    values (a shell holding more fades in proportion); the ramp's stops stay LOOK_MIN_GAP apart,
+    so float32 resolves them."""
     values = np.linspace(0.0, 1.0, 10001) ** 1.5
     lo, hi, _ = value_range(values)
     stops, density = look_quantile_tents(values, lo, hi)
-    want = np.quantile(values, [0.1, 0.5, 0.9])
+    peaks = _peaks(stops)
+    np.testing.assert_allclose([p for p, _, _ in peaks], np.quantile(values, [0.1, 0.5, 0.9]), atol=1e-9)
+    for (_, alpha, (a, b)), base in zip(peaks, (0.5, 0.5, 1.0)):
+        share = ((values >= a) & (values <= b)).mean()
+        assert alpha == pytest.approx(base * min(1.0, 2 * SHELL_SHARE / share)) and share < 0.2
+    assert density > 4.0  # thin shells: denser than a fog
     pos = np.array([p for p, _ in stops])
-    alpha = np.array([c[3] for _, c in stops])
-    peaks = [pos[(pos > a) & (pos < b)][np.argmax(alpha[(pos > a) & (pos < b)])] for a, b in ((0, 0.2), (0.2, 0.6), (0.6, 1))]
-    np.testing.assert_allclose(peaks, want, atol=1e-9)
-    assert [alpha[pos == p][0] for p in peaks] == [0.5, 0.5, 1.0] and density > 4.0  # thin shells: denser than a fog
     assert np.diff(pos).min() >= LOOK_MIN_GAP and pos[0] == 0.0 and pos[-1] == 1.0
+
+
+def test_quantile_tents_are_quantiles_over_the_volume():
+    """Issue 40, hump3D: fine elements near a wall outnumber the rest, so the samples' quantiles
+    crowd the wall; weighted by the volume each sample stands for, the shells spread over the
+    domain. A plateau of nearly equal values (a free stream over a tenth of the volume) makes its
+    shell faint instead of a fog that hides the others."""
+    rng = np.random.default_rng(3)
+    z = np.concatenate([rng.uniform(0.0, 0.1, 9000), rng.uniform(0.1, 1.0, 1000)])  # 90 % of samples near z=0
+    w = np.concatenate([np.full(9000, 0.1 / 9000), np.full(1000, 0.9 / 1000)])  # each stands for its volume
+    values = np.minimum(z, 0.8)  # a plateau: the top fifth of the volume holds the same value
+    lo, hi, _ = value_range(values)
+    plain = [p for p, _, _ in _peaks(look_quantile_tents(values, lo, hi)[0])]
+    weighted = _peaks(look_quantile_tents(values, lo, hi, w)[0])
+    assert plain[1] < 0.1 and weighted[1][0] == pytest.approx(0.5 / 0.8, abs=0.03)  # the median: z 0.05 vs 0.5
+    assert weighted[2][0] == pytest.approx(1.0) and weighted[2][1] < 0.5  # the plateau's shell fades
+    assert quantiles(values, [0.5], w)[0] == pytest.approx(0.5, abs=0.02)
 
 
 @settings(max_examples=60, deadline=None)
@@ -206,9 +232,9 @@ def test_the_import_look_is_one_of_the_first_looks_and_today_stays_a_preset():
 
 
 def test_value_range_comes_from_the_true_magnitudes(kinked):
-    """Issue 30: what Fit Value Range and the histogram read (ui/scene.field_samples) lies within
+    """Issue 30: what Fit Value Range and the histogram read (engine/looks.field_samples) lies within
     the range of the exact magnitudes sampled while fitting, never at the fit's own dips."""
-    from hovr_blender.ui.scene import field_samples
+    from hovr_blender.engine.looks import field_samples
 
     _, mag = kinked
     true_min, true_max = mag.true_range
@@ -226,7 +252,7 @@ def test_pyfr_velocity_magnitude_has_no_negative_value_min():
     """Issue 30's PyFR |Velocity|: the fit dips below zero near the velocity's zeros (Value Min
     was -0.0058); the range now comes from the true magnitudes, and the report says where the
     fit's error is."""
-    from hovr_blender.ui.scene import field_samples, value_range
+    from hovr_blender.engine.looks import field_samples, value_range
 
     mag = read_vtu_field(shared_file("vtu", "pyfr_tgv_hexprism_p4_t4.vtu"), "Velocity")
     assert mag.field_samples(9).min() < 0  # the fit's dip

@@ -7,6 +7,7 @@ hard links only, every dataset's size checked against the file before it is read
 of io/nektar/hdf5.py). Every failure is a PyFRError naming the file and the record.
 
 Modules, each importing only those above it:
+  errors     PyFRError
   elements   PyFR's element types: reference frames, spaces, shape points, the change of basis
   files      the mesh and solution files read and checked (imports h5py): read_mesh, read_solution
   format     fields, the VolumeMesh, the solution beside a mesh, the registry's Format: read_pyfr,
@@ -18,7 +19,7 @@ reader process, never the caller. The parsers themselves, which run in whatever 
 are the modules' (format.read_pyfr, format.list_fields, files.read_mesh, files.read_solution): the
 reader process and the parser's tests call those.
 """
-from .files import PyFRError
+from .errors import PyFRError
 from .format import FORMAT
 
 __all__ = ["FORMAT", "PyFRError", "list_fields", "read_pyfr"]

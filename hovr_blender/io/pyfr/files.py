@@ -28,14 +28,11 @@ import numpy as np
 from ...engine import limits
 from ..nektar.hdf5 import child, read_dataset
 from . import elements as el
+from .errors import PyFRError
 
 MAX_TEXT = 1 << 20  # bytes of a text record (config, stats, uuid): real ones hold a few KB
 MAX_FIELDS = 64
 _SOLUTION = re.compile(r"p(\d+)-(hex|pri|tet|pyr)$")
-
-
-class PyFRError(ValueError):
-    """A PyFR file this reader cannot use; the message names the file and the record."""
 
 
 @dataclass

@@ -21,7 +21,7 @@ from ...engine import limits, validity
 from ..magnitude import component_reads, magnitude_mesh, parse_magnitude
 from ..format_base import Format
 from . import elements as el
-from .files import PyFRError, read_mesh, read_solution
+from .errors import PyFRError
 
 PRIMITIVES = ("u", "v", "w", "p")
 COMPRESSIBLE = ("rho", "rhou", "rhov", "rhow", "E")
@@ -29,6 +29,8 @@ COMPRESSIBLE = ("rho", "rhou", "rhov", "rhow", "E")
 
 def list_fields(solution_path) -> list[str]:
     """The fields a solution file offers: rho, u, v, w, p first where it has them."""
+    from .files import read_solution  # imports h5py: only where a file is read (the reader process)
+
     return _offered(read_solution(solution_path, headers_only=True))
 
 
@@ -73,6 +75,8 @@ def _geometry(mesh, solution):
 
 def _meshes(mesh_path, solution_path, names) -> list[VolumeMesh]:
     """One VolumeMesh per field name, on one reading of the files (sharing the geometry)."""
+    from .files import read_mesh, read_solution  # imports h5py: only where a file is read
+
     mesh = read_mesh(mesh_path)
     solution = read_solution(solution_path, mesh)
     offered = _offered(solution)
