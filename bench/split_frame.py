@@ -166,7 +166,8 @@ def report(row) -> str:
             f"{frame(row['first_frame'])} (pre-pass {row['first_frame']['prepass_seconds']:.3f} s), equal rows "
             f"{frame(row['first_frame_equal_rows'])}, steady {frame(row['steady_frame'])}\n"
             f"  pre-pass seconds / frame on one device: {pre}; the frame in {tc['calls']} calls "
-            f"{tc['wall_seconds']:.3f} s ({tc['seconds_per_call']:.4f} s a call)\n  cost-model balance by devices: {bal}")
+            f"{tc['wall_seconds']:.3f} s ({tc['seconds_per_call']:.4f} s a call)\n"
+            f"  cost-model balance by devices: {bal}")
 
 
 def main(argv=None):

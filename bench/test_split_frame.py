@@ -39,5 +39,6 @@ def test_a_run_on_two_cpu_devices_reports_identity_speed_and_spread(tmp_path):
     st = row["strategies"]
     assert set(st["prepass"]) == {"1/4", "1/8", "1/16"} and st["prepass"]["1/8"]["size"] == [4, 3]
     for n in ("2", "4", "8"):
-        for balance in (st["equal_rows"][n], st["previous_frame"][n], st["prepass"]["1/8"][n], st["tiles"]["8 rows"][n]):
+        for balance in (st["equal_rows"][n], st["previous_frame"][n], st["prepass"]["1/8"][n],
+                        st["tiles"]["8 rows"][n]):
             assert 0.0 < balance <= 1.0 + 1e-12

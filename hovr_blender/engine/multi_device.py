@@ -6,9 +6,10 @@ by each device's measured speed; the bands stacked into the one image a single d
 
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
-kernels are loaded when the process starts (no frame waits for them) and stay across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork), each running bootstrap.py first: it never re-runs the parent's script
-(a bpy script, with or without a main guard), and imports the package under the parent's name
+kernels are loaded when the process starts (no frame waits for them) and stay across frames.
+The processes are started with the "spawn" method (CUDA does not survive a fork), each running
+bootstrap.py first: it never re-runs the parent's script (a bpy script, with or without a main
+guard), and imports the package under the parent's name
 (`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any
 reply is waited for; each writes its rows into one shared-memory image (SharedImage, made once per
 image size, its name unlinked as soon as every process has it open, so a killed run leaves no
@@ -205,7 +206,8 @@ def _set_up(mesh, device, max_tile_rays, precision) -> tuple[Renderer, dict]:
     t0 = time.perf_counter()
     report = load_kernels(renderer.kernel_variant, renderer.device, precision)
     return renderer, {"device": renderer.device, "upload_seconds": renderer.upload_seconds,
-                      "kernel_seconds": time.perf_counter() - t0, "kernel_modules": sorted(report.shipped + report.compiled)}
+                      "kernel_seconds": time.perf_counter() - t0,
+                      "kernel_modules": sorted(report.shipped + report.compiled)}
 
 
 def _trace_band(renderer, caches, msg) -> dict:
