@@ -17,16 +17,17 @@ tents over the field's 2..98 % range). Times are the best of --repeats renders a
 render, each waited for (Renderer.render synchronises); the profile is one more render with every
 kernel launch waited for and timed (its total is a little above the plain time).
 
---cold: for each kernel-compile setting (parallel modules, one after another), a fresh Python
+--cold: for each kernel-compile setting (--cold-rows: parallel modules, one after another), a fresh Python
 process with an empty Warp kernel cache (a new temporary WARP cache folder) and the CUDA driver's
 compute cache off (CUDA_CACHE_DISABLE=1) loads hump3D, builds the renderer and renders one
 1920x1080 frame; reported: the process's wall time to the image, and the render call's (what F12
 costs once the data is imported: kernel compile + first frame). A third row, "shipped kernels",
-first builds the dataset's kernels as the extension's build step ships them (scripts/build_extension.py:
-CPU objects and PTX, into a temporary store; its time is reported apart as build_seconds, not the
-user's wait), then runs the child with an empty kernel cache and that store (HOVR_KERNEL_BINARIES):
-the first image as the installed extension gives it (target 5 s); `compiled` lists any module that
-still compiled. --cold-dataset sphere is the built-in sphere.
+first builds the dataset's kernels as the extension's build step ships them for this device
+(scripts/build_extension.py: the CPU's objects, or the CUBIN of the GPU's arch family, into a
+temporary store or --kernel-store, where what is there already is kept; its time is reported apart
+as build_seconds, not the user's wait), then runs the child with an empty kernel cache and that
+store (HOVR_KERNEL_BINARIES): the first image as the installed extension gives it (target 5 s);
+`compiled` lists any module that still compiled. --cold-dataset sphere is the built-in sphere.
 
 Each frame records its work counts (engine/work_counts.work_counts: per ray, Newton iterations by
 phase, BVH candidates, segments, samples, and each one's divergence over 32-ray blocks; the
@@ -55,6 +56,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -78,6 +80,7 @@ SMALL = ["paper_scale", "hump3D"]  # the 512x512 targets
 METHODS = ("split", "classified")
 TARGET_1080 = {"paper_scale": 0.060}  # seconds; every other dataset 0.100
 TARGET_512_FPS = 60.0
+COLD_ROWS = ("parallel", "serial", "shipped")  # --cold's rows: modules compiled side by side, one at a time, shipped
 
 
 def _camera(mesh, W, H):
@@ -280,7 +283,11 @@ def cold_child(args):
     t1 = time.perf_counter()
     print(json.dumps({"render_call_seconds": t1 - t0, "frame_seconds": res.stats["render_seconds"],
                       "process_seconds": time.time() - t_start, "alpha_max": float(res.rgba[..., 3].max()),
-                      "shipped": len(report.shipped), "compiled": report.compiled}), flush=True)
+                      "shipped": len(report.shipped), "cached": report.cached, "compiled": report.compiled}), flush=True)
+
+
+def _files(folder) -> set:
+    return {str(f) for f in Path(folder).rglob("*") if f.is_file()}
 
 
 def _cold_mesh(name):
@@ -292,21 +299,35 @@ def _cold_mesh(name):
 
 
 def run_cold(args, out):
+    import warp as wp
+
+    from hovr_blender.engine import shipped_kernels
+    from hovr_blender.engine.devices import resolve_device
     from hovr_blender.engine.kernel_loading import kernel_variant
     from scripts import build_extension  # the extension's kernel build step
 
     rows = []
     settings = [("parallel modules", "0", None), ("one module at a time", "1", None), ("shipped kernels", "0", "store")]
-    with tempfile.TemporaryDirectory() as store:
+    settings = [s for s, name in zip(settings, COLD_ROWS) if name in args.cold_rows.split(",")]
+    device = wp.get_device(resolve_device(args.device))
+    # the binaries the extension's zip holds for this device: the CPU's objects, or the CUBIN of the
+    # device's major arch that shipped_kernels takes (PTX where none is)
+    cubin = [a for a in shipped_kernels.CUBIN_ARCHS if device.is_cuda and a // 10 == device.arch // 10 and a <= device.arch]
+    build = dict(cpu=device.is_cpu, cubin_archs=cubin[-1:], ptx_archs=() if cubin or device.is_cpu else None)
+    with tempfile.TemporaryDirectory() as scratch:
+        store = args.kernel_store or scratch
         for label, workers, shipped in settings:
             extra = {}
             if shipped:
+                before = _files(store)
                 t0 = time.perf_counter()
                 build_extension.compile_kernels(build_extension.host_platform(),
-                                                variants=[kernel_variant([_cold_mesh(args.cold_dataset)])],
-                                                store=build_extension.Path(store))
+                                                variants=[kernel_variant([_cold_mesh(args.cold_dataset)]).key],
+                                                precisions=("float32",), isosurfaces=(False,),
+                                                store=Path(store), **build)
                 extra = {"HOVR_KERNEL_BINARIES": store}
                 build_seconds = time.perf_counter() - t0
+                built = len(_files(store) - before)  # 0: the store held every binary already (--kernel-store)
             with tempfile.TemporaryDirectory() as cache:
                 env = dict(os.environ, WARP_CACHE_PATH=cache, CUDA_CACHE_DISABLE="1", HOVR_COMPILE_WORKERS=workers,
                            HOVR_COLD_T0=repr(time.time()))
@@ -321,9 +342,12 @@ def run_cold(args, out):
             row = {"setting": label, "HOVR_COMPILE_WORKERS": workers, **json.loads(lines[-1])}
             if shipped:
                 row["build_seconds"] = build_seconds
+                row["store"] = {"cubin_archs": build["cubin_archs"], "ptx_archs": build["ptx_archs"], "cpu": build["cpu"],
+                                "files_built": built}
             rows.append(row)
             print(f"cold ({label}): render call {row['render_call_seconds']:.1f} s, process {row['process_seconds']:.1f} s,"
-                  f" {len(row['compiled'])} modules compiled", flush=True)
+                  f" {row['shipped']} modules shipped, {len(row['compiled'])} compiled"
+                  + (f" (store: {built} files built, {build_seconds:.1f} s)" if shipped else ""), flush=True)
     out["cold"] = {"dataset": args.cold_dataset, "size": args.size, "method": "classified", "rows": rows,
                    "target_seconds": 5.0}
     _write(args.out, out)
@@ -428,6 +452,10 @@ def main(argv=None):
     ap.add_argument("--cold", action="store_true")
     ap.add_argument("--cold-dataset", default="hump3D")
     ap.add_argument("--cold-child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--cold-rows", default=",".join(COLD_ROWS), help="--cold: the rows to run (default %(default)s)")
+    ap.add_argument("--kernel-store", default=None,
+                    help="--cold: the shipped kernels' store to use and keep (binaries missing there are built into it "
+                         "first; default: a temporary one)")
     ap.add_argument("--million", action="store_true")
     ap.add_argument("--million-elements", type=int, default=1_000_000)
     ap.add_argument("--tf-edits", type=int, default=4, help="transfer-function edits shaded from cached segments "

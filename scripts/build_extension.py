@@ -14,17 +14,24 @@
       checks the manifest fields and the archive layout, then runs Blender's own
       validator (bl_pkg's blender_ext.py, shipped inside the bpy module) when it is installed.
 
+  python -m scripts.build_extension kernels --kernel-store DIR [--kernel-cubin-archs 90 ...]
+      only the compiled kernels' store (below), for a GPU benchmark (bench/interactive.py --cold
+      --kernel-store DIR) or to fill build/kernels/ ahead of a build; prints what it built.
+
   Compiled kernels (--kernels; on by default with --wheels, --no-kernels leaves them out): every
-      kernel module a render loads (engine/kernel_loading.session_kernels) for each --kernel-variants
-      (affine and curved, the sample kernel's orders 0..6 and generic) in --kernel-precisions,
-      compiled into kernel_binaries/warp-<version>/ of the zip (engine/shipped_kernels.py loads
-      them where their source's hash matches): PTX for CUDA (arch 75; the driver compiles it for
-      newer GPUs) in every zip but macOS's, and the CPU's objects in the zip of this machine's
-      platform only (Warp's LLVM compiles for its host: the other platforms' zips compile their
-      CPU kernels on first use); --kernel-cubin-archs adds CUBIN for chosen GPUs (no driver compile
-      at the first render; also loads with drivers older than Warp's NVRTC, where PTX does not).
-      Compiled once into --kernel-store (build/kernels/), in a child
-      Python so this process's Warp is untouched; minutes on a CPU the first time.
+      kernel module a session loads (engine/kernel_loading.session_kernels: render, trace, re-shade,
+      the opaque meshes' cast; with and without isosurfaces and planes) for each --kernel-variants
+      (affine and curved, the sample kernel's orders 0..6 and generic, and a derived field's) in
+      --kernel-precisions (Float32 and Float64), compiled into kernel_binaries/warp-<version>/ of
+      the zip (engine/shipped_kernels.py loads them where their source's hash matches): for CUDA,
+      in every zip but macOS's, CUBIN for --kernel-cubin-archs (shipped_kernels.CUBIN_ARCHS: every
+      GPU from Turing on, whatever its driver) and PTX for --kernel-ptx-archs (75: GPUs without a
+      CUBIN, where the driver is as new as Warp's NVRTC); the CPU's objects in the zip of this
+      machine's platform only (Warp's LLVM compiles for its host: the other platforms' zips compile
+      their CPU kernels on first use). Compiled once into --kernel-store (build/kernels/; a binary
+      there is not compiled again), in a child Python so this process's Warp is untouched, a module
+      a core at a time; the first time about an hour on a 2-core machine, minutes on a large one.
+      The zip's share must stay within KERNEL_BUDGET_MIB compressed.
 
 The repository keeps blender_manifest.toml at the top and the add-on in hovr_blender/;
 Blender wants the manifest and the package's __init__.py side by side, so the zip holds
@@ -73,8 +80,12 @@ DEFAULT_PLATFORMS = ("linux-x64", "windows-x64", "macos-arm64")
 KERNEL_STORE = REPO / "build" / "kernels"
 KERNEL_FOLDER = "kernel_binaries"  # in the zip; engine/shipped_kernels.store_dir() reads it there
 # KernelVariant keys (engine/kernel_loading.py): the sample kernel's specialisations of the usual orders
-# (element.STATIC_MODES) and the generic one (0: tetrahedra and pyramids only, or mixed orders), affine and curved
-DEFAULT_KERNEL_VARIANTS = tuple(f"{kind}:{modes}" for kind in ("affine", "curved") for modes in (0, 2, 3, 4, 5, 6, 7))
+# (element.STATIC_MODES: the data the tests use has 2, 3, 4, 5 and 7 modes) and the generic one (0:
+# tetrahedra and pyramids only, mixed orders, any other), affine and curved, and a derived field's
+DEFAULT_KERNEL_VARIANTS = tuple(f"{kind}:{modes}" for kind in ("affine", "curved") for modes in (0, 2, 3, 4, 5, 6, 7)) \
+    + ("affine:0:derived", "curved:0:derived")
+DEFAULT_KERNEL_PRECISIONS = ("float32", "float64")
+KERNEL_BUDGET_MIB = 40  # the compiled kernels' share of a zip, compressed (Warp's wheel is ~100 MiB of it)
 NO_CUDA_PLATFORMS = {"macos-arm64", "macos-x64"}
 
 BLENDER_PLATFORMS = {"windows-x64", "windows-arm64", "macos-x64", "macos-arm64", "linux-x64"}
@@ -125,6 +136,15 @@ def _write_zip(out: Path, manifest_text: str, wheels=(), kernels=None):
         if kernels:
             for path in kernels["files"]:
                 zf.write(path, f"{KERNEL_FOLDER}/warp-{kernels['warp']}/{Path(path).name}")
+    if kernel_mib(out) > KERNEL_BUDGET_MIB:
+        raise SystemExit(f"{out.name}: its compiled kernels take {kernel_mib(out):.1f} MiB, over the budget of "
+                         f"{KERNEL_BUDGET_MIB} MiB (KERNEL_BUDGET_MIB): ship fewer archs or variants")
+
+
+def kernel_mib(zip_path: Path) -> float:
+    """The compiled kernels' share of a zip, compressed, in MiB."""
+    with zipfile.ZipFile(zip_path) as zf:
+        return sum(i.compress_size for i in zf.infolist() if i.filename.startswith(KERNEL_FOLDER + "/")) / 2**20
 
 
 def host_platform() -> str | None:
@@ -136,28 +156,34 @@ def host_platform() -> str | None:
 
 
 def parse_variants(text: str) -> tuple:
-    """"affine:3,curved:0-7" -> ("affine:3", "curved:0", ..., "curved:7"): the KernelVariant keys
-    (engine/kernel_loading.py) of fields read from a file (a derived field's kernels compile on first use)."""
+    """"affine:3,curved:0-7,curved:0:derived" -> ("affine:3", "curved:0", "curved:2", ..., "curved:7",
+    "curved:0:derived"): the KernelVariant keys (engine/kernel_loading.py) of the fields to ship."""
     out = []
     for item in filter(None, (t.strip() for t in text.split(","))):
-        kind, _, modes = item.partition(":")
-        if kind not in ("affine", "curved") or not modes:
-            raise SystemExit(f"--kernel-variants: {item!r} is not affine:N or curved:N (N, or N-M)")
+        kind, _, rest = item.partition(":")
+        modes, _, derived = rest.partition(":")
         lo, _, hi = modes.partition("-")
-        out += [f"{kind}:{m}" for m in range(int(lo), int(hi or lo) + 1) if m != 1]
+        if kind not in ("affine", "curved") or not lo.isdigit() or not (hi.isdigit() or not hi) \
+                or derived not in ("", "derived"):
+            raise SystemExit(f"--kernel-variants: {item!r} is not affine:N or curved:N (N, or N-M), then :derived or nothing")
+        out += [f"{kind}:{m}" + (":derived" if derived else "") for m in range(int(lo), int(hi or lo) + 1) if m != 1]
     return tuple(out)
 
 
-def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=("float32",),
-                    store: Path = KERNEL_STORE, cubin_archs=()) -> dict:
-    """The compiled kernels of a zip for `platform`: {"warp": version, "files": [paths]} (see the
-    module's docstring), compiled in a child Python into `store` where not there already."""
-    cpu = platform == host_platform()
-    ptx = platform not in NO_CUDA_PLATFORMS
-    if not (cpu or ptx):
-        return {"warp": WARP_VERSION, "files": []}
-    job = {"store": str(store), "cpu": cpu, "ptx": ptx, "variants": list(variants),
-           "precisions": list(precisions), "cubin_archs": list(cubin_archs) if ptx else []}
+def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=DEFAULT_KERNEL_PRECISIONS,
+                    store: Path = KERNEL_STORE, cubin_archs=None, ptx_archs=None, cpu: bool | None = None,
+                    workers: int | None = None, isosurfaces=(False, True)) -> dict:
+    """The compiled kernels of a zip for `platform`: {"warp": version, "files": [paths], "seconds"}
+    (see the module's docstring), compiled in a child Python into `store` where not there already.
+    `cpu` None: the CPU's objects where `platform` is this machine's; archs None: shipped_kernels';
+    `isosurfaces`: the looks' variants of integrate and shade to build (without, with)."""
+    cpu = platform == host_platform() if cpu is None else cpu
+    cuda = platform not in NO_CUDA_PLATFORMS
+    if not (cpu or cuda):
+        return {"warp": WARP_VERSION, "files": [], "seconds": 0.0}
+    job = {"store": str(store), "cpu": cpu, "variants": [str(v) for v in variants], "precisions": list(precisions),
+           "cubin_archs": cubin_archs if cuda else (), "ptx_archs": ptx_archs if cuda else (), "workers": workers,
+           "isosurfaces": list(isosurfaces)}
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
     proc = subprocess.run([sys.executable, "-m", "scripts.build_extension", "compile-kernels", json.dumps(job)],
                           cwd=REPO, env=env, capture_output=True, text=True)
@@ -167,23 +193,27 @@ def compile_kernels(platform: str, variants=DEFAULT_KERNEL_VARIANTS, precisions=
 
 
 def compile_kernels_here(job: dict) -> dict:
-    """compile_kernels' child: the repository's engine builds its store (shipped_kernels.build_store)."""
+    """compile_kernels' child: the repository's engine builds its store (shipped_kernels.build_store)
+    of every module of the job's variants and precisions, with and without isosurfaces (or as
+    its "isosurfaces" says)."""
+    import time
+
     from hovr_blender.engine import shipped_kernels
     from hovr_blender.engine.devices import resolve_device
     from hovr_blender.engine.kernel_loading import KernelVariant, session_kernels
 
+    t0 = time.perf_counter()
     resolve_device("cpu")  # starts Warp as a render does (its CPU flags, shipped_kernels.py)
     import warp as wp
 
     store = Path(job["store"]) / f"warp-{wp.config.version}"
-    files = set()
-    for precision in job["precisions"]:
-        for key in job["variants"]:
-            kernels = session_kernels(KernelVariant.from_key(key), precision, surfaces=True)
-            files.update(shipped_kernels.build_store(kernels, store, cpu=job["cpu"],
-                                                     ptx_archs=shipped_kernels.PTX_ARCHS if job["ptx"] else (),
-                                                     cubin_archs=job["cubin_archs"]))
-    return {"warp": wp.config.version, "files": sorted(str(f) for f in files)}
+    kernels = [k for precision in job["precisions"] for key in job["variants"] for iso in job.get("isosurfaces", (False, True))
+               for k in session_kernels(KernelVariant.from_key(key), precision, surfaces=True, isosurfaces=iso)]
+    cubin, ptx = job.get("cubin_archs"), job.get("ptx_archs")
+    files = shipped_kernels.build_store(kernels, store, cpu=job["cpu"], workers=job.get("workers"),
+                                        cubin_archs=shipped_kernels.CUBIN_ARCHS if cubin is None else cubin,
+                                        ptx_archs=shipped_kernels.PTX_ARCHS if ptx is None else ptx)
+    return {"warp": wp.config.version, "files": [str(f) for f in files], "seconds": time.perf_counter() - t0}
 
 
 def _wheel_project(path: Path) -> str:
@@ -380,6 +410,18 @@ def main(argv=None) -> int:
             checked = "fields, layout" + (" and Blender's validator" if _blender_ext() else " (Blender's validator not found)")
             print(f"valid: {args.path} ({checked})")
         return 1 if errors else 0
+    if argv[:1] == ["kernels"]:
+        p = argparse.ArgumentParser(prog="build_extension.py kernels", description="build the compiled kernels' store only")
+        p.add_argument("--platform", default=host_platform(), help="the zip's platform (default: this machine's)")
+        p.add_argument("--no-cpu", action="store_true", help="no CPU objects (CUDA only: no CPU compiler needed)")
+        _kernel_arguments(p)
+        args = p.parse_args(argv[1:])
+        kernels = _kernel_options(args)
+        built = compile_kernels(args.platform, **kernels, cpu=False if args.no_cpu else None)
+        mib = sum(Path(f).stat().st_size for f in built["files"]) / 2**20
+        print(f"{len(built['files'])} files ({mib:.1f} MiB) in {args.kernel_store}/warp-{built['warp']}, "
+              f"{built['seconds']:.0f} s")
+        return 0
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--output-dir", type=Path, default=REPO / "dist", help="where to write the zip (default: dist/)")
     p.add_argument("--wheels", action="store_true", help="one zip per platform with the wheels of every runtime dependency bundled")
@@ -387,18 +429,9 @@ def main(argv=None) -> int:
                    help=f"with --wheels: comma-separated Blender platforms (default {','.join(DEFAULT_PLATFORMS)})")
     p.add_argument("--kernels", action=argparse.BooleanOptionalAction, default=None,
                    help="ship compiled kernels (default: with --wheels)")
-    p.add_argument("--kernel-variants", default="affine:0-7,curved:0-7",
-                   help="(affine|curved):MODES[-MODES], comma-separated: the sample kernels to ship (default %(default)s)")
-    p.add_argument("--kernel-precisions", default="float32", help="float32 and/or float64, comma-separated")
-    p.add_argument("--kernel-cubin-archs", default="",
-                   help="also CUBIN for these CUDA archs, comma-separated (e.g. 90 for H100/H200: no driver compile)")
-    p.add_argument("--kernel-store", type=Path, default=KERNEL_STORE, help="where compiled kernels are kept between builds")
+    _kernel_arguments(p)
     args = p.parse_args(argv)
-    kernels = None
-    if args.kernels or (args.kernels is None and args.wheels):
-        kernels = {"variants": parse_variants(args.kernel_variants), "store": args.kernel_store,
-                   "cubin_archs": tuple(int(a) for a in args.kernel_cubin_archs.split(",") if a.strip()),
-                   "precisions": tuple(x.strip() for x in args.kernel_precisions.split(",") if x.strip())}
+    kernels = _kernel_options(args) if args.kernels or (args.kernels is None and args.wheels) else None
     outs = (build_with_wheels(args.output_dir, [s.strip() for s in args.platforms.split(",") if s.strip()],
                               kernels=kernels)
             if args.wheels else [build(args.output_dir, kernels)])
@@ -406,10 +439,35 @@ def main(argv=None) -> int:
         size = out.stat().st_size / 2**20
         with zipfile.ZipFile(out) as zf:
             shipped = [i for i in zf.infolist() if i.filename.startswith(KERNEL_FOLDER + "/")]
-        note = (f", {len(shipped)} compiled-kernel files ({sum(i.compress_size for i in shipped) / 2**20:.1f} MiB in the zip)"
-                if shipped else "")
+        note = f", {len(shipped)} compiled-kernel files ({kernel_mib(out):.1f} MiB in the zip)" if shipped else ""
         print(f"built {out} ({size:.1f} MiB{note})")
     return 0
+
+
+def _kernel_arguments(p: argparse.ArgumentParser):
+    p.add_argument("--kernel-variants", default=",".join(DEFAULT_KERNEL_VARIANTS),
+                   help="(affine|curved):MODES[-MODES][:derived], comma-separated: the sample kernels to ship "
+                        "(default %(default)s)")
+    p.add_argument("--kernel-precisions", default=",".join(DEFAULT_KERNEL_PRECISIONS),
+                   help="float32 and/or float64, comma-separated (default %(default)s)")
+    p.add_argument("--kernel-cubin-archs", default=None,
+                   help="CUBIN for these CUDA archs, comma-separated (default: engine/shipped_kernels.CUBIN_ARCHS; "
+                        "'' for none)")
+    p.add_argument("--kernel-ptx-archs", default=None,
+                   help="PTX for these CUDA archs (default: engine/shipped_kernels.PTX_ARCHS; '' for none)")
+    p.add_argument("--kernel-jobs", type=int, default=None, help="modules compiled at once (default: a core each)")
+    p.add_argument("--kernel-store", type=Path, default=KERNEL_STORE, help="where compiled kernels are kept between builds")
+
+
+def _kernel_options(args) -> dict:
+    """compile_kernels' arguments from _kernel_arguments' options."""
+    def archs(text):
+        return None if text is None else tuple(int(a) for a in text.split(",") if a.strip())
+
+    return {"variants": parse_variants(args.kernel_variants), "store": args.kernel_store,
+            "precisions": tuple(x.strip() for x in args.kernel_precisions.split(",") if x.strip()),
+            "cubin_archs": archs(args.kernel_cubin_archs), "ptx_archs": archs(args.kernel_ptx_archs),
+            "workers": args.kernel_jobs}
 
 
 if __name__ == "__main__":

@@ -191,6 +191,17 @@ def _add_trace(stats: dict, trace: dict):
     stats["segment_cache"] = {**stats.get("segment_cache", {}), "use": "traced"}
 
 
+TRACE_SHARE = 0.95  # of a traced frame's progress: its shading after the trace takes about a twentieth
+
+
+def _part_of(progress, lo: float, hi: float):
+    """progress(fraction) for one stage of a frame: the stage's fraction mapped onto [lo, hi] of
+    the frame's, so a frame traced then shaded reports one rising fraction (None stays None)."""
+    if progress is None:
+        return None
+    return lambda fraction: progress(lo + (hi - lo) * fraction)
+
+
 def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, how: dict) -> RenderResult:
     """render_frame through the slot's segment cache (the module's docstring). The cache keeps
     the opaque meshes' hits beside the segments (they stopped its rays), so an image shaded from
@@ -212,7 +223,8 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
         surface_t = None if hits is None else hits.t
         try:
             cache = renderer.trace(camera, tf, options, rows=rows, surface_t=surface_t, surface_key=opaque,
-                                   progress=progress, tile_pixels=tile_pixels, held_bytes=slot.held_bytes)
+                                   progress=_part_of(progress, 0.0, TRACE_SHARE), tile_pixels=tile_pixels,
+                                   held_bytes=slot.held_bytes)
         except (limits.ResourceLimitError, SegmentCacheError) as exc:
             res = renderer.render(camera, tf, background, options, progress=progress, tile_pixels=tile_pixels,
                                   rows=rows, surface_t=surface_t, surfaces=surfaces)
@@ -227,8 +239,8 @@ def _render_cached(renderer, frame: Frame, camera, slot: SegmentSlot, opaque, ho
                                 cancelled=True)
         cache.opaque_hits = hits
         slot.cache = cache
-        res = renderer.shade(cache, tf, background, options, progress=progress, tile_pixels=tile_pixels,
-                             surfaces=surfaces)
+        res = renderer.shade(cache, tf, background, options, progress=_part_of(progress, TRACE_SHARE, 1.0),
+                             tile_pixels=tile_pixels, surfaces=surfaces)
         _add_trace(res.stats, cache.stats)
     if hits is None or res.cancelled:
         return res

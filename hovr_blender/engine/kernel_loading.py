@@ -74,12 +74,13 @@ def render_kernels(variant: KernelVariant, precision: str = "float32", isosurfac
 
 def session_kernels(variant: KernelVariant, precision: str = "float32", surfaces: bool = False,
                     isosurfaces: bool = False) -> list:
-    """The kernels of render_kernels, the re-shade of a transfer-function edit, and the opaque
-    meshes' cast with `surfaces`: what an interactive session (Blender) loads before its first
-    render, and what the add-on ships compiled (scripts/build_extension.py); with `isosurfaces`,
-    integrate and shade in their variant for isosurfaces and planes."""
-    kernels = render_kernels(variant, precision, isosurfaces)
-    kernels.append(kernel_table(variant, precision, isosurfaces).shade)
+    """Every kernel an interactive session launches for a mesh of `variant` in `precision`: a
+    render's (render_kernels), a trace's and a shade's (F12 traces from its second render, a
+    transfer-function edit shades), and with `surfaces` the opaque meshes' cast; with
+    `isosurfaces`, integrate and shade in their variant for isosurfaces and planes. What Blender
+    loads before its first render, and what the add-on ships compiled (scripts/build_extension.py)."""
+    table = kernel_table(variant, precision, isosurfaces)
+    kernels = list(dict.fromkeys(table.render_kernels() + table.trace_kernels() + table.shade_kernels()))
     if surfaces:
         from .kernels import opaque_cast
 
@@ -90,16 +91,17 @@ def session_kernels(variant: KernelVariant, precision: str = "float32", surfaces
 def load_kernels(variant: KernelVariant, device: str = "cpu", precision: str = "float32",
                  surfaces: bool = False, isosurfaces: bool = False) -> LoadReport:
     """Load the session_kernels of `variant` in `precision` on `device`: from the add-on's
-    shipped binaries where they were built from this source, else compiled on first use (tens of
-    seconds on a CPU) or read from Warp's kernel cache on disk. The modules compile side by side
+    shipped binaries where they were built from this source, else read from Warp's kernel cache on
+    disk or compiled on first use (tens of seconds on a CPU). The modules compile side by side
     in worker threads joined before it returns."""
     return load_modules(session_kernels(variant, precision, surfaces, isosurfaces), resolve_device(device))
 
 
 def load_modules(kernels, device: str) -> LoadReport:
     """Load the modules of `kernels` on `device`: the shipped binaries of their source where the
-    add-on has them (shipped_kernels.py), the rest compiled (first use) or read from Warp's disk
-    cache, side by side (on first use the largest module's compile is the wait)."""
+    add-on has them (shipped_kernels.py), the rest read from Warp's disk cache or compiled (first
+    use), side by side (on first use the largest module's compile is the wait). The report says
+    which was which."""
     report = load_shipped(kernels, device)
     modules = list({id(k.module): k.module for k in kernels}.values())
     workers = min(len(modules), COMPILE_WORKERS) if COMPILE_WORKERS > 1 else 0

@@ -12,7 +12,7 @@
 - `Listings`: what the import dialog shows of a file (its fields, its composites), read by
   reader tasks that draw() starts and never waits for.
 - `CompiledKernels`: the render kernels compiled in this session, by (device, precision,
-  kernel variant, surfaces), so a render says "compiling (first use)" only when it does.
+  kernel variant, surfaces), so a render says "compiling (first use)" only when something compiles.
 - `ProgressLines`: when a background render's log gets a progress line (a few a frame).
 """
 from __future__ import annotations
@@ -218,24 +218,25 @@ class Listings:
 
 class CompiledKernels:
     """Render kernels compiled in this session, by key (device, precision, KernelVariant, opaque
-    meshes, isosurfaces: kernel_key); `compile_key(key)` does the compiling (the core's load_kernels), `shipped(key)`
-    says whether the add-on's compiled kernels hold them all (and whether it ships any)."""
+    meshes, isosurfaces: kernel_key); `compile_key(key)` does the compiling (the core's load_kernels),
+    `binaries(key)` says whether loading them compiles nothing (the add-on's compiled kernels or
+    Warp's kernel cache hold every module) and whether the add-on ships any."""
 
     COMPILING = "Compiling render kernels (first use)"
-    LOADING = "Loading the add-on's compiled render kernels"
+    LOADING = "Loading compiled render kernels"
     NOT_SHIPPED = ("the render kernels of these volumes are not among the add-on's compiled kernels (built from "
-                   "other kernel source, or for other orders or precision): compiling them once, tens of seconds on a CPU")
+                   "other kernel source, or for another GPU): compiling them once, tens of seconds on a CPU")
 
-    def __init__(self, compile_key: Callable[[tuple], None], shipped: Callable[[tuple], tuple] | None = None):
+    def __init__(self, compile_key: Callable[[tuple], None], binaries: Callable[[tuple], tuple] | None = None):
         self.compile_key = compile_key
-        self.shipped = shipped
+        self.binaries = binaries
         self._ready: set = set()
 
     def stage(self, key) -> tuple[str, str]:
-        """(status text, note) before `key`'s kernels load: loading the shipped ones, or compiling,
-        with a note to log where the add-on ships compiled kernels but not these."""
-        covered, any_shipped = self.shipped(key) if self.shipped else (False, False)
-        if covered:
+        """(status text, note) before `key`'s kernels load: loading binaries (shipped or cached), or
+        compiling, with a note to log where the add-on ships compiled kernels but not these."""
+        compiles_nothing, any_shipped = self.binaries(key) if self.binaries else (False, False)
+        if compiles_nothing:
             return self.LOADING, ""
         return self.COMPILING, self.NOT_SHIPPED if any_shipped else ""
 
@@ -272,20 +273,21 @@ def compile_render_kernels(key: tuple) -> None:
     load_kernels(variant, expand_devices(device)[0], precision, surfaces=surfaces, isosurfaces=isosurfaces)
 
 
-def shipped_render_kernels(key: tuple) -> tuple[bool, bool]:
-    """(the add-on's compiled kernels hold every kernel of a kernel_key, it ships any)."""
+def render_kernel_binaries(key: tuple) -> tuple[bool, bool]:
+    """(loading a kernel_key's kernels compiles nothing: the add-on's compiled kernels or Warp's
+    kernel cache hold every module, the add-on ships compiled kernels)."""
     from ..engine import shipped_kernels
     from ..engine.devices import expand_devices
     from ..engine.kernel_loading import session_kernels
 
     device, precision, variant, surfaces, isosurfaces = key
-    covered = shipped_kernels.covers(session_kernels(variant, precision, surfaces, isosurfaces),
-                                     expand_devices(device)[0])
-    return covered, shipped_kernels.store_dir().is_dir()
+    pending = shipped_kernels.to_compile(session_kernels(variant, precision, surfaces, isosurfaces),
+                                         expand_devices(device)[0])
+    return not pending, shipped_kernels.store_dir().is_dir()
 
 
 # What this Blender session has compiled (render.py asks before a render's first use)
-KERNELS = CompiledKernels(compile_render_kernels, shipped_render_kernels)
+KERNELS = CompiledKernels(compile_render_kernels, render_kernel_binaries)
 
 
 class ProgressLines:

@@ -26,9 +26,9 @@ def main():
         bpy.data.objects.remove(obj)
     scene = bpy.context.scene
     scene.render.engine = "HOVR"
-    build_sphere_scene(scene, spec["contract"], spec["width"], spec["height"], [tuple(s) for s in spec["stops"]],
-                       spec["value_range"], spec["density_scale"], spec["background"], spec["location"],
-                       spec["angle_z"], spec["method"])
+    volume = build_sphere_scene(scene, spec["contract"], spec["width"], spec["height"],
+                                [tuple(s) for s in spec["stops"]], spec["value_range"], spec["density_scale"],
+                                spec["background"], spec["location"], spec["angle_z"], spec["method"])
     t0 = time.perf_counter()
     rgba = render_to_exr(scene, spec["exr"])
     first_render_seconds = time.perf_counter() - t0
@@ -37,6 +37,10 @@ def main():
         scene.hovr.device = "cpu:all"
         np.save(spec["out_all_cores"], render_to_exr(scene, spec["exr"]))
         scene.hovr.device = "cpu"
+    if spec.get("out_isosurface"):  # then a look with an isosurface: its own integrate and shade
+        iso = volume.hovr_surfaces.isosurfaces.add()
+        iso.value, iso.color, iso.opacity = spec["isosurface"], (0.9, 0.3, 0.1), 0.75
+        np.save(spec["out_isosurface"], render_to_exr(scene, spec["exr"]))
 
     engine = next(c for c in bpy.types.RenderEngine.__subclasses__() if getattr(c, "bl_idname", "") == "HOVR")
     loaded = sorted(m for m in sys.modules if "hovr_blender" in m)

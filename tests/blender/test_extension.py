@@ -38,8 +38,12 @@ def test_zip_layout(tmp_path):
 @pytest.mark.slow
 def test_install_enable_and_render(tmp_path):
     """Also the shipped kernels (issue 30): the zip carries the sphere's compiled kernels, Warp's
-    kernel cache starts empty, and neither F12 nor All CPU Cores' processes compile anything."""
-    zip_path = build_zip(tmp_path / "dist", "--kernels", "--kernel-variants", "affine:3")  # the sphere's
+    kernel cache starts empty, and neither F12 nor All CPU Cores' processes compile anything; nor
+    does a first F12 with an isosurface (issue 37)."""
+    # the sphere's, Float32, CPU objects only (the GPU's CUBIN and PTX and the other variants: what
+    # the build step adds by default, each the same kind of file)
+    zip_path = build_zip(tmp_path / "dist", "--kernels", "--kernel-variants", "affine:3", "--kernel-precisions",
+                         "float32", "--kernel-cubin-archs", "", "--kernel-ptx-archs", "")
     assert [n for n in zipfile.ZipFile(zip_path).namelist() if n.startswith("kernel_binaries/warp-") and n.endswith(".o")]
     user = tmp_path / "blender-user"
     warp_cache = tmp_path / "empty-warp-cache"
@@ -60,6 +64,7 @@ def test_install_enable_and_render(tmp_path):
         "stops": SPHERE.STOPS, "value_range": SPHERE.VALUE_RANGE, "density_scale": SPHERE.DENSITY_SCALE,
         "background": SPHERE.BACKGROUND, "location": SPHERE.OBJECT_LOCATION, "angle_z": SPHERE.OBJECT_ANGLE_Z,
         "method": "classified", "out_all_cores": str(tmp_path / "rgba_all.npy"),
+        "out_isosurface": str(tmp_path / "rgba_iso.npy"), "isosurface": sum(SPHERE.VALUE_RANGE) / 2,
     }
     proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
@@ -77,6 +82,8 @@ def test_install_enable_and_render(tmp_path):
     want = SPHERE.core_render(SPHERE.PERSPECTIVE, "classified", False)
     np.testing.assert_allclose(got[..., :3], want[..., :3], atol=1e-5)
     np.testing.assert_array_equal(np.load(spec["out_all_cores"]), got)  # All CPU Cores: the one-core image
+    iso = np.load(spec["out_isosurface"])
+    assert np.abs(iso[..., :3] - got[..., :3]).max() > 0.1  # the isosurface was drawn, from the zip's kernels
 
     spec.update(mode="uninstall", report=str(tmp_path / "uninstall.json"))
     proc = subprocess.run([sys.executable, str(HERE / "install_and_render.py"), json.dumps(spec)],

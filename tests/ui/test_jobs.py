@@ -235,11 +235,13 @@ def test_per_face_warnings_are_summarised():
                                                                                  "5 more kinds of warning"]
 
 
-def test_the_status_says_loading_shipped_kernels_or_compiling():
-    """Issue 30: the first F12's status names what it waits for, and where the add-on ships compiled
-    kernels but not these (other kernel source, order or precision) a note says they compile."""
+def test_the_status_says_loading_or_compiling():
+    """Issue 30: the first F12's status names what it waits for; issue 37: it says compiling, and
+    where the add-on ships compiled kernels a note says these are not among them, only when
+    something compiles (neither the add-on's kernels nor Warp's kernel cache hold them)."""
     key = jobs.kernel_key("cpu", "float32", (False, 3), False)
     assert jobs.CompiledKernels(print, lambda k: (True, True)).stage(key) == (jobs.CompiledKernels.LOADING, "")
+    assert jobs.CompiledKernels(print, lambda k: (True, False)).stage(key) == (jobs.CompiledKernels.LOADING, "")
     assert jobs.CompiledKernels(print, lambda k: (False, True)).stage(key) == (jobs.CompiledKernels.COMPILING,
                                                                               jobs.CompiledKernels.NOT_SHIPPED)
     assert jobs.CompiledKernels(print, lambda k: (False, False)).stage(key) == (jobs.CompiledKernels.COMPILING, "")
@@ -252,6 +254,6 @@ def test_blenders_first_f12_knows_whether_the_store_holds_its_kernels(store, tmp
 
     key = jobs.kernel_key("cpu", "float32", SPHERE_VARIANT, False)
     monkeypatch.setenv(shipped_kernels.STORE_ENV, str(store))
-    assert jobs.shipped_render_kernels(key) == (True, True)
+    assert jobs.render_kernel_binaries(key) == (True, True)
     monkeypatch.setenv(shipped_kernels.STORE_ENV, str(tmp_path))  # no store for this Warp
-    assert jobs.shipped_render_kernels(key)[1] is False
+    assert jobs.render_kernel_binaries(key)[1] is False
