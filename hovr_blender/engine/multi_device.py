@@ -207,7 +207,7 @@ def _set_up(mesh, device, max_tile_rays, precision) -> tuple[Renderer, dict]:
     report = load_kernels(renderer.kernel_variant, renderer.device, precision)
     return renderer, {"device": renderer.device, "upload_seconds": renderer.upload_seconds,
                       "kernel_seconds": time.perf_counter() - t0,
-                      "kernel_modules": sorted(report.shipped + report.compiled)}
+                      "kernel_modules": sorted(report.shipped + report.cached + report.compiled)}
 
 
 def _trace_band(renderer, caches, msg) -> dict:
