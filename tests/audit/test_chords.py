@@ -175,4 +175,25 @@ def test_watertight_counts_no_lost_ray_and_finds_one_left_out(device, precision)
     res = wt.check_rays(exact, o, d, rgba, tau, 2 * r, precision, c)
     through = exact.fast(o, d) - wt.image_length(rgba, tau) > wt.LOST * 2 * r
     assert res["lost"] == int(through.sum()) > 10
+    assert res["lost_within_ray_rounding"] == 0
     assert res["rays_listed"] and res["rays_listed"][0]["why"] == "lost"
+
+
+def test_watertight_excuses_a_lost_ray_only_where_a_rounding_of_the_ray_leaves_the_mesh():
+    """Two rays along z through the unit cube, both drawn empty: one 1e-10 inside its face x = 1,
+    which a move of one float32 rounding of its origin takes off the mesh (its chord, 1, is
+    float32's to lose), and one through the middle, which no such move changes: lost, not excused."""
+    from hovr_blender.io.synthetic import cube_field, mixed_cube
+    from scripts import watertight as wt
+
+    mesh = constant_field(mixed_cube(2, 2, cube_field))
+    c, r = wt.bounds(mesh)
+    tau = wt.TAU_DIAG / (2 * r)
+    o = np.array([[1.0 - 1e-10, 0.5, -1.0], [0.5, 0.5, -1.0]])
+    d = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    exact = wt.Chords(mesh, "cpu")
+    np.testing.assert_allclose(exact.fast(o, d), [1.0, 1.0], atol=1e-9)
+    res = wt.check_rays(exact, o, d, np.zeros((2, 4), np.float32), tau, 2 * r, "float32", c)
+    assert (res["lost"], res["lost_within_ray_rounding"]) == (2, 1)
+    spreads = {tuple(ray["origin"]): ray["ray_rounding_spread"] for ray in res["rays_listed"]}
+    assert spreads[tuple(o[0])] == pytest.approx(1.0) and spreads[tuple(o[1])] < 1e-12
