@@ -25,6 +25,7 @@ rerun by the scheduler (distributed.scheduler.allowed-failures times).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -412,7 +413,10 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
     except ImportError as exc:
         raise RuntimeError(f"a local cluster needs the cryptography package for its TLS keys ({exc})") from None
     folder = scratch.private_folder("dask-")
-    with dask.config.set({"temporary-directory": folder}):  # the scheduler's own scratch, and the workers'
+    # the scheduler's own scratch, and the workers'; this process's environment as it was: Dask's
+    # nannies set their workers' pre-spawn variables (OMP_NUM_THREADS=1 ...) here for good, so the
+    # processes this one starts later (All CPU Cores' devices) would run BLAS unlike this one
+    with dask.config.set({"temporary-directory": folder}), _environment_kept():
         cluster = PrivateCluster(n_workers=workers, threads_per_worker=1, processes=True, protocol="tls",
                                  host="127.0.0.1", security=security, dashboard_address=dashboard,
                                  worker_dashboard_address=None, local_directory=folder,
@@ -420,6 +424,20 @@ def local_cluster(workers: int | None = None, device: str = "auto", dashboard: s
                                  silence_logs=logging.CRITICAL if quiet else logging.WARN, http=bool(dashboard))
     cluster.hovr_dashboard = dashboard
     return cluster
+
+
+@contextlib.contextmanager
+def _environment_kept():
+    """This process's environment variables as they were before the block, after it."""
+    saved = dict(os.environ)
+    try:
+        yield
+    finally:
+        for key in set(os.environ) - set(saved):
+            del os.environ[key]
+        for key, value in saved.items():
+            if os.environ.get(key) != value:
+                os.environ[key] = value
 
 
 def cluster_client(cluster):

@@ -1,13 +1,15 @@
 """One frame over several Warp devices of one host: the image's rows split in contiguous bands,
-one band a device, balanced by the cost each row took in the previous frame and by each device's
-measured speed; the bands stacked into the one image a single device renders (each pixel is the
-same ray whichever device traces it: Renderer.render's `rows`).
+one band a device, balanced by the cost each row took in the previous frame (a first frame, or
+one of another height: by a pre-pass of its view at 1/8 of the size, about 1/64 of its rays) and
+by each device's measured speed; the bands stacked into the one image a single device renders
+(each pixel is the same ray whichever device traces it: Renderer.render's `rows`).
 
 Each device is served by its own process (Warp's default device is one per process, so threads
 would race on it), which holds a Renderer: the mesh is uploaded once to each device and the
-kernels stay compiled across frames. The processes are started with the "spawn" method (CUDA does
-not survive a fork), each running bootstrap.py first: it never re-runs the parent's script
-(a bpy script, with or without a main guard), and imports the package under the parent's name
+kernels are loaded when the process starts (no frame waits for them) and stay across frames.
+The processes are started with the "spawn" method (CUDA does not survive a fork), each running
+bootstrap.py first: it never re-runs the parent's script (a bpy script, with or without a main
+guard), and imports the package under the parent's name
 (`bl_ext.<repo>.hovr_blender` in an installed extension). Every process gets its request before any
 reply is waited for; each writes its rows into one shared-memory image (SharedImage, made once per
 image size, its name unlinked as soon as every process has it open, so a killed run leaves no
@@ -21,6 +23,7 @@ this module only when they render, as they do the renderer.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import multiprocessing.connection
 import os
@@ -41,7 +44,7 @@ from . import field_frame, limits
 from .frame import Capability, Frame, check_frame
 from .processes import sigint_blocked, watch_parent
 from .devices import expand_devices
-from .kernel_loading import kernel_variant
+from .kernel_loading import kernel_variant, load_kernels
 from .methods import samples_segments
 from .render_result import RenderError, RenderResult, SegmentCacheError
 from .renderer import Renderer
@@ -72,6 +75,37 @@ def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
     return [(edges[k], edges[k + 1]) for k in range(n)]
 
 
+PREPASS_SCALE = 8  # a first frame's pre-pass: 1/8 of the rows and of the columns, 1/64 of the rays
+
+
+def prepass_camera(camera, scale: int = PREPASS_SCALE):
+    """The camera's view at 1/scale of its width and height (at least a pixel each way), its
+    horizontal extent kept where the rounded size changes the aspect ratio (RayCamera.uv's u spans
+    width/height)."""
+    W, H = int(camera.width), int(camera.height)
+    w, h = max(1, -(-W // int(scale))), max(1, -(-H // int(scale)))
+    k = (W / H) / (w / h)
+    return dataclasses.replace(camera, width=w, height=h, ou=camera.ou * k, du=camera.du * k)
+
+
+def upsampled_rows(low, height: int) -> np.ndarray:
+    """Per row of a `height`-row image, the value of the pre-pass row (of len(low)) its centre
+    falls in: the pre-pass's row costs as the frame's, or its surface_t's rows."""
+    low = np.asarray(low)
+    j = ((np.arange(height) + 0.5) * len(low) / height).astype(np.int64)
+    return low[np.minimum(j, len(low) - 1)]
+
+
+def device_spread(seconds) -> dict:
+    """How evenly the devices' render times of one frame came out: `device_spread`, how much longer
+    the slowest took than the fastest, as a fraction of the fastest ((max - min) / min: the issue's
+    "per-device times differ by <= 10 %"), and `device_balance`, the mean over the slowest (the
+    share of the devices' time spent rendering while the frame lasted)."""
+    s = np.asarray(seconds, dtype=np.float64)
+    return {"device_spread": float((s.max() - s.min()) / max(s.min(), 1e-12)),
+            "device_balance": float(s.mean() / max(s.max(), 1e-12))}
+
+
 def merge_results(parts, width: int, height: int, seconds: float, image=None) -> RenderResult:
     """The image of row bands rendered apart: (band (first, end), RenderResult) in row order; with
     `image` = (rgba, aux), the whole image already assembled (the bands' results carry no pixels)."""
@@ -95,7 +129,8 @@ def merge_results(parts, width: int, height: int, seconds: float, image=None) ->
                  warnings=sorted({w for r in results for w in r.stats.get("warnings", [])}),
                  devices=[{"device": r.stats["device"], "rows": list(band), "render_seconds": r.stats["render_seconds"],
                            **({"wall_seconds": r.stats["wall_seconds"]} if "wall_seconds" in r.stats else {}),
-                           "cost": float(r.row_cost.sum())} for band, r in parts])
+                           "cost": float(r.row_cost.sum())} for band, r in parts],
+                 **device_spread([r.stats["render_seconds"] for r in results]))
     return RenderResult(rgba=rgba, stats=stats, depth=depth, error=error, row_cost=row_cost)
 
 
@@ -164,6 +199,17 @@ def _render_into(renderer, shared, msg) -> RenderResult:
     return res
 
 
+def _set_up(mesh, device, max_tile_rays, precision) -> tuple[Renderer, dict]:
+    """A device's set-up, done once and kept out of every frame: the mesh uploaded (Renderer) and
+    the kernels of `precision` loaded on the device. (Renderer, what it cost)."""
+    renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
+    t0 = time.perf_counter()
+    report = load_kernels(renderer.kernel_variant, renderer.device, precision)
+    return renderer, {"device": renderer.device, "upload_seconds": renderer.upload_seconds,
+                      "kernel_seconds": time.perf_counter() - t0,
+                      "kernel_modules": sorted(report.shipped + report.cached + report.compiled)}
+
+
 def _trace_band(renderer, caches, msg) -> dict:
     """A "trace" request: the band's segments traced and kept here under the parent's cache id;
     the answer is their size and the trace's counters."""
@@ -190,15 +236,16 @@ def _shade_band(renderer, caches, shared, msg) -> RenderResult:
     return res
 
 
-def _serve(conn, mesh, device, max_tile_rays, parent_pid=None):
-    """A device's process: a Renderer of `mesh` on `device`, rendering what it is sent, and the
-    segments of the bands it traced, by the parent's cache ids, until the parent drops them (a
-    request's last item); it ends with its parent (engine/processes.watch_parent)."""
+def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float32"):
+    """A device's process: a Renderer of `mesh` on `device` with the kernels of `precision`
+    loaded, rendering what it is sent, and the segments of the bands it traced, by the parent's
+    cache ids, until the parent drops them (a request's last item); it ends with its parent
+    (engine/processes.watch_parent)."""
     if parent_pid is not None:
         watch_parent(parent_pid)
     try:
-        renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
-        conn.send(("ok", renderer.upload_seconds))
+        renderer, setup = _set_up(mesh, device, max_tile_rays, precision)
+        conn.send(("ok", setup))
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
@@ -253,12 +300,12 @@ def serve_spawned(conn, payload: bytes):
     try:
         # the parent's own objects (a mesh its readers already parsed into arrays), handed over by
         # the anonymous pipe only parent and child hold: no file or network bytes are unpickled
-        mesh, device, max_tile_rays, parent_pid = pickle.loads(payload)
+        mesh, device, max_tile_rays, parent_pid, precision = pickle.loads(payload)
     except BaseException as exc:  # noqa: BLE001  (reported to the parent, which raises it)
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     del payload
-    _serve(conn, mesh, device, max_tile_rays, parent_pid)
+    _serve(conn, mesh, device, max_tile_rays, parent_pid, precision)
 
 
 _STARTING = threading.Lock()
@@ -282,12 +329,12 @@ class DeviceProcess:
     """A process holding a Renderer of one mesh on one device (_serve). send() a request, then
     reply() its answer: requests to several processes run at once."""
 
-    def __init__(self, mesh, device: str, max_tile_rays: int | None = None):
+    def __init__(self, mesh, device: str, max_tile_rays: int | None = None, precision: str = "float32"):
         ctx = multiprocessing.get_context("spawn")
         self.device = device
         self._conn, child = ctx.Pipe()
         engine_folder = os.path.dirname(os.path.abspath(__file__))
-        payload = (mesh, device, max_tile_rays, os.getpid())
+        payload = (mesh, device, max_tile_rays, os.getpid(), precision)
         start = {"conn": child, "package": __name__.rsplit(".", 2)[0], "folder": os.path.dirname(engine_folder),
                  "payload": pickle.dumps(payload, protocol=pickle.HIGHEST_PROTOCOL)}
         bootstrap = os.path.join(engine_folder, "bootstrap.py")
@@ -336,16 +383,18 @@ class DeviceProcess:
             self._proc.join(timeout=10)
 
 
-def start_processes(meshes, devices, max_tile_rays=None) -> list[DeviceProcess]:
-    """A DeviceProcess for each (mesh, device), started together; waits until each has uploaded."""
+def start_processes(meshes, devices, max_tile_rays=None, precision: str = "float32") -> list[DeviceProcess]:
+    """A DeviceProcess for each (mesh, device), started together; waits until each has uploaded
+    its mesh and loaded the kernels of `precision` (each process's `setup`: _set_up's report)."""
     devices = list(devices)
     limits.check_processes(len(devices), f"rendering on {len(devices)} devices ({','.join(devices)})"[:200])
     procs = []
     try:
         for mesh, dev in zip(meshes, devices):
-            procs.append(DeviceProcess(mesh, dev, max_tile_rays))
+            procs.append(DeviceProcess(mesh, dev, max_tile_rays, precision))
         for p in procs:
-            p.upload_seconds = p.reply()
+            p.setup = p.reply()
+            p.upload_seconds = p.setup["upload_seconds"]
     except BaseException:
         for p in procs:
             p.close(timeout=0)
@@ -380,30 +429,39 @@ class MultiDeviceCache:
         return {"bytes": self.nbytes, "bytes_per_ray": self.nbytes / max(rays, 1), "segments": segments,
                 "segments_per_ray": segments / max(rays, 1), "chunks": chunks,
                 "coefficients_per_segment": coefficients / max(segments, 1),
-                "trace_seconds": self.stats.get("trace_seconds"), "devices": len(self.bands)}
+                "trace_seconds": self.stats.get("trace_seconds"), "devices": len(self.bands),
+                **{k: self.stats.get(k) for k in ("split_by", "prepass_seconds", "device_spread")}}
 
 
 class MultiDeviceRenderer:
     """Renderer's render() over several devices (e.g. every CUDA device of the host): one process
-    a device, each holding the mesh; close() (or `with`) stops them. Of a Frame it draws opaque
-    meshes (each device reads its band of the whole image's hits), not isosurfaces or planes, and
-    it keeps a segment cache of the whole image (engine/frame.py): each device traces and keeps its
-    band's segments, and a look-only edit shades each band where it is (trace, shade)."""
+    a device, each holding the mesh with the kernels of `precision` loaded (`setup` says what that
+    cost, once); close() (or `with`) stops them. A frame's rows are split by the previous frame's
+    row costs where it had the same height, else by a pre-pass at 1/prepass_scale of the size (0:
+    equal rows). Of a Frame it draws opaque meshes (each device reads its band of the whole
+    image's hits), not isosurfaces or planes, and it keeps a segment cache of the whole image
+    (engine/frame.py): each device traces and keeps its band's segments, and a look-only edit
+    shades each band where it is (trace, shade)."""
 
     capabilities = frozenset({Capability.OPAQUE, Capability.SEGMENT_CACHE})
     kind = "over several devices"
 
-    def __init__(self, mesh, devices, max_tile_rays: int | None = None):
+    def __init__(self, mesh, devices, max_tile_rays: int | None = None, precision: str = "float32",
+                 prepass_scale: int = PREPASS_SCALE):
         self.devices = expand_devices(devices)
         self.device = ",".join(self.devices)
         self.mesh = mesh
         self.kernel_variant = kernel_variant([mesh])  # what every device's process compiles
+        self.prepass_scale = int(prepass_scale)
         self._row_cost = None  # the last frame's cost per row, for the next split
         self._speeds = np.ones(len(self.devices))  # cost per second, per device
         t0 = time.perf_counter()
         self._shared = None  # the SharedImage the devices write into (one per image size and dtype)
-        self._procs = start_processes([mesh] * len(self.devices), self.devices, max_tile_rays)
+        self._procs = start_processes([mesh] * len(self.devices), self.devices, max_tile_rays, precision)
         self.upload_seconds = time.perf_counter() - t0
+        # once, before any frame: the processes' start, each device's upload and kernel load
+        self.setup = {"seconds": self.upload_seconds, "precision": precision,
+                      "devices": [{k: v for k, v in p.setup.items() if k != "kernel_modules"} for p in self._procs]}
         self._id = next(_CACHE_IDS)  # its identity in its caches' keys
         self._field_version = 0
         self.data_ranges = Renderer.volume_ranges(mesh)  # the field frame's (Renderer's own)
@@ -459,14 +517,18 @@ class MultiDeviceRenderer:
 
     def trace(self, camera, tf, options, rows=None, surface_t=None, surface_key=None, progress=None,
               tile_pixels=None, held_bytes: int = 0) -> MultiDeviceCache:
-        """Renderer.trace over the devices: each keeps its band's segments (the bands of split()), the
-        memory limit shared among them; `progress` is called once, at the end."""
+        """Renderer.trace over the devices: each keeps its band's segments (the bands render()
+        would split, a first trace's by the pre-pass, whose row costs then split the next traces
+        of this height: a trace measures none), the memory limit shared among them; `progress` is
+        called once, at the end."""
         key = self.trace_key(camera, options, rows, surface_key)
-        bands = self.split(int(camera.height))
+        t0 = time.perf_counter()
+        bands, split_by, prepass_seconds, cost = self._frame_bands(camera, tf, np.zeros(3), options, surface_t)
+        if cost is not None:
+            self._row_cost = cost
         n = len(self._procs)
         share = int(limits.current().max_memory * (n - 1) / n)  # each device's band within its share
         cache_id = next(_CACHE_IDS)
-        t0 = time.perf_counter()
         replies = self._ask([("trace", cache_id, camera, tf, options, band, surface_t, int(held_bytes) + share)
                              for band in bands])
         counts = tuple(int(sum(r["counts"][k] for r in replies)) for k in range(3))
@@ -477,7 +539,11 @@ class MultiDeviceRenderer:
         pixels = int(camera.width) * int(camera.height)
         samples = summed["field_evaluations"] + summed["restriction_evaluations"]
         stats = {**summed, "samples_per_ray": samples / pixels,
-                 "trace_seconds": time.perf_counter() - t0, "device": self.device}
+                 "trace_seconds": time.perf_counter() - t0, "device": self.device, "split_by": split_by,
+                 "prepass_seconds": prepass_seconds,
+                 "devices": [{"device": p.device, "rows": list(band), "trace_seconds": r["stats"]["trace_seconds"]}
+                             for p, band, r in zip(self._procs, bands, replies)],
+                 **device_spread([r["stats"]["trace_seconds"] for r in replies])}
         cache = MultiDeviceCache(cache_id, key, self.frame_key(tf), camera, bands, all(r["complete"] for r in replies),
                                  int(sum(r["nbytes"] for r in replies)), counts, stats)
         weakref.finalize(cache, self._forget, cache_id)
@@ -514,19 +580,63 @@ class MultiDeviceRenderer:
             progress(1.0)
         return RenderResult(rgba=rgba, stats=stats, depth=aux[..., 0], error=aux[..., 1])
 
-    def split(self, height: int) -> list[tuple[int, int]]:
-        """The row bands of the next frame: the last frame's row costs if it had this height,
-        else equal rows, over the devices' measured speeds."""
-        cost = self._row_cost if self._row_cost is not None and len(self._row_cost) == height else np.ones(height)
-        return balanced_rows(cost, self._speeds)
+    def split(self, height: int, row_cost=None) -> list[tuple[int, int]]:
+        """The row bands of the next frame: by `row_cost` (a pre-pass's), else the last frame's row
+        costs if it had this height, else equal rows, over the devices' measured speeds."""
+        if row_cost is None:
+            row_cost = self._row_cost if self._row_cost is not None and len(self._row_cost) == height else None
+        return balanced_rows(np.ones(height) if row_cost is None else row_cost, self._speeds)
+
+    def reset_split(self):
+        """Split the next frame as a first one: no previous frame's row costs, equal device speeds."""
+        self._row_cost = None
+        self._speeds = np.ones(len(self.devices))
+
+    def prepass(self, camera, tf, background, options, surface_t=None) -> np.ndarray:
+        """The frame's cost per row, estimated by rendering its view at 1/prepass_scale of its
+        size (prepass_camera), in equal bands over the devices, each full-size row taking the
+        cost of the pre-pass row its centre falls in (surface_t sampled alike)."""
+        low = prepass_camera(camera, self.prepass_scale)
+        w, h = int(low.width), int(low.height)
+        if surface_t is not None:
+            surface_t = np.asarray(surface_t)
+            surface_t = upsampled_rows(upsampled_rows(surface_t, h).T, w).T
+        bands = balanced_rows(np.ones(h), np.ones(len(self._procs)))
+        procs = self._procs[:len(bands)]
+        for p, band in zip(procs, bands):
+            p.send("render", low, tf, background, options, band, surface_t)
+        replies, errors = [], []
+        for p in procs:  # every reply read: the pipes stay in step
+            try:
+                replies.append(p.reply())
+            except RenderError as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+        return upsampled_rows(np.concatenate([r.row_cost for r in replies]), int(camera.height))
+
+    def _frame_bands(self, camera, tf, background, options, surface_t=None):
+        """(bands, split_by, pre-pass seconds, the pre-pass's row costs or None) of a frame: split
+        by the previous frame's row costs where it had this height, else by a pre-pass (none with
+        prepass_scale 0 or one device: equal rows)."""
+        H = int(camera.height)
+        if self._row_cost is not None and len(self._row_cost) == H:
+            return self.split(H), "previous frame", 0.0, None
+        if self.prepass_scale <= 0 or len(self._procs) < 2:
+            return self.split(H), "equal rows", 0.0, None
+        t0 = time.perf_counter()
+        cost = self.prepass(camera, tf, background, options, surface_t)
+        return self.split(H, cost), "pre-pass", time.perf_counter() - t0, cost
 
     def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False,
                surface_t=None) -> RenderResult:
         """Renderer.render over the devices (progress is called once, at the end; profile is ignored;
-        surface_t, the whole image's, goes to every device, which reads its band's rows)."""
+        surface_t, the whole image's, goes to every device, which reads its band's rows). A frame
+        without a previous frame of its height is split by a pre-pass (prepass), timed in its
+        render_seconds and apart in stats["prepass_seconds"]; stats["split_by"] says which."""
         W, H = int(camera.width), int(camera.height)
-        bands = self.split(H)
         t0 = time.perf_counter()
+        bands, split_by, prepass_seconds, _ = self._frame_bands(camera, tf, background, options, surface_t)
         shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
         # every device gets its request before any reply is waited for; each writes its rows into
         # the shared image and answers with its stats and row costs only
@@ -556,6 +666,7 @@ class MultiDeviceRenderer:
         parts = list(zip(bands, replies))
         seconds = time.perf_counter() - t0
         result = merge_results(parts, W, H, seconds, image=(rgba, aux))
+        result.stats.update(split_by=split_by, prepass_seconds=prepass_seconds)
         # each device's speed: the geometric mean of what it had and what this frame measured
         # (one frame's timing is noisy, and a band's fixed costs do not scale with its rows)
         speeds = np.array([max(float(r.row_cost.sum()), 1e-9) / max(r.stats["render_seconds"], 1e-6) for _, r in parts])
@@ -619,4 +730,5 @@ def make_renderer(mesh, device: str = "cpu", max_tile_rays: int | None = None, f
         check_frame(cls, frame)
     if cls is Renderer:
         return Renderer(mesh, devices[0], max_tile_rays=max_tile_rays)
-    return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays)
+    precision = frame.options.precision if frame is not None else "float32"
+    return MultiDeviceRenderer(mesh, devices, max_tile_rays=max_tile_rays, precision=precision)

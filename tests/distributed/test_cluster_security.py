@@ -233,3 +233,32 @@ def test_no_port_answers_http_during_a_whole_run(tmp_path):
     assert len(list((tmp_path / "out").glob("f_*.npy"))) == 6
     assert samples > 20 and not http, (samples, seen, http)
     assert len(seen) == 5, seen  # scheduler, 2 nannies, 2 workers: TLS all
+
+
+KEEPS_ENVIRONMENT = textwrap.dedent("""
+    import json, os
+    from hovr_blender.distributed import series
+    before = dict(os.environ)
+    cluster = series.local_cluster(1, "cpu")
+    client = series.cluster_client(cluster)
+    workers = list(client.run(lambda: os.environ.get("OMP_NUM_THREADS")).values())
+    changed = sorted(k for k in set(before) | set(os.environ) if before.get(k) != os.environ.get(k))
+    client.close(); cluster.close()
+    print(json.dumps({"changed": changed, "workers": workers}))
+""")
+
+
+def test_a_local_cluster_leaves_its_owners_environment_as_it_was():
+    """Dask's nannies set their workers' pre-spawn variables (OMP_NUM_THREADS=1, MKL_..., OPENBLAS_...,
+    MALLOC_TRIM_THRESHOLD_, PYTHONHASHSEED) in the process that starts them, for good: processes it
+    started later (All CPU Cores' devices) ran BLAS on one thread against its several, and an image
+    split over devices differed from one device's by 1e-5 (adaptive panels on host data rounded
+    otherwise). The workers still get them; the owner's environment is as it was."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MALLOC_TRIM_THRESHOLD_",
+                        "PYTHONHASHSEED")}
+    proc = subprocess.run([sys.executable, "-c", KEEPS_ENVIRONMENT], capture_output=True, text=True, timeout=180,
+                          env=dict(env, PYTHONPATH=REPO))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert report == {"changed": [], "workers": ["1"]}

@@ -1,6 +1,7 @@
 """One frame over several devices (issue 18), on CPU devices: rows split over processes give the
 one-device image bit for bit; the sort-last split of the elements into slabs composites to the
 one-device image within 1e-6 (engine/sort_last.py says why it is exact up to quadrature)."""
+import dataclasses
 import os
 import subprocess
 import sys
@@ -10,7 +11,8 @@ import numpy as np
 import pytest
 
 from hovr_blender.engine.mesh import subset
-from hovr_blender.engine.multi_device import MultiDeviceRenderer, balanced_rows
+from hovr_blender.engine.multi_device import (MultiDeviceRenderer, balanced_rows, device_spread, prepass_camera,
+                                              upsampled_rows)
 from hovr_blender.engine.devices import expand_devices
 from hovr_blender.engine.limits import cpu_cores
 from hovr_blender.engine.render_result import RenderError
@@ -34,21 +36,90 @@ def test_balanced_rows_follow_cost_and_speed():
     assert fast_first[0] == (0, 22) or fast_first[0] == (0, 23)
 
 
+def test_upsampled_rows_take_the_prepass_row_of_their_centre():
+    assert upsampled_rows([1.0, 2.0, 3.0], 6).tolist() == [1, 1, 2, 2, 3, 3]
+    assert upsampled_rows([1.0, 2.0], 5).tolist() == [1, 1, 2, 2, 2]  # row 2's centre, 2.5 of 5, is in the second
+    assert upsampled_rows([7.0], 4).tolist() == [7] * 4
+
+
+@pytest.mark.parametrize("size", [(64, 48), (70, 45), (5, 3)])
+def test_prepass_camera_sees_the_frame_view_at_a_smaller_size(size):
+    """The pre-pass's rays are the frame's rays at the same fractions of the image, also where the
+    rounded size changes the aspect ratio."""
+    mesh, _, camera = curved_mixed_scene(1)
+    cam = camera(*size)
+    low = prepass_camera(cam, 8)
+    w, h = int(low.width), int(low.height)
+    assert (w, h) == (-(-size[0] // 8), -(-size[1] // 8))
+    _, d = low.rays()
+    fx, fy = np.meshgrid((np.arange(w) + 0.5) / w, (np.arange(h) + 0.5) / h)
+    u, v = (2 * fx - 1) * cam.width / cam.height, 1 - 2 * fy  # the frame's uv at those fractions
+    ref = cam.d0 + u[..., None] * cam.du + v[..., None] * cam.dv
+    assert np.allclose(d, ref / np.linalg.norm(ref, axis=-1, keepdims=True), atol=1e-12)
+
+
+def test_device_spread_is_the_slowest_over_the_fastest():
+    s = device_spread([1.0, 1.1, 1.05])
+    assert s["device_spread"] == pytest.approx(0.1) and s["device_balance"] == pytest.approx(1.05 / 1.1)
+    assert device_spread([2.0])["device_spread"] == 0.0
+
+
+def _band_balance(row_cost, bands):
+    c = np.array([row_cost[a:b].sum() for a, b in bands])
+    return c.mean() / c.max()
+
+
 def test_rows_of_a_frame_over_two_cpu_processes_equal_one_device():
+    """The first frame is split by a pre-pass, the next by its row costs, another first frame in
+    equal rows: each image is the one device's bit for bit. The view puts the mesh in the image's
+    upper part, where equal rows would leave one device most of the work: the pre-pass's bands
+    carry about equal costs, and the stats say how the frame was split and the devices' spread."""
     mesh, tf, camera = curved_mixed_scene(2)
-    cam = camera(W, H)
+    centred = camera(W, H)
+    cam = dataclasses.replace(centred, d0=centred.d0 - 0.45 * centred.dv)  # the mesh moves up the image
     opts = RenderOptions()
     # the one-device image from a process started like the split's: the host-side set-up (numpy's
     # BLAS) can round differently with another thread count, and a LocalCluster started earlier in
     # this process (tests/distributed) leaves OPENBLAS_NUM_THREADS=1 for the processes started after it
     with MultiDeviceRenderer(mesh, ["cpu"]) as one:
         whole = one.render(cam, tf, BACKGROUND, opts)
+        assert whole.stats["split_by"] == "equal rows" and whole.stats["prepass_seconds"] == 0.0
+    equal = _band_balance(whole.row_cost, balanced_rows(np.ones(H), [1, 1]))
+    assert equal < 0.75  # the scene is one where the split matters
     with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        splits = []
         for _ in range(2):  # the second frame is split by the first one's row costs
             split = md.render(cam, tf, BACKGROUND, opts)
             assert np.array_equal(split.rgba, whole.rgba)
             assert [d["rows"] for d in split.stats["devices"]][0][0] == 0
+            splits.append(split.stats)
         assert split.stats["field_evaluations"] == whole.stats["field_evaluations"]
+        md.reset_split()
+        md.prepass_scale = 0
+        plain = md.render(cam, tf, BACKGROUND, opts)
+        assert np.array_equal(plain.rgba, whole.rgba)
+    first, second = splits
+    assert first["split_by"] == "pre-pass" and 0.0 < first["prepass_seconds"] < first["render_seconds"]
+    assert second["split_by"] == "previous frame" and second["prepass_seconds"] == 0.0
+    assert plain.stats["split_by"] == "equal rows"
+    assert [d["rows"] for d in plain.stats["devices"]] == [[0, H // 2], [H // 2, H]]
+    assert _band_balance(whole.row_cost, [d["rows"] for d in first["devices"]]) > 0.85
+    for stats in (*splits, plain.stats):
+        assert stats["device_spread"] == device_spread([d["render_seconds"] for d in stats["devices"]])["device_spread"]
+
+
+def test_device_set_up_loads_the_frame_kernels_once_before_any_frame():
+    """Each device's process uploads the mesh and loads the kernels of the renderer's precision
+    when it starts (MultiDeviceRenderer.setup says what each cost), not in the first frame."""
+    from hovr_blender.engine.kernel_loading import render_kernels
+
+    mesh, _, _ = curved_mixed_scene(1)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        needed = {k.module.name for k in render_kernels(md.kernel_variant, "float32")}
+        for p, report in zip(md._procs, md.setup["devices"]):
+            assert needed <= set(p.setup["kernel_modules"])
+            assert report["kernel_seconds"] > 0.0 and report["upload_seconds"] > 0.0
+        assert md.setup["precision"] == "float32" and md.setup["seconds"] > 0.0
 
 
 def test_cpu_all_is_one_cpu_device_a_core():
@@ -306,6 +377,26 @@ def test_a_frame_a_renderer_cannot_draw_is_refused_in_one_line():
     np.testing.assert_array_equal(plain.rgba, sl.render(cam, tf, BACKGROUND, RenderOptions()).rgba)
 
 
+def test_a_first_frame_with_an_opaque_mesh_is_split_by_a_prepass_that_stops_at_it():
+    """The pre-pass of a frame with opaque meshes samples their hits (surface_t) at its pixels;
+    the split image equals the one device's bit for bit."""
+    from hovr_blender.engine.frame import Frame, render_frame
+    from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    cam = camera(W, H)
+    plane = OpaqueScene([OpaqueMesh([[-1, -1, 0.5], [2, -1, 0.5], [2, 2, 0.5]], [[0, 1, 2]])])
+    frame = Frame(tf, BACKGROUND, RenderOptions(), opaque=plane)
+    with MultiDeviceRenderer(mesh, ["cpu"]) as one:
+        whole = render_frame(one, frame, cam)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        split = render_frame(md, frame, cam)
+    assert split.stats["split_by"] == "pre-pass"
+    assert np.array_equal(split.rgba, whole.rgba)
+    t = plane.cast(cam).t
+    assert np.isfinite(t).mean() > 0.2 and not np.isfinite(t).all()  # the plane stops some rays, not all
+
+
 def test_a_look_only_edit_over_two_cpu_processes_shades_the_kept_segments():
     """Issue 40: All CPU Cores keeps each band's segments in its process; the next frame with only
     the look changed is shaded where they are (no field evaluated), equal to the one device's shade
@@ -333,3 +424,25 @@ def test_a_look_only_edit_over_two_cpu_processes_shades_the_kept_segments():
         slot.cache = None  # the caller lets go of it: the devices drop it with their next request
         md.render(cam, tf, BACKGROUND, RenderOptions())
         assert md._dropped == [] and old not in [c.id for c in [slot.cache] if c is not None]
+
+
+def test_a_first_traced_frame_is_split_by_the_prepass_and_its_costs_split_the_next_trace():
+    """A first F12 over the devices keeps segments (trace): its bands come from the pre-pass, as a
+    render's would, and the image equals the one device's; the next trace of that height splits
+    by the pre-pass's costs without another pre-pass (a trace measures none)."""
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    centred = camera(W, H)
+    cam = dataclasses.replace(centred, d0=centred.d0 - 0.45 * centred.dv)  # as in the render test above
+    with MultiDeviceRenderer(mesh, ["cpu"]) as one:
+        whole = render_frame(one, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+    with MultiDeviceRenderer(mesh, "cpu,cpu") as md:
+        first = render_frame(md, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+        again = render_frame(md, Frame(tf, BACKGROUND, RenderOptions(), cache=SegmentSlot()), cam)
+    assert np.array_equal(first.rgba, whole.rgba) and np.array_equal(again.rgba, whole.rgba)
+    traced, retraced = first.stats["segment_cache"], again.stats["segment_cache"]
+    assert traced["use"] == retraced["use"] == "traced"
+    assert traced["split_by"] == "pre-pass" and traced["prepass_seconds"] > 0.0
+    assert retraced["split_by"] == "previous frame" and retraced["prepass_seconds"] == 0.0
+    assert traced["device_spread"] >= 0.0
