@@ -1,9 +1,10 @@
-"""Host-side inputs of the traversal: which element lies across each face, and a straight-sided
-guess of every element's world -> reference map.
+"""Host-side inputs of the traversal: which element lies across each face, how a point of a shared
+face in one element's reference coordinates reads in the other's, and a straight-sided guess of
+every element's world -> reference map.
 
 Faces are numbered as the kernels' element.face_plane numbers them (shapes.FACE_PLANES;
 tests/engine/test_adjacency.py checks the two agree). Two faces are the same when
-their corner vertices coincide (to 1e-9 of the mesh's size); a face met by more or fewer than
+their corner vertices coincide (to 1e-9 of the mesh's size: corner_ids); a face met by more or fewer than
 two elements has no neighbour, and the traversal searches the BVH there instead of walking.
 Matching corners only is enough: a wrong match (two curved faces with the same corners but
 different shapes) costs the kernel one failed inside test, never a wrong segment.
@@ -12,26 +13,58 @@ from __future__ import annotations
 
 import numpy as np
 
-from .shapes import MAX_FACES, VERTICES, plane_vertices
+from .shapes import FACE_PLANES, MAX_FACES, VERTICES, plane_vertices
+
+def corner_ids(mesh) -> np.ndarray:
+    """(N, V) int64: each element's corner vertices numbered so that coincident ones share a
+    number (-1 past a shape's corners). Coincident: equal when rounded to 1e-9 of the mesh's size
+    on one of the 8 grids shifted by half a cell per axis (two points closer than half a cell in
+    every axis share a cell on one of them; one grid alone splits the pairs that straddle its
+    cells' walls: two of the NGSolve post's elements lost their shared face so), joined
+    transitively."""
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    ncorner = np.array([len(VERTICES[s]) for s in range(4)])[mesh.shape]
+    real = np.arange(V.shape[1])[None, :] < ncorner[:, None]
+    pts = V[real]
+    lo = pts.min(axis=0)
+    scaled = (pts - lo) / (max(float(np.ptp(pts, axis=0).max()), 1e-300) * 1e-9)
+    labels = np.arange(len(pts))
+    shifts = [np.array([(k >> a) & 1 for a in range(3)]) * 0.5 for k in range(8)]
+    while True:
+        before = labels.copy()
+        for shift in shifts:
+            cell = np.floor(scaled + shift).astype(np.int64)
+            order = np.lexsort(cell.T[::-1])
+            new_cell = np.ones(len(order), bool)
+            new_cell[1:] = np.any(cell[order[1:]] != cell[order[:-1]], axis=1)
+            inv = np.empty(len(order), np.int64)
+            inv[order] = np.cumsum(new_cell) - 1
+            low = np.full(inv.max() + 1, len(pts))
+            np.minimum.at(low, inv, labels)
+            labels = low[inv]
+        while not np.array_equal(labels[labels], labels):
+            labels = labels[labels]
+        if np.array_equal(labels, before):
+            break
+    out = np.full(V.shape[:2], -1, np.int64)
+    out[real] = labels
+    return out
+
 
 def face_neighbours(mesh) -> np.ndarray:
     """(N * MAX_FACES,) int32: the element across face f of element e at e * MAX_FACES + f, -1 if none."""
     n = mesh.num_elements
     out = np.full(n * MAX_FACES, -1, np.int32)
-    pts = mesh.vertices.reshape(-1, 3)
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    quantum = max(float(np.max(hi - lo)), 1e-300) * 1e-9
+    ids = corner_ids(mesh)
     keys, slots = [], []
     for shape in np.unique(mesh.shape):
         elems = np.nonzero(mesh.shape == shape)[0]
         for f, idx in enumerate(plane_vertices(int(shape))):
-            corners = np.round((mesh.vertices[elems][:, idx] - lo) / quantum).astype(np.int64)  # (m, k, 3)
-            # a face's key: its corners sorted (lexicographically), padded to four
-            order = np.lexsort((corners[..., 2], corners[..., 1], corners[..., 0]), axis=-1)
-            corners = np.take_along_axis(corners, order[..., None], axis=1)
+            # a face's key: its corners' numbers sorted, padded to four
+            corners = np.sort(ids[elems][:, idx], axis=1)
             if corners.shape[1] == 3:
-                corners = np.concatenate([corners, np.full((len(elems), 1, 3), -1, np.int64)], axis=1)
-            keys.append(corners.reshape(len(elems), 12))
+                corners = np.concatenate([np.full((len(elems), 1), -1, np.int64), corners], axis=1)
+            keys.append(corners)
             slots.append(elems * MAX_FACES + f)
     keys = np.concatenate(keys)
     slots = np.concatenate(slots)
@@ -46,6 +79,42 @@ def face_neighbours(mesh) -> np.ndarray:
     a, b = slots[pair], slots[pair + 1]
     out[a] = b // MAX_FACES
     out[b] = a // MAX_FACES
+    return out
+
+
+def face_maps(mesh, neighbours: np.ndarray) -> np.ndarray:
+    """(N * MAX_FACES, 3, 4) float64: for face f of element e with a neighbour n, the affine map
+    xi_n = M[:, :3] xi_e + M[:, 3] of a point of the face in e's reference coordinates to the same
+    point in n's, from the face's corners matched by their world positions (a reference face is
+    flat, and a conforming face's geometry is one polynomial of its corners' coordinates from either
+    side; points off the face go along the normals, inward in e to outward in n); zero elsewhere.
+    The walk takes the neighbour's solution where it leaves e from this (kernels/walk.py)."""
+    n_el = mesh.num_elements
+    out = np.zeros((n_el * MAX_FACES, 3, 4))
+    nb = np.asarray(neighbours).reshape(n_el, MAX_FACES)
+    elem, face = np.nonzero(nb >= 0)
+    if elem.size == 0:
+        return out
+    other = nb[elem, face]
+    back = np.argmax(nb[other] == elem[:, None], axis=1)  # n's face that leads back to e
+    keys = np.stack([mesh.shape[elem], face, mesh.shape[other], back], axis=1)
+    for key in np.unique(keys, axis=0):
+        se, f, sn, g = (int(v) for v in key)
+        sel = np.nonzero((keys == key).all(axis=1))[0]
+        ie, ig = plane_vertices(se)[f], plane_vertices(sn)[g]
+        if len(ie) != len(ig):
+            continue
+        xe = mesh.vertices[elem[sel]][:, ie]  # (m, k, 3) world corners, e's order
+        xn = mesh.vertices[other[sel]][:, ig]
+        match = np.argmin(np.linalg.norm(xe[:, :, None] - xn[:, None], axis=-1), axis=2)  # (m, k)
+        ne = np.asarray(FACE_PLANES[se][f][0], float)
+        nn = np.asarray(FACE_PLANES[sn][g][0], float)
+        P = VERTICES[se][ie[:3]]  # three corners and a point off the face, in e's coordinates
+        P = np.vstack([P, P[0] - ne / np.linalg.norm(ne)])
+        Q = VERTICES[sn][np.asarray(ig)[match[:, :3]]]  # (m, 3, 3)
+        Q = np.concatenate([Q, (Q[:, 0] + nn / np.linalg.norm(nn))[:, None]], axis=1)
+        H = np.linalg.inv(np.hstack([P, np.ones((4, 1))]).T)  # Q^T = M [P^T; 1]
+        out[elem[sel] * MAX_FACES + f] = np.einsum("mpj,pk->mjk", Q, H)
     return out
 
 

@@ -117,11 +117,13 @@ def sample_stride(mesh: VolumeMesh, geo_degree) -> int:
     return int(deg.max()) + 1
 
 
-def mesh_args(prec: Precision, mesh: VolumeMesh, faces, bvh_id, neighbour, affine_guess, box_lo, box_hi) -> tuple:
+def mesh_args(prec: Precision, mesh: VolumeMesh, faces, bvh_id, neighbour, face_maps, affine_guess, box_lo,
+              box_hi) -> tuple:
     """(MeshArgs, geometry degree per element): the mesh on the current device in `prec`, its
     field to be set in a frame (Renderer._set_field); `faces` (engine/faces.py) with the BVH of
-    their boxes `bvh_id`, the face neighbours, the straight-sided guess of each element's map and
-    the elements' padded boxes."""
+    their boxes `bvh_id`, the face neighbours and the maps of their shared faces' points
+    (adjacency.face_maps), the straight-sided guess of each element's map and the elements'
+    padded boxes."""
     fdt, v3, m33, scalar = prec.dtype, prec.vec3, prec.mat33, prec.scalar
     m = prec.kernels.MeshArgs()
     m.bvh = bvh_id
@@ -136,6 +138,8 @@ def mesh_args(prec: Precision, mesh: VolumeMesh, faces, bvh_id, neighbour, affin
     m.ref_a = wp.array(affine_guess[:, :, :3].astype(fdt), dtype=m33)
     m.ref_b = wp.array(affine_guess[:, :, 3].astype(fdt), dtype=v3)
     m.neighbour = neighbour
+    m.face_map_a = wp.array(face_maps[:, :, :3].astype(fdt), dtype=m33)
+    m.face_map_b = wp.array(face_maps[:, :, 3].astype(fdt), dtype=v3)
     m.modes = wp.array(mesh.modes.astype(np.int32), dtype=wp.vec3i)
     m.basis = wp.array(mesh.basis.astype(np.int32), dtype=wp.int32)
     if mesh.coeffs.size >= 2**31:

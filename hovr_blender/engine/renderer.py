@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from . import field_frame, limits, shapes
-from .adjacency import face_neighbours, vertex_affine_guess
+from .adjacency import face_maps, face_neighbours, vertex_affine_guess
 from .camera import RayCamera
 from .devices import resolve_device
 from .faces import element_faces, face_mesh
@@ -95,7 +95,9 @@ class Renderer(SegmentCaching):
             self._uppers = wp.array(t_hi.astype(np.float32), dtype=wp.vec3)
             self._groups = wp.array((self.faces.owner // shapes.MAX_FACES).astype(np.int32), dtype=wp.int32)
             self._bvh = wp.Bvh(self._lowers, self._uppers, groups=self._groups)
-            self._neighbour = wp.array(face_neighbours(mesh), dtype=wp.int32)
+            neighbours = face_neighbours(mesh)
+            self._neighbour = wp.array(neighbours, dtype=wp.int32)
+            self._face_maps = face_maps(mesh, neighbours)
             self._affine_guess = vertex_affine_guess(mesh)
         try:
             self._upload("float32")  # the default precision, uploaded up front
@@ -228,8 +230,8 @@ class Renderer(SegmentCaching):
         if name == "float32":
             check_float32_range("geometry", self.mesh.geom_coeffs, self.mesh.geom_offset)
         with wp.ScopedDevice(self.device):
-            m, geo_degree = mesh_args(prec, self.mesh, self.faces, self._bvh.id, self._neighbour, self._affine_guess,
-                                      self._box_lo, self._box_hi)
+            m, geo_degree = mesh_args(prec, self.mesh, self.faces, self._bvh.id, self._neighbour, self._face_maps,
+                                      self._affine_guess, self._box_lo, self._box_hi)
             gk, gk_s = gauss_kronrod(prec)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
             table = kernel_table(self.kernel_variant, name)

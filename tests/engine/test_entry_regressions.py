@@ -123,7 +123,7 @@ def test_annulus_entry_keeps_the_chord(case, precision):
 # the walk's exit was a bracket on the margin, 3.6e-4 beyond the face, and the entry's polish
 # stopped on the map's rounding floor 7.8e-5 early (the map's Legendre coefficients sum to 10 times
 # the element's size): the chord grew by 27 % (alpha 1.5e-3 off). The boundary exit is now polished
-# on the face, and a polish takes one step past its tolerance.
+# on the face, and a polish on the rounding floor takes one step more.
 MUSHROOM_RIM = ([2.0428161556520092, -0.7342529245216076, 1.5799713089564065],
                 [-0.8338283910869297, 0.41933977959513385, -0.35900468446315104])
 
@@ -139,7 +139,10 @@ def test_mushroom_rim_clip_keeps_its_length(precision):
     L = float(chords_numpy(Boundary(mesh), o[None], d[None], starts)[0])
     assert abs(L - 1.6184e-3) < 1e-7
     got = chord_length(mesh, o, d, precision)
-    assert abs(got - L) <= (1e-9 if precision == "float64" else 5e-5), f"length {got:.7g} against the chord {L:.7g}"
+    # float32: the rim's map rounds to a floor of 3-6e-5 in t at its crossings (its Legendre
+    # coefficients sum to ten times the element's size, and the face's parameterisation there is
+    # ill-conditioned); 45b4467 was 4.4e-4 off
+    assert abs(got - L) <= (1e-9 if precision == "float64" else 1e-4), f"length {got:.7g} against the chord {L:.7g}"
 
 
 # pixel (916, 481) of scaleHO: by the edge where the curved prisms 674, 632, 591 and 631 meet, the

@@ -93,6 +93,10 @@ class MeshArgs:
     # element e's neighbour across its reference face f (element.face_plane order): e * MAX_FACES + f;
     # -1 on the boundary or where no element shares the face exactly
     neighbour: wp.array(dtype=wp.int32)
+    # ... and where it has one, a point of that face in e's reference coordinates in the
+    # neighbour's: face_map_a xi + face_map_b (engine/adjacency.face_maps)
+    face_map_a: wp.array(dtype=wp.mat33)
+    face_map_b: wp.array(dtype=wp.vec3)
     # curved / non-affine elements: (x - centre) w^2 as tensor Legendre coefficients of
     # degree geo_degree per direction (engine/tensor_geometry.py), and boxes
     affine: wp.array(dtype=wp.int32)

@@ -48,6 +48,9 @@ class Crossing:
     v: wp.vec3  # dxi/dt there (the reference velocity)
     t_tri: wp.float32  # the candidate triangle's t it was polished from
     enters: wp.int32  # 1: an entry into the element, 0: an exit
+    # next_crossing's: the first crossing of the other kind than wanted it met beyond t_from (an
+    # entry, asked for an exit: the ray left the element before it, however its polishes ran)
+    t_other: wp.float32
 
 
 @wp.func
@@ -60,14 +63,17 @@ def no_crossing(t: float) -> Crossing:
     c.v = wp.vec3(0.0, 0.0, 0.0)
     c.t_tri = t
     c.enters = 0
+    c.t_other = 1.0e30
     return c
 
 
 @wp.func
 def triangle_candidate(mesh: MeshArgs, tri: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
-    """(keep, t, 1 + cosine, 0) of the ray against triangle `tri`: its plane's t, and keep 1 where the
-    ray meets the plane within NEAR_BOUNDS bounds of the triangle or grazes it (|cos| < GRAZING_COS);
-    the cosine between d and the triangle's outward normal (> 0: leaving its element)."""
+    """(keep, t, 1 + cosine, span) of the ray against triangle `tri`: its plane's t, and keep 1 where
+    the ray meets the plane within NEAR_BOUNDS bounds of the triangle or grazes it (|cos| <
+    GRAZING_COS), where t is the middle of the triangle's extent along the ray and span its half
+    (the crossings lie within t +- span); the cosine between d and the triangle's outward normal
+    (> 0: leaving its element)."""
     ids = mesh.face_tris[tri]
     p0 = mesh.face_points[ids[0]]
     e1 = mesh.face_points[ids[1]] - p0
@@ -79,9 +85,14 @@ def triangle_candidate(mesh: MeshArgs, tri: int, o: wp.vec3, d: wp.vec3) -> wp.v
     n = n / nn
     cosine = wp.dot(d, n)
     if wp.abs(cosine) < GRAZING_COS:
-        # grazing: the plane's t is no guide; the nearest point of the triangle's centre
-        c = p0 + (e1 + e2) / 3.0
-        return wp.vec4(1.0, wp.dot(c - o, d), 1.0 + cosine, 0.0)
+        # grazing: the plane's t is no guide; the middle of the triangle's extent along the ray
+        # and half that extent (grown by the bound): the face may be crossed anywhere in it
+        t0 = wp.dot(p0 - o, d)
+        t1 = t0 + wp.dot(e1, d)
+        t2 = t0 + wp.dot(e2, d)
+        lo = wp.min(t0, wp.min(t1, t2))
+        hi = wp.max(t0, wp.max(t1, t2))
+        return wp.vec4(1.0, 0.5 * (lo + hi), 1.0 + cosine, 0.5 * (hi - lo) + mesh.face_bound)
     t = wp.dot(p0 - o, n) / cosine
     p = o + t * d - p0
     # distance outside each edge, in the plane
@@ -232,6 +243,12 @@ PassedSet = wp.types.vector(length=PASSED_MAX, dtype=wp.int32)
 
 
 @wp.func
+def no_passed() -> PassedSet:
+    """The empty set of elements set aside."""
+    return PassedSet(-1, -1, -1, -1, -1, -1, -1, -1)
+
+
+@wp.func
 def passed_at(e: int, t: float, passed: PassedSet, t_from: float, eps: float) -> int:
     """1 for a crossing at or before t_from + eps of an element in `passed` (-1: an empty place):
     elements the search has set aside there (left again by t_from: a sliver by an edge; touched
@@ -282,11 +299,14 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
         if want == WANT_ENTRY and cosine > GRAZING_COS:
             continue
         t_tri = cand[1]
-        if t_tri > best.t + slack or t_tri < q0:
+        span = cand[3]
+        if t_tri - span > best.t + slack or t_tri + span < q0:
             continue
         grazing = int(0)
         if wp.abs(cosine) < GRAZING_COS:
             grazing = 1
+            # polished from its point at the query's start, where the triangle reaches back that far
+            t_tri = wp.max(t_tri - span, wp.min(t_tri + span, t_from))
         # the same face near the same t as the best so far polishes to the same crossing, unless
         # the ray grazes it (it crosses a curved face twice there, close together)
         if grazing == 0 and best.element == e and best.face == f and wp.abs(t_tri - best.t_tri) < slack:
@@ -327,8 +347,12 @@ def next_crossing(mesh: MeshArgs, root: int, o: wp.vec3, d: wp.vec3, t_from: flo
                     first = 1
             if want == WANT_ENTRY and enters == 0:
                 first = 0
+                if t > t_from + eps:
+                    best.t_other = wp.min(best.t_other, t)
             if want == WANT_EXIT and enters == 1:
                 first = 0
+                if t > t_from + eps:
+                    best.t_other = wp.min(best.t_other, t)
             # an element entered before t_from (the other side of a non-conforming face, whose
             # surface differs by the maps' fit) is found by its exit beyond t_from (the caller's)
             # ... but the entry from the element just left, through their shared face, is at t_from

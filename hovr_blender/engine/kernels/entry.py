@@ -30,11 +30,6 @@ UNDECIDED = -2  # Entry.element: the search set aside every crossing it met; the
 
 
 @wp.func
-def no_passed() -> crossing.PassedSet:
-    return crossing.PassedSet(-1, -1, -1, -1, -1, -1, -1, -1)
-
-
-@wp.func
 def set_aside(passed: crossing.PassedSet, n: int, e: int):
     """`passed` with element e added (while there is room) and its count."""
     out = passed
@@ -100,7 +95,7 @@ def curved_start(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, eps: flo
     crossing behind may be the domain's exit, and an entry behind it one of an element left since)."""
     found = no_entry(t_from)
     work = work_in
-    back, w = crossing.next_crossing(mesh, -1, o, -d, -t_from, 1.0e30, eps, crossing.WANT_EXIT, -1, no_passed())
+    back, w = crossing.next_crossing(mesh, -1, o, -d, -t_from, 1.0e30, eps, crossing.WANT_EXIT, -1, crossing.no_passed())
     work += w
     if back.element < 0:
         return found, work
@@ -140,7 +135,7 @@ def missed_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, eps: float, exit: cross
     differ by its rounding, and more where the ray passes by an edge."""
     e = exit.element
     back, work = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, e), o, -d, -exit.t, 1.0e30, eps,
-                                        crossing.WANT_EXIT, -1, no_passed())
+                                        crossing.WANT_EXIT, -1, crossing.no_passed())
     found = crossing.no_crossing(-1.0e30)
     if back.element == e and -back.t <= exit.t + eps:
         found.element = e
@@ -231,7 +226,7 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
     r = wp.vec4(0.0, 0.0, 0.0, -1.0)
     dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
     work = wp.vec3i(0, 0, 0)
-    passed = no_passed()
+    passed = crossing.no_passed()
     n_passed = int(0)
     for attempt in range(SEARCH_ATTEMPTS):
         c, w = crossing.next_crossing(mesh, -1, o, d, t_q, t_query, eps, crossing.WANT_ANY, skip, passed)
@@ -277,7 +272,7 @@ def first_entry(mesh: MeshArgs, o: wp.vec3, d: wp.vec3, t_from: float, t_to: flo
             # entered at the search's start, perhaps before it (by an edge, the ray crosses slivers of
             # several elements within eps): taken only where its own exit lies beyond the start
             out, w3 = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, c.element), o, d, c.t, 1.0e30, eps,
-                                             crossing.WANT_EXIT, -1, no_passed())
+                                             crossing.WANT_EXIT, -1, crossing.no_passed())
             work += w3
             if out.element == c.element and out.t <= t_q + eps:
                 passed, n_passed = set_aside(passed, n_passed, c.element)

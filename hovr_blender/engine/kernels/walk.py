@@ -20,7 +20,7 @@ from . import element
 from . import geometry
 from . import quadrature
 from . import restriction
-from .args import (MAX_SAMPLES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
+from .args import (MAX_SAMPLES, STAT_BVH_CANDIDATES, SEG_CURVED, SEG_EVALUATE, SEG_INTERPOLANT, SEGMENTS_PER_ROUND, STAT_EMPTY, STAT_FIELD_EVALS,
                    STAT_NEWTON_SAMPLE, STAT_NEWTON_WALK, STAT_ROUNDS, STAT_SEGMENTS, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, Segments, TransferArgs)
 from .quadrature import samples_segments
@@ -85,8 +85,11 @@ def to_face(r: wp.vec4, dv: wp.vec4, dt: float) -> wp.vec4:
 def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float, r_entry: wp.vec4,
                      dv_entry: wp.vec4):
     """(inside, b, exit face) of the ray entering curved element e at a, the solutions and
-    velocities at a and b, the segment's ends and Newton's iterations: Newton at a (or the search's solution r_entry, where valid),
-    then geometry.curved_exit up to the element's box or t_end.
+    velocities at a and b, the segment's ends, Newton's iterations and the BVH candidates: Newton at
+    a (or the search's solution r_entry, where valid), then the exit: the first crossing of e's own
+    faces that leaves it (crossing.next_crossing over the element's group of triangles), exact on
+    the face; where none is found, geometry.curved_exit up to the element's box or t_end, whose
+    ends are brackets:
 
     Entries and exits are brackets on margin + INSIDE_TOL, so they lie INSIDE_TOL (reference
     units) outside the face. Between two elements that costs nothing (the neighbour takes over
@@ -104,11 +107,37 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     # a is on e's entry face: its margin is 0 up to Newton's rounding either way (float32 next
     # to a degenerate edge: beyond INSIDE_TOL, and the search then skipped STRETCH_RTOL |t|)
     if r_a[3] <= -SHARED_FACE_TOL:
-        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a, a, newton
+        return wp.vec3(0.0, a, -1.0), r_a, dv_a, r_a, dv_a, a, a, newton, int(0)
     shift_a = float(0.0)  # only the search's entries can come from outside the domain
     if r_entry[3] > 0.0 and dv_a[3] > 0.0 and r_a[3] < geometry.INSIDE_TOL and on_boundary_face(mesh, e, r_a) == 1:
         shift_a = (geometry.INSIDE_TOL - r_a[3]) / dv_a[3]
     r_a[3] = wp.max(r_a[3], 0.5 * geometry.INSIDE_TOL)
+    # the exit: the first crossing of e's own faces beyond a that leaves it (the element's group of
+    # triangles in the BVH, each candidate polished on its face: kernels/crossing.py)
+    out, work = crossing.next_crossing(mesh, wp.bvh_get_group_root(mesh.bvh, e), o, d, a, 1.0e30,
+                                       STRETCH_RTOL * wp.abs(a), crossing.WANT_EXIT, -1, crossing.no_passed())
+    newton += work[1]
+    # an entry through one of e's faces before that exit: the ray left e before it (a dip outside
+    # by a grazing face, whose polishes all found the way back in): the walk's own search instead
+    if out.element == e and out.t_other >= out.t:
+        b = wp.max(a, wp.min(out.t, t_end))
+        face = out.face
+        r_b = crossing.solution_at(mesh, out)
+        dv_b = crossing.velocity_at(mesh, out)
+        ends_inside = int(0)
+        if out.t > t_end:
+            # the ray ends inside e (a clip plane, an opaque surface, the camera's far end)
+            face = -1
+            r_b, dv_b, its_end = geometry.curved_inside(mesh, e, o, d, b, geometry.ahead(r_a, dv_a, b - a))
+            newton += its_end
+            if r_b[3] <= 0.0:
+                ends_inside = -1  # not located there: the walk's own exit search below
+        if ends_inside == 0:
+            shift_a = wp.min(shift_a, 0.5 * (b - a))
+            if shift_a > 0.0:
+                r_a = to_face(r_a, dv_a, shift_a)
+            return wp.vec3(1.0, b, float(face)), r_a, dv_a, r_b, dv_b, a + shift_a, b, newton, work[2]
+    # no crossing found: the walk's own exit search, stepping the element's point location along the ray
     bx = geometry.box_interval(mesh, e, o, d)
     ex, r_b, dv_b, its = geometry.curved_exit(mesh, e, o, d, a, r_a, dv_a, wp.min(bx[1], t_end))
     newton += its
@@ -136,7 +165,32 @@ def curved_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t
     shift_a = wp.min(shift_a, 0.5 * (b - a))
     if shift_a > 0.0:
         r_a = to_face(r_a, dv_a, shift_a)
-    return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b, newton
+    return wp.vec3(1.0, b, ex[1]), r_a, dv_a, r_b, dv_b, a + shift_a, b + shift_b, newton, work[2]
+
+
+@wp.func
+def entry_across(mesh: MeshArgs, e: int, f: int, n: int, xi_e: wp.vec3, o: wp.vec3, d: wp.vec3, t: float):
+    """Curved element n's solution and velocity where the ray leaves e through face f at t into n
+    (xi_e: the exit's point on the face in e's coordinates), as the walk's (r, dv) (r[3] <= 0:
+    not found, and Newton at t from the vertex-affine guess locates it instead): the face's point
+    in n's coordinates (adjacency.face_maps), checked and refined by one Newton step."""
+    slot = e * MAX_FACES + f
+    xi = mesh.face_map_a[slot] * xi_e + mesh.face_map_b[slot]
+    x, J = geometry.local_geometry_with_jacobian(mesh, n, xi)
+    r = wp.vec4(0.0, 0.0, 0.0, -1.0)
+    dv = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    if wp.abs(wp.determinant(J)) > 1.0e-30:
+        Jinv = wp.inverse(J)
+        step = Jinv * (geometry.local_ray_point(mesh, n, o, d, t) - x)
+        if wp.length(step) < SHARED_FACE_TOL:
+            xi = xi + step
+            r = crossing.solution_at_xi(mesh, n, xi)
+            if geometry.margin_and_face(mesh.shape[n], xi)[0] <= -SHARED_FACE_TOL:
+                r[3] = -1.0
+            v = Jinv * d
+            pl = element.face_plane(mesh.shape[n], int(geometry.margin_and_face(mesh.shape[n], xi)[1]))
+            dv = wp.vec4(v[0], v[1], v[2], -(pl[0] * v[0] + pl[1] * v[1] + pl[2] * v[2]))
+    return r, dv
 
 
 @wp.func
@@ -188,7 +242,8 @@ def element_transparent(mesh: MeshArgs, tf: TransferArgs, e: int) -> int:
 
 @wp.func
 def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int, t: float, e: int, left: int,
-               r_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int, n_newton: int):
+               r_entry: wp.vec4, dv_entry: wp.vec4, n: int, n_field: int, n_seg: int, n_empty: int, n_walk: int,
+               n_newton: int):
     """Where ray i's walk got this round (its n segments, the counters) into the ray state."""
     if finished == 1:
         rays.phase[i] = 1
@@ -196,6 +251,7 @@ def store_walk(rays: RayState, segs: Segments, i: int, pixel: int, finished: int
     rays.next_element[i] = e
     rays.left_element[i] = left
     rays.entry_r[i] = r_entry
+    rays.entry_dv[i] = dv_entry
     segs.count[i] = n
     rays.stats[pixel, STAT_FIELD_EVALS] += n_field
     rays.stats[pixel, STAT_SEGMENTS] += n_seg
@@ -230,6 +286,7 @@ def make_traverse_kernel(CURVED: bool):
         n_empty = int(0)
         n_walk = int(0)
         n_newton = int(0)
+        n_cand = int(0)
         zero_steps = int(0)
         finished = int(0)
         left = rays.left_element[i]  # the element the ray has just left
@@ -253,9 +310,10 @@ def make_traverse_kernel(CURVED: bool):
             if mesh.affine[e] == 1:
                 stretch = affine_walk_step(mesh, e, o, d, a, t_end)
             elif wp.static(CURVED):
-                stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b, its = curved_walk_step(mesh, e, o, d, a, t_end,
-                                                                                    r_entry, dv_entry)
+                stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b, its, cands = curved_walk_step(mesh, e, o, d, a, t_end,
+                                                                                           r_entry, dv_entry)
                 n_newton += its
+                n_cand += cands
                 r_entry = wp.vec4(0.0, 0.0, 0.0, -1.0)  # the search's solution served this entry only
             if stretch[0] == 0.0:
                 e = -1  # not in the neighbour after all: the next round searches from here
@@ -291,9 +349,16 @@ def make_traverse_kernel(CURVED: bool):
             left = e
             if face >= 0 and zero_steps < MAX_ZERO_STEPS:
                 e = mesh.neighbour[e * MAX_FACES + face]
+                if wp.static(CURVED):
+                    # into a curved neighbour from a curved element: its solution from the exit's own
+                    if e >= 0 and r_b[3] > 0.0 and mesh.affine[e] == 0:
+                        r_entry, dv_entry = entry_across(mesh, left, face, e, wp.vec3(r_b[0], r_b[1], r_b[2]), o, d, t)
+                        n_newton += 1
             else:
                 e = -1
-        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, n, n_field, n_seg, n_empty, n_walk, n_newton)
+        store_walk(rays, segs, i, pixel, finished, t, e, left, r_entry, dv_entry, n, n_field, n_seg, n_empty, n_walk,
+                   n_newton)
+        rays.stats[pixel, STAT_BVH_CANDIDATES] += n_cand
 
     return traverse
 
