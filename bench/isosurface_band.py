@@ -86,7 +86,7 @@ def main(argv=None):
     lim = limits.ResourceLimits(limits.parse_size(args.max_memory), limits.current().max_samples_per_ray)
     with limits.using(lim):
         report["precisions"] = run(args.device, W, H, args.precisions.split(","), rows)
-    Path(args.out).write_text(json.dumps(report, indent=1))
+    Path(args.out).write_text(json.dumps(report, indent=1, default=common.jsonable))
     return 1 if any(v["outside_band"] for v in report["precisions"].values()) else 0
 
 

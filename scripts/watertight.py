@@ -43,6 +43,7 @@ import time
 
 import numpy as np
 
+from bench.common import jsonable
 from hovr_blender.audit.datasets import SHARED_DATASETS, load
 from hovr_blender.audit.scenes import constant_density, constant_field  # the tests' own scene
 
@@ -51,8 +52,6 @@ BUDGET = {"float64": 1e-6, "float32": 1e-4}
 TOLERANCE = {"float64": 1e-9, "float32": 1e-6}  # split's panels: well inside the budgets
 LOST = 1e-4  # of the diagonal
 DISPLACE = 4.0 * 2.0 ** -24  # relative to the eye's distance from the mesh's centre
-DENSE_STARTS = 5  # per direction, on the dense recheck's sub-patches
-DENSE_FLAT, DENSE_DEPTH = 0.01, 6
 DENSE_MAX = 500  # flagged rays decided again per group (the largest differences first): numpy is slow
 
 
@@ -161,10 +160,8 @@ class Chords:
     def dense(self, o, d):
         ch = self.chords
         if self._dense is None:
-            self._dense = ch.Boundary(self.mesh, flat=DENSE_FLAT, max_depth=DENSE_DEPTH)
-        g = np.linspace(-0.8, 0.8, DENSE_STARTS)
-        A, B = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
-        return ch.chords_numpy(self._dense, o, d, starts=(A, B))
+            self._dense = ch.dense_boundary(self.mesh)
+        return ch.chords_numpy(self._dense, o, d, starts=ch.dense_starts())
 
 
 def check_rays(chords, o, d, rgba, tau, diag, precision, centre):
@@ -310,7 +307,7 @@ def run(args):
                                           "gained_beyond_ray_rounding", "over_budget_beyond_ray_rounding")}
                             for p in ("float64", "float32")}
         with open(args.out + ".part", "w") as f:
-            json.dump(report, f, indent=1)
+            json.dump(report, f, indent=1, default=jsonable)
         os.replace(args.out + ".part", args.out)
 
     for name, mesh in meshes.items():
@@ -321,7 +318,7 @@ def run(args):
         write()  # after each mesh: a cut-off run keeps it
     write()
     print(json.dumps({"totals": report["totals"], **{m: {p: e[p] for p in ("float64", "float32") if p in e}
-                                                     for m, e in report["meshes"].items()}}, indent=1))
+                                                     for m, e in report["meshes"].items()}}, indent=1, default=jsonable))
 
 
 def main(argv=None):

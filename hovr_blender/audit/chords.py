@@ -53,6 +53,7 @@ DUPLICATE = 1e-9  # two crossings closer than this (in units of the mesh's size)
 EDGE_TOL = 1e-12  # a root this far outside its face's parameter domain still counts (an edge's rounding)
 FIT_TOL = 1e-11  # a patch's largest departure from the element map, in units of the mesh's size
 KEY_TOL = 1e-9  # corner vertices closer than this (of the mesh's size) are one
+DENSE_FLAT, DENSE_DEPTH, DENSE_STARTS = 0.01, 6, 5  # dense_boundary / dense_starts: the thorough search
 
 
 def _corner_ids(mesh):
@@ -444,6 +445,18 @@ def _all_hits(boundary, o, d, starts=None):
     return np.concatenate(cols, axis=1)
 
 
+def dense_boundary(mesh) -> Boundary:
+    """The thorough search's patches (DENSE_FLAT, DENSE_DEPTH): for the rays the default one
+    leaves undecided, mostly rays that graze a fold of the boundary."""
+    return Boundary(mesh, flat=DENSE_FLAT, max_depth=DENSE_DEPTH)
+
+
+def dense_starts():
+    """The thorough search's Newton starts: a DENSE_STARTS x DENSE_STARTS grid on each sub-patch."""
+    g = np.linspace(-0.8, 0.8, DENSE_STARTS)
+    return tuple(x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
+
+
 def chords_numpy(boundary: Boundary, o, d, starts=None):
     """Chord of each ray (o, d: (..., 3)) through the mesh; NaN where the crossings are odd.
     starts: Newton's starts (a, b) on each sub-patch's square, default STARTS (a denser grid: a
@@ -453,10 +466,10 @@ def chords_numpy(boundary: Boundary, o, d, starts=None):
     return _pair_up(_all_hits(boundary, o, d, starts), boundary.scale).reshape(shape)
 
 
-def intervals(boundary: Boundary, o, d):
+def intervals(boundary: Boundary, o, d, starts=None):
     """Per ray (o, d: (n, 3)), [(t_in, t_out)] where it is inside the mesh, or None where its
     crossings are odd (chords_numpy's crossings, duplicates dropped)."""
-    H = np.sort(_all_hits(boundary, *_rays(boundary, o, d)), axis=1)
+    H = np.sort(_all_hits(boundary, *_rays(boundary, o, d), starts), axis=1)
     out = []
     for h in H:
         h = h[np.isfinite(h)]

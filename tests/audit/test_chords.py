@@ -197,3 +197,20 @@ def test_watertight_excuses_a_lost_ray_only_where_a_rounding_of_the_ray_leaves_t
     assert (res["lost"], res["lost_within_ray_rounding"]) == (2, 1)
     spreads = {tuple(ray["origin"]): ray["ray_rounding_spread"] for ray in res["rays_listed"]}
     assert spreads[tuple(o[0])] == pytest.approx(1.0) and spreads[tuple(o[1])] < 1e-12
+
+
+# Hex_Mushroom, the audit's oblique view, pixel (575, 301) at 1920x1080: a ray along a fold of the
+# cap, inside for 0.019 (H200, 2026-12-02). The default search finds an odd number of crossings;
+# the VTK reference, left without the chord, saw none and the audit blamed the renderer.
+MUSHROOM_FOLD = ([2.0428161556520092, -0.7342529245216076, 1.5799713089564065],
+                 [-0.828083891018762, 0.42407145189840684, -0.3666612511842562])
+
+
+def test_the_dense_search_decides_a_ray_along_a_fold_that_the_default_leaves_undecided():
+    mesh = read_nektar(data_file("nektar", "Hex_Mushroom.xml"))
+    o, d = (np.array(v)[None] for v in MUSHROOM_FOLD)
+    assert chords.intervals(chords.Boundary(mesh), o, d) == [None]
+    [cover] = chords.intervals(chords.dense_boundary(mesh), o, d, chords.dense_starts())
+    assert len(cover) == 1
+    (t0, t1), = cover
+    assert abs((t1 - t0) - 0.0190075) < 1e-6
