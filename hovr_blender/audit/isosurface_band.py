@@ -33,6 +33,20 @@ def precision_eps(precision: str) -> float:
     return tolerances.ROOT_EPS_FLOAT64 if precision == "float64" else tolerances.ROOT_EPS
 
 
+def map_rounding(renderer, precision: str) -> float:
+    """How far the renderer may place a point of a curved element, by the rounding of its map
+    (MeshArgs.geo_err; a pyramid's x = G / w^2 by geo_err / w^2, taken at w >= 1/2): the
+    largest curved element's; 0 on an affine mesh. The same move of a curved boundary face."""
+    from ..engine import shapes
+
+    m = renderer.mesh_args(precision)
+    curved = m.affine.numpy() == 0
+    if not curved.any():
+        return 0.0
+    w2 = np.where(m.shape.numpy() == shapes.PYR, 0.25, 1.0)
+    return float((m.geo_err.numpy() / w2)[curved].max())
+
+
 def level_rounding(renderer, precision: str, level: float, grad: float, map_error: float = 0.0) -> float:
     """eps: how far the renderer's f - c along a segment can be from the exact one, in the field's
     own units (a transfer function whose frame is the identity), from the engine's own rounding
@@ -42,17 +56,11 @@ def level_rounding(renderer, precision: str, level: float, grad: float, map_erro
     off by the map's rounding (MeshArgs.geo_err; a pyramid's x = G / w^2 by geo_err / w^2, taken
     at w >= 1/2) and by `map_error`, the device map's fit to the mesh's (device_map_error), each
     moving f by grad (|grad f| there) times that. The largest element's terms."""
-    from ..engine import shapes
-
     u = precision_eps(precision)
     m = renderer.mesh_args(precision)
     size = 2.0 * (max(np.abs(m.field_lo.numpy()).max(), np.abs(m.field_hi.numpy()).max()) + abs(level))
     tail = tolerances.CURVED_TAIL_RTOL_FLOAT64 if precision == "float64" else tolerances.CURVED_TAIL_RTOL
-    curved = m.affine.numpy() == 0
-    place = 0.0
-    if curved.any():
-        w2 = np.where(m.shape.numpy() == shapes.PYR, 0.25, 1.0)
-        place = float((m.geo_err.numpy() / w2)[curved].max())
+    place = map_rounding(renderer, precision)
     return isosurface.ROUNDING_FACTOR * u * size + float(m.field_err.numpy().max()) + tail * size \
         + grad * (place + map_error)
 
