@@ -166,6 +166,32 @@ def test_frame_rays_float32_got_wrong(ball_mesh, device, case, precision):
         assert abs(res.depth[0, 0] - t1) < 2e-6, f"depth {res.depth[0, 0]:.7f}, exact {t1:.7f}"
 
 
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_a_crossing_on_an_element_face_is_met_where_its_depth_rounds_to_the_segments_end(ball_mesh, device, precision):
+    """Rows 704 and 730 of the 1920x1080 frame (audit/scenes.framing): the sphere runs along the
+    faces between the central hexahedron and its neighbours, so rays cross it where one segment
+    ends and the next begins. Pixel (787, 704): float32's root in the prism's segment, 3e-7
+    before its end, rounded to the end itself and was dropped there, while the hexahedron's
+    segment started beyond the crossing (the sphere met once, at its far side); the H200 did the
+    same at (930, 730) on the way out. Every pixel of both rows against its exact ray, outside
+    the band."""
+    from hovr_blender.audit import scenes
+
+    r = Renderer(ball_mesh, device)
+    map_error = isosurface_band.device_map_error(ball_mesh, isosurface_band.near_sphere(CENTRE, RADIUS))
+    eps = isosurface_band.level_rounding(r, precision, RADIUS ** 2, 2.0 * RADIUS, map_error)
+    cam = scenes.framing(ball_mesh, 1920, 1080)
+    o, dd = cam.rays()
+    iso = Surfaces((Isosurface(RADIUS ** 2, (1.0, 1.0, 1.0), 0.5),))
+    for row in (704, 730):
+        res = r.render(cam, _clear_tf(), np.zeros(3), RenderOptions(precision=precision, device=device), surfaces=iso,
+                       rows=(row, row + 1))
+        got = isosurface_band.classify(res.rgba, res.depth, o[row:row + 1], dd[row:row + 1], CENTRE, RADIUS, eps,
+                                       precision)
+        assert got["hits_outside_band"] > 300, got
+        assert got["outside_band"] == 0, got["failures"][:3]
+
+
 def _bump(x, y, z):
     return -((x - 0.5) ** 2 + (y - 0.5) ** 2 + (z - 0.5) ** 2)
 

@@ -490,8 +490,10 @@ def segment_events(mesh: MeshArgs, surf: SurfaceArgs, e: int, o: wp.vec3, d: wp.
                 roots[0] = -1.0
                 k = 1
             for j in range(k):
-                t = a + 0.5 * (roots[j] + 1.0) * (b - a)
-                if roots[j] < 1.0 and t < b and t >= span[0] and t <= span[1]:
+                # a root at s < 1 is this segment's even where t rounds to b: the next segment
+                # starts from this end's sign, already across c, and would not meet it again
+                t = wp.min(a + 0.5 * (roots[j] + 1.0) * (b - a), b)
+                if roots[j] < 1.0 and t >= span[0] and t <= span[1]:
                     times, ids, count = insert_event(times, ids, count, t, i)
     elif deg < 0:
         end = wp.vec2(NO_SURFACE_END, 0.0)
