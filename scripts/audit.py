@@ -347,8 +347,9 @@ def _decide(name, cache, kind, pixels, seed=0):
     if kind == "sample":
         rng = np.random.default_rng(seed)
         want, pixels, cover = len(pixels), [], []
+        batch = max(8, 2 * want)  # the chords cost ~0.05 s a ray here: draw about what is needed
         while len(pixels) < want:
-            ij = np.stack([rng.integers(0, W, 64), rng.integers(0, H, 64)], axis=1)
+            ij = np.stack([rng.integers(0, W, batch), rng.integers(0, H, batch)], axis=1)
             r = rays(ij)
             for p, iv in zip(ij, _covers(name, st, r)):
                 if iv is None or iv:  # through the domain, or undecided

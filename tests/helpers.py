@@ -222,3 +222,12 @@ def tree_listing(folder, skip=()) -> dict:
                                                st.st_mtime_ns if plain else 0,
                                                os.readlink(p) if p.is_symlink() else None)
     return out
+
+
+def ctrl_c_as_at_a_terminal():
+    """Popen's preexec_fn for a child a test stops with SIGINT: SIGINT at its default, as a
+    command started at a terminal has it. A shell's background job (`pytest ... &`) starts with
+    SIGINT ignored, and its children inherit that: Python then never raises KeyboardInterrupt."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

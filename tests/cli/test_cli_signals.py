@@ -10,6 +10,8 @@ import time
 
 import pytest
 
+from tests.helpers import ctrl_c_as_at_a_terminal
+
 psutil = pytest.importorskip("psutil")
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -28,7 +30,8 @@ def _started(tmp_path):
     view.write_text(json.dumps(VIEW))
     proc = subprocess.Popen([sys.executable, "-m", "hovr_blender.cli", "render", str(view), "-o",
                              str(tmp_path / "out.npy")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONPATH=REPO, HOVR_MAX_PROCESSES="2"), start_new_session=True)
+                            env=dict(os.environ, PYTHONPATH=REPO, HOVR_MAX_PROCESSES="2"), start_new_session=True,
+                            preexec_fn=ctrl_c_as_at_a_terminal)
     deadline = time.monotonic() + 240
     children = []
     while time.monotonic() < deadline and proc.poll() is None:  # both device processes busy rendering

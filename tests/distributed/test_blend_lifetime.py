@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import ctrl_c_as_at_a_terminal
+
 pytest.importorskip("distributed")
 psutil = pytest.importorskip("psutil")
 if importlib.util.find_spec("bpy") is None:
@@ -49,7 +51,8 @@ def test_blender_ends_with_hovr(tmp_path, sig, group, code, line):
     proc = subprocess.Popen([sys.executable, "-m", "hovr_blender.cli", "render-blend", str(blend), "--frames", "2",
                              "--workers", "1", "--frame-timeout", "600"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)),
-                            start_new_session=True)
+                            start_new_session=True,
+                            preexec_fn=ctrl_c_as_at_a_terminal)
     try:
         deadline = time.monotonic() + 180
         blenders = []
