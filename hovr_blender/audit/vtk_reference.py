@@ -41,6 +41,7 @@ GL_X, GL_W = np.polynomial.legendre.leggauss(12)
 SAMPLES_PER_BOX = 48
 INSIDE_TOL = 1e-12  # in VTK's parametric coordinates
 NEWTON_STEPS = 16
+FAR = 0.05  # of a cell's size: a point VTK finds this far outside the cell is not polished by Newton
 NEWTON_TOL = 1e-12  # parametric; the rounding floor of a degree-14 cell's map is ~1e-13
 SIMPLEX_TRIANGLE = (13, 73)  # VTK_WEDGE, VTK_LAGRANGE_WEDGE
 SIMPLEX_TET = (10, 71)  # VTK_TETRA, VTK_LAGRANGE_TETRAHEDRON
@@ -84,6 +85,7 @@ class IndependentReference:
             boxes[c] = grid.GetCell(c).GetBounds()
         # a curved Lagrange cell may bulge beyond its nodes' box: pad by a tenth of its size
         size = np.maximum(boxes[:, 1::2] - boxes[:, 0::2], 0.0).max(axis=1, keepdims=True)
+        self.far2 = (FAR * size[:, 0]) ** 2
         self.lo = boxes[:, 0::2] - 0.1 * size
         self.hi = boxes[:, 1::2] + 0.1 * size
         if pyramids is not None and len(pyramids):  # affine: their vertices' box holds them
@@ -112,7 +114,11 @@ class IndependentReference:
             return self.pyramids.at(c - self.n_cells, x)
         cell, ids, w, dw, nodes = self.cells[c]
         x = np.asarray(x, dtype=np.float64)
-        cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
+        status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
+        if status == 0 and self._d2.get() > self.far2[c]:
+            # VTK's distance to its linear sub-cells: the cell is that far away, less their
+            # linearisation error, orders of magnitude below FAR of the cell's size
+            return False, np.nan
         cell.GetParametricCenter(self._center)
         pc = None
         for start in (list(self._pc), list(self._center)):
