@@ -20,6 +20,7 @@ estimate is the sum of the accepted panels' differences, plus any overlap or unr
 """
 from __future__ import annotations
 
+import array
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,7 +82,9 @@ class IndependentReference:
             cell = vtk.vtkGenericCell()
             grid.GetCell(c, cell)
             ids = np.array([cell.GetPointId(i) for i in range(cell.GetNumberOfPoints())], dtype=np.int64)
-            self.cells.append((cell, ids, [0.0] * len(ids), [0.0] * (3 * len(ids)), points[ids]))
+            # VTK writes the shape functions into buffers numpy reads in place (a list is copied each time)
+            self.cells.append((cell, ids, array.array("d", bytes(8 * len(ids))), array.array("d", bytes(24 * len(ids))),
+                               points[ids]))
             boxes[c] = grid.GetCell(c).GetBounds()
         # a curved Lagrange cell may bulge beyond its nodes' box: pad by a tenth of its size
         size = np.maximum(boxes[:, 1::2] - boxes[:, 0::2], 0.0).max(axis=1, keepdims=True)
@@ -136,7 +139,7 @@ class IndependentReference:
             inside = r >= -e and s >= -e and t >= -e and r + s + t <= 1 + e
         else:
             inside = -e <= r <= 1 + e and -e <= s <= 1 + e and -e <= t <= 1 + e
-        return inside, float(np.dot(w, self.values[ids]))
+        return inside, float(np.frombuffer(w) @ self.values[ids])
 
     def _jacobian(self, cell, pc, w, dw, nodes):
         """J[k] = dx / d(pcoord k) from VTK's shape-function derivatives. VTK's cells lay these out
@@ -153,15 +156,15 @@ class IndependentReference:
                 plus[k] += h
                 minus[k] -= h
                 cell.InterpolateFunctions(list(plus), w)
-                xp = np.asarray(w) @ nodes
+                xp = np.frombuffer(w) @ nodes
                 cell.InterpolateFunctions(list(minus), w)
-                fd.append((xp - np.asarray(w) @ nodes) / (2 * h))
+                fd.append((xp - np.frombuffer(w) @ nodes) / (2 * h))
             cell.InterpolateFunctions(list(pc), w)
-            by_node = np.asarray(dw).reshape(n, 3).T @ nodes
+            by_node = np.frombuffer(dw).reshape(n, 3).T @ nodes
             self._by_node[kind] = np.abs(by_node - np.array(fd)).max() < np.abs(
-                np.asarray(dw).reshape(3, n) @ nodes - np.array(fd)).max()
+                np.frombuffer(dw).reshape(3, n) @ nodes - np.array(fd)).max()
         n = len(w)
-        d = np.asarray(dw).reshape(n, 3).T if self._by_node[kind] else np.asarray(dw).reshape(3, n)
+        d = np.frombuffer(dw).reshape(n, 3).T if self._by_node[kind] else np.frombuffer(dw).reshape(3, n)
         return d @ nodes
 
     def _newton(self, cell, w, dw, nodes, x, pc):
@@ -170,7 +173,7 @@ class IndependentReference:
             cell.InterpolateFunctions(list(pc), w)
             J = self._jacobian(cell, pc, w, dw, nodes)  # leaves w at pc
             try:
-                step = np.linalg.solve(J.T, np.asarray(w) @ nodes - x)
+                step = np.linalg.solve(J.T, np.frombuffer(w) @ nodes - x)
             except np.linalg.LinAlgError:
                 return None
             pc = pc - step
