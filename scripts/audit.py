@@ -14,6 +14,9 @@
         images' values and the reference; per dataset and image, pixels over 1e-3 against the
         base and against the reference and the largest errors. docs/benchmarks.md (issue 36)
         gives the device commands that carry Warp, VTK and the data there.
+    python -m scripts.audit recheck audit_gpu.json --out audit_gpu-rechecked.json
+        decides again, with this tree's reference, every pixel a gpu JSON lists over 1e-3 (against
+        the images' values it kept): for a reference mended since the GPU run.
     python -m scripts.audit render --device cuda:0 --size 1920x1080 --out audit.json [--datasets a,b]
         renders every dataset from three views (oblique, along the mesh lines, grazing) in
         float32 and float64 and keeps, per view, every pixel where the two differ by more than
