@@ -674,8 +674,8 @@ def recheck_stage(args):
                 worst = max(errs, key=lambda e: e[0], default=(None, None))
                 v.update(over=sum(e > WRONG for e, _ in errs), max_error=worst[0],
                          at=[worst[1]["i"], worst[1]["j"]] if worst[1] else None,
-                         over_where_reference_inside_is_the_chord=v["over_where_reference_inside_is_the_chord"]
-                         - counted(over, k) + counted(rows, k))
+                         over_where_reference_inside_is_the_chord=v.get("over_where_reference_inside_is_the_chord",
+                                                                        v["over"]) - counted(over, k) + counted(rows, k))
             d["reference_missed_chord"] += sum(bool(r.get("reference_missed_chord")) for r in rows) - \
                 sum(bool(r.get("reference_missed_chord")) for r in over)
             done[name] = {"pixels": len(rows), "still_over": len(d["pixels_over"]),
@@ -701,7 +701,7 @@ def _summary(out):
             row[f"{k} vs base"] = f"{v['pixels_over']} (max {v['max_difference']:.1e})"
         for k, v in d.get("vs_reference", {}).items():
             row[f"{k} vs reference"] = (f"{v['over']} (max {v['max_error']:.1e}; "
-                                        f"{v['over_where_reference_inside_is_the_chord']} where the reference's "
+                                        f"{v.get('over_where_reference_inside_is_the_chord', '?')} where the reference's "
                                         "inside is the exact chord)" if v["max_error"] is not None else "-")
         if d.get("errors"):
             row["errors"] = len(d["errors"])
