@@ -52,6 +52,19 @@ CROSSING_SAMPLES = 64
 MAX_PANELS = 20000
 
 
+def face_margins(kind: int, pc) -> list:
+    """(margin, its gradient in pc) of each face of a cell of VTK type `kind` at parametric pc:
+    the margin is >= 0 inside (a wedge: a triangle in (r, s), a line in t; a tetrahedron; else a
+    hexahedron's unit cube)."""
+    r, s, t = pc
+    if kind in SIMPLEX_TRIANGLE:
+        return [(r, (1, 0, 0)), (s, (0, 1, 0)), (1 - r - s, (-1, -1, 0)), (t, (0, 0, 1)), (1 - t, (0, 0, -1))]
+    if kind in SIMPLEX_TET:
+        return [(r, (1, 0, 0)), (s, (0, 1, 0)), (t, (0, 0, 1)), (1 - r - s - t, (-1, -1, -1))]
+    return [(r, (1, 0, 0)), (1 - r, (-1, 0, 0)), (s, (0, 1, 0)), (1 - s, (0, -1, 0)), (t, (0, 0, 1)),
+            (1 - t, (0, 0, -1))]
+
+
 @dataclass
 class PixelResult:
     rgba: np.ndarray  # (4,) RGB = C + T background, A = 1 - T
@@ -118,30 +131,28 @@ class IndependentReference:
         if c >= self.n_cells:
             return self.pyramids.at(c - self.n_cells, x)
         cell, ids, w, dw, nodes = self.cells[c]
-        x = np.asarray(x, dtype=np.float64)
+        pc = self._locate(c, np.asarray(x, dtype=np.float64))
+        if pc is None:
+            return False, np.nan
+        cell.InterpolateFunctions(list(pc), w)
+        inside = min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL
+        return inside, float(np.frombuffer(w) @ self.values[ids])
+
+    def _locate(self, c: int, x: np.ndarray):
+        """Cell c's parametric coordinates of world point x, polished by Newton from VTK's own guess
+        or the cell's centre; None where VTK puts x FAR from the cell or Newton fails."""
+        cell, ids, w, dw, nodes = self.cells[c]
         status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         if status == 0 and self._d2.get() > self.far2[c]:
             # VTK's distance to its linear sub-cells: the cell is that far away, less their
             # linearisation error, orders of magnitude below FAR of the cell's size
-            return False, np.nan
+            return None
         cell.GetParametricCenter(self._center)
-        pc = None
         for start in (list(self._pc), list(self._center)):
             pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
             if pc is not None:
-                break
-        if pc is None:
-            return False, np.nan
-        cell.InterpolateFunctions(list(pc), w)
-        r, s, t = pc
-        e = INSIDE_TOL
-        if cell.GetCellType() in SIMPLEX_TRIANGLE:  # wedge: triangle in (r, s), line in t
-            inside = r >= -e and s >= -e and r + s <= 1 + e and -e <= t <= 1 + e
-        elif cell.GetCellType() in SIMPLEX_TET:
-            inside = r >= -e and s >= -e and t >= -e and r + s + t <= 1 + e
-        else:
-            inside = -e <= r <= 1 + e and -e <= s <= 1 + e and -e <= t <= 1 + e
-        return inside, float(np.frombuffer(w) @ self.values[ids])
+                return pc
+        return None
 
     def _jacobian(self, cell, pc, w, dw, nodes):
         """J[k] = dx / d(pcoord k) from VTK's shape-function derivatives. VTK's cells lay these out
@@ -190,30 +201,16 @@ class IndependentReference:
         the rate the ray's parametric coordinates cross the face nearest there (0 where the point
         does not locate; a ray running along the face has the slack of a rate of INSIDE_TOL: a whole
         parametric unit, as good as undecided)."""
-        cell, ids, w, dw, nodes = self.cells[c]
-        x = o + t * d
-        pc = None
-        for start in (list(self._pc), [0.5, 0.5, 0.5]):
-            pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
-            if pc is not None:
-                break
+        pc = self._locate(c, o + t * d)
         if pc is None:
             return 0.0
+        cell, ids, w, dw, nodes = self.cells[c]
         J = self._jacobian(cell, pc, w, dw, nodes)
         try:
             rate = np.linalg.solve(J.T, d)  # d(pc)/dt
         except np.linalg.LinAlgError:
             return 0.0
-        r, s_, u = pc
-        kind = cell.GetCellType()
-        if kind in SIMPLEX_TET:
-            faces = [(r, (1, 0, 0)), (s_, (0, 1, 0)), (u, (0, 0, 1)), (1 - r - s_ - u, (-1, -1, -1))]
-        elif kind in SIMPLEX_TRIANGLE:
-            faces = [(r, (1, 0, 0)), (s_, (0, 1, 0)), (1 - r - s_, (-1, -1, 0)), (u, (0, 0, 1)), (1 - u, (0, 0, -1))]
-        else:
-            faces = [(r, (1, 0, 0)), (1 - r, (-1, 0, 0)), (s_, (0, 1, 0)), (1 - s_, (0, -1, 0)), (u, (0, 0, 1)),
-                     (1 - u, (0, 0, -1))]
-        _, grad = min(faces, key=lambda f: f[0])
+        _, grad = min(face_margins(cell.GetCellType(), pc), key=lambda f: f[0])
         speed = abs(float(np.dot(grad, rate)))
         return INSIDE_TOL / max(speed, INSIDE_TOL)
 
