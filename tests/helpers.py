@@ -191,7 +191,6 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
         return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
 
 
-
 def tree_listing(folder, skip=()) -> dict:
     """Everything under `folder` but the folders in `skip`: relative path -> (file type, size,
     mtime, link target), to compare a tree before and after a run (what a hostile input wrote)."""
