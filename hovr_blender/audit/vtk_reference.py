@@ -140,7 +140,9 @@ class IndependentReference:
 
     def _locate(self, c: int, x: np.ndarray):
         """Cell c's parametric coordinates of world point x, polished by Newton from VTK's own guess
-        or the cell's centre; None where VTK puts x FAR from the cell or Newton fails."""
+        or the cell's centre; None where VTK puts x FAR from the cell or Newton fails. A cell whose
+        map folds by a face gives a point there two preimages, one outside the cell, where VTK's
+        guess may lead: the one inside is taken where either start finds it."""
         cell, ids, w, dw, nodes = self.cells[c]
         status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         if status == 0 and self._d2.get() > self.far2[c]:
@@ -148,11 +150,15 @@ class IndependentReference:
             # linearisation error, orders of magnitude below FAR of the cell's size
             return None
         cell.GetParametricCenter(self._center)
+        found = None
         for start in (list(self._pc), list(self._center)):
             pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
-            if pc is not None:
+            if pc is None:
+                continue
+            if min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL:
                 return pc
-        return None
+            found = pc if found is None else found
+        return found
 
     def _jacobian(self, cell, pc, w, dw, nodes):
         """J[k] = dx / d(pcoord k) from VTK's shape-function derivatives. VTK's cells lay these out
