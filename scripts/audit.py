@@ -225,6 +225,8 @@ PRIORITY_PREPARE, PRIORITY_GAP, PRIORITY_SAMPLE = (0, 0), 1, 2  # heap keys: (ki
 SAMPLE_CHUNK = 4  # random pixels per pool job
 GAP_CHUNK = 4
 LOST = 1e-4  # of the diagonal: the reference's inside length short of the exact chord by more
+PIXEL_KEYS = ("i", "j", "why", "exact_chord", "reference_inside", "reference_missed_chord", "reference",
+              "reference_error", "errors", "seconds")  # what the JSON keeps of each decided pixel
 
 
 def _image_options(name, device):
@@ -512,17 +514,23 @@ def _dataset_report(name, entry, checker, threshold=WRONG):
     if images:
         vs = {}
         for k in ALL_IMAGES:
-            errs = [(r["errors"][k], r) for r in checked if "errors" in r]
-            worst = max(errs, key=lambda e: e[0], default=(None, None))
-            vs[k] = {"over": sum(e > threshold for e, _ in errs),
-                     "over_where_reference_inside_is_the_chord": sum(e > threshold and not r["reference_missed_chord"]
-                                                                     for e, r in errs),
-                     "max_error": worst[0], "at": [worst[1]["i"], worst[1]["j"]] if worst[1] else None}
+            vs[k] = _vs_reference(checked, k, threshold)
         out["vs_reference"] = vs
     out["pixels_over"] = [r for r in checked if "errors" in r and max(r["errors"].values()) > threshold]
-    out["pixels"] = [{k: r.get(k) for k in ("i", "j", "why", "exact_chord", "reference_inside", "reference_missed_chord",
-                                            "reference", "reference_error", "errors", "seconds")} for r in checked]
+    out["pixels"] = [{k: r.get(k) for k in PIXEL_KEYS} for r in checked]
     return out
+
+
+def _vs_reference(rows, image, threshold=WRONG) -> dict:
+    """One image against the reference over decided rows (each with its errors): how many over the
+    threshold, how many of those where the reference's inside length is the exact chord, the
+    largest error and where."""
+    errs = [(r["errors"][image], r) for r in rows if r.get("errors")]
+    worst = max(errs, key=lambda e: e[0], default=(None, None))
+    return {"over": sum(e > threshold for e, _ in errs),
+            "over_where_reference_inside_is_the_chord": sum(e > threshold and not r.get("reference_missed_chord")
+                                                            for e, r in errs),
+            "max_error": worst[0], "at": [worst[1]["i"], worst[1]["j"]] if worst[1] else None}
 
 
 def gpu_stage(args):
@@ -663,19 +671,11 @@ def recheck_stage(args):
                 row["why"], row["values"] = old["why"], old["values"]
                 ref = np.asarray(row["reference"])
                 row["errors"] = {k: float(np.abs(np.asarray(v) - ref).max()) for k, v in row["values"].items()}
-            by_pixel = {(r["i"], r["j"]): r for r in rows}
-            d["pixels"] = [{**p, **{k: by_pixel[(p["i"], p["j"])].get(k) for k in p}} if (p["i"], p["j"]) in by_pixel
-                           else p for p in d["pixels"]]
+            by_pixel = {(r["i"], r["j"]): {k: r.get(k) for k in PIXEL_KEYS} for r in rows}
+            d["pixels"] = [{**p, **by_pixel.get((p["i"], p["j"]), {})} for p in d["pixels"]]
             d["pixels_over"] = [r for r in rows if max(r["errors"].values()) > WRONG]
-            checked = [p for p in d["pixels"] if p.get("errors")]
-            counted = lambda rs, k: sum(r["errors"][k] > WRONG and not r.get("reference_missed_chord") for r in rs)
             for k, v in d.get("vs_reference", {}).items():
-                errs = [(p["errors"][k], p) for p in checked]
-                worst = max(errs, key=lambda e: e[0], default=(None, None))
-                v.update(over=sum(e > WRONG for e, _ in errs), max_error=worst[0],
-                         at=[worst[1]["i"], worst[1]["j"]] if worst[1] else None,
-                         over_where_reference_inside_is_the_chord=v.get("over_where_reference_inside_is_the_chord",
-                                                                        v["over"]) - counted(over, k) + counted(rows, k))
+                v.update(_vs_reference(d["pixels"], k))
             d["reference_missed_chord"] += sum(bool(r.get("reference_missed_chord")) for r in rows) - \
                 sum(bool(r.get("reference_missed_chord")) for r in over)
             done[name] = {"pixels": len(rows), "still_over": len(d["pixels_over"]),

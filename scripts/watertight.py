@@ -203,31 +203,28 @@ def check_rays(chords, o, d, rgba, tau, diag, precision, centre, surface=0.0):
                      "image_length": float(Limg[k])}}
     suspects = np.unique(np.concatenate([lost, gained, over]))
     suspects = suspects[np.argsort(-np.abs(Limg[suspects] - L[suspects]))][:DENSE_MAX]  # the rest: not excused
-    rounding, both = {}, {}
+    spreads = {"within_ray_rounding": {}, "within_rounding": {}}
     if len(suspects):
         # the dense chords: at tangency the fast ones' few Newton starts miss a crossing of a move
         scale = DISPLACE * np.linalg.norm(o[suspects] - centre, axis=1)[:, None]
-        spread = displaced_spread(chords.dense, o[suspects], d[suspects], scale)
-        rounding = dict(zip(suspects.tolist(), spread.tolist()))
-        within = {i for i in suspects.tolist() if abs(Limg[i] - L[i]) <= rounding[i] + tol}
-        res["over_budget_within_ray_rounding"] = sum(  # |dT| / T = |exp(-tau dL) - 1|, about tau dL
-            rel[i] <= tau * rounding[i] + BUDGET[precision] for i in over.tolist())
-        res["lost_within_ray_rounding"] = sum(i in within for i in lost.tolist())
-        res["gained_within_ray_rounding"] = sum(i in within for i in gained.tolist())
-        # the second verdict: the ray's rounding and the surface's, a move of the face by `surface`
-        spread = displaced_spread(chords.dense, o[suspects], d[suspects], scale + surface)
-        both = dict(zip(suspects.tolist(), spread.tolist()))
-        within = {i for i in suspects.tolist() if abs(Limg[i] - L[i]) <= both[i] + tol}
         res["surface_rounding"] = surface
-        res["over_budget_within_rounding"] = sum(rel[i] <= tau * both[i] + BUDGET[precision] for i in over.tolist())
-        res["lost_within_rounding"] = sum(i in within for i in lost.tolist())
-        res["gained_within_rounding"] = sum(i in within for i in gained.tolist())
-        over = np.array([i for i in over.tolist() if rel[i] > tau * rounding[i] + BUDGET[precision]], np.int64)
+        # the ray's rounding, then the ray's and the surface's (a move of the face by `surface`)
+        for suffix, move in (("within_ray_rounding", scale), ("within_rounding", scale + surface)):
+            spread = spreads[suffix] = dict(zip(suspects.tolist(),
+                                                displaced_spread(chords.dense, o[suspects], d[suspects], move).tolist()))
+            within = {i for i in spread if abs(Limg[i] - L[i]) <= spread[i] + tol}
+            res[f"over_budget_{suffix}"] = sum(  # |dT| / T = |exp(-tau dL) - 1|, about tau dL
+                rel[i] <= tau * spread.get(i, 0.0) + BUDGET[precision] for i in over.tolist())
+            res[f"lost_{suffix}"] = sum(i in within for i in lost.tolist())
+            res[f"gained_{suffix}"] = sum(i in within for i in gained.tolist())
+        rounding = spreads["within_ray_rounding"]
+        over = np.array([i for i in over.tolist() if rel[i] > tau * rounding.get(i, 0.0) + BUDGET[precision]], np.int64)
     listed = np.unique(np.concatenate([lost, gained, over]))
     listed = listed[np.argsort(-np.abs(Limg[listed] - L[listed]))][:20]
     res["rays_listed"] = [{"origin": o[i].tolist(), "direction": d[i].tolist(), "chord": float(L[i]),
                            "image_length": float(Limg[i]), "relative_error": float(rel[i]),
-                           "ray_rounding_spread": rounding.get(int(i)), "rounding_spread": both.get(int(i)),
+                           "ray_rounding_spread": spreads["within_ray_rounding"].get(int(i)),
+                           "rounding_spread": spreads["within_rounding"].get(int(i)),
                            "why": "lost" if i in lost else "gained" if i in gained else "over budget"} for i in listed]
     return res
 

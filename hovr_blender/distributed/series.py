@@ -433,11 +433,8 @@ def _environment_kept():
     try:
         yield
     finally:
-        for key in set(os.environ) - set(saved):
-            del os.environ[key]
-        for key, value in saved.items():
-            if os.environ.get(key) != value:
-                os.environ[key] = value
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 def cluster_client(cluster):

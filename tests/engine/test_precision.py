@@ -237,3 +237,14 @@ def test_search_past_a_vertex_of_many_elements_finds_element_zero(device):
     a64 = r.render(one, tf, BACKGROUND, opts.with_(precision="float64")).rgba[0, 0]
     assert a64[3] > 0.7
     assert abs(a32[3] - a64[3]) < 1e-4, f"float32 alpha {a32[3]:.4f}, float64 {a64[3]:.4f}"
+
+
+def test_a_computed_constant_is_arithmetic_walked_by_hand_never_run():
+    """_unconvertible_floats reads the package's kernel source: only number literals, known names
+    and + - * / // % ** count, walked without eval; a call, attribute or huge power is no number."""
+    tree = ast.parse("TOL = 1.0e-5\nTWICE = 2 * TOL ** 1 - -TOL\nCALL = __import__('os').getpid() * 1.0\n"
+                     "ATTR = TOL.real\nBIG = 10.0 ** 100000\n")
+    got = precision._unconvertible_floats(tree, set(), {})
+    assert got == {"TWICE": pytest.approx(3.0e-5)}
+    with pytest.raises(ValueError):
+        precision._arithmetic(ast.parse("open('x')", mode="eval").body, {})

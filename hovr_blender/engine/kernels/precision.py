@@ -39,6 +39,7 @@ import ast
 import importlib.abc
 import importlib.util
 import linecache
+import operator
 import sys
 import threading
 from dataclasses import dataclass
@@ -237,8 +238,27 @@ def _imported_constants(tree: ast.Module, twinned) -> dict:
     return out
 
 
-_ARITHMETIC_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Constant, ast.Name, ast.Load, ast.operator,
-                     ast.unaryop)
+_BINARY = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+           ast.FloorDiv: operator.floordiv, ast.Mod: operator.mod, ast.Pow: operator.pow}
+_UNARY = {ast.UAdd: operator.pos, ast.USub: operator.neg}
+
+
+def _arithmetic(node: ast.AST, known: dict):
+    """The number an expression of number literals, names in `known` and + - * / // % ** makes;
+    ValueError for anything else (a call, attribute, subscript, unknown name, huge power). Walked
+    by hand: nothing is given to eval."""
+    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) and not isinstance(node.value, bool):
+        return node.value
+    if isinstance(node, ast.Name) and node.id in known:
+        return known[node.id]
+    if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
+        return _UNARY[type(node.op)](_arithmetic(node.operand, known))
+    if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
+        left, right = _arithmetic(node.left, known), _arithmetic(node.right, known)
+        if isinstance(node.op, ast.Pow) and abs(right) > 1024:
+            raise ValueError("power too large")
+        return _BINARY[type(node.op)](left, right)
+    raise ValueError(f"not arithmetic: {ast.dump(node)[:60]}")
 
 
 def _unconvertible_floats(tree: ast.Module, twinned, imported: dict) -> dict:
@@ -254,13 +274,11 @@ def _unconvertible_floats(tree: ast.Module, twinned, imported: dict) -> dict:
             name = node.targets[0].id
             if name in known:
                 continue
-            # the package's own kernel source (never a file or view a user gives), and only
-            # arithmetic on names and numbers is evaluated: no call, attribute or subscript
-            if not all(isinstance(n, _ARITHMETIC_NODES) for n in ast.walk(node.value)):
-                continue
+            # the package's own kernel source (never a file or view a user gives); only arithmetic
+            # on names and numbers counts
             try:
-                value = eval(compile(ast.Expression(node.value), "<constant>", "eval"), {"__builtins__": {}}, dict(known))
-            except Exception:  # not arithmetic on number constants: no number
+                value = _arithmetic(node.value, known)
+            except (ValueError, ArithmeticError):  # not arithmetic on number constants: no number
                 continue
             if isinstance(value, (int, float)) and not isinstance(value, bool):
                 known[name] = value
