@@ -6,6 +6,7 @@ device setting asked for, each in a fresh session.
     python -m bench.f12_reshade --data nektar/hump3D_GLL.xml --size 240x135 --devices cpu,cpu:all \\
         --out bench/results/cpu/f12_reshade.json
     python -m bench.f12_reshade --devices cuda:0,cuda:all --size 1920x1080 --out $OUT/f12_reshade.json
+    python -m bench.f12_reshade --data shared --size 320x180 --out bench/results/cpu/issue37/f12_320x180.json
 
 Each row: the device, the two F12s' wall seconds (bpy.ops.render.render, data loading and kernel
 loads included in the first: a session's first F12), the status line each ended with, and the
@@ -68,23 +69,35 @@ def measure(path: str, device: str, width: int, height: int) -> dict:
         hovr_blender.unregister()
 
 
+def shared_files() -> list[str]:
+    """Every audit dataset that is a file, as --data takes it (under the shared data)."""
+    from hovr_blender.audit.datasets import DATASETS
+
+    return [d["path"] for d in DATASETS.values() if "path" in d]
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python -m bench.f12_reshade")
-    ap.add_argument("--data", default="nektar/hump3D_GLL.xml", help="under the shared data (bench.common.DATA)")
+    ap.add_argument("--data", default="nektar/hump3D_GLL.xml",
+                    help="under the shared data (bench.common.DATA), a comma list, or 'shared': every audit dataset's file")
     ap.add_argument("--size", default="240x135")
     ap.add_argument("--devices", default="cpu,cpu:all")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
     width, height = map(int, args.size.lower().split("x"))
-    path = next(p for p in (REPO / "tests" / "data" / args.data, DATA / args.data) if p.exists())
-    rows = []
-    for device in args.devices.split(","):
-        row = measure(str(path), device.strip(), width, height)
-        print(f"f12_reshade: {row['device']}: first {row['first_f12_seconds']:.2f} s, second after a ramp edit "
-              f"{row['second_f12_seconds']:.2f} s ({100 * row['second_over_first']:.0f} %)", flush=True)
-        rows.append(row)
+    names = shared_files() if args.data == "shared" else [d.strip() for d in args.data.split(",") if d.strip()]
+    runs = []
+    for name in names:
+        path = next(p for p in (REPO / "tests" / "data" / name, DATA / name) if p.exists())
+        rows = []
+        for device in args.devices.split(","):
+            row = measure(str(path), device.strip(), width, height)
+            print(f"f12_reshade: {name}: {row['device']}: first {row['first_f12_seconds']:.2f} s, second after a ramp "
+                  f"edit {row['second_f12_seconds']:.2f} s ({100 * row['second_over_first']:.0f} %)", flush=True)
+            rows.append(row)
+        runs.append({"data": name, "rows": rows})
     write_report({"command": command_line(), "git_commit": git("rev-parse", "HEAD"), "date": time.strftime("%Y-%m-%d"),
-                  "data": args.data, "size": args.size, "rows": rows}, args.out)
+                  "size": args.size, "runs": runs}, args.out)
     return 0
 
 

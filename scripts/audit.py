@@ -676,8 +676,7 @@ def recheck_stage(args):
             d["pixels_over"] = [r for r in rows if max(r["errors"].values()) > WRONG]
             for k, v in d.get("vs_reference", {}).items():
                 v.update(_vs_reference(d["pixels"], k))
-            d["reference_missed_chord"] += sum(bool(r.get("reference_missed_chord")) for r in rows) - \
-                sum(bool(r.get("reference_missed_chord")) for r in over)
+            d["reference_missed_chord"] = sum(bool(p.get("reference_missed_chord")) for p in d["pixels"])
             done[name] = {"pixels": len(rows), "still_over": len(d["pixels_over"]),
                           "still_over_where_reference_inside_is_the_chord": sum(
                               not r["reference_missed_chord"] for r in d["pixels_over"])}

@@ -1,6 +1,7 @@
 """Fixtures tests/ share (the device fixture and the markers are in the repository's conftest.py;
 plain helper functions and constants in tests/helpers.py)."""
 import os
+import signal
 
 import pytest
 
@@ -25,3 +26,26 @@ def environment_as_it_was():
     yield
     os.environ.clear()
     os.environ.update(saved)
+
+
+@pytest.fixture
+def stopped_reader(monkeypatch):
+    """A function that starts a reader process (io/isolation.py) and stops it (SIGSTOP: as good as
+    libhdf5's endless loop), and returns its pid: the next read is handed to it, whatever the pool
+    holds then (an idle reader may end between a look at the pool and a read), and waits on it
+    until it is killed (cancel, the time limit). Still alive at the test's end, it is killed."""
+    from hovr_blender.io import isolation
+
+    made = []
+
+    def stop_next_reader() -> int:
+        worker = isolation._Worker()
+        os.kill(worker.proc.pid, signal.SIGSTOP)
+        made.append(worker)
+        take, pending = isolation._take, [worker]
+        monkeypatch.setattr(isolation, "_take", lambda: pending.pop() if pending else take())
+        return worker.proc.pid
+
+    yield stop_next_reader
+    for worker in made:
+        worker.kill()

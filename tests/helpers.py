@@ -191,20 +191,6 @@ class SPHERE:  # noqa: N801  (a namespace of constants)
         return Renderer(mesh, device="cpu").render(camera, tf, bg, options).rgba
 
 
-def stopped_warm_reader() -> int:
-    """The warm reader process (io/isolation.py), stopped (SIGSTOP): as good as libhdf5's endless
-    loop. Its pid; the next read waits on it until it is killed (cancel, the time limit)."""
-    import os
-    import signal
-
-    from hovr_blender.io import isolation
-
-    isolation.prestart()
-    pid = isolation._IDLE[0].proc.pid
-    os.kill(pid, signal.SIGSTOP)
-    return pid
-
-
 def tree_listing(folder, skip=()) -> dict:
     """Everything under `folder` but the folders in `skip`: relative path -> (file type, size,
     mtime, link target), to compare a tree before and after a run (what a hostile input wrote)."""

@@ -16,7 +16,9 @@ For each pixel ray (render contract §4, computed here from the view):
    depth to each node by 12-point Gauss-Legendre from the panel's start. A panel is accepted
    when its K15/G7 difference (colour and depth) is below the tolerance.
 The field comes from VTK's interpolation of the cell's nodal values (vtk_volume.py). The error
-estimate is the sum of the accepted panels' differences, plus any overlap or unresolved stretch.
+estimate is the sum of the accepted panels' differences, plus any overlap or unresolved stretch,
+plus each stretch end's slack: a cell counts points within INSIDE_TOL (parametric) outside it as
+inside, so an end may lie INSIDE_TOL over the ray's crossing rate beyond the face.
 """
 from __future__ import annotations
 
@@ -48,6 +50,19 @@ SIMPLEX_TRIANGLE = (13, 73)  # VTK_WEDGE, VTK_LAGRANGE_WEDGE
 SIMPLEX_TET = (10, 71)  # VTK_TETRA, VTK_LAGRANGE_TETRAHEDRON
 CROSSING_SAMPLES = 64
 MAX_PANELS = 20000
+
+
+def face_margins(kind: int, pc) -> list:
+    """(margin, its gradient in pc) of each face of a cell of VTK type `kind` at parametric pc:
+    the margin is >= 0 inside (a wedge: a triangle in (r, s), a line in t; a tetrahedron; else a
+    hexahedron's unit cube)."""
+    r, s, t = pc
+    if kind in SIMPLEX_TRIANGLE:
+        return [(r, (1, 0, 0)), (s, (0, 1, 0)), (1 - r - s, (-1, -1, 0)), (t, (0, 0, 1)), (1 - t, (0, 0, -1))]
+    if kind in SIMPLEX_TET:
+        return [(r, (1, 0, 0)), (s, (0, 1, 0)), (t, (0, 0, 1)), (1 - r - s - t, (-1, -1, -1))]
+    return [(r, (1, 0, 0)), (1 - r, (-1, 0, 0)), (s, (0, 1, 0)), (1 - s, (0, -1, 0)), (t, (0, 0, 1)),
+            (1 - t, (0, 0, -1))]
 
 
 @dataclass
@@ -116,30 +131,28 @@ class IndependentReference:
         if c >= self.n_cells:
             return self.pyramids.at(c - self.n_cells, x)
         cell, ids, w, dw, nodes = self.cells[c]
-        x = np.asarray(x, dtype=np.float64)
+        pc = self._locate(c, np.asarray(x, dtype=np.float64))
+        if pc is None:
+            return False, np.nan
+        cell.InterpolateFunctions(list(pc), w)
+        inside = min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL
+        return inside, float(np.frombuffer(w) @ self.values[ids])
+
+    def _locate(self, c: int, x: np.ndarray):
+        """Cell c's parametric coordinates of world point x, polished by Newton from VTK's own guess
+        or the cell's centre; None where VTK puts x FAR from the cell or Newton fails."""
+        cell, ids, w, dw, nodes = self.cells[c]
         status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         if status == 0 and self._d2.get() > self.far2[c]:
             # VTK's distance to its linear sub-cells: the cell is that far away, less their
             # linearisation error, orders of magnitude below FAR of the cell's size
-            return False, np.nan
+            return None
         cell.GetParametricCenter(self._center)
-        pc = None
         for start in (list(self._pc), list(self._center)):
             pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
             if pc is not None:
-                break
-        if pc is None:
-            return False, np.nan
-        cell.InterpolateFunctions(list(pc), w)
-        r, s, t = pc
-        e = INSIDE_TOL
-        if cell.GetCellType() in SIMPLEX_TRIANGLE:  # wedge: triangle in (r, s), line in t
-            inside = r >= -e and s >= -e and r + s <= 1 + e and -e <= t <= 1 + e
-        elif cell.GetCellType() in SIMPLEX_TET:
-            inside = r >= -e and s >= -e and t >= -e and r + s + t <= 1 + e
-        else:
-            inside = -e <= r <= 1 + e and -e <= s <= 1 + e and -e <= t <= 1 + e
-        return inside, float(np.frombuffer(w) @ self.values[ids])
+                return pc
+        return None
 
     def _jacobian(self, cell, pc, w, dw, nodes):
         """J[k] = dx / d(pcoord k) from VTK's shape-function derivatives. VTK's cells lay these out
@@ -182,6 +195,24 @@ class IndependentReference:
             if np.abs(step).max() < NEWTON_TOL:
                 return pc
         return None
+
+    def _end_slack(self, c: int, o, d, t: float) -> float:
+        """How far along the ray the face cell c's stretch ends on at t may be from t: INSIDE_TOL over
+        the rate the ray's parametric coordinates cross the face nearest there (0 where the point
+        does not locate; a ray running along the face has the slack of a rate of INSIDE_TOL: a whole
+        parametric unit, as good as undecided)."""
+        pc = self._locate(c, o + t * d)
+        if pc is None:
+            return 0.0
+        cell, ids, w, dw, nodes = self.cells[c]
+        J = self._jacobian(cell, pc, w, dw, nodes)
+        try:
+            rate = np.linalg.solve(J.T, d)  # d(pc)/dt
+        except np.linalg.LinAlgError:
+            return 0.0
+        _, grad = min(face_margins(cell.GetCellType(), pc), key=lambda f: f[0])
+        speed = abs(float(np.dot(grad, rate)))
+        return INSIDE_TOL / max(speed, INSIDE_TOL)
 
     def tau(self, s):
         return np.interp(s, self.density_s, self.density_tau)
@@ -309,6 +340,12 @@ class IndependentReference:
         self.evaluations = 0
         stretches = self.stretches(o, d, t0, t1, cover)
         state = [np.zeros(3), 0.0, 0.0, 0]
+        # each stretch's ends are where its cell's inside test, with its INSIDE_TOL of slack, flips:
+        # up to INSIDE_TOL over the rate the ray crosses that face from the face itself, light
+        # gained or (at a shared face) counted twice, which the estimate carries
+        slack = sum(self._end_slack(c, o, d, t) for a, b, c in stretches if c < self.n_cells for t in (a, b))
+        state[2] += slack * float(np.max(self.density_tau)) * max(1.0, float(np.abs(self.color_rgb).max()),
+                                                                  float(np.abs(np.asarray(background, float)).max()))
         notes = []
         end = -np.inf
         for a, b, c in stretches:

@@ -18,7 +18,7 @@ pytestmark = pytest.mark.blender
 from hovr_blender.ui import engine as render_engine  # noqa: E402
 from hovr_blender.ui import import_operators, jobs  # noqa: E402
 
-from ..helpers import SPHERE, stopped_warm_reader  # noqa: E402
+from ..helpers import SPHERE  # noqa: E402
 from .blender_helpers import copy_tet, datablock_counts, render_to_exr  # noqa: E402
 
 
@@ -117,8 +117,8 @@ def test_a_modal_import_polls_the_reader_shows_its_stages_and_makes_the_volume(s
 
 
 @pytest.mark.parametrize("key", ['ESC', 'RIGHTMOUSE'])
-def test_esc_cancels_a_modal_import_kills_the_reader_and_leaves_the_scene_unchanged(scene, tmp_path, key):
-    pid = stopped_warm_reader()  # a read that never ends (libhdf5's endless loop)
+def test_esc_cancels_a_modal_import_kills_the_reader_and_leaves_the_scene_unchanged(scene, tmp_path, key, stopped_reader):
+    pid = stopped_reader()  # a read that never ends (libhdf5's endless loop)
     modal, reports, wm, context = _modal_import(tmp_path)
     before = datablock_counts()
     assert modal.begin(context) == {'RUNNING_MODAL'}
@@ -145,10 +145,10 @@ def test_esc_cancels_a_modal_import_kills_the_reader_and_leaves_the_scene_unchan
     assert bpy.ops.import_scene.hovr_nektar(filepath=str(copy_tet(tmp_path / "again")), field="|u,v,w|") == {'FINISHED'}
 
 
-def test_blender_ending_a_modal_import_stops_the_reader(scene, tmp_path):
+def test_blender_ending_a_modal_import_stops_the_reader(scene, tmp_path, stopped_reader):
     """Blender cancels a running modal operator when a file is loaded or its window closes: the
     operator's cancel() stops the reader, and nothing is made or reported."""
-    pid = stopped_warm_reader()
+    pid = stopped_reader()
     modal, reports, wm, context = _modal_import(tmp_path)
     before = datablock_counts()
     modal.begin(context)
@@ -184,14 +184,14 @@ class _Layout:
         self.labels.append(text)
 
 
-def test_the_import_dialog_never_waits_for_the_reader(scene, tmp_path):
+def test_the_import_dialog_never_waits_for_the_reader(scene, tmp_path, stopped_reader):
     """Browsing to a file the reader hangs on (libhdf5's loops) draws at once, saying the fields
     are being read; a timer redraws once the reader has answered."""
     import signal
 
     xml = copy_tet(tmp_path)
     nektar = import_operators.formats.named("nektar")
-    pid = stopped_warm_reader()
+    pid = stopped_reader()
     layout, t0 = _Layout(), time.monotonic()
     import_operators.draw_solution_choice(layout, str(xml), nektar)
     import_operators.draw_wall_choices(layout, str(xml), nektar)

@@ -16,7 +16,7 @@ from hovr_blender.audit.datasets import DATASETS
 from hovr_blender.engine import limits
 from hovr_blender.io import isolation, nektar, reader_protocol, vtu
 from hovr_blender.io.sources import SourceError, VolumeSource, load_volume, read_volume
-from tests.helpers import REPO, data_file, stopped_warm_reader
+from tests.helpers import REPO, data_file
 
 from ..engine.test_derived_fields import geometry, q_mesh, velocity_components  # noqa: F401  (fixtures)
 
@@ -76,9 +76,11 @@ def test_reader_errors_keep_their_class_and_words(tmp_path):
         load_volume(VolumeSource(str(tmp_path / "missing.xml")))
 
 
-def test_a_crash_in_the_reader_is_one_line_naming_the_file_and_the_next_read_works():
-    pid = stopped_warm_reader()
-    request = _started("list_fields", {"kind": "nektar", "path": "hump3D_GLL.xml"}, what="hump3D_GLL.xml")
+def test_a_crash_in_the_reader_is_one_line_naming_the_file_and_the_next_read_works(stopped_reader):
+    pid = stopped_reader()
+    request = _started("list_fields", {"format_name": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))},
+                       what="hump3D_GLL.xml")
+    assert request.pid == pid
     os.kill(pid, signal.SIGSEGV)
     os.kill(pid, signal.SIGCONT)
     while not request.poll(1.0):
@@ -211,9 +213,9 @@ def test_a_huge_xml_attribute_is_refused_after_the_token_limit(tmp_path):
     assert len(safe_xml.parse(text).text) == 2 * safe_xml.MAX_TOKEN_BYTES
 
 
-def test_cancel_kills_the_reader():
-    pid = stopped_warm_reader()
-    request = _started("list_fields", {"kind": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))})
+def test_cancel_kills_the_reader(stopped_reader):
+    pid = stopped_reader()
+    request = _started("list_fields", {"format_name": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))})
     assert request.pid == pid and not request.poll(0.2)
     request.cancel()
     with pytest.raises(isolation.ReadCancelled):
@@ -221,10 +223,10 @@ def test_cancel_kills_the_reader():
     assert _gone(pid)
 
 
-def test_cancel_through_call():
-    stopped_warm_reader()
+def test_cancel_through_call(stopped_reader):
+    stopped_reader()
     with pytest.raises(isolation.ReadCancelled):
-        isolation.call("list_fields", {"kind": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))},
+        isolation.call("list_fields", {"format_name": "nektar", "path": str(data_file("nektar", "Tet_channel_m3.fld"))},
                        cancelled=lambda: True)
 
 
@@ -307,11 +309,11 @@ def test_the_reader_loads_the_package_under_the_parents_name_as_the_device_proce
 _PARENT = textwrap.dedent("""
     import os, sys, time
     from hovr_blender.io import isolation
-    request = isolation.Request("list_fields", {"kind": "nektar", "path": sys.argv[1]}, 600.0)
+    request = isolation.Request("list_fields", {"format_name": "nektar", "path": sys.argv[1]}, 600.0)
     while not request.poll(0.1):
         pass
     idle = isolation._IDLE[0].proc.pid  # the warm one, between tasks
-    busy = isolation.Request("list_fields", {"kind": "nektar", "path": sys.argv[1]}, 600.0)
+    busy = isolation.Request("list_fields", {"format_name": "nektar", "path": sys.argv[1]}, 600.0)
     os.kill(busy.pid, 19)  # SIGSTOP: a reader stuck inside a C loop
     print(idle, busy.pid, flush=True)
     time.sleep(600)
