@@ -38,6 +38,7 @@ class Upload:
     gk: list  # Gauss-Kronrod nodes, Kronrod and Gauss weights
     gk_s: object  # the spectral integration matrix on the nodes
     kernels: object  # the KernelTable, the walk's kernels specialised for the mesh (kernel_loading.kernel_table)
+    sample_stride: int = 1  # threads per slot in the sample kernel (sample_stride of the geometry uploaded)
     field_key: tuple | None = None  # the FieldFrame.key of the field on the device (Renderer._set_field)
     field: tuple | None = None  # its (lo, hi, rounding) per element, in frame units
     gradient: tuple | None = None  # (field_key, the reference gradient on the device in that frame)

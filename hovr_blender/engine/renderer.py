@@ -28,8 +28,8 @@ from .looks import sampled_ranges
 from .launch_args import (EVAL_ERROR_FACTOR, Launcher, TileBuffers, Upload, camera_args, derived_args, gauss_kronrod,
                           mesh_args, outward, quad_args, sample_stride, surface_args, surface_limit, tile_buffers,
                           transfer_args)
-from .mesh import (MeshError, VolumeMesh, boxes_diagonal, element_coefficient_scale, element_field_ranges,
-                   element_volumes, mapped_coefficients, padded_element_boxes)
+from .mesh import (AFFINE_RTOL_FLOAT32, MeshError, VolumeMesh, affine_twin, boxes_diagonal, element_coefficient_scale,
+                   element_field_ranges, element_volumes, mapped_coefficients, padded_element_boxes)
 from .methods import SAMPLING_METHODS, chooses_own_step, samples_segments
 from .render_result import RenderError, RenderResult, check_float32_range
 from .segment_cache import SegmentCaching
@@ -229,14 +229,19 @@ class Renderer(SegmentCaching):
         prec = Precision.named(name)
         if name == "float32":
             check_float32_range("geometry", self.mesh.geom_coeffs, self.mesh.geom_offset)
+        # float32 walks an element whose map is affine to its own rounding of the coordinates as
+        # affine (mesh.AFFINE_RTOL_FLOAT32); the faces, BVH and neighbours stay the mesh's (a
+        # curved element's triangles enclose it either way)
+        geometry = affine_twin(self.mesh, AFFINE_RTOL_FLOAT32) if name == "float32" else self.mesh
+        guess = self._affine_guess if geometry is self.mesh else vertex_affine_guess(geometry)
         with wp.ScopedDevice(self.device):
-            m, geo_degree = mesh_args(prec, self.mesh, self.faces, self._bvh.id, self._neighbour, self._face_maps,
-                                      self._affine_guess, self._box_lo, self._box_hi)
+            m, geo_degree = mesh_args(prec, geometry, self.faces, self._bvh.id, self._neighbour, self._face_maps,
+                                      guess, self._box_lo, self._box_hi)
             gk, gk_s = gauss_kronrod(prec)
             # affine-only meshes get search, traverse and sample kernels without the curved machinery
             table = kernel_table(self.kernel_variant, name)
-            self._sample_stride = sample_stride(self.mesh, geo_degree)
-        self._uploads[name] = Upload(prec, m, gk, gk_s, table)
+            stride = sample_stride(geometry, geo_degree)
+        self._uploads[name] = Upload(prec, m, gk, gk_s, table, sample_stride=stride)
         return self._uploads[name]
 
     def _kernels(self, upload: Upload, isosurfaces: bool):
@@ -492,7 +497,7 @@ class Renderer(SegmentCaching):
         listed = int(segs.list_count.numpy()[0])
         if listed == 0:
             return 0
-        stride = self._sample_stride
+        stride = upload.sample_stride
         odd_stride = (MAX_SAMPLES - 5) // 2 + 1  # the odd points of a doubled degree, at most
         launch(table.sample, listed * stride,
                [upload.mesh_args, cam, start, segs, segs.list, stride, 0, rays.stats])
