@@ -37,6 +37,7 @@ benchmark meshes.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -200,7 +201,7 @@ def check_stage(args):
             if not args.datasets or name in args.datasets.split(",") for vname, view in entry["views"].items()]
     summary = {"size": audit["size"], "device": audit["device"], "datasets": {}}
     reports = {}
-    with ProcessPoolExecutor(args.jobs) as pool:
+    with one_blas_thread(), ProcessPoolExecutor(args.jobs) as pool:
         for name, report in pool.map(_check_dataset, jobs):
             if name in reports:
                 reports[name]["views"].update(report["views"])
@@ -277,6 +278,27 @@ def _prepare(name, cache, size):
     os.replace(pkl + ".part", pkl)
     return {"camera": state["camera"], "transfer_function": state["transfer_function"],
             "boundary_faces": len(state["boundary"].faces), "seconds": round(time.perf_counter() - t0, 1)}
+
+
+@contextlib.contextmanager
+def one_blas_thread():
+    """Processes started inside start with one BLAS thread each (io/isolation.py's variables):
+    the reference's Newton multiplies a cell's shape functions into its nodes thousands of times
+    a pixel, a product 35x slower handed between two BLAS threads than done in one, and a pool of
+    15 workers of 16 threads each oversubscribes the host. This process's own BLAS, already
+    loaded, keeps its threads."""
+    from hovr_blender.io.isolation import BLAS_THREADS
+
+    saved = {k: os.environ.get(k) for k in BLAS_THREADS}
+    os.environ.update(dict.fromkeys(BLAS_THREADS, "1"))
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 _STATE = {}
@@ -409,7 +431,8 @@ class _Checker:
 
         self.heapq, self.order, self.lock = heapq, itertools.count(), threading.Lock()
         self.jobs, self.cache = jobs, cache
-        self.pool = mp.get_context("spawn").Pool(jobs)  # spawn: no CUDA state is forked
+        with one_blas_thread():  # a Pool starts its workers here
+            self.pool = mp.get_context("spawn").Pool(jobs)  # spawn: no CUDA state is forked
         self.heap, self.inflight, self.waiting = [], {}, {}
         self.prepared, self.results, self.errors = {}, {}, {}
 
