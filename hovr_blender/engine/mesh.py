@@ -75,6 +75,19 @@ def _affine_maps(shape: int, gmodes, G: np.ndarray, rtol: float = AFFINE_RTOL):
     return verts, maps, ok
 
 
+def _grouped_affine_maps(shapes, geom_modes, elements, geometry, rtol: float = AFFINE_RTOL):
+    """_affine_maps over `elements`, in groups of one shape and geometry order and batches of
+    _AFFINE_BATCH (a reader reports progress between them); geometry(e): element e's (K, 3)
+    coefficients. Yields each batch's (elements, vertices, maps, affine)."""
+    keys = np.concatenate([shapes[elements, None], geom_modes[elements]], axis=1)
+    for key in np.unique(keys, axis=0):
+        sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
+        group = elements[(keys == key).all(axis=1)]
+        for idx in np.array_split(group, -(-group.size // _AFFINE_BATCH)):  # each element on its own
+            limits.progress()
+            yield (idx, *_affine_maps(sh, gm, np.stack([geometry(e) for e in idx]), rtol))
+
+
 def affine_twin(mesh, rtol: float):
     """The mesh with those of its curved elements whose maps are affine to rtol (_affine_maps)
     marked affine, with those maps; the mesh itself where there are none. Only the geometry's
@@ -83,18 +96,14 @@ def affine_twin(mesh, rtol: float):
         return mesh
     affine = np.asarray(mesh.affine, bool).copy()
     maps = mesh.ref_from_world.copy()
-    curved = np.nonzero(~affine)[0]
-    keys = np.concatenate([mesh.shape[curved, None], mesh.geom_modes[curved]], axis=1)
-    for key in np.unique(keys, axis=0):
-        sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
-        group = curved[(keys == key).all(axis=1)]
-        k = ex.num_coeffs(sh, gm)
-        for idx in np.array_split(group, -(-group.size // _AFFINE_BATCH)):
-            limits.progress()
-            G = np.stack([mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] + k] for e in idx])
-            _, m, ok = _affine_maps(sh, gm, G, rtol)
-            affine[idx[ok]] = True
-            maps[idx[ok]] = m[ok]
+
+    def geometry(e):
+        k = ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])
+        return mesh.geom_coeffs[mesh.geom_offset[e]:mesh.geom_offset[e] + k]
+
+    for idx, _, m, ok in _grouped_affine_maps(mesh.shape, mesh.geom_modes, np.nonzero(~affine)[0], geometry, rtol):
+        affine[idx[ok]] = True
+        maps[idx[ok]] = m[ok]
     if affine.sum() == np.asarray(mesh.affine, bool).sum():
         return mesh
     return dataclasses.replace(mesh, affine=affine, ref_from_world=maps)
@@ -174,14 +183,8 @@ class VolumeMesh:
         vertices = np.zeros((n, 8, 3))
         M = np.zeros((n, 3, 4))
         affine = np.zeros(n, dtype=bool)
-        keys = np.concatenate([shapes[:, None], geom_modes], axis=1)
-        for key in np.unique(keys, axis=0):
-            sh, gm = int(key[0]), tuple(int(v) for v in key[1:])
-            group = np.nonzero((keys == key).all(axis=1))[0]
-            for idx in np.array_split(group, -(-group.size // _AFFINE_BATCH)):  # each element on its own
-                limits.progress()
-                G = np.stack([gflat[e] for e in idx])  # (m, K, 3)
-                vertices[idx], M[idx], affine[idx] = _affine_maps(sh, gm, G)
+        for idx, v, m, ok in _grouped_affine_maps(shapes, geom_modes, np.arange(n), gflat.__getitem__):
+            vertices[idx], M[idx], affine[idx] = v, m, ok
         sizes = np.array([f.size for f in flat], dtype=np.int64)
         gsizes = np.array([g.shape[0] for g in gflat], dtype=np.int64)
         out = cls(
