@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import multiprocessing
 import os
 import shutil
 import threading
@@ -201,7 +202,7 @@ def check_stage(args):
             if not args.datasets or name in args.datasets.split(",") for vname, view in entry["views"].items()]
     summary = {"size": audit["size"], "device": audit["device"], "datasets": {}}
     reports = {}
-    with one_blas_thread(), ProcessPoolExecutor(args.jobs) as pool:
+    with spawned_executor(args.jobs) as pool:
         for name, report in pool.map(_check_dataset, jobs):
             if name in reports:
                 reports[name]["views"].update(report["views"])
@@ -299,6 +300,15 @@ def one_blas_thread():
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@contextlib.contextmanager
+def spawned_executor(jobs):
+    """A ProcessPoolExecutor of `jobs` spawned workers with one BLAS thread each (one_blas_thread: a
+    forked worker would keep this process's threads). It starts its workers as work is submitted,
+    so the variables stay set while it is open."""
+    with one_blas_thread(), ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield pool
 
 
 _STATE = {}
@@ -427,12 +437,11 @@ class _Checker:
     def __init__(self, jobs, cache):
         import heapq
         import itertools
-        import multiprocessing as mp
 
         self.heapq, self.order, self.lock = heapq, itertools.count(), threading.Lock()
         self.jobs, self.cache = jobs, cache
         with one_blas_thread():  # a Pool starts its workers here
-            self.pool = mp.get_context("spawn").Pool(jobs)  # spawn: no CUDA state is forked
+            self.pool = multiprocessing.get_context("spawn").Pool(jobs)  # spawn: no CUDA state is forked
         self.heap, self.inflight, self.waiting = [], {}, {}
         self.prepared, self.results, self.errors = {}, {}, {}
 

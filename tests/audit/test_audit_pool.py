@@ -1,20 +1,52 @@
-"""The GPU audit's reference pool: its workers start with one BLAS thread each."""
+"""The audit's reference pools (the gpu stage's and the check stage's): their workers start with one
+BLAS thread each."""
+import ctypes
 import os
+
+import numpy as np  # noqa: F401  (its OpenBLAS loaded, as in the workers)
+import pytest
 
 from hovr_blender.io.isolation import BLAS_THREADS
 from scripts import audit
 
 
+def openblas_threads():
+    """The threads numpy's OpenBLAS runs in this process, as loaded (None: no OpenBLAS found)."""
+    with open("/proc/self/maps") as f:
+        libs = sorted({line.split()[-1] for line in f if "openblas" in line.lower()})
+    for path in libs:
+        lib = ctypes.CDLL(path)
+        for name in ("openblas_get_num_threads64_", "openblas_get_num_threads", "scipy_openblas_get_num_threads64_"):
+            if hasattr(lib, name):
+                return int(getattr(lib, name)())
+    return None
+
+
 def test_the_reference_workers_start_with_one_blas_thread(monkeypatch, tmp_path):
-    """Two BLAS threads made the reference's Newton 1.85x slower a pixel on Hex_Mushroom (a
-    cell's 3,375 shape functions times its nodes, 35x slower handed between threads); on the
-    GPU host 15 workers of 16 threads each left the audit at ~144 random pixels a dataset."""
+    """The reference's products are a cell's shape functions times its nodes, one thread's work; on
+    the GPU host 15 workers of 16 OpenBLAS threads each oversubscribe its 16 cores."""
     for k in BLAS_THREADS:
         monkeypatch.setenv(k, "4")
     checker = audit._Checker(1, str(tmp_path))
     try:
         seen = [checker.pool.apply(os.getenv, (k,)) for k in BLAS_THREADS]
+        threads = checker.pool.apply(openblas_threads)
     finally:
         checker.stop()
     assert seen == ["1"] * len(BLAS_THREADS)
+    assert threads in (1, None)  # as loaded (None: no OpenBLAS found)
     assert [os.environ[k] for k in BLAS_THREADS] == ["4"] * len(BLAS_THREADS)  # this process's, restored
+
+
+def test_the_check_stage_workers_start_with_one_blas_thread(monkeypatch):
+    """A forked worker keeps the parent's BLAS as it was loaded: the check stage's are spawned."""
+    for k in BLAS_THREADS:
+        monkeypatch.setenv(k, "4")
+    if not os.path.exists("/proc/self/maps") or openblas_threads() is None:
+        pytest.skip("numpy's OpenBLAS is not found through /proc/self/maps")
+    with audit.spawned_executor(1) as pool:
+        seen = [pool.submit(os.getenv, k).result() for k in BLAS_THREADS]
+        threads = pool.submit(openblas_threads).result()
+    assert seen == ["1"] * len(BLAS_THREADS)
+    assert threads == 1  # as loaded: a forked worker reports this process's count
+    assert [os.environ[k] for k in BLAS_THREADS] == ["4"] * len(BLAS_THREADS)
