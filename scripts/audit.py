@@ -284,10 +284,9 @@ def _prepare(name, cache, size):
 @contextlib.contextmanager
 def one_blas_thread():
     """Processes started inside start with one BLAS thread each (io/isolation.py's variables):
-    the reference's Newton multiplies a cell's shape functions into its nodes thousands of times
-    a pixel, a product 35x slower handed between two BLAS threads than done in one, and a pool of
-    15 workers of 16 threads each oversubscribes the host. This process's own BLAS, already
-    loaded, keeps its threads."""
+    the reference's products (a cell's shape functions times its nodes) are one thread's work,
+    and a pool of 15 workers of 16 threads each oversubscribes the host. This process's own
+    BLAS, already loaded, keeps its threads (so a forked worker would too: spawn)."""
     from hovr_blender.io.isolation import BLAS_THREADS
 
     saved = {k: os.environ.get(k) for k in BLAS_THREADS}
