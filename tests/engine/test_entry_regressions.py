@@ -165,6 +165,26 @@ def test_scaleHO_entry_past_slivers_by_an_edge(precision):
         f"length {got:.7f} against {SCALEHO_CHORD:.7f}"
 
 
+# A random ray of scripts.watertight's view 0 that runs nearly along the face affine prisms 19785
+# and 20193 share (0.02 reference units of the face's normal per unit length). float32 rounds
+# 19785's exit through it 7e-5 early and 20193's entry 3.5e-5 later; the walk took the gap for
+# the ray not being in 20193, and the search entered 20193 at its own clip: the gap was in no
+# segment (float32 on the CPU 0.5611946, on the GPU 0.5610797). Both clips' rounding at the face
+# is now the walk's tolerance (rays.affine_clip_rounding).
+SCALEHO_GRAZING = ("nektar", "scaleHO_grazing_cells.npz")
+SCALEHO_GRAZING_RAY = ([-1.8913803867747045, -1.5652275249487082, 0.8083787974200003],
+                       [0.8445091565253693, 0.4568572689816162, -0.27943822273173047])
+SCALEHO_GRAZING_CHORD = 0.5612293946078579  # float64 split at tolerance 1e-7 on the whole of scaleHO
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_scaleHO_walk_across_a_grazed_affine_face(precision):
+    mesh = cells_mesh(SCALEHO_GRAZING)
+    got = chord_length(mesh, *SCALEHO_GRAZING_RAY, precision)
+    assert abs(got - SCALEHO_GRAZING_CHORD) <= (1e-6 if precision == "float64" else 1e-5) * SCALEHO_GRAZING_CHORD, \
+        f"length {got:.7f} against {SCALEHO_GRAZING_CHORD:.7f}"
+
+
 # The issue's pixels on the whole datasets (../shared/data), as the frame rendered them: the 1x1
 # camera of each pixel's ray through the audit's transfer function, every precision and method
 # against float64 split at tolerance 1e-7 on the same ray. On 45b4467 the ball's two pixels were

@@ -7,6 +7,7 @@ import warp as wp
 
 from . import element
 from .args import NO_SURFACE_END, CameraArgs, MeshArgs, RayState
+from .tolerances import CLIP_TOL, UNIT_ROUNDOFF
 
 wp.set_module_options({"enable_backward": False})
 
@@ -76,6 +77,44 @@ def affine_stretch(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3) -> wp.vec4:
     """(hit, t0, t1, exit face) of the ray in affine element e: the clip in reference space."""
     A = mesh.ref_a[e]
     return element.reference_clip(mesh.shape[e], A * o + mesh.ref_b[e], A * d)
+
+
+# unit roundoffs in an affine clip's end: A o + b and A d (a few each), the plane's dot products,
+# the quotient, and A and b's own rounding to the precision
+CLIP_ROUNDING = 8.0
+
+
+@wp.func
+def affine_clip_rounding(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, t: float, side: float) -> float:
+    """How far rounding may move affine element e's clip end at t along the ray: for the face the
+    clip ends on (side -1: the entry, among the faces the ray enters by; 1: the exit), the rounding
+    of n . (A o + b) and of the rate n . A d (CLIP_ROUNDING unit roundoffs of their terms'
+    magnitudes) over that rate. It grows as the ray grazes the face, where the two elements that
+    share it see the crossing far apart."""
+    sh = mesh.shape[e]
+    A = mesh.ref_a[e]
+    b = mesh.ref_b[e]
+    xo = A * o + b
+    xd = A * d
+    size = wp.vec3(0.0, 0.0, 0.0)  # |A| (|o| + |t| |d|) + |b|, by component
+    for j in range(3):
+        s = wp.abs(b[j])
+        for k in range(3):
+            s += wp.abs(A[j, k]) * (wp.abs(o[k]) + wp.abs(t) * wp.abs(d[k]))
+        size[j] = s
+    best = side * 1.0e30  # the clip's end: the least exit, the greatest entry
+    out = float(0.0)
+    for f in range(element.num_faces(sh)):
+        pl = element.face_plane(sh, f)
+        n = wp.vec3(pl[0], pl[1], pl[2])
+        den = wp.dot(n, xd)
+        if den * side > 0.0:
+            tf = (pl[3] + CLIP_TOL - wp.dot(n, xo)) / den
+            if side * (best - tf) > 0.0:
+                best = tf
+                mag = wp.abs(n[0]) * size[0] + wp.abs(n[1]) * size[1] + wp.abs(n[2]) * size[2]
+                out = CLIP_ROUNDING * UNIT_ROUNDOFF * mag / wp.abs(den)
+    return out
 
 
 def walk_options(CURVED: bool) -> dict:

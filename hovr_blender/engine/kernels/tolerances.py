@@ -31,3 +31,6 @@ CURVED_TAIL_RTOL_FLOAT64 = 1.0e-12
 # isosurface: the arithmetic's epsilon (rounding of a series' value, Newton's stop in the root finder)
 ROOT_EPS = 1.2e-7
 ROOT_EPS_FLOAT64 = 2.3e-16
+# the unit roundoff of the arithmetic (2^-24, 2^-53): rays.affine_clip_rounding
+UNIT_ROUNDOFF = 6.0e-8
+UNIT_ROUNDOFF_FLOAT64 = 1.12e-16

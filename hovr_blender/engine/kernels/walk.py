@@ -24,7 +24,7 @@ from .args import (MAX_SAMPLES, STAT_BVH_CANDIDATES, SEG_CURVED, SEG_EVALUATE, S
                    STAT_NEWTON_SAMPLE, STAT_NEWTON_WALK, STAT_ROUNDS, STAT_SEGMENTS, STAT_WALKS, CameraArgs, MeshArgs,
                    QuadArgs, RayState, Segments, TransferArgs)
 from .quadrature import samples_segments
-from .rays import MAX_REGISTERS, SAMPLE_MAX_REGISTERS, affine_stretch, camera_ray, walk_options
+from .rays import MAX_REGISTERS, SAMPLE_MAX_REGISTERS, affine_clip_rounding, affine_stretch, camera_ray, walk_options
 from .tolerances import SHARED_FACE_TOL, STRETCH_RTOL
 
 wp.set_module_options({"enable_backward": False})
@@ -57,12 +57,21 @@ def pyramid_piece_end(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, 
 
 
 @wp.func
-def affine_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float) -> wp.vec3:
-    """(inside, b, exit face) of the ray entering affine element e at a: inside 0 where its clip
-    starts beyond a (more than STRETCH_RTOL of |a| and its chord)."""
+def affine_walk_step(mesh: MeshArgs, e: int, o: wp.vec3, d: wp.vec3, a: float, t_end: float, left: int) -> wp.vec3:
+    """(inside, b, exit face) of the ray entering affine element e at a, from `left` (-1: none):
+    inside 0 where its clip starts beyond a by more than STRETCH_RTOL of |a| and its chord and the
+    rounding of both clips of the face between (affine_clip_rounding: a ray grazing the face sees
+    left's exit early and e's entry late, and the stretch between would be lost)."""
     cl = affine_stretch(mesh, e, o, d)
-    if cl[0] <= 0.0 or cl[1] > a + STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
+    if cl[0] <= 0.0:
         return wp.vec3(0.0, a, -1.0)
+    late = cl[1] - a
+    if late > STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]):
+        slack = affine_clip_rounding(mesh, e, o, d, cl[1], -1.0)
+        if left >= 0 and mesh.affine[left] == 1:
+            slack += affine_clip_rounding(mesh, left, o, d, a, 1.0)
+        if late > STRETCH_RTOL * (wp.abs(a) + cl[2] - cl[1]) + slack:
+            return wp.vec3(0.0, a, -1.0)
     return wp.vec3(1.0, wp.max(a, wp.min(cl[2], t_end)), cl[3])
 
 
@@ -308,7 +317,7 @@ def make_traverse_kernel(CURVED: bool):
             r_b = r_a
             dv_b = dv_a
             if mesh.affine[e] == 1:
-                stretch = affine_walk_step(mesh, e, o, d, a, t_end)
+                stretch = affine_walk_step(mesh, e, o, d, a, t_end, left)
             elif wp.static(CURVED):
                 stretch, r_a, dv_a, r_b, dv_b, seg_a, seg_b, its, cands = curved_walk_step(mesh, e, o, d, a, t_end,
                                                                                            r_entry, dv_entry)

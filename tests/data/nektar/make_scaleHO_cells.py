@@ -1,8 +1,13 @@
-"""Writes scaleHO_cells.npz: the geometry of the cells of Nektar++'s scaleHO
-(../shared/data/nektar/scaleHO.xml, 23,848 prisms and tetrahedra, some curved) whose boxes, grown
-by PAD, a regression ray of issue 36 crosses, as the Nektar++ reader turns them into modal
-expansions (engine/expansions), for tests/engine/test_watertight_real.py. The ray passes an edge
-where four curved prisms meet, through slivers of three of them.
+"""Writes the cells files of Nektar++'s scaleHO (../shared/data/nektar/scaleHO.xml, 23,848 prisms
+and tetrahedra, some curved) for tests/engine/test_entry_regressions.py: for each regression ray
+of issue 36, the geometry of the cells whose boxes, grown by PAD, the ray crosses, as the
+Nektar++ reader turns them into modal expansions (engine/expansions).
+
+- scaleHO_cells.npz: the ray passes an edge where four curved prisms meet, through slivers of
+  three of them.
+- scaleHO_grazing_cells.npz: the ray runs nearly along the face affine prisms 19785 and 20193
+  share (it crosses at 0.02 reference units per unit length), where float32's two clips of the
+  face lie 3.5e-5 apart.
 
     python tests/data/nektar/make_scaleHO_cells.py
 """
@@ -11,9 +16,14 @@ from pathlib import Path
 import numpy as np
 
 PAD = 0.01
-# the audit's oblique camera at 1920x1080, pixel (916, 481) (bench.commits views)
-RAY = ([2.5096130475638754, -1.6076904380511008, 1.5567291332947129],
-       [-0.7090806396431651, 0.5396405528753079, -0.4538642089608653])
+RAYS = {
+    # the audit's oblique camera at 1920x1080, pixel (916, 481) (bench.commits views)
+    "scaleHO_cells.npz": ([2.5096130475638754, -1.6076904380511008, 1.5567291332947129],
+                          [-0.7090806396431651, 0.5396405528753079, -0.4538642089608653]),
+    # a random ray of scripts.watertight's view 0 (bench/results/h200/issue36/watertight-754531d.*)
+    "scaleHO_grazing_cells.npz": ([-1.8913803867747045, -1.5652275249487082, 0.8083787974200003],
+                                  [0.8445091565253693, 0.4568572689816162, -0.27943822273173047]),
+}
 
 if __name__ == "__main__":
     import sys
@@ -24,17 +34,18 @@ if __name__ == "__main__":
     from hovr_blender.io.nektar import read_nektar
 
     mesh = read_nektar(str(here.parents[3] / "shared" / "data" / "nektar" / "scaleHO.xml"))
-    o, d = (np.asarray(v, float) for v in RAY)
-    lo, hi = mesh.vertices.min(axis=1) - PAD, mesh.vertices.max(axis=1) + PAD
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - o) / d, (hi - o) / d
-    t0, t1 = np.nanmax(np.minimum(ta, tb), axis=1), np.nanmin(np.maximum(ta, tb), axis=1)
-    cells = np.nonzero(t1 >= np.maximum(t0, 0.0))[0]
-    n = max(ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e]) for e in cells)
-    geom = np.zeros((len(cells), n, 3))
-    for k, e in enumerate(cells):
-        g = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
-        geom[k, :len(g)] = g
-    np.savez_compressed(here / "scaleHO_cells.npz", cells=cells, shape=mesh.shape[cells], geom_modes=mesh.geom_modes[cells],
-                        geom=geom, affine=mesh.affine[cells])
-    print(len(cells), "cells")
+    for name, ray in RAYS.items():
+        o, d = (np.asarray(v, float) for v in ray)
+        lo, hi = mesh.vertices.min(axis=1) - PAD, mesh.vertices.max(axis=1) + PAD
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta, tb = (lo - o) / d, (hi - o) / d
+        t0, t1 = np.nanmax(np.minimum(ta, tb), axis=1), np.nanmin(np.maximum(ta, tb), axis=1)
+        cells = np.nonzero(t1 >= np.maximum(t0, 0.0))[0]
+        n = max(ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e]) for e in cells)
+        geom = np.zeros((len(cells), n, 3))
+        for k, e in enumerate(cells):
+            g = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
+            geom[k, :len(g)] = g
+        np.savez_compressed(here / name, cells=cells, shape=mesh.shape[cells], geom_modes=mesh.geom_modes[cells],
+                            geom=geom, affine=mesh.affine[cells])
+        print(name, len(cells), "cells")
