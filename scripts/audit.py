@@ -273,7 +273,9 @@ def _prepare(name, cache, size):
     state = {"camera": views(mesh)["oblique"], "transfer_function": transfer_function(mesh).to_contract(),
              "size": size, "data": data, "boundary": chords.Boundary(mesh),
              "pyramids": AffinePyramids(mesh, pyr) if len(pyr) and (data is None or not data["path"].endswith(".vtu"))
-             else None, "elements": int(mesh.num_elements)}
+             else None, "elements": int(mesh.num_elements),
+             # for the rays the default search leaves undecided (_covers): built here once, not in each worker
+             "dense": chords.dense_boundary(mesh)}
     with open(pkl + ".part", "wb") as f:
         pickle.dump(state, f)
     os.replace(pkl + ".part", pkl)
@@ -353,7 +355,7 @@ def _inside_length(stretches):
     return total
 
 
-def _covers(name, st, r):
+def _covers(st, r):
     """Where each ray (r: (n, 6)) is inside the mesh, by the exact chords; rays their default
     search leaves undecided (odd crossings: mostly grazing a fold of the boundary) are searched
     again densely, so that the reference is told of a sliver it would step over. None where
@@ -363,8 +365,6 @@ def _covers(name, st, r):
     cover = chords.intervals(st["boundary"], r[:, :3], r[:, 3:]) if len(r) else []
     again = [k for k, iv in enumerate(cover) if iv is None]
     if again:
-        if "dense" not in st:
-            st["dense"] = chords.dense_boundary(load(name)[0])
         redone = chords.intervals(st["dense"], r[again, :3], r[again, 3:], chords.dense_starts())
         for k, iv in zip(again, redone):
             cover[k] = iv
@@ -387,14 +387,14 @@ def _decide(name, cache, kind, pixels, seed=0):
         while len(pixels) < want:
             ij = np.stack([rng.integers(0, W, batch), rng.integers(0, H, batch)], axis=1)
             r = rays(ij)
-            for p, iv in zip(ij, _covers(name, st, r)):
+            for p, iv in zip(ij, _covers(st, r)):
                 if iv is None or iv:  # through the domain, or undecided
                     pixels.append(tuple(map(int, p)))
                     cover.append(iv)
         pixels, cover = pixels[:want], cover[:want]
     else:
         r = rays(pixels)
-        cover = _covers(name, st, r)
+        cover = _covers(st, r)
     rows = []
     for (i, j), iv in zip(pixels, cover):
         o, d = R.contract_ray(cam, W, H, i, j)

@@ -46,6 +46,7 @@ INSIDE_TOL = 1e-12  # in VTK's parametric coordinates
 NEWTON_STEPS = 16
 FAR = 0.05  # of a cell's size: a point VTK finds this far outside the cell is not polished by Newton
 NEWTON_TOL = 1e-12  # parametric; the rounding floor of a degree-14 cell's map is ~1e-13
+NEAR_NEWTON_STEPS = 6  # from the last point located in the cell; then VTK's own search
 SIMPLEX_TRIANGLE = (13, 73)  # VTK_WEDGE, VTK_LAGRANGE_WEDGE
 SIMPLEX_TET = (10, 71)  # VTK_TETRA, VTK_LAGRANGE_TETRAHEDRON
 CROSSING_SAMPLES = 64
@@ -115,6 +116,7 @@ class IndependentReference:
         self.levels = np.unique(np.concatenate([self.color_s, self.density_s]))
         self.tol = float(tol)
         self._closest = [0.0, 0.0, 0.0]
+        self._near = {}  # cell -> parametric coordinates of the last point located inside it
         self._sub = vtk.reference(0)
         self._pc = [0.0, 0.0, 0.0]
         self._d2 = vtk.reference(0.0)
@@ -142,8 +144,16 @@ class IndependentReference:
         """Cell c's parametric coordinates of world point x, polished by Newton from VTK's own guess
         or the cell's centre; None where VTK puts x FAR from the cell or Newton fails. A cell whose
         map folds by a face gives a point there two preimages, one outside the cell, where VTK's
-        guess may lead: the one inside is taken where either start finds it."""
+        guess may lead: the one inside is taken where either start finds it. First, Newton from
+        the last point located inside c, in a few steps: a preimage inside c is the one these find
+        (VTK's search costs more than the polish)."""
         cell, ids, w, dw, nodes = self.cells[c]
+        near = self._near.get(c)
+        if near is not None:  # the last point located in c: the ray's points come near each other
+            pc = self._newton(cell, w, dw, nodes, x, near, NEAR_NEWTON_STEPS)
+            if pc is not None and min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL:
+                self._near[c] = pc
+                return pc
         status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
         if status == 0 and self._d2.get() > self.far2[c]:
             # VTK's distance to its linear sub-cells: the cell is that far away, less their
@@ -156,6 +166,7 @@ class IndependentReference:
             if pc is None:
                 continue
             if min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL:
+                self._near[c] = pc
                 return pc
             found = pc if found is None else found
         return found
@@ -186,9 +197,9 @@ class IndependentReference:
         d = np.frombuffer(dw).reshape(n, 3).T if self._by_node[kind] else np.frombuffer(dw).reshape(3, n)
         return d @ nodes
 
-    def _newton(self, cell, w, dw, nodes, x, pc):
+    def _newton(self, cell, w, dw, nodes, x, pc, steps=NEWTON_STEPS):
         """Parametric coordinates of x by Newton on VTK's shape functions from pc, or None."""
-        for _ in range(NEWTON_STEPS):
+        for _ in range(steps):
             cell.InterpolateFunctions(list(pc), w)
             J = self._jacobian(cell, pc, w, dw, nodes)  # leaves w at pc
             try:

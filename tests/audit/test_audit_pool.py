@@ -50,3 +50,28 @@ def test_the_check_stage_workers_start_with_one_blas_thread(monkeypatch):
     assert seen == ["1"] * len(BLAS_THREADS)
     assert threads == 1  # as loaded: a forked worker reports this process's count
     assert [os.environ[k] for k in BLAS_THREADS] == ["4"] * len(BLAS_THREADS)
+
+
+def test_a_worker_decides_random_pixels_from_the_prepared_state(tmp_path, monkeypatch):
+    """The gpu stage's pool job end to end, in this process: _prepare writes a dataset's state once
+    (the dense boundary for undecided rays among it), and _decide draws random pixels through the
+    domain and decides each by the reference, whose inside length is the exact chord. A ray the
+    default chords leave undecided goes to the prepared dense boundary (the default search is made
+    to leave every ray undecided here)."""
+    from hovr_blender.audit import chords
+
+    audit._prepare("curved_mixed_cube", str(tmp_path), (32, 18))
+    audit._STATE.pop("curved_mixed_cube", None)
+    st = audit._state("curved_mixed_cube", str(tmp_path))
+    assert "dense" in st
+    default = chords.intervals
+    monkeypatch.setattr(chords, "intervals", lambda b, o, d, *rest: default(b, o, d, *rest) if rest else [None] * len(o))
+    try:
+        rows = audit._decide("curved_mixed_cube", str(tmp_path), "sample", [None] * 2, [0, 0, 0])
+    finally:
+        audit._STATE.pop("curved_mixed_cube", None)
+    assert len(rows) == 2 and all(r["checkable"] for r in rows)
+    for r in rows:
+        assert r["exact_chord"] is not None and r["exact_chord"] > 0
+        assert abs(r["reference_inside"] - r["exact_chord"]) <= 1e-6 * max(1.0, r["exact_chord"]), r
+        assert 0.0 <= r["reference"][3] <= 1.0
