@@ -161,6 +161,9 @@ def _check_dataset(job):
             t0 = time.perf_counter()
             cover = chords.intervals(boundary, o[None], d[None])[0]
             r = ref.pixel(o, d, np.zeros(3), cover=cover)
+            if r.failed:  # not decided: listed, never counted as checked
+                rows.append({**p, "checkable": False, "reference_failed": r.failed})
+                continue
             e32 = float(np.abs(np.asarray(p["float32"]) - r.rgba).max())
             e64 = float(np.abs(np.asarray(p["float64"]) - r.rgba).max())
             rows.append({**p, "checkable": True, "reference": r.rgba.tolist(), "reference_error": r.error,
@@ -173,7 +176,8 @@ def _check_dataset(job):
         checked = [r for r in rows if r["checkable"]]
         report["views"][vname] = {
             "gap_pixels": v["gap_pixels"], "max_gap": v["max_gap"], "listed": len(rows), "checked": len(checked),
-            "not_checkable_curved_pyramids": len(rows) - len(checked),
+            "not_checkable_curved_pyramids": sum(not r["checkable"] and "reference_failed" not in r for r in rows),
+            "reference_failed": [r for r in rows if "reference_failed" in r],
             "wrong_float32": sum("float32" in r["wrong"] for r in checked),
             "wrong_float64": sum("float64" in r["wrong"] for r in checked),
             "max_error_float32": max((r["error_float32"] for r in checked), default=None),
@@ -407,6 +411,10 @@ def _decide(name, cache, kind, pixels, seed=0):
             continue
         t0 = time.perf_counter()
         res = st["reference"].pixel(o, d, np.zeros(3), cover=iv)
+        if res.failed:  # not decided: listed, never counted as checked
+            rows.append({**row, "checkable": False, "reference_failed": res.failed,
+                         "seconds": round(time.perf_counter() - t0, 2)})
+            continue
         inside = _inside_length(res.stretches)
         row.update(checkable=True, reference=res.rgba.tolist(), reference_error=res.error, notes=res.notes,
                    reference_inside=inside, seconds=round(time.perf_counter() - t0, 2),
@@ -512,6 +520,23 @@ def _select(images, top, max_gap):
     return sorted(picked, key=lambda p: -score[p[1], p[0]]), stats, int(len(jj))
 
 
+def _first_difference(a, b, path="") -> str | None:
+    """Where a and b (dicts, lists, numbers, strings) first differ, and by how much; None: equal."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return f"{path or '/'}: keys {sorted(a)} against {sorted(b)}"
+        return next((w for k in a if (w := _first_difference(a[k], b[k], f"{path}/{k}"))), None)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        if len(a) != len(b):
+            return f"{path}: {len(a)} items against {len(b)}"
+        return next((w for k, (x, y) in enumerate(zip(a, b)) if (w := _first_difference(x, y, f"{path}/{k}"))), None)
+    if a == b:
+        return None
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return f"{path}: {a!r} against {b!r} (relative {abs(a - b) / max(abs(a), abs(b)):.1e})"
+    return f"{path}: {a!r} against {b!r}"
+
+
 def _dataset_report(name, entry, checker, threshold=WRONG):
     """entry (what the GPU side has) and the checker's rows of `name` as the JSON's record."""
     with checker.lock:
@@ -532,13 +557,17 @@ def _dataset_report(name, entry, checker, threshold=WRONG):
         pixels.append(row)
     checked = [r for r in pixels if r.get("checkable")]
     out = {k: v for k, v in entry.items() if k != "images"}
-    if prepared and "camera" in entry and (prepared["camera"], prepared["transfer_function"]) != \
-            (entry["camera"], entry["transfer_function"]):
-        errors.append("the reference's camera or transfer function is not the render's")
+    differs = prepared and "camera" in entry and _first_difference(
+        {"camera": prepared["camera"], "transfer_function": prepared["transfer_function"]},
+        {"camera": entry["camera"], "transfer_function": entry["transfer_function"]})
+    if differs:
+        errors.append(f"the reference's camera or transfer function is not the render's: {differs}")
     out.update(prepare_seconds=prepared and prepared["seconds"], errors=errors, checked=len(checked),
                checked_random=sum(r["why"] == "sample" for r in checked),
                checked_disputed=sum(r["why"] == "gap" for r in checked),
-               unchecked_curved_pyramids=sum(not r.get("checkable") for r in pixels),
+               unchecked_curved_pyramids=sum(not r.get("checkable") and "reference_failed" not in r for r in pixels),
+               reference_failed=[{k: r.get(k) for k in ("i", "j", "why", "origin", "direction", "reference_failed")}
+                                 for r in pixels if "reference_failed" in r],
                unchecked_not_reached=checker.pending_pixels(name),
                reference_missed_chord=sum(bool(r.get("reference_missed_chord")) for r in checked),
                max_reference_error=max((r["reference_error"] for r in checked), default=None))
@@ -733,6 +762,8 @@ def _summary(out):
             row[f"{k} vs reference"] = (f"{v['over']} (max {v['max_error']:.1e}; "
                                         f"{v.get('over_where_reference_inside_is_the_chord', '?')} where the reference's "
                                         "inside is the exact chord)" if v["max_error"] is not None else "-")
+        if d.get("reference_failed"):
+            row["reference_failed"] = len(d["reference_failed"])
         if d.get("errors"):
             row["errors"] = len(d["errors"])
         rows[name] = row

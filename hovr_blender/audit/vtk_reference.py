@@ -74,6 +74,18 @@ class PixelResult:
     evaluations: int = 0
     stretches: list = field(default_factory=list)  # (t0, t1, cell)
     notes: list = field(default_factory=list)
+    failed: str | None = None  # why the reference has no value here (rgba NaN, error inf)
+
+
+class _NotLocated(Exception):
+    """A point of a stretch its cell does not locate: the integrand has no value there."""
+
+
+def _located(f, ts, c):
+    """Raise _NotLocated where cell c gave no field value at one of the ray parameters ts."""
+    bad = ~np.isfinite(f)
+    if bad.any():
+        raise _NotLocated(f"cell {c} does not locate the ray's point at t = {ts[np.argmax(bad)]:.12g} inside its stretch")
 
 
 class IndependentReference:
@@ -142,30 +154,39 @@ class IndependentReference:
 
     def _locate(self, c: int, x: np.ndarray):
         """Cell c's parametric coordinates of world point x, polished by Newton from VTK's own guess
-        or the cell's centre; None where VTK puts x FAR from the cell or Newton fails. A cell whose
-        map folds by a face gives a point there two preimages, one outside the cell, where VTK's
-        guess may lead: the one inside is taken where either start finds it. First, Newton from
-        the last point located inside c, in a few steps: a preimage inside c is the one these find
-        (VTK's search costs more than the polish)."""
+        or the cell's centre, or the last point located inside c; None where all fail (VTK's
+        guesses are not tried where it puts x FAR from the cell). A cell whose map folds by a face
+        gives a point there two preimages, one outside the cell, where VTK's guess may lead: the
+        one inside is taken where any start finds it. First, Newton from the last point located
+        inside c, in a few steps: a preimage inside c is the one these find (VTK's search costs
+        more than the polish)."""
         cell, ids, w, dw, nodes = self.cells[c]
         near = self._near.get(c)
+
+        def inside(pc):
+            return min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL
+
         if near is not None:  # the last point located in c: the ray's points come near each other
             pc = self._newton(cell, w, dw, nodes, x, near, NEAR_NEWTON_STEPS)
-            if pc is not None and min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL:
+            if pc is not None and inside(pc):
                 self._near[c] = pc
                 return pc
+        starts = []
         status = cell.EvaluatePosition(list(map(float, x)), self._closest, self._sub, self._pc, self._d2, w)
-        if status == 0 and self._d2.get() > self.far2[c]:
-            # VTK's distance to its linear sub-cells: the cell is that far away, less their
-            # linearisation error, orders of magnitude below FAR of the cell's size
-            return None
-        cell.GetParametricCenter(self._center)
+        # VTK's distance to its linear sub-cells: the cell is FAR away, less their linearisation
+        # error, orders of magnitude below FAR of the cell's size (by a rim that bulges past the
+        # sub-cells, not always: the last point's start, with all its steps, may still find it)
+        if not (status == 0 and self._d2.get() > self.far2[c]):
+            cell.GetParametricCenter(self._center)
+            starts = [list(self._pc), list(self._center)]
+        if near is not None:
+            starts.append(list(near))
         found = None
-        for start in (list(self._pc), list(self._center)):
+        for start in starts:
             pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
             if pc is None:
                 continue
-            if min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL:
+            if inside(pc):
                 self._near[c] = pc
                 return pc
             found = pc if found is None else found
@@ -329,6 +350,7 @@ class IndependentReference:
             half, mid = 0.5 * (hi - lo), 0.5 * (hi + lo)
             x = mid + half * GK_X
             f = np.array([self._at(c, o + t * d)[1] for t in x])
+            _located(f, x, c)
             tau = self.tau(f)
             # depth from the panel's start to each node: 12-point Gauss-Legendre of tau
             depth = np.empty(15)
@@ -336,6 +358,7 @@ class IndependentReference:
                 h = 0.5 * (xj - lo)
                 u = lo + h * (GL_X + 1.0)
                 fu = np.array([self._at(c, o + t * d)[1] for t in u])
+                _located(fu, u, c)
                 depth[j] = h * np.dot(GL_W, self.tau(fu))
             g = (tau * np.exp(-(state[1] + depth)))[:, None] * self.kappa(f)
             ck, cg = half * (GK_WK @ g), half * (GK_WG @ g)
@@ -372,9 +395,15 @@ class IndependentReference:
                 a = end
                 if b <= a:
                     continue
-            cuts = self._pieces(c, o, d, a, b)
-            for lo, hi in zip(cuts[:-1], cuts[1:]):
-                self._integrate_piece(c, o, d, lo, hi, state)
+            try:
+                cuts = self._pieces(c, o, d, a, b)
+                for lo, hi in zip(cuts[:-1], cuts[1:]):
+                    self._integrate_piece(c, o, d, lo, hi, state)
+            except _NotLocated as exc:
+                # a NaN integrand never meets the tolerance: the quadrature would halve its panel
+                # MAX_PANELS times (an hour) and still give NaN
+                return PixelResult(np.full(4, np.nan), np.inf, state[3], self.evaluations, stretches, notes,
+                                   failed=str(exc))
             end = max(end, b)
         T = float(np.exp(-state[1]))
         bg = np.asarray(background, float)

@@ -75,3 +75,32 @@ def test_a_worker_decides_random_pixels_from_the_prepared_state(tmp_path, monkey
         assert r["exact_chord"] is not None and r["exact_chord"] > 0
         assert abs(r["reference_inside"] - r["exact_chord"]) <= 1e-6 * max(1.0, r["exact_chord"]), r
         assert 0.0 <= r["reference"][3] <= 1.0
+
+
+def test_a_pixel_the_reference_fails_is_listed_never_checked(tmp_path):
+    """A pixel whose reference failed (PixelResult.failed: NaN, error inf) compared as NaN, which no
+    threshold exceeds: it counted as checked and right. It is listed as not decided instead."""
+    from hovr_blender.audit.vtk_reference import PixelResult
+
+    audit._prepare("curved_mixed_cube", str(tmp_path), (32, 18))
+    audit._STATE.pop("curved_mixed_cube", None)
+    st = audit._state("curved_mixed_cube", str(tmp_path))
+    st["reference"].pixel = lambda *a, **k: PixelResult(np.full(4, np.nan), np.inf, failed="cell 3 does not locate")
+    try:
+        rows = audit._decide("curved_mixed_cube", str(tmp_path), "sample", [None] * 2, [0, 0, 0])
+
+        class Checker:
+            lock = __import__("threading").Lock()
+            results, errors, prepared = {"curved_mixed_cube": rows}, {}, {}
+
+            def pending_pixels(self, name):
+                return 0
+
+        image = np.zeros((18, 32, 4))
+        report = audit._dataset_report("curved_mixed_cube", {"images": {k: image for k in audit.ALL_IMAGES}}, Checker())
+    finally:
+        audit._STATE.pop("curved_mixed_cube", None)
+    assert [r["reference_failed"] for r in rows] == ["cell 3 does not locate"] * 2
+    assert report["checked"] == 0 and report["unchecked_curved_pyramids"] == 0
+    assert len(report["reference_failed"]) == 2 and report["pixels_over"] == []
+    assert all(v["max_error"] is None for v in report["vs_reference"].values())

@@ -127,6 +127,27 @@ def test_a_cell_the_ray_only_clips_is_not_missed():
     assert abs(p.rgba[3] - (1.0 - np.exp(-tau * chord))) < 1e-10
 
 
+def test_a_point_its_cell_does_not_locate_fails_the_pixel_at_once():
+    """A stretch's point that its cell does not locate gives the integrand NaN, which never meets the
+    tolerance: the quadrature halved its panel MAX_PANELS times (20,000 panels, an hour on
+    Hex_Mushroom, and NaN at the end). The pixel fails at once instead, saying where."""
+    from hovr_blender.io.synthetic import brick
+
+    mesh = brick([0.0, 0.0, 0.0], [2.0, 2.0, 1.0], (2, 2, 1), 2, lambda x, y, z: 0.0 * x + 1.0)
+    ir = R.IndependentReference(vtk_volume.from_mesh(mesh), [0.0, 2.0], [[0.3, 0.6, 0.9]] * 2, [0.0, 2.0],
+                                [1.0, 1.0], tol=1e-10)
+    d = np.array([1.0, 0.3, 0.1]) / np.linalg.norm([1.0, 0.3, 0.1])
+    o = np.array([0.5, 0.5, 0.5]) - 3.0 * d
+    found = ir.stretches(o, d, 0.0, np.inf)
+    assert found
+    ir.stretches = lambda *args, **kw: found  # located as usual; then no point locates
+    ir._locate = lambda c, x: None
+    p = ir.pixel(o, d, np.zeros(3))
+    assert p.failed and "does not locate" in p.failed
+    assert np.isnan(p.rgba).all() and p.error == np.inf
+    assert p.panels <= 1 and p.evaluations <= 2 * R.CROSSING_SAMPLES
+
+
 def test_the_reference_estimate_carries_its_cells_inside_slack():
     """A cell counts a point within INSIDE_TOL (parametric) outside it as inside, so a ray leaving
     the domain at a shallow angle runs on INSIDE_TOL over its crossing rate too far (at a rate of
