@@ -81,6 +81,11 @@ class _NotLocated(Exception):
     """A point of a stretch its cell does not locate: the integrand has no value there."""
 
 
+def _inside(kind, pc) -> bool:
+    """Parametric coordinates pc inside a cell of VTK type `kind`, to INSIDE_TOL."""
+    return min(m for m, _ in face_margins(kind, pc)) >= -INSIDE_TOL
+
+
 def _located(f, ts, c):
     """Raise _NotLocated where cell c gave no field value at one of the ray parameters ts."""
     bad = ~np.isfinite(f)
@@ -149,7 +154,7 @@ class IndependentReference:
         if pc is None:
             return False, np.nan
         cell.InterpolateFunctions(list(pc), w)
-        inside = min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL
+        inside = _inside(cell.GetCellType(), pc)
         return inside, float(np.frombuffer(w) @ self.values[ids])
 
     def _locate(self, c: int, x: np.ndarray):
@@ -162,13 +167,10 @@ class IndependentReference:
         more than the polish)."""
         cell, ids, w, dw, nodes = self.cells[c]
         near = self._near.get(c)
-
-        def inside(pc):
-            return min(m for m, _ in face_margins(cell.GetCellType(), pc)) >= -INSIDE_TOL
-
+        kind = cell.GetCellType()
         if near is not None:  # the last point located in c: the ray's points come near each other
             pc = self._newton(cell, w, dw, nodes, x, near, NEAR_NEWTON_STEPS)
-            if pc is not None and inside(pc):
+            if pc is not None and _inside(kind, pc):
                 self._near[c] = pc
                 return pc
         starts = []
@@ -186,7 +188,7 @@ class IndependentReference:
             pc = self._newton(cell, w, dw, nodes, x, np.array(start, dtype=np.float64))
             if pc is None:
                 continue
-            if inside(pc):
+            if _inside(kind, pc):
                 self._near[c] = pc
                 return pc
             found = pc if found is None else found
