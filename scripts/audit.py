@@ -328,7 +328,7 @@ def _state(name, cache):
         from hovr_blender.audit import vtk_volume
 
         vtu, pkl = _cache_files(cache, name)
-        with open(pkl, "rb") as f:
+        with open(pkl, "rb") as f:  # _prepare's own state, in this run's private mkdtemp folder: no outside bytes
             st = pickle.load(f)
         grid = None
         if st["data"] is not None and st["data"]["path"].endswith(".vtu"):
