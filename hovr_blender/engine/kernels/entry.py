@@ -333,7 +333,11 @@ def make_search_entry(CURVED: bool):
                 best.t = wp.max(c.t, t_from)
                 best.r = r
                 best.dv = dv
-            elif c.element == UNDECIDED and c.t < best.t:
+            elif c.element == UNDECIDED and c.t < best.t - eps:
+                # undecided within eps of an affine entry: every crossing set aside lies at the
+                # entry (a ray through a vertex, float32), and no element holds the ray between
+                # them beyond the stretch tolerance; searching on from there would count as a
+                # stall, which enters nothing at its start, and the affine element would be lost
                 best.element = UNDECIDED
                 best.t = wp.max(c.t, t_from)
         return best, work
