@@ -229,6 +229,9 @@ BASE = "float64-split-1e-7"  # split, float64, tolerance 1e-7, no early ray term
 ALL_IMAGES = (*IMAGES, BASE)
 PRIORITY_PREPARE, PRIORITY_GAP, PRIORITY_SAMPLE = (0, 0), 1, 2  # heap keys: (kind, rank)
 SAMPLE_CHUNK = 4  # random pixels per pool job
+# random pixels drawn again per dataset in place of those the reference could not decide (a cell
+# whose map folds, a curved pyramid), so that the random pixels decided still reach --sample
+REDRAWS_MAX = 64
 GAP_CHUNK = 4
 LOST = 1e-4  # of the diagonal: the reference's inside length short of the exact chord by more
 PIXEL_KEYS = ("i", "j", "why", "exact_chord", "reference_inside", "reference_missed_chord", "reference",
@@ -450,7 +453,7 @@ class _Checker:
         with one_blas_thread():  # a Pool starts its workers here
             self.pool = multiprocessing.get_context("spawn").Pool(jobs)  # spawn: no CUDA state is forked
         self.heap, self.inflight, self.waiting = [], {}, {}
-        self.prepared, self.results, self.errors = {}, {}, {}
+        self.prepared, self.results, self.errors, self.redrawn = {}, {}, {}, {}
 
     def push(self, priority, job):
         with self.lock:
@@ -482,7 +485,20 @@ class _Checker:
                     self.heapq.heappush(self.heap, (priority, next(self.order), waiting))
             else:
                 self.results.setdefault(name, []).extend(out)
+                if job[0] == "sample":
+                    self._redraw(job, sum(not row.get("checkable") for row in out))
             self._pump()
+
+    def _redraw(self, job, undecided):
+        """A sample job for as many new random pixels as `job` left undecided (its seed extended by
+        the count so far), while the dataset's REDRAWS_MAX lasts; called with the lock held."""
+        name = job[1]
+        done = self.redrawn.get(name, 0)
+        k = min(undecided, REDRAWS_MAX - done)
+        if k > 0:
+            self.redrawn[name] = done + k
+            again = ("sample", name, job[2], [None] * k, [*job[4], done])
+            self.heapq.heappush(self.heap, ((PRIORITY_SAMPLE, 1 << 30), next(self.order), again))
 
     def busy(self):
         with self.lock:
@@ -520,8 +536,15 @@ def _select(images, top, max_gap):
     return sorted(picked, key=lambda p: -score[p[1], p[0]]), stats, int(len(jj))
 
 
+# the tents come from field_samples' matrix products, which a worker's one BLAS thread rounds
+# otherwise than this process's many: they may differ in their last bits (6e-16 seen), which moves
+# no pixel by more than its own rounding
+FLOAT_RTOL = 1e-12
+
+
 def _first_difference(a, b, path="") -> str | None:
-    """Where a and b (dicts, lists, numbers, strings) first differ, and by how much; None: equal."""
+    """Where a and b (dicts, lists, numbers, strings) first differ, and by how much; None: equal
+    (numbers within FLOAT_RTOL)."""
     if isinstance(a, dict) and isinstance(b, dict):
         if a.keys() != b.keys():
             return f"{path or '/'}: keys {sorted(a)} against {sorted(b)}"
@@ -533,6 +556,8 @@ def _first_difference(a, b, path="") -> str | None:
     if a == b:
         return None
     if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        if abs(a - b) <= FLOAT_RTOL * max(abs(a), abs(b)):
+            return None
         return f"{path}: {a!r} against {b!r} (relative {abs(a - b) / max(abs(a), abs(b)):.1e})"
     return f"{path}: {a!r} against {b!r}"
 
@@ -543,6 +568,7 @@ def _dataset_report(name, entry, checker, threshold=WRONG):
         rows = list(checker.results.get(name, []))
         errors = list(checker.errors.get(name, []))
         prepared = checker.prepared.get(name)
+        redrawn = checker.redrawn.get(name, 0)
     images = entry.get("images", {})
     seen, pixels = set(), []
     for row in rows:
@@ -563,7 +589,7 @@ def _dataset_report(name, entry, checker, threshold=WRONG):
     if differs:
         errors.append(f"the reference's camera or transfer function is not the render's: {differs}")
     out.update(prepare_seconds=prepared and prepared["seconds"], errors=errors, checked=len(checked),
-               checked_random=sum(r["why"] == "sample" for r in checked),
+               checked_random=sum(r["why"] == "sample" for r in checked), random_redrawn=redrawn,
                checked_disputed=sum(r["why"] == "gap" for r in checked),
                unchecked_curved_pyramids=sum(not r.get("checkable") and "reference_failed" not in r for r in pixels),
                reference_failed=[{k: r.get(k) for k in ("i", "j", "why", "origin", "direction", "reference_failed")}
