@@ -190,10 +190,10 @@ def _attach(shared, spec):
 
 def _render_into(renderer, shared, msg) -> RenderResult:
     """A "render_shared" request: the rows rendered into the shared image; the result without pixels."""
-    _, camera, tf, background, options, rows, surface_t, _ = msg
+    _, camera, tf, background, options, rows, surface_t, surfaces, _ = msg
     t0 = time.perf_counter()
     res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
-                          out=(shared.rgba, shared.aux), surface_t=surface_t)
+                          out=(shared.rgba, shared.aux), surface_t=surface_t, surfaces=surfaces)
     res.stats["wall_seconds"] = time.perf_counter() - t0
     res.rgba = res.depth = res.error = None
     return res
@@ -222,12 +222,12 @@ def _trace_band(renderer, caches, msg) -> dict:
 
 def _shade_band(renderer, caches, shared, msg) -> RenderResult:
     """A "shade" request: the kept band shaded through the look into the shared image's rows."""
-    _, cache_id, tf, background, options, _ = msg
+    _, cache_id, tf, background, options, surfaces, _ = msg
     cache = caches.get(cache_id)
     if cache is None:
         raise SegmentCacheError("this device no longer keeps the segments; trace again")
     t0 = time.perf_counter()
-    res = renderer.shade(cache, tf, background, options.with_(device=renderer.device))
+    res = renderer.shade(cache, tf, background, options.with_(device=renderer.device), surfaces=surfaces)
     r0, r1 = cache.rows
     shared.rgba[r0:r1] = res.rgba
     shared.aux[r0:r1, :, 0], shared.aux[r0:r1, :, 1] = res.depth, res.error
@@ -282,10 +282,12 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float3
                 elif msg[0] == "render_shared":
                     shared = _attach(shared, msg[-1])
                     conn.send(("ok", _render_into(renderer, shared, msg)))
+                elif msg[0] == "surface_misses":
+                    conn.send(("ok", renderer.surface_misses(msg[1], msg[2])))
                 else:
-                    _, camera, tf, background, options, rows, surface_t = msg
+                    _, camera, tf, background, options, rows, surface_t, surfaces = msg
                     res = renderer.render(camera, tf, background, options.with_(device=renderer.device), rows=rows,
-                                          surface_t=surface_t)
+                                          surface_t=surface_t, surfaces=surfaces)
                     conn.send(("ok", res))
             except BaseException as exc:  # noqa: BLE001
                 conn.send(("error", f"{type(exc).__name__}: {exc}"))
@@ -439,11 +441,11 @@ class MultiDeviceRenderer:
     cost, once); close() (or `with`) stops them. A frame's rows are split by the previous frame's
     row costs where it had the same height, else by a pre-pass at 1/prepass_scale of the size (0:
     equal rows). Of a Frame it draws opaque meshes (each device reads its band of the whole
-    image's hits), not isosurfaces or planes, and it keeps a segment cache of the whole image
+    image's hits) and isosurfaces and planes, and it keeps a segment cache of the whole image
     (engine/frame.py): each device traces and keeps its band's segments, and a look-only edit
     shades each band where it is (trace, shade)."""
 
-    capabilities = frozenset({Capability.OPAQUE, Capability.SEGMENT_CACHE})
+    capabilities = frozenset({Capability.OPAQUE, Capability.SEGMENT_CACHE, Capability.SURFACES})
     kind = "over several devices"
 
     def __init__(self, mesh, devices, max_tile_rays: int | None = None, precision: str = "float32",
@@ -553,9 +555,8 @@ class MultiDeviceRenderer:
 
     def shade(self, cache: MultiDeviceCache, tf, background, options, progress=None, tile_pixels=None,
               profile=False, surfaces=None) -> RenderResult:
-        """Renderer.shade over the devices: each shades its kept band into the shared image."""
-        if surfaces:
-            raise RenderError("isosurfaces and planes: not drawn when rendering over several devices")
+        """Renderer.shade over the devices: each shades its kept band into the shared image (with the
+        frame's isosurfaces and planes)."""
         if not isinstance(cache, MultiDeviceCache) or not cache.complete:
             raise SegmentCacheError("the segment cache was not traced to its end on these devices; trace again")
         if cache.frame_key != self.frame_key(tf):
@@ -565,7 +566,7 @@ class MultiDeviceRenderer:
         W, H = int(camera.width), int(camera.height)
         shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
         t0 = time.perf_counter()
-        replies = self._ask([("shade", cache.id, tf, background, options, shared.spec) for _ in cache.bands])
+        replies = self._ask([("shade", cache.id, tf, background, options, surfaces, shared.spec) for _ in cache.bands])
         seconds = time.perf_counter() - t0
         first = replies[0].stats
         stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds", "segment_cache")}
@@ -580,6 +581,12 @@ class MultiDeviceRenderer:
             progress(1.0)
         return RenderResult(rgba=rgba, stats=stats, depth=aux[..., 0], error=aux[..., 1])
 
+    def surface_misses(self, camera, surfaces) -> list[str]:
+        """Renderer.surface_misses, asked of the first device (which holds the mesh's boxes and ranges)."""
+        first = self._procs[0]
+        first.send("surface_misses", camera, surfaces)
+        return first.reply()
+
     def split(self, height: int, row_cost=None) -> list[tuple[int, int]]:
         """The row bands of the next frame: by `row_cost` (a pre-pass's), else the last frame's row
         costs if it had this height, else equal rows, over the devices' measured speeds."""
@@ -592,7 +599,7 @@ class MultiDeviceRenderer:
         self._row_cost = None
         self._speeds = np.ones(len(self.devices))
 
-    def prepass(self, camera, tf, background, options, surface_t=None) -> np.ndarray:
+    def prepass(self, camera, tf, background, options, surface_t=None, surfaces=None) -> np.ndarray:
         """The frame's cost per row, estimated by rendering its view at 1/prepass_scale of its
         size (prepass_camera), in equal bands over the devices, each full-size row taking the
         cost of the pre-pass row its centre falls in (surface_t sampled alike)."""
@@ -604,7 +611,7 @@ class MultiDeviceRenderer:
         bands = balanced_rows(np.ones(h), np.ones(len(self._procs)))
         procs = self._procs[:len(bands)]
         for p, band in zip(procs, bands):
-            p.send("render", low, tf, background, options, band, surface_t)
+            p.send("render", low, tf, background, options, band, surface_t, surfaces)
         replies, errors = [], []
         for p in procs:  # every reply read: the pipes stay in step
             try:
@@ -615,7 +622,7 @@ class MultiDeviceRenderer:
             raise errors[0]
         return upsampled_rows(np.concatenate([r.row_cost for r in replies]), int(camera.height))
 
-    def _frame_bands(self, camera, tf, background, options, surface_t=None):
+    def _frame_bands(self, camera, tf, background, options, surface_t=None, surfaces=None):
         """(bands, split_by, pre-pass seconds, the pre-pass's row costs or None) of a frame: split
         by the previous frame's row costs where it had this height, else by a pre-pass (none with
         prepass_scale 0 or one device: equal rows)."""
@@ -625,18 +632,19 @@ class MultiDeviceRenderer:
         if self.prepass_scale <= 0 or len(self._procs) < 2:
             return self.split(H), "equal rows", 0.0, None
         t0 = time.perf_counter()
-        cost = self.prepass(camera, tf, background, options, surface_t)
+        cost = self.prepass(camera, tf, background, options, surface_t, surfaces)
         return self.split(H, cost), "pre-pass", time.perf_counter() - t0, cost
 
     def render(self, camera, tf, background, options, progress=None, tile_pixels=None, profile=False,
-               surface_t=None) -> RenderResult:
+               surface_t=None, surfaces=None) -> RenderResult:
         """Renderer.render over the devices (progress is called once, at the end; profile is ignored;
-        surface_t, the whole image's, goes to every device, which reads its band's rows). A frame
+        surface_t, the whole image's, goes to every device, which reads its band's rows; so do the
+        isosurfaces and planes, each ray the one device's). A frame
         without a previous frame of its height is split by a pre-pass (prepass), timed in its
         render_seconds and apart in stats["prepass_seconds"]; stats["split_by"] says which."""
         W, H = int(camera.width), int(camera.height)
         t0 = time.perf_counter()
-        bands, split_by, prepass_seconds, _ = self._frame_bands(camera, tf, background, options, surface_t)
+        bands, split_by, prepass_seconds, _ = self._frame_bands(camera, tf, background, options, surface_t, surfaces)
         shared = self._shared_image(W, H, np.float64 if options.precision == "float64" else np.float32)
         # every device gets its request before any reply is waited for; each writes its rows into
         # the shared image and answers with its stats and row costs only
@@ -644,7 +652,8 @@ class MultiDeviceRenderer:
         dropped, self._dropped = self._dropped, []
         for k, (p, band) in enumerate(zip(self._procs, bands)):
             try:
-                p.send("render_shared", camera, tf, background, options, band, surface_t, shared.spec, dropped)
+                p.send("render_shared", camera, tf, background, options, band, surface_t, surfaces, shared.spec,
+                       dropped)
                 waiting[p.fileno()] = k
             except RenderError as exc:
                 errors.append(exc)

@@ -163,7 +163,7 @@ class SortLastRenderer:
         t0 = time.perf_counter()
         if self.processes:
             for p, cam in zip(self._parts, cams):
-                p.send("render", cam, tf, black, options, None, None)
+                p.send("render", cam, tf, black, options, None, None, None)
             results = [p.reply() for p in self._parts]
         else:
             results = [r.render(cam, tf, black, options.with_(device=r.device)) for r, cam in zip(self._parts, cams)]

@@ -339,31 +339,20 @@ def test_a_device_process_that_dies_at_start_is_reported_within_seconds(monkeypa
 
 
 def test_a_frame_a_renderer_cannot_draw_is_refused_in_one_line():
-    """The door (engine/frame.py) asks each renderer's capabilities: isosurfaces and planes are
-    drawn on one device only, refused for a device list before any process starts, and for the
-    sort-last renderer (which draws the volume alone) before it renders; opaque meshes go over
-    several devices but not sort-last; a segment cache is only saved work, so a renderer that
-    keeps none renders the frame plainly."""
+    """The door (engine/frame.py) asks each renderer's capabilities: the sort-last renderer (which
+    draws the volume alone) refuses isosurfaces, planes and opaque meshes before it renders; a
+    device list draws them all; a segment cache is only saved work, so a renderer that keeps none
+    renders the frame plainly."""
     from hovr_blender.engine.frame import Capability, Frame, SegmentSlot, UnsupportedFrame, render_frame
     from hovr_blender.engine.isosurfaces import Isosurface, Surfaces
-    from hovr_blender.engine.multi_device import make_renderer
     from hovr_blender.engine.opaque import OpaqueMesh, OpaqueScene
 
     mesh, tf, camera = curved_mixed_scene(2)
     cam = camera(16, 12)
     lo, hi = np.percentile(mesh.field_samples(3), [10, 90])
     iso = Frame(tf, BACKGROUND, RenderOptions(), surfaces=Surfaces((Isosurface(0.5 * (lo + hi), (1, 1, 0)),)))
-    started = []
-    original = MultiDeviceRenderer.__init__
-    try:
-        MultiDeviceRenderer.__init__ = lambda self, *a, **k: started.append(a) or original(self, *a, **k)
-        with pytest.raises(UnsupportedFrame, match=r"^isosurfaces and planes: not drawn when rendering over several "
-                                                   r"devices; render on one device$"):
-            make_renderer(mesh, "cpu,cpu", frame=iso)
-    finally:
-        MultiDeviceRenderer.__init__ = original
-    assert started == []
-    assert Capability.OPAQUE in MultiDeviceRenderer.capabilities and Renderer.capabilities == frozenset(Capability)
+    assert {Capability.OPAQUE, Capability.SURFACES} <= MultiDeviceRenderer.capabilities
+    assert Renderer.capabilities == frozenset(Capability)
     plane = OpaqueScene([OpaqueMesh([[-1, -1, 0.5], [2, -1, 0.5], [2, 2, 0.5]], [[0, 1, 2]])])
     sl = SortLastRenderer(mesh, ["cpu", "cpu"], processes=False)
     for frame in (iso, iso.with_(surfaces=None, opaque=plane)):
@@ -375,6 +364,42 @@ def test_a_frame_a_renderer_cannot_draw_is_refused_in_one_line():
     plain = render_frame(sl, iso.with_(surfaces=None, cache=slot), cam)
     assert slot.cache is None
     np.testing.assert_array_equal(plain.rgba, sl.render(cam, tf, BACKGROUND, RenderOptions()).rgba)
+
+
+def test_isosurfaces_and_planes_over_two_cpu_processes_equal_one_device():
+    """All CPU Cores draws a frame's isosurfaces and cut planes: each device's rows carry them, so
+    the image is the one device's bit for bit, rendered plainly and traced then shaded from kept
+    segments (a look-only edit moves the isosurface's colour); an isosurface no ray meets is said
+    once, of the whole image, as on one device."""
+    from hovr_blender.engine.frame import Frame, SegmentSlot, render_frame
+    from hovr_blender.engine.isosurfaces import CutPlane, Isosurface, Surfaces
+
+    mesh, tf, camera = curved_mixed_scene(2)
+    cam = camera(W, H)
+    lo, hi = np.percentile(mesh.field_samples(3), [10, 90])
+    centre = 0.5 * (np.asarray(mesh_bounds(mesh)[0]) + np.asarray(mesh_bounds(mesh)[1]))
+    surfaces = Surfaces((Isosurface(0.5 * (lo + hi), (1.0, 0.8, 0.2), opacity=0.7),),
+                        (CutPlane.through(centre, (0.3, 1.0, 0.2), opacity=0.5, clip=1),))
+    recoloured = Surfaces((dataclasses.replace(surfaces.isosurfaces[0], color=(0.2, 0.4, 1.0)),), surfaces.planes)
+    frames = [Frame(tf, BACKGROUND, RenderOptions(), surfaces=s) for s in (surfaces, recoloured)]
+    outside = Frame(tf, BACKGROUND, RenderOptions(),
+                    surfaces=Surfaces((Isosurface(float(mesh.field_samples(3).max()) + 1.0, (1, 0, 0)),)))
+    said = Renderer(mesh, "cpu").surface_misses(cam, outside.surfaces)
+    assert len(said) == 1
+    images = {}
+    for devices in (["cpu"], "cpu,cpu"):  # the one device started like the split's (the test above says why)
+        with MultiDeviceRenderer(mesh, devices) as md:
+            slot = SegmentSlot()
+            got = [render_frame(md, f, cam) for f in frames]
+            got += [render_frame(md, f.with_(cache=slot), cam) for f in frames]
+            images[len(md.devices)] = got
+            assert [r.stats["segment_cache"]["use"] for r in got[2:]] == ["traced", "shaded"]
+            assert md.surface_misses(cam, outside.surfaces) == said
+    for one, split in zip(images[1], images[2]):
+        assert np.array_equal(one.rgba, split.rgba)
+    plain = render_frame(Renderer(mesh, "cpu"), Frame(tf, BACKGROUND, RenderOptions()), cam)
+    assert not np.array_equal(images[2][0].rgba, plain.rgba)  # the surfaces are in the image
+    assert not np.array_equal(images[2][0].rgba, images[2][1].rgba)  # and the edit changed them
 
 
 def test_a_first_frame_with_an_opaque_mesh_is_split_by_a_prepass_that_stops_at_it():
