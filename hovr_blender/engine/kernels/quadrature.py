@@ -662,17 +662,33 @@ def value_and_slope_sign(coeffs: wp.array(dtype=wp.float32), base: int, deg: int
 def first_crossing(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, deg: int, a: float, b: float, lo: float, hi: float, f_lo: float,
                    f_hi: float, t_after: float) -> wp.vec2:
     """(t, evaluations): the first t in (t_after, hi] where f crosses a breakpoint level on the
-    monotone piece [lo, hi] (f(lo) = f_lo, f(hi) = f_hi); hi itself if none."""
-    best = hi
+    monotone piece [lo, hi] (f(lo) = f_lo, f(hi) = f_hi); hi itself if none. f meets the levels
+    between f_lo and f_hi in their order from f_lo, so they are solved for in that order until one
+    crosses beyond t_after (those before it were crossed at or before t_after: the cut just made)."""
     nev = float(0.0)
-    for k in range(tf.density_s.shape[0] + tf.color_s.shape[0]):
-        lvl = level(tf, k)
-        if (f_lo - lvl) * (f_hi - lvl) < 0.0:
-            bc = level_crossing(coeffs, base, deg, a, b, lo, hi, f_lo, f_hi, lvl)
-            nev += bc[1]
-            if bc[0] > t_after and bc[0] < best:
-                best = bc[0]
-    return wp.vec2(best, nev)
+    up = float(1.0)
+    if f_hi < f_lo:
+        up = -1.0
+    passed = f_lo  # the levels solved for so far lie between f_lo and this
+    n_levels = tf.density_s.shape[0] + tf.color_s.shape[0]
+    for attempt in range(n_levels):
+        # the nearest level beyond `passed` toward f_hi, strictly between f_lo and f_hi
+        nearest = float(0.0)
+        found = int(0)
+        for k in range(n_levels):
+            lvl = level(tf, k)
+            if (f_lo - lvl) * (f_hi - lvl) < 0.0 and up * (lvl - passed) > 0.0:
+                if found == 0 or up * (lvl - nearest) < 0.0:
+                    nearest = lvl
+                    found = 1
+        if found == 0:
+            break
+        bc = level_crossing(coeffs, base, deg, a, b, lo, hi, f_lo, f_hi, nearest)
+        nev += bc[1]
+        if bc[0] > t_after:
+            return wp.vec2(wp.min(bc[0], hi), nev)
+        passed = nearest
+    return wp.vec2(hi, nev)
 
 
 @wp.func
@@ -726,7 +742,11 @@ def next_cut(tf: TransferArgs, coeffs: wp.array(dtype=wp.float32), base: int, de
                 lo = su
                 hi = sv
                 glo = fu[1]
+                # to the roots' own tolerance in t (level_crossing's): beyond it the halving
+                # only rounds, which float32 reaches after about 20 of the 40 steps
                 for it in range(40):
+                    if half * (hi - lo) <= ROOT_RTOL * (wp.abs(mid + half * lo) + wp.abs(mid + half * hi)) + 1.0e-30:
+                        break
                     m = 0.5 * (lo + hi)
                     gm = value_and_slope_sign(coeffs, base, deg, m)
                     nev += 1.0
