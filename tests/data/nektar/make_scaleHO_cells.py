@@ -13,8 +13,6 @@ Nektar++ reader turns them into modal expansions (engine/expansions).
 """
 from pathlib import Path
 
-import numpy as np
-
 PAD = 0.01
 RAYS = {
     # the audit's oblique camera at 1920x1080, pixel (916, 481) (bench.commits views)
@@ -30,22 +28,11 @@ if __name__ == "__main__":
 
     here = Path(__file__).resolve().parent
     sys.path.insert(0, str(here.parents[2]))
-    from hovr_blender.engine import expansions as ex
     from hovr_blender.io.nektar import read_nektar
+    from tests.data.ray_cells import cells_along, save_cells
 
     mesh = read_nektar(str(here.parents[3] / "shared" / "data" / "nektar" / "scaleHO.xml"))
-    for name, ray in RAYS.items():
-        o, d = (np.asarray(v, float) for v in ray)
-        lo, hi = mesh.vertices.min(axis=1) - PAD, mesh.vertices.max(axis=1) + PAD
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta, tb = (lo - o) / d, (hi - o) / d
-        t0, t1 = np.nanmax(np.minimum(ta, tb), axis=1), np.nanmin(np.maximum(ta, tb), axis=1)
-        cells = np.nonzero(t1 >= np.maximum(t0, 0.0))[0]
-        n = max(ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e]) for e in cells)
-        geom = np.zeros((len(cells), n, 3))
-        for k, e in enumerate(cells):
-            g = mesh.geom_coeffs[mesh.geom_offset[e]: mesh.geom_offset[e] + ex.num_coeffs(int(mesh.shape[e]), mesh.geom_modes[e])]
-            geom[k, :len(g)] = g
-        np.savez_compressed(here / name, cells=cells, shape=mesh.shape[cells], geom_modes=mesh.geom_modes[cells],
-                            geom=geom, affine=mesh.affine[cells])
+    for name, (o, d) in RAYS.items():
+        cells = cells_along(mesh, o, d, PAD)
+        save_cells(here / name, mesh, cells, affine=mesh.affine[cells])
         print(name, len(cells), "cells")
