@@ -99,6 +99,26 @@ def test_one_door_every_path_draws_the_same_view(scene, tmp_path):
     assert np.median(diff) < 1e-5 and (diff > 1e-3).mean() < 0.02, (np.median(diff), (diff > 1e-3).mean())
 
 
+def test_f12_over_every_cpu_core_draws_the_isosurface_and_plane(scene, tmp_path):
+    """Device "All CPU Cores" draws the look's isosurface and clipping plane (each process's rows
+    carry them): the one-core F12 bit for bit; before, the frame was refused."""
+    from hovr_blender.ui import render
+
+    vol, _plane = _scene_with_surfaces(scene)
+    one = render_to_exr(scene, tmp_path / "one.exr")
+    scene.hovr.device = "cpu:all"
+    try:
+        every = render_to_exr(scene, tmp_path / "all.exr")
+    finally:
+        render.clear_cache()  # closes the processes
+        scene.hovr.device = "cpu"
+    np.testing.assert_array_equal(every, one)
+    vol.hovr_surfaces.isosurfaces.clear()
+    vol.hovr_surfaces.planes.clear()
+    plain = render_to_exr(scene, tmp_path / "plain.exr")
+    assert (np.abs(plain - one).max(axis=-1) > 0.05).mean() > 0.05  # the isosurface and the plane are drawn
+
+
 def test_moving_the_plane_object_rerenders_the_cut(scene):
     _vol, plane = _scene_with_surfaces(scene)
     ctx = camera_view(scene, 32, 24)
