@@ -187,6 +187,7 @@ def _renderer_for(mesh, device):
             cur.replace_field(mesh)
             return cur, "field"
     _WORKER["renderer"] = Renderer(mesh, device)
+    _WORKER["renderer"].cpu_threads = 1  # a worker's threads render frames of their own
     return _WORKER["renderer"], "uploaded"
 
 

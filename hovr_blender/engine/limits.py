@@ -58,6 +58,22 @@ def cpu_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+CPU_THREADS_VARIABLE = "HOVR_CPU_THREADS"
+
+
+def cpu_threads() -> int:
+    """Threads one CPU render may run its launch tiles on (Warp runs a CPU launch on the thread
+    that makes it, without Python's lock): HOVR_CPU_THREADS where set (1: one core), else every
+    core this process may use."""
+    value = os.environ.get(CPU_THREADS_VARIABLE, "").strip()
+    if value:
+        try:
+            return max(1, int(value))
+        except ValueError:
+            raise ResourceLimitError(f"{CPU_THREADS_VARIABLE}={value!r}: a whole number of threads, 1 or more") from None
+    return cpu_cores()
+
+
 def default_max_processes() -> int:
     """Processes one run may start (render devices, Dask workers): one a core this process may
     use, and at least 2 (a two-device split on a one-core machine); a process holds its own copy

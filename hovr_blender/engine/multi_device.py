@@ -203,6 +203,7 @@ def _set_up(mesh, device, max_tile_rays, precision) -> tuple[Renderer, dict]:
     """A device's set-up, done once and kept out of every frame: the mesh uploaded (Renderer) and
     the kernels of `precision` loaded on the device. (Renderer, what it cost)."""
     renderer = Renderer(mesh, device, max_tile_rays=max_tile_rays)
+    renderer.cpu_threads = 1  # one process a device: All CPU Cores' are one a core
     t0 = time.perf_counter()
     report = load_kernels(renderer.kernel_variant, renderer.device, precision)
     return renderer, {"device": renderer.device, "upload_seconds": renderer.upload_seconds,

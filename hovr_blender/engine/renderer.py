@@ -9,7 +9,9 @@ so it imports Warp (and the kernels) at the top."""
 from __future__ import annotations
 
 import itertools
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 import warp as wp
@@ -46,6 +48,11 @@ TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a CPU launch ti
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
+# a CPU render's tiles go to cpu_threads threads (Warp runs a CPU launch without Python's lock):
+# at least this many rays a tile, and about TILES_PER_THREAD tiles a thread, so that a thread
+# whose rows cost more does not hold the frame back
+MIN_THREAD_RAYS = 4096
+TILES_PER_THREAD = 4
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
 
@@ -63,6 +70,9 @@ class Renderer(SegmentCaching):
         # the rays regrouped between rounds (_regroup); False: in the order the last round left them
         self.regroup = bool(regroup)
         self.device = resolve_device(device)
+        # threads a CPU render's tiles run on (limits.cpu_threads); 1 where the caller already runs
+        # one renderer a core (All CPU Cores' processes, a Dask worker's frames)
+        self.cpu_threads = limits.cpu_threads()
         self.mesh = mesh
         self._id = next(_RENDERER_IDS)
         self._field_version = 0  # replace_field counts up: segment caches of an older field are stale
@@ -376,7 +386,14 @@ class Renderer(SegmentCaching):
             transfer.surf = self._surface_args(upload, fr, surfaces, options)
             quad = quad_args(prec, options, background, upload, self.data_diagonal)
             tile = self._launch_tile(prec, end - first, progress, tile_pixels)
-            self.check_limits(W, H, options, tile)
+            threads = 1 if profile or ray_counts else self._threads_for(end - first)
+            if threads > 1:  # each thread its own tile buffers, within the one tile's memory
+                limit_rays = self._tile_limit(prec)
+                threads = min(threads, max(1, limit_rays // MIN_THREAD_RAYS))
+                balanced = max(MIN_THREAD_RAYS, -(-(end - first) // (TILES_PER_THREAD * threads)))
+                tile = min(tile, balanced, limit_rays // threads)
+                threads = min(threads, -(-(end - first) // tile))
+            self.check_limits(W, H, options, tile * threads)
             try:
                 rgba = wp.zeros(total, dtype=prec.vec4)
                 aux = wp.zeros(total, dtype=prec.vec2)
@@ -394,11 +411,21 @@ class Renderer(SegmentCaching):
             rounds = 0
             lanes = LaneCounts(kernels) if ray_counts else None
             own_step = chooses_own_step(options.method, options.h)
-            for start in range(first, end, tile):
+
+            def tile_at(start, tile_buffers_):
                 n = min(tile, end - start)
-                rounds += self._trace_tile(launch, upload, cam, transfer, quad, buffers, start, n, limit, lanes=lanes,
-                                           own_step=own_step)
-                launch(table.finalize, n, [quad, start, buffers.rays, rgba, aux])
+                r = self._trace_tile(launch, upload, cam, transfer, quad, tile_buffers_, start, n, limit, lanes=lanes,
+                                     own_step=own_step)
+                launch(table.finalize, n, [quad, start, tile_buffers_.rays, rgba, aux])
+                return r, n
+
+            if threads > 1:
+                rounds, cancelled = self._threaded_tiles(tile_at, range(first, end, tile), threads, buffers,
+                                                         lambda: tile_buffers(prec, tile, stats), progress,
+                                                         end - first)
+            for start in range(first, end, tile) if threads == 1 else ():
+                r, n = tile_at(start, buffers)
+                rounds += r
                 if progress is not None:
                     wp.synchronize_device(self.device)
                     if progress((start + n - first) / (end - first)) is False:
@@ -432,6 +459,50 @@ class Renderer(SegmentCaching):
                 "elements": self.mesh.num_elements, "precision": options.precision, "warnings": warnings}
         return RenderResult(depth=depth_err[..., 0], error=depth_err[..., 1], cancelled=cancelled, rgba=img,
                             stats=info, row_cost=row_cost, ray_counts=per_ray)
+
+    def _threads_for(self, rays: int) -> int:
+        """Threads a render of `rays` rays runs its tiles on: cpu_threads on the CPU, as many as
+        have MIN_THREAD_RAYS rays each; 1 on a GPU."""
+        if wp.get_device(self.device).is_cuda:
+            return 1
+        return max(1, min(int(self.cpu_threads), rays // MIN_THREAD_RAYS))
+
+    @staticmethod
+    def _threaded_tiles(tile_at, starts, threads: int, first_buffers: TileBuffers, new_buffers, progress,
+                        rays: int) -> tuple[int, bool]:
+        """tile_at(start, buffers) for every tile start, over `threads` threads, each with launch
+        buffers of its own (the first thread's `first_buffers`, the others' from new_buffers());
+        every ray writes only its own pixel, so the image is the one thread's bit for bit.
+        progress(fraction) is called here as tiles finish; False stops the tiles not started.
+        Returns (rounds, cancelled)."""
+        local = threading.local()
+        spare = [first_buffers]
+        lock = threading.Lock()
+        stop = threading.Event()
+
+        def run(start):
+            if stop.is_set():
+                return 0, 0
+            if not hasattr(local, "buffers"):
+                with lock:
+                    local.buffers = spare.pop() if spare else None
+                if local.buffers is None:
+                    local.buffers = new_buffers()
+            return tile_at(start, local.buffers)
+
+        rounds, done, cancelled = 0, 0, False
+        with ThreadPoolExecutor(threads, thread_name_prefix="hovr-tile") as pool:
+            futures = [pool.submit(run, s) for s in starts]
+            try:
+                for f in as_completed(futures):
+                    r, n = f.result()
+                    rounds, done = rounds + r, done + n
+                    if progress is not None and not cancelled and progress(done / rays) is False:
+                        cancelled = True
+                        stop.set()
+            finally:
+                stop.set()  # an error in one tile: the others not started are not
+        return rounds, cancelled
 
     def _trace_tile(self, launch: Launcher, upload: Upload, cam, transfer, quad, buffers: TileBuffers, start: int,
                     n: int, limit: tuple, record=None, lanes: LaneCounts | None = None, own_step: bool = False) -> int:

@@ -48,3 +48,49 @@ def test_gpu_tiles_follow_device_memory_not_the_host_limit(monkeypatch):
         assert tile >= 1920 * 1080 > 4 * 2**30 / ray_bytes
         counted = r.check_limits(1920, 1080, RenderOptions(), tile)
     assert 0 < counted < 4 * 2**30 < tile * ray_bytes
+
+
+def test_a_cpu_render_over_threads_is_the_one_thread_image():
+    """A CPU render runs its tiles on cpu_threads threads (Warp's CPU launches run without Python's
+    lock), each with launch buffers of its own: the image and the counts are the one thread's bit
+    for bit; progress is reported as tiles finish, a False stops the tiles not started, and an
+    error in one tile is the render's error."""
+    import pytest
+
+    from hovr_blender.engine.render_result import RenderError
+
+    mesh = curved_cube(1)
+    cam = framing(mesh, 128, 96)  # 12,288 rays: three threads of at least MIN_THREAD_RAYS
+    v = mesh.field_samples(3)
+    tf = tents(float(v.min()), float(v.max()), COLORS, 3.0)
+    r = Renderer(mesh, "cpu")
+    r.cpu_threads = 1
+    one = r.render(cam, tf, np.zeros(3), RenderOptions())
+    r.cpu_threads = 3
+    assert r._threads_for(128 * 96) == 3
+    threaded = r.render(cam, tf, np.zeros(3), RenderOptions())
+    np.testing.assert_array_equal(threaded.rgba, one.rgba)
+    np.testing.assert_array_equal(threaded.depth, one.depth)
+    assert threaded.stats["field_evaluations"] == one.stats["field_evaluations"]
+    seen = []
+    tiled = r.render(cam, tf, np.zeros(3), RenderOptions(), progress=seen.append, tile_pixels=2048)
+    assert len(seen) == 6 and seen == sorted(seen) and seen[-1] == 1.0 and not tiled.cancelled
+    np.testing.assert_array_equal(tiled.rgba, one.rgba)
+    stopped = r.render(cam, tf, np.zeros(3), RenderOptions(), progress=lambda f: False, tile_pixels=2048)
+    empty = lambda res: int((res.rgba.reshape(-1, 4) == 0).all(axis=1).sum())
+    assert stopped.cancelled and empty(stopped) > empty(one)  # the tiles not started are left empty
+    calls = []
+    trace = Renderer._trace_tile
+
+    def fails_on_the_second_tile(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RenderError("the second tile failed")
+        return trace(self, *args, **kwargs)
+
+    Renderer._trace_tile = fails_on_the_second_tile
+    try:
+        with pytest.raises(RenderError, match="the second tile failed"):
+            r.render(cam, tf, np.zeros(3), RenderOptions(), tile_pixels=2048, progress=lambda f: None)
+    finally:
+        Renderer._trace_tile = trace
