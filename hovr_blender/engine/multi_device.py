@@ -50,10 +50,7 @@ from .render_result import RenderError, RenderResult, SegmentCacheError
 from .renderer import Renderer
 from .segment_cache import TraceKey, camera_key
 from .transfer_function import TransferFunction
-
-SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
-                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
-                "ray_rounds")
+from .work_counts import SUMMED_STATS
 
 
 def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import itertools
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import numpy as np
 import warp as wp
@@ -35,6 +34,7 @@ from .mesh import (AFFINE_RTOL_FLOAT32, MeshError, VolumeMesh, affine_twin, boxe
 from .methods import SAMPLING_METHODS, chooses_own_step, samples_segments
 from .render_result import RenderError, RenderResult, check_float32_range
 from .segment_cache import SegmentCaching
+from .threads import MIN_THREAD_RAYS, TILES_PER_THREAD, in_threads
 from .transfer_function import TransferFunction
 from .view import RenderOptions, resolving_step
 from .work_counts import WARP_SIZE, LaneCounts, counter_stats, ray_cost
@@ -48,11 +48,6 @@ TILE_LIMIT_SHARE = 0.5  # of the memory limit (engine/limits.py) a CPU launch ti
 MIN_TILE_RAYS = 1 << 16
 MAX_TILE_RAYS = 1 << 22
 CPU_TILE_RAYS = 1 << 18
-# a CPU render's tiles go to cpu_threads threads (Warp runs a CPU launch without Python's lock):
-# at least this many rays a tile, and about TILES_PER_THREAD tiles a thread, so that a thread
-# whose rows cost more does not hold the frame back
-MIN_THREAD_RAYS = 4096
-TILES_PER_THREAD = 4
 _RENDERER_IDS = itertools.count()  # a renderer's identity in its caches' keys (id() is reused)
 
 
@@ -470,19 +465,16 @@ class Renderer(SegmentCaching):
     @staticmethod
     def _threaded_tiles(tile_at, starts, threads: int, first_buffers: TileBuffers, new_buffers, progress,
                         rays: int) -> tuple[int, bool]:
-        """tile_at(start, buffers) for every tile start, over `threads` threads, each with launch
-        buffers of its own (the first thread's `first_buffers`, the others' from new_buffers());
-        every ray writes only its own pixel, so the image is the one thread's bit for bit.
-        progress(fraction) is called here as tiles finish; False stops the tiles not started.
-        Returns (rounds, cancelled)."""
+        """tile_at(start, buffers) for every tile start over `threads` threads (threads.in_threads),
+        each thread with launch buffers of its own (the first's `first_buffers`, the others' from
+        new_buffers()); every ray writes only its own pixel, so the image is the one thread's bit
+        for bit. progress(fraction) as tiles finish; False stops those not started. Returns
+        (rounds, cancelled)."""
         local = threading.local()
         spare = [first_buffers]
         lock = threading.Lock()
-        stop = threading.Event()
 
         def run(start):
-            if stop.is_set():
-                return 0, 0
             if not hasattr(local, "buffers"):
                 with lock:
                     local.buffers = spare.pop() if spare else None
@@ -490,19 +482,14 @@ class Renderer(SegmentCaching):
                     local.buffers = new_buffers()
             return tile_at(start, local.buffers)
 
-        rounds, done, cancelled = 0, 0, False
-        with ThreadPoolExecutor(threads, thread_name_prefix="hovr-tile") as pool:
-            futures = [pool.submit(run, s) for s in starts]
-            try:
-                for f in as_completed(futures):
-                    r, n = f.result()
-                    rounds, done = rounds + r, done + n
-                    if progress is not None and not cancelled and progress(done / rays) is False:
-                        cancelled = True
-                        stop.set()
-            finally:
-                stop.set()  # an error in one tile: the others not started are not
-        return rounds, cancelled
+        done = [0]
+
+        def finished(result):
+            done[0] += result[1]
+            return None if progress is None else progress(done[0] / rays)
+
+        results, cancelled = in_threads(run, starts, threads, finished, name="hovr-tile")
+        return sum(r[0] for r in results if r is not None), cancelled
 
     def _trace_tile(self, launch: Launcher, upload: Upload, cam, transfer, quad, buffers: TileBuffers, start: int,
                     n: int, limit: tuple, record=None, lanes: LaneCounts | None = None, own_step: bool = False) -> int:

@@ -23,9 +23,10 @@ from .kernels.precision import Precision
 from .launch_args import Launcher, camera_args, quad_args, surface_limit, tile_buffers, transfer_args
 from .methods import samples_segments
 from .render_result import RenderError, RenderResult, SegmentCacheError
+from .threads import TILES_PER_THREAD, in_threads
 from .transfer_function import TransferFunction
 from .view import RenderOptions, resolving_step
-from .work_counts import counter_stats
+from .work_counts import SUMMED_STATS, counter_stats
 
 # a segment cache grows by this factor when a round needs more room (then shrinks to fit)
 CACHE_GROWTH = 1.5
@@ -106,6 +107,53 @@ class SegmentCache:
                 "segments_per_ray": segments / max(self.rays, 1), "chunks": chunks,
                 "coefficients_per_segment": coefficients / max(segments, 1),
                 "trace_seconds": self.stats.get("trace_seconds")}
+
+
+@dataclass(eq=False)
+class BandedCache:
+    """One view's segment cache traced in bands of rows side by side (Renderer.trace over a CPU's
+    threads): each band's own SegmentCache, in row order; shade shades each into its rows of the
+    one image. It answers what a SegmentCache does of the whole view (key, frame, camera, rows,
+    completeness, size)."""
+
+    key: TraceKey
+    frame_key: tuple
+    camera: RayCamera
+    rows: tuple
+    parts: list  # SegmentCache per band, in row order
+    complete: bool
+    stats: dict
+    warnings: list = field(default_factory=list)
+    opaque_hits: object = None
+
+    @property
+    def rays(self) -> int:
+        return (self.rows[1] - self.rows[0]) * int(self.camera.width)
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(p.nbytes for p in self.parts))
+
+    @property
+    def counts(self) -> tuple:
+        return tuple(int(sum(p.counts[k] for p in self.parts)) for k in range(3))
+
+    def describe(self) -> dict:
+        """SegmentCache.describe of the bands together, and how many there are."""
+        segments, chunks, coefficients = self.counts
+        per_ray_arrays = sum(p.arrays[k].capacity for p in self.parts for k in ("head", "t_end"))
+        return {"bytes": self.nbytes, "bytes_per_ray": self.nbytes / max(self.rays, 1),
+                "bytes_per_segment": (self.nbytes - per_ray_arrays) / max(segments, 1), "segments": segments,
+                "segments_per_ray": segments / max(self.rays, 1), "chunks": chunks,
+                "coefficients_per_segment": coefficients / max(segments, 1),
+                "trace_seconds": self.stats.get("trace_seconds"), "bands": len(self.parts)}
+
+
+def row_bands(row0: int, row1: int, count: int) -> list[tuple[int, int]]:
+    """Rows row0 .. row1 - 1 in `count` contiguous bands of about equal rows (each at least one)."""
+    count = max(1, min(int(count), row1 - row0))
+    edges = np.linspace(row0, row1, count + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 class CacheStore:
@@ -223,7 +271,61 @@ class SegmentCaching:
 
     def trace(self, camera: RayCamera, tf, options: RenderOptions, rows: tuple[int, int] | None = None,
               surface_t=None, surface_key=None, progress=None, tile_pixels: int | None = None,
-              held_bytes: int = 0, profile: bool = False) -> SegmentCache:
+              held_bytes: int = 0, profile: bool = False) -> SegmentCache | BandedCache:
+        """_trace_rows over the view's rows, on the CPU in bands over cpu_threads threads (a
+        BandedCache: each band a SegmentCache of its own, the same segments), else in one."""
+        W, H = int(camera.width), int(camera.height)
+        row0, row1 = (0, H) if rows is None else (int(rows[0]), int(rows[1]))
+        threads = 1 if profile or not 0 <= row0 < row1 <= H else self._threads_for((row1 - row0) * W)
+        if threads > 1:
+            return self._banded_trace(camera, tf, options, (row0, row1), surface_t, surface_key, progress, held_bytes,
+                                      threads)
+        return self._trace_rows(camera, tf, options, rows, surface_t, surface_key, progress, tile_pixels, held_bytes,
+                                profile)
+
+    def _banded_trace(self, camera, tf, options, rows, surface_t, surface_key, progress, held_bytes: int,
+                      threads: int) -> BandedCache:
+        """The view's rows traced in bands (TILES_PER_THREAD a thread) on `threads` threads, each band
+        _trace_rows into a cache of its own, their counters into one array (each ray its own row).
+        Each band may take its share of the memory the caller does not hold. progress is called
+        here as bands finish, and a False leaves the bands not started untraced (complete False)."""
+        W, H = int(camera.width), int(camera.height)
+        row0, row1 = rows
+        bands = row_bands(row0, row1, TILES_PER_THREAD * threads)
+        if surface_t is not None and surface_key is None:
+            surface_key = surface_digest(surface_t)
+        # the upload, its field and the trace's kernels, before the threads (which only read them)
+        fr, _, warnings = self.field_frame(tf, options.precision)
+        upload = self._upload(options.precision)
+        prec = upload.precision
+        load_modules(upload.kernels.trace_kernels(), self.device)
+        share = max(0, limits.current().max_memory - int(held_bytes)) // len(bands)
+        band_held = max(0, limits.current().max_memory - share)
+        with wp.ScopedDevice(self.device):
+            stats = wp.zeros((W * H, prec.kernels.NUM_STATS), dtype=wp.int32)
+            done = [0]
+
+            def finished(_part):
+                done[0] += 1
+                return None if progress is None else progress(done[0] / len(bands))
+
+            t0 = time.perf_counter()
+            parts, _ = in_threads(lambda band: self._trace_rows(camera, tf, options, band, surface_t, surface_key,
+                                                                None, None, band_held, False, stats=stats),
+                                  bands, threads, finished, name="hovr-trace")
+            seconds = time.perf_counter() - t0
+            counts = stats[row0 * W:row1 * W].numpy().sum(axis=0, dtype=np.int64)
+        traced = [p for p in parts if p is not None]
+        complete = len(traced) == len(bands) and all(p.complete for p in traced)
+        info = {"device": self.device, "trace_seconds": seconds, "width": W, "height": H,
+                "rounds": max((p.stats["rounds"] for p in traced), default=0), "bands": len(bands), "threads": threads,
+                **counter_stats(prec.kernels, counts, (row1 - row0) * W)}
+        return BandedCache(key=self.trace_key(camera, options, rows, surface_key), frame_key=fr.key, camera=camera,
+                           rows=rows, parts=traced, complete=complete, stats=info, warnings=warnings)
+
+    def _trace_rows(self, camera: RayCamera, tf, options: RenderOptions, rows: tuple[int, int] | None = None,
+                    surface_t=None, surface_key=None, progress=None, tile_pixels: int | None = None,
+                    held_bytes: int = 0, profile: bool = False, stats=None) -> SegmentCache:
         """The rounds of a render, keeping every element segment of every ray with its Chebyshev
         series on the device instead of integrating them: shade(cache, tf2, ...) is then the render
         through any transfer function tf2 whose field frame is tf's (cache_fits). `tf` sets the
@@ -257,7 +359,8 @@ class SegmentCaching:
             # (vec3i) and last chunk (int32)
             base_bytes = self.check_limits(W, H, options, tile) + int(held_bytes) + tile * 16
             try:
-                stats = wp.zeros((W * H, kernels.NUM_STATS), dtype=wp.int32)
+                if stats is None:  # (a band's trace writes its rows' counters into the view's array)
+                    stats = wp.zeros((W * H, kernels.NUM_STATS), dtype=wp.int32)
                 buffers = tile_buffers(prec, tile, stats)
                 reserved = wp.zeros(tile, dtype=wp.vec3i)
                 last_chunk = wp.zeros(tile, dtype=wp.int32)
@@ -300,6 +403,42 @@ class SegmentCaching:
         return SegmentCache(key=key, frame_key=fr.key, camera=camera, rows=(row0, row1), arrays=store.arrays,
                             counts=store.used(), complete=complete, stats=info, warnings=warnings)
 
+    def _shade_bands(self, cache: BandedCache, tf, background, options, progress, profile, surfaces) -> RenderResult:
+        """shade of each band's cache, stacked in row order; progress after each band (a False
+        stops: the result is cancelled, the bands not shaded left empty)."""
+        if not cache.complete:
+            raise SegmentCacheError("the segment cache's trace was cancelled before it finished; trace again")
+        W, H = int(cache.camera.width), int(cache.camera.height)
+        t0 = time.perf_counter()
+        results, cancelled = [], False
+        for k, part in enumerate(cache.parts):
+            if cancelled:
+                results.append(None)
+                continue
+            results.append(self.shade(part, tf, background, options, profile=profile, surfaces=surfaces))
+            if progress is not None and progress((k + 1) / len(cache.parts)) is False:
+                cancelled = True
+        seconds = time.perf_counter() - t0
+        first = results[0]
+        dtype = first.rgba.dtype
+        rgba, depth, error = [], [], []
+        for part, res in zip(cache.parts, results):
+            r = part.rows[1] - part.rows[0]
+            rgba.append(res.rgba if res is not None else np.zeros((r, W, 4), dtype))
+            depth.append(res.depth if res is not None else np.zeros((r, W), dtype))
+            error.append(res.error if res is not None else np.zeros((r, W), dtype))
+        done = [r for r in results if r is not None]
+        stats = {k: v for k, v in first.stats.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
+        for k in SUMMED_STATS:
+            stats[k] = int(sum(r.stats[k] for r in done))
+        stats.update(render_seconds=seconds, height=H,
+                     samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / max(cache.rays, 1),
+                     warnings=sorted({w for r in done for w in r.stats.get("warnings", [])}),
+                     segment_cache=cache.describe(),
+                     **({"rows": list(cache.rows)} if cache.rows != (0, H) else {}))
+        return RenderResult(rgba=np.concatenate(rgba), depth=np.concatenate(depth), error=np.concatenate(error),
+                            cancelled=cancelled, stats=stats)
+
     def shade(self, cache: SegmentCache, tf, background, options: RenderOptions, progress=None,
               tile_pixels: int | None = None, profile: bool = False, surfaces: Surfaces | None = None) -> RenderResult:
         """The render of the cache's view through `tf` (a TransferFunction or one per volume), with
@@ -309,7 +448,10 @@ class SegmentCaching:
         where the cache does not fit: another renderer or field, a precision or a method family
         (riemann/trapezoid against classified/split) other than the trace's, a transfer function
         whose frame differs from the trace's (trace again), or an unfinished trace. progress,
-        tile_pixels and profile as in render; stats["segment_cache"] describes the cache."""
+        tile_pixels and profile as in render; stats["segment_cache"] describes the cache. A
+        BandedCache is shaded band by band into its rows of the one image."""
+        if isinstance(cache, BandedCache):
+            return self._shade_bands(cache, tf, background, options, progress, profile, surfaces)
         if not cache.complete:
             raise SegmentCacheError("the segment cache's trace was cancelled before it finished; trace again")
         want = self.trace_key(cache.camera, options, cache.rows, cache.key.surface)

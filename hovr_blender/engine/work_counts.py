@@ -53,6 +53,12 @@ def work_counts(kernels, ray_counts: np.ndarray) -> dict:
     return out
 
 
+# counter_stats' totals: those of row bands rendered or shaded apart add up
+SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "segments_empty", "segments_smooth",
+                "segments_piecewise_smooth", "curved_locates", "walks", "bvh_candidates", "newton_iterations",
+                "ray_rounds")
+
+
 def counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
     """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
     return {

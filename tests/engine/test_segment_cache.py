@@ -340,3 +340,45 @@ def test_two_volumes_each_with_its_own_look():
                    [edits(tfs[0])["one tent"], edits(tfs[1])["moved"]]):
         assert r.cache_fits(cache, cam, edited, opts)
         assert_same_image(r.render(cam, edited, BACKGROUND, opts), r.shade(cache, edited, BACKGROUND, opts), "cpu")
+
+
+def test_a_trace_over_threads_keeps_each_band_and_shades_the_one_image():
+    """On the CPU a trace runs in bands of rows over cpu_threads threads (BandedCache: each band a
+    cache of its own, their counters in one array): it fits the view as the one-thread cache does,
+    and shading it, before and after a look-only edit, and through render_frame's slot, gives the
+    one-thread image and counts bit for bit. A progress that says stop leaves it incomplete (not
+    shaded: trace again), and the memory limit counts each band's share."""
+    mesh = curved_cube(1)
+    cam = framing(mesh, 128, 96)
+    v = mesh.field_samples(3)
+    tf = tents(float(v.min()), float(v.max()), COLORS, 3.0)
+    edited = tents(float(v.min()), float(v.max()), COLORS[::-1], 5.0)
+    opts = RenderOptions()
+    r = Renderer(mesh, "cpu")
+    r.cpu_threads = 1
+    one = r.trace(cam, tf, opts)
+    r.cpu_threads = 3
+    banded = r.trace(cam, tf, opts)
+    assert isinstance(banded, segment_cache.BandedCache) and isinstance(one, segment_cache.SegmentCache)
+    assert len(banded.parts) == 12 and [p.rows for p in banded.parts] == segment_cache.row_bands(0, 96, 12)
+    assert banded.complete and r.cache_fits(banded, cam, tf, opts) and banded.key == one.key
+    assert banded.counts == one.counts and banded.describe()["bands"] == 12
+    for key in ("field_evaluations", "segments", "newton_iterations"):
+        assert banded.stats[key] == one.stats[key], key
+    for look in (tf, edited):
+        want, got = r.shade(one, look, np.zeros(3), opts), r.shade(banded, look, np.zeros(3), opts)
+        np.testing.assert_array_equal(got.rgba, want.rgba)
+        np.testing.assert_array_equal(got.depth, want.depth)
+        assert got.stats["restriction_evaluations"] == want.stats["restriction_evaluations"]
+        assert got.stats["segment_cache"]["bands"] == 12
+    slot = SegmentSlot()
+    framed = render_frame(r, Frame(tf, np.zeros(3), opts, cache=slot), cam)
+    assert isinstance(slot.cache, segment_cache.BandedCache)
+    np.testing.assert_array_equal(framed.rgba, r.render(cam, tf, np.zeros(3), opts).rgba)
+    stopped = r.trace(cam, tf, opts, progress=lambda f: False)
+    assert not stopped.complete and not r.cache_fits(stopped, cam, tf, opts)
+    with pytest.raises(SegmentCacheError, match="cancelled"):
+        r.shade(stopped, tf, np.zeros(3), opts)
+    with limits.using(limits.ResourceLimits(max_memory=banded.nbytes)):  # the bands' shares are too small
+        with pytest.raises(limits.ResourceLimitError):
+            r.trace(cam, tf, opts)

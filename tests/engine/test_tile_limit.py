@@ -94,3 +94,19 @@ def test_a_cpu_render_over_threads_is_the_one_thread_image():
             r.render(cam, tf, np.zeros(3), RenderOptions(), tile_pixels=2048, progress=lambda f: None)
     finally:
         Renderer._trace_tile = trace
+
+
+def test_cpu_threads_follow_the_variable(monkeypatch):
+    """HOVR_CPU_THREADS sets a CPU render's threads (1: one core); unset, every core this process
+    may use; anything but a whole number of at least 1 is a one-line error naming it."""
+    import pytest
+
+    monkeypatch.delenv(limits.CPU_THREADS_VARIABLE, raising=False)
+    assert limits.cpu_threads() == limits.cpu_cores()
+    monkeypatch.setenv(limits.CPU_THREADS_VARIABLE, "1")
+    assert limits.cpu_threads() == 1 and Renderer(curved_cube(1), "cpu").cpu_threads == 1
+    monkeypatch.setenv(limits.CPU_THREADS_VARIABLE, "0")
+    assert limits.cpu_threads() == 1
+    monkeypatch.setenv(limits.CPU_THREADS_VARIABLE, "many")
+    with pytest.raises(limits.ResourceLimitError, match=r"^HOVR_CPU_THREADS='many': a whole number of threads, 1 or more$"):
+        limits.cpu_threads()
