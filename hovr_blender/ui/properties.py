@@ -25,12 +25,11 @@ PRECISION_ITEMS = (
     ("float64", "Float64", "Double-precision kernels (the same kernel source): for error budgets below float32's", 1),
 )
 DEVICE_ITEMS = (
-    ("cpu", "CPU", "Run the Warp kernels on the CPU", 0),
+    ("cpu", "CPU", "Run the Warp kernels on the CPU, a thread a core (one copy of the data)", 0),
     ("cuda:0", "CUDA GPU 0", "Run the Warp kernels on the first CUDA device", 1),
     ("cuda:all", "All GPUs", "Split each frame's rows over every CUDA device (one process a device, "
      "rows balanced by the last frame's cost)", 2),
-    ("cpu:all", "All CPU Cores", "Split each frame's rows over one CPU process a core (a Warp CPU launch runs on "
-     "one thread)", 3),
+    ("cpu:all", "All CPU Cores", "Split each frame's rows over one CPU process a core (a copy of the data each)", 3),
 )
 
 SURFACE_ITEMS = (
