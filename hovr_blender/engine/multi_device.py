@@ -252,6 +252,8 @@ def _serve(conn, mesh, device, max_tile_rays, parent_pid=None, precision="float3
     try:
         while True:
             try:
+                # recv unpickles: only the parent's own requests come here, over the anonymous pipe it
+                # made for this process (no file or network bytes)
                 msg = conn.recv()
             except EOFError:
                 return
@@ -362,7 +364,7 @@ class DeviceProcess:
             raise RenderError(f"the process rendering on {self.device} ended unexpectedly "
                               f"(exit code {self._proc.exitcode})")
         try:
-            kind, value = self._conn.recv()
+            kind, value = self._conn.recv()  # this process's own child's answer (recv unpickles)
         except EOFError as exc:
             raise RenderError(f"the process rendering on {self.device} ended unexpectedly") from exc
         if kind == "error":
