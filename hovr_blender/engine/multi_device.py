@@ -50,7 +50,7 @@ from .render_result import RenderError, RenderResult, SegmentCacheError
 from .renderer import Renderer
 from .segment_cache import TraceKey, camera_key
 from .transfer_function import TransferFunction
-from .work_counts import SUMMED_STATS
+from .work_counts import banded_stats
 
 
 def balanced_rows(row_cost, speeds) -> list[tuple[int, int]]:
@@ -115,15 +115,10 @@ def merge_results(parts, width: int, height: int, seconds: float, image=None) ->
         rgba, aux = image
         depth, error = aux[..., 0], aux[..., 1]
     row_cost = np.concatenate([r.row_cost for r in results], axis=0)
-    first = results[0].stats
-    stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
-    for k in SUMMED_STATS:
-        stats[k] = int(sum(r.stats[k] for r in results))
+    stats = banded_stats([r.stats for r in results], width * height)
     stats.update(width=width, height=height, render_seconds=seconds,
                  device=",".join(r.stats["device"] for r in results),
-                 samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / (width * height),
                  rounds=max(r.stats["rounds"] for r in results),
-                 warnings=sorted({w for r in results for w in r.stats.get("warnings", [])}),
                  devices=[{"device": r.stats["device"], "rows": list(band), "render_seconds": r.stats["render_seconds"],
                            **({"wall_seconds": r.stats["wall_seconds"]} if "wall_seconds" in r.stats else {}),
                            "cost": float(r.row_cost.sum())} for band, r in parts],
@@ -568,14 +563,8 @@ class MultiDeviceRenderer:
         t0 = time.perf_counter()
         replies = self._ask([("shade", cache.id, tf, background, options, surfaces, shared.spec) for _ in cache.bands])
         seconds = time.perf_counter() - t0
-        first = replies[0].stats
-        stats = {k: v for k, v in first.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds", "segment_cache")}
-        for k in SUMMED_STATS:
-            stats[k] = int(sum(r.stats[k] for r in replies))
-        stats.update(width=W, height=H, render_seconds=seconds, device=self.device,
-                     samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / (W * H),
-                     warnings=sorted({w for r in replies for w in r.stats.get("warnings", [])}),
-                     segment_cache=cache.describe())
+        stats = banded_stats([r.stats for r in replies], W * H)
+        stats.update(width=W, height=H, render_seconds=seconds, device=self.device, segment_cache=cache.describe())
         rgba, aux = shared.rgba.copy(), shared.aux.copy()
         if progress is not None:
             progress(1.0)

@@ -26,7 +26,7 @@ from .render_result import RenderError, RenderResult, SegmentCacheError
 from .threads import TILES_PER_THREAD, in_threads
 from .transfer_function import TransferFunction
 from .view import RenderOptions, resolving_step
-from .work_counts import SUMMED_STATS, counter_stats
+from .work_counts import banded_stats, counter_stats
 
 # a segment cache grows by this factor when a round needs more room (then shrinks to fit)
 CACHE_GROWTH = 1.5
@@ -97,16 +97,15 @@ class SegmentCache:
         """The kernels' SegmentCache struct of these arrays (kernels of the cache's precision)."""
         return cache_struct(kernels, self.arrays)
 
+    @property
+    def per_ray_bytes(self) -> int:
+        """Its arrays of one item a ray (each ray's first chunk and far end)."""
+        return int(sum(self.arrays[k].capacity for k in ("head", "t_end")))
+
     def describe(self) -> dict:
         """Its size: bytes in all, per ray and per segment (a segment's record, its series and its
         share of the chunks), segments and coefficients, and the trace's time."""
-        segments, chunks, coefficients = self.counts
-        per_ray_arrays = sum(self.arrays[k].capacity for k in ("head", "t_end"))
-        return {"bytes": self.nbytes, "bytes_per_ray": self.nbytes / max(self.rays, 1),
-                "bytes_per_segment": (self.nbytes - per_ray_arrays) / max(segments, 1), "segments": segments,
-                "segments_per_ray": segments / max(self.rays, 1), "chunks": chunks,
-                "coefficients_per_segment": coefficients / max(segments, 1),
-                "trace_seconds": self.stats.get("trace_seconds")}
+        return describe_cache(self)
 
 
 @dataclass(eq=False)
@@ -138,15 +137,23 @@ class BandedCache:
     def counts(self) -> tuple:
         return tuple(int(sum(p.counts[k] for p in self.parts)) for k in range(3))
 
+    @property
+    def per_ray_bytes(self) -> int:
+        return int(sum(p.per_ray_bytes for p in self.parts))
+
     def describe(self) -> dict:
         """SegmentCache.describe of the bands together, and how many there are."""
-        segments, chunks, coefficients = self.counts
-        per_ray_arrays = sum(p.arrays[k].capacity for p in self.parts for k in ("head", "t_end"))
-        return {"bytes": self.nbytes, "bytes_per_ray": self.nbytes / max(self.rays, 1),
-                "bytes_per_segment": (self.nbytes - per_ray_arrays) / max(segments, 1), "segments": segments,
-                "segments_per_ray": segments / max(self.rays, 1), "chunks": chunks,
-                "coefficients_per_segment": coefficients / max(segments, 1),
-                "trace_seconds": self.stats.get("trace_seconds"), "bands": len(self.parts)}
+        return {**describe_cache(self), "bands": len(self.parts)}
+
+
+def describe_cache(cache) -> dict:
+    """A cache's size (SegmentCache.describe) from its bytes, rays, counts and trace time."""
+    segments, chunks, coefficients = cache.counts
+    return {"bytes": cache.nbytes, "bytes_per_ray": cache.nbytes / max(cache.rays, 1),
+            "bytes_per_segment": (cache.nbytes - cache.per_ray_bytes) / max(segments, 1), "segments": segments,
+            "segments_per_ray": segments / max(cache.rays, 1), "chunks": chunks,
+            "coefficients_per_segment": coefficients / max(segments, 1),
+            "trace_seconds": cache.stats.get("trace_seconds")}
 
 
 def row_bands(row0: int, row1: int, count: int) -> list[tuple[int, int]]:
@@ -427,14 +434,8 @@ class SegmentCaching:
             rgba.append(res.rgba if res is not None else np.zeros((r, W, 4), dtype))
             depth.append(res.depth if res is not None else np.zeros((r, W), dtype))
             error.append(res.error if res is not None else np.zeros((r, W), dtype))
-        done = [r for r in results if r is not None]
-        stats = {k: v for k, v in first.stats.items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
-        for k in SUMMED_STATS:
-            stats[k] = int(sum(r.stats[k] for r in done))
-        stats.update(render_seconds=seconds, height=H,
-                     samples_per_ray=(stats["field_evaluations"] + stats["restriction_evaluations"]) / max(cache.rays, 1),
-                     warnings=sorted({w for r in done for w in r.stats.get("warnings", [])}),
-                     segment_cache=cache.describe(),
+        stats = banded_stats([r.stats for r in results if r is not None], cache.rays)
+        stats.update(render_seconds=seconds, height=H, segment_cache=cache.describe(),
                      **({"rows": list(cache.rows)} if cache.rows != (0, H) else {}))
         return RenderResult(rgba=np.concatenate(rgba), depth=np.concatenate(depth), error=np.concatenate(error),
                             cancelled=cancelled, stats=stats)

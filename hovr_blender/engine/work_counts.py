@@ -59,6 +59,18 @@ SUMMED_STATS = ("field_evaluations", "restriction_evaluations", "segments", "seg
                 "ray_rounds")
 
 
+def banded_stats(stats: list, pixels: int) -> dict:
+    """One image's stats from those of its row bands rendered or shaded apart (in row order): the
+    first band's, but its rows and kernel timings, with SUMMED_STATS added up, samples_per_ray over
+    the image's `pixels` and every band's warnings."""
+    out = {k: v for k, v in stats[0].items() if k not in SUMMED_STATS + ("rows", "kernel_seconds")}
+    for k in SUMMED_STATS:
+        out[k] = int(sum(s[k] for s in stats))
+    out["samples_per_ray"] = (out["field_evaluations"] + out["restriction_evaluations"]) / max(pixels, 1)
+    out["warnings"] = sorted({w for s in stats for w in s.get("warnings", [])})
+    return out
+
+
 def counter_stats(kernels, counts: np.ndarray, pixels: int) -> dict:
     """The render's stats from the per-ray counters summed over the image (kernels/args.py STAT_*)."""
     return {
