@@ -9,7 +9,7 @@ so it imports Warp (and the kernels) at the top."""
 from __future__ import annotations
 
 import itertools
-import threading
+import queue
 import time
 
 import numpy as np
@@ -394,6 +394,7 @@ class Renderer(SegmentCaching):
                 aux = wp.zeros(total, dtype=prec.vec2)
                 stats = wp.zeros((total, kernels.NUM_STATS), dtype=wp.int32)
                 buffers = tile_buffers(prec, tile, stats)
+                spare = [tile_buffers(prec, tile, stats) for _ in range(threads - 1)]  # the other threads'
             except RuntimeError as exc:  # allocation failure on the device
                 raise RenderError(f"cannot allocate a {W}x{H} image on {self.device}: {exc}") from exc
             load_kernels(self.kernel_variant, self.device, options.precision,  # compiled outside the timed region
@@ -407,25 +408,25 @@ class Renderer(SegmentCaching):
             lanes = LaneCounts(kernels) if ray_counts else None
             own_step = chooses_own_step(options.method, options.h)
 
-            def tile_at(start, tile_buffers_):
+            def tile_at(start, bufs):
                 n = min(tile, end - start)
-                r = self._trace_tile(launch, upload, cam, transfer, quad, tile_buffers_, start, n, limit, lanes=lanes,
+                r = self._trace_tile(launch, upload, cam, transfer, quad, bufs, start, n, limit, lanes=lanes,
                                      own_step=own_step)
-                launch(table.finalize, n, [quad, start, tile_buffers_.rays, rgba, aux])
+                launch(table.finalize, n, [quad, start, bufs.rays, rgba, aux])
                 return r, n
 
             if threads > 1:
-                rounds, cancelled = self._threaded_tiles(tile_at, range(first, end, tile), threads, buffers,
-                                                         lambda: tile_buffers(prec, tile, stats), progress,
+                rounds, cancelled = self._threaded_tiles(tile_at, range(first, end, tile), [buffers, *spare], progress,
                                                          end - first)
-            for start in range(first, end, tile) if threads == 1 else ():
-                r, n = tile_at(start, buffers)
-                rounds += r
-                if progress is not None:
-                    wp.synchronize_device(self.device)
-                    if progress((start + n - first) / (end - first)) is False:
-                        cancelled = True
-                        break
+            else:
+                for start in range(first, end, tile):
+                    r, n = tile_at(start, buffers)
+                    rounds += r
+                    if progress is not None:
+                        wp.synchronize_device(self.device)
+                        if progress((start + n - first) / (end - first)) is False:
+                            cancelled = True
+                            break
             wp.synchronize_device(self.device)
             seconds = time.perf_counter() - t0
             # only the rows traced come back from the device; the counters summed per row in int64
@@ -463,24 +464,21 @@ class Renderer(SegmentCaching):
         return max(1, min(int(self.cpu_threads), rays // MIN_THREAD_RAYS))
 
     @staticmethod
-    def _threaded_tiles(tile_at, starts, threads: int, first_buffers: TileBuffers, new_buffers, progress,
-                        rays: int) -> tuple[int, bool]:
-        """tile_at(start, buffers) for every tile start over `threads` threads (threads.in_threads),
-        each thread with launch buffers of its own (the first's `first_buffers`, the others' from
-        new_buffers()); every ray writes only its own pixel, so the image is the one thread's bit
-        for bit. progress(fraction) as tiles finish; False stops those not started. Returns
-        (rounds, cancelled)."""
-        local = threading.local()
-        spare = [first_buffers]
-        lock = threading.Lock()
+    def _threaded_tiles(tile_at, starts, buffer_sets: list, progress, rays: int) -> tuple[int, bool]:
+        """tile_at(start, buffers) for every tile start over a thread a set of launch buffers
+        (threads.in_threads; a tile takes a free set and gives it back); every ray writes only its
+        own pixel, so the image is the one thread's bit for bit. progress(fraction) as tiles
+        finish; False stops those not started. Returns (rounds, cancelled)."""
+        free = queue.SimpleQueue()
+        for b in buffer_sets:
+            free.put(b)
 
         def run(start):
-            if not hasattr(local, "buffers"):
-                with lock:
-                    local.buffers = spare.pop() if spare else None
-                if local.buffers is None:
-                    local.buffers = new_buffers()
-            return tile_at(start, local.buffers)
+            b = free.get()
+            try:
+                return tile_at(start, b)
+            finally:
+                free.put(b)
 
         done = [0]
 
@@ -488,7 +486,7 @@ class Renderer(SegmentCaching):
             done[0] += result[1]
             return None if progress is None else progress(done[0] / rays)
 
-        results, cancelled = in_threads(run, starts, threads, finished, name="hovr-tile")
+        results, cancelled = in_threads(run, starts, len(buffer_sets), finished, name="hovr-tile")
         return sum(r[0] for r in results if r is not None), cancelled
 
     def _trace_tile(self, launch: Launcher, upload: Upload, cam, transfer, quad, buffers: TileBuffers, start: int,
