@@ -5,8 +5,8 @@ use (Renderer.cpu_threads), the images checked identical bit for bit.
     python -m bench.cpu_threads --size 320x180 --out bench/results/cpu/issue37/cpu_threads_320x180.json
 
 Best of --repeats after a first frame each (kernel load). Plain renders (the CLI, a first F12, an
-animation's frames); a traced F12 (the segment cache of a view's second F12) runs on one thread.
-On a shared machine the numbers are for regressions.
+animation's frames); a traced F12 runs its bands of rows over the same threads (bench.f12_reshade
+times it inside Blender). On a shared machine the numbers are for regressions.
 """
 from __future__ import annotations
 

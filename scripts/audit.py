@@ -10,8 +10,8 @@
         largest differences, and --sample random pixels whose rays pass through the domain (by
         the exact chords of audit/chords.py, which also show the reference where the ray is
         inside; a pixel the reference cannot decide is listed as reference_failed and another
-        drawn in its place, up to REDRAWS_MAX a dataset). One JSON, rewritten after each dataset and every 30 s, cut at --deadline:
-        every decided pixel over 1e-3 (any image against the reference) with its ray, the
+        drawn in its place, up to REDRAWS_MAX a dataset). One JSON, rewritten after each dataset
+        and every 30 s, cut at --deadline: every decided pixel over 1e-3 (any image against the reference) with its ray, the
         images' values and the reference; per dataset and image, pixels over 1e-3 against the
         base and against the reference and the largest errors. docs/benchmarks.md (issue 36)
         gives the device commands that carry Warp, VTK and the data there.
